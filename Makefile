@@ -1,0 +1,37 @@
+# The two commands a newcomer needs: `make demo` and `make test`. Both build .venv first.
+SHELL := /bin/bash
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.diffdrive_odom-installed
+PIP_QUIET := 2>&1 | grep -v '^WARNING: Location' || true
+
+.PHONY: venv demo test lint check bench clean
+
+venv: $(STAMP)
+
+$(STAMP): requirements.txt setup.py setup.cfg package.xml scripts/build_tf2_msgs.sh
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip $(PIP_QUIET)
+	set -o pipefail; $(PY) -m pip install -q -r requirements.txt 2>&1 | { grep -v '^WARNING: Location' || true; }
+	bash scripts/build_tf2_msgs.sh $(VENV)
+	set -o pipefail; $(PY) -m pip install -q --no-deps --no-build-isolation -e . 2>&1 | { grep -v '^WARNING: Location' || true; }
+	$(PY) -c 'import rclpy, tf2_msgs.msg, nav_msgs.msg, rosbags, diffdrive_odom'
+	touch $(STAMP)
+
+demo: venv
+	$(VENV)/bin/diffdrive-odom demo
+
+test: venv
+	$(PY) -m pytest -q
+
+lint: venv
+	$(VENV)/bin/ruff check diffdrive_odom test bench
+	$(VENV)/bin/mypy
+
+check: test lint
+
+bench: venv
+	$(PY) bench/run_all.py
+
+clean:
+	rm -rf $(VENV) build install log demo_output .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,179 @@
+"""Encoder readings -> per-side wheel angle increments.
+
+Pure Python. Turns the arrays of a JointState (names, position, velocity) into the
+left/right joint angle change since the previous reading: joints found by name
+(order and extra joints do not matter), raw counts converted to radians, fixed-width
+counters unwrapped on the *difference* (so the first reading may be any value),
+several wheels per side averaged, and velocity-only drivers integrated over the
+stamp interval.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+TWO_PI = 2.0 * math.pi
+
+
+class EncoderConfigError(ValueError):
+    """An encoder setting that cannot work (names the parameter)."""
+
+    def __init__(self, field: str, reason: str) -> None:
+        super().__init__(f"{field}: {reason}")
+        self.field = field
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    """How the driver reports wheel positions.
+
+    ``ticks_per_revolution`` > 0 means ``position`` holds raw counts (non-integer
+    allowed: a 43.7:1 gear and a 64-count encoder give 2796.8). ``counter_bits`` > 0
+    means the counter wraps at ``2**counter_bits`` (signed or unsigned, it makes no
+    difference to a difference).
+    """
+
+    left_wheel_names: tuple[str, ...]
+    right_wheel_names: tuple[str, ...]
+    ticks_per_revolution: float = 0.0
+    counter_bits: int = 0
+
+    def __post_init__(self) -> None:
+        for field in ("left_wheel_names", "right_wheel_names"):
+            names = getattr(self, field)
+            if len(names) == 0:
+                raise EncoderConfigError(field, "must name at least one joint")
+            if any((not isinstance(n, str)) or n == "" for n in names):
+                raise EncoderConfigError(field, "joint names must be non-empty strings")
+        if len(self.left_wheel_names) != len(self.right_wheel_names):
+            raise EncoderConfigError(
+                "right_wheel_names",
+                f"has {len(self.right_wheel_names)} joints but left_wheel_names has "
+                f"{len(self.left_wheel_names)}",
+            )
+        all_names = self.left_wheel_names + self.right_wheel_names
+        if len(set(all_names)) != len(all_names):
+            raise EncoderConfigError("right_wheel_names", "a joint is listed twice")
+        tpr = self.ticks_per_revolution
+        if not math.isfinite(tpr) or tpr < 0.0:
+            raise EncoderConfigError(
+                "ticks_per_revolution", f"must be 0 (radians) or > 0, got {tpr!r}"
+            )
+        if not isinstance(self.counter_bits, int) or not 0 <= self.counter_bits <= 64:
+            raise EncoderConfigError(
+                "encoder_counter_bits", f"must be 0 (no wrap) to 64, got {self.counter_bits!r}"
+            )
+        if self.counter_bits > 0 and tpr == 0.0:
+            raise EncoderConfigError(
+                "encoder_counter_bits", "a wrapping counter needs ticks_per_revolution > 0"
+            )
+
+    @property
+    def radians_per_unit(self) -> float:
+        """Scale from the reported unit (rad or counts) to radians."""
+        return TWO_PI / self.ticks_per_revolution if self.ticks_per_revolution > 0 else 1.0
+
+
+def unwrap_difference(delta: float, counter_bits: int) -> float:
+    """Shortest signed difference of a counter that wraps at ``2**counter_bits``."""
+    if counter_bits <= 0:
+        return delta
+    span = float(2**counter_bits)
+    return delta - span * math.floor(delta / span + 0.5)
+
+
+@dataclass(frozen=True)
+class WheelReading:
+    """One decoded reading: per-joint raw values in the config's name order."""
+
+    stamp_ns: int
+    values: tuple[float, ...]
+    from_velocity: bool
+
+
+@dataclass(frozen=True)
+class WheelIncrement:
+    """Mean joint angle change per side (rad, joint sign not yet applied) and its interval."""
+
+    dt: float
+    d_left: float
+    d_right: float
+
+
+class JointLookup:
+    """Maps a message's joint order to the configured wheels, cached per name list.
+
+    Drivers send the same name list every time, so the index search runs once.
+    """
+
+    def __init__(self, config: EncoderConfig) -> None:
+        self._wanted = config.left_wheel_names + config.right_wheel_names
+        self._cache: dict[tuple[str, ...], tuple[int, ...] | None] = {}
+
+    def indices(self, names: Sequence[str]) -> tuple[int, ...] | None:
+        """Index of each configured wheel in ``names``; None if one is missing."""
+        key = tuple(names)
+        found = self._cache.get(key, ())
+        if found == ():
+            where = {name: i for i, name in enumerate(key)}
+            found = (
+                tuple(where[n] for n in self._wanted)
+                if all(n in where for n in self._wanted)
+                else None
+            )
+            if len(self._cache) < 64:
+                self._cache[key] = found
+        return found
+
+
+def decode(
+    lookup: JointLookup,
+    stamp_ns: int,
+    names: Sequence[str],
+    position: Sequence[float],
+    velocity: Sequence[float],
+) -> WheelReading | str:
+    """Pick the wheels' values out of a JointState's arrays; a reason string if unusable."""
+    idx = lookup.indices(names)
+    if idx is None:
+        return "joint_states lacks a configured wheel joint"
+    n = len(names)
+    if len(position) > 0:
+        if len(position) < n:
+            return f"position has {len(position)} entries for {n} names"
+        values = tuple(float(position[i]) for i in idx)
+        from_velocity = False
+    elif len(velocity) > 0:
+        if len(velocity) < n:
+            return f"velocity has {len(velocity)} entries for {n} names"
+        values = tuple(float(velocity[i]) for i in idx)
+        from_velocity = True
+    else:
+        return "neither position nor velocity is filled"
+    if not all(math.isfinite(v) for v in values):
+        return "a wheel value is NaN or infinite"
+    return WheelReading(stamp_ns, values, from_velocity)
+
+
+def increment(
+    config: EncoderConfig, previous: WheelReading, current: WheelReading
+) -> WheelIncrement:
+    """Per-side mean joint angle change (rad) between two decoded readings.
+
+    Positions: difference, unwrapped, scaled. Velocities: trapezoidal rule over the
+    stamp interval (exact for a constant acceleration between readings).
+    """
+    dt = (current.stamp_ns - previous.stamp_ns) * 1e-9
+    scale = config.radians_per_unit
+    if current.from_velocity:
+        deltas = [0.5 * (a + b) * dt * scale for a, b in zip(previous.values, current.values)]
+    else:
+        deltas = [
+            unwrap_difference(b - a, config.counter_bits) * scale
+            for a, b in zip(previous.values, current.values)
+        ]
+    n = len(config.left_wheel_names)
+    return WheelIncrement(dt, math.fsum(deltas[:n]) / n, math.fsum(deltas[n:]) / n)

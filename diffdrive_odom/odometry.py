@@ -1,0 +1,217 @@
+"""The wheel odometry estimator: readings in, pose / twist out.
+
+Pure Python, shared by the odometry node, offline replay and the benchmarks. A
+reading flows one way: decode (encoders) -> increment -> kinematics -> CIR step
+(integration). Every reading gets a verdict (:class:`Status`) so the caller can log
+or count without the estimator knowing about ROS logging.
+
+Rules that make it safe to feed anything:
+- the first reading (and the first after a reset or a re-anchor) is the reference:
+  it is never integrated as motion, whatever its value;
+- a reading that cannot be used (bad arrays, NaN, same or slightly older stamp) is
+  dropped and the reference kept;
+- a step faster than ``max_wheel_speed`` is dropped and the reading becomes the new
+  reference, so one glitch or a driver restart costs one step instead of freezing;
+- a stamp far in the past (a bag played in a loop) starts over at the origin.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from diffdrive_odom.encoders import (
+    EncoderConfig,
+    JointLookup,
+    WheelIncrement,
+    WheelReading,
+    decode,
+    increment,
+)
+from diffdrive_odom.integration import Pose2D, compose
+from diffdrive_odom.kinematics import Geometry, body_increment
+
+
+class Status(enum.Enum):
+    """What the estimator did with one reading."""
+
+    REFERENCE = "reference"  # first reading / re-anchored: no motion integrated
+    UPDATED = "updated"
+    DROPPED = "dropped"  # unusable: state untouched
+    REANCHORED = "reanchored"  # implausible step skipped; this reading is the new reference
+    TIME_RESET = "time_reset"  # stamp jumped back: estimator restarted from this reading
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The outcome of :meth:`OdometryEstimator.update`; ``reason`` says why when not UPDATED."""
+
+    status: Status
+    reason: str = ""
+
+    @property
+    def has_new_pose(self) -> bool:
+        """True when the pose may have changed and is worth publishing."""
+        return self.status in (Status.UPDATED, Status.REFERENCE, Status.TIME_RESET)
+
+
+class EstimatorConfigError(ValueError):
+    """An estimator setting that cannot work (names the parameter)."""
+
+    def __init__(self, field: str, reason: str) -> None:
+        super().__init__(f"{field}: {reason}")
+        self.field = field
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Everything the estimator needs besides geometry and encoders."""
+
+    max_wheel_speed: float = 200.0  # rad/s of a joint; faster steps are implausible
+    velocity_rolling_window_size: int = 1
+    time_jump_threshold: float = 1.0  # s; a stamp further back than this restarts
+
+    def __post_init__(self) -> None:
+        if not (self.max_wheel_speed > 0.0):
+            raise EstimatorConfigError(
+                "max_wheel_speed", f"must be > 0 (inf = no check), got {self.max_wheel_speed!r}"
+            )
+        w = self.velocity_rolling_window_size
+        if not isinstance(w, int) or w < 1:
+            raise EstimatorConfigError(
+                "velocity_rolling_window_size", f"must be an integer >= 1, got {w!r}"
+            )
+        if not (math.isfinite(self.time_jump_threshold) and self.time_jump_threshold >= 0.0):
+            raise EstimatorConfigError(
+                "time_jump_threshold", f"must be finite and >= 0, got {self.time_jump_threshold!r}"
+            )
+
+
+@dataclass
+class _RollingMean:
+    """Mean of the last ``size`` values, summed afresh so rounding never accumulates."""
+
+    size: int
+    values: deque[float] = field(default_factory=deque)
+
+    def push(self, value: float) -> float:
+        self.values.append(value)
+        if len(self.values) > self.size:
+            self.values.popleft()
+        return math.fsum(self.values) / len(self.values)
+
+    def clear(self) -> None:
+        self.values.clear()
+
+
+@dataclass(frozen=True)
+class Step:
+    """One integrated step: what replay and covariance propagation need to know."""
+
+    dt: float
+    ds: float
+    dtheta: float
+
+
+class OdometryEstimator:
+    """Integrates wheel encoder readings into a pose in the odom frame."""
+
+    def __init__(
+        self,
+        geometry: Geometry,
+        encoders: EncoderConfig,
+        config: EstimatorConfig | None = None,
+    ) -> None:
+        self.encoders = encoders
+        self.config = config or EstimatorConfig()
+        self._lookup = JointLookup(encoders)
+        self.geometry = geometry
+        self.pose = Pose2D()
+        self.linear = 0.0  # m/s along base x, smoothed
+        self.angular = 0.0  # rad/s about base z, smoothed
+        self.last_step: Step | None = None
+        self._reference: WheelReading | None = None
+        self._linear_mean = _RollingMean(self.config.velocity_rolling_window_size)
+        self._angular_mean = _RollingMean(self.config.velocity_rolling_window_size)
+
+    @property
+    def stamp_ns(self) -> int | None:
+        """Stamp of the reading the current pose refers to (None before the first)."""
+        return None if self._reference is None else self._reference.stamp_ns
+
+    def set_geometry(self, geometry: Geometry) -> None:
+        """Swap geometry at runtime (a parameter change); the pose carries on from here."""
+        self.geometry = geometry
+
+    def reset(self) -> None:
+        """Pose and twist to zero; the last reading stays the reference, so no jump follows."""
+        self.pose = Pose2D()
+        self.linear = self.angular = 0.0
+        self.last_step = None
+        self._linear_mean.clear()
+        self._angular_mean.clear()
+
+    def restart(self) -> None:
+        """Forget everything, including the reference reading."""
+        self.reset()
+        self._reference = None
+
+    def update(
+        self,
+        stamp_ns: int,
+        names: Sequence[str],
+        position: Sequence[float],
+        velocity: Sequence[float] = (),
+    ) -> Verdict:
+        """Feed one JointState's content; returns what was done with it."""
+        reading = decode(self._lookup, stamp_ns, names, position, velocity)
+        if isinstance(reading, str):
+            return Verdict(Status.DROPPED, reading)
+        ref = self._reference
+        if ref is None:
+            self._reference = reading
+            return Verdict(Status.REFERENCE, "first reading taken as reference")
+        age_ns = ref.stamp_ns - reading.stamp_ns
+        if age_ns >= 0:
+            if age_ns > self.config.time_jump_threshold * 1e9:
+                self.restart()
+                self._reference = reading
+                return Verdict(
+                    Status.TIME_RESET,
+                    f"stamp jumped back {age_ns * 1e-9:.3f} s: odometry restarted at the origin",
+                )
+            what = "repeats" if age_ns == 0 else "is older than"
+            return Verdict(Status.DROPPED, f"stamp {what} the previous reading's")
+        if reading.from_velocity != ref.from_velocity:
+            self._reference = reading
+            return Verdict(Status.REFERENCE, "switched between position and velocity input")
+        inc = increment(self.encoders, ref, reading)
+        limit = self.config.max_wheel_speed * inc.dt
+        if abs(inc.d_left) > limit or abs(inc.d_right) > limit:
+            self._reference = reading
+            return Verdict(
+                Status.REANCHORED,
+                f"wheel moved {max(abs(inc.d_left), abs(inc.d_right)):.4g} rad in "
+                f"{inc.dt:.4g} s, over max_wheel_speed; step skipped",
+            )
+        self._integrate(inc)
+        self._reference = reading
+        return Verdict(Status.UPDATED)
+
+    def _integrate(self, inc: WheelIncrement) -> None:
+        ds, dtheta = body_increment(self.geometry, inc.d_left, inc.d_right)
+        self.pose = compose(self.pose, ds, dtheta)
+        self.last_step = Step(inc.dt, ds, dtheta)
+        # Constant-velocity motion about the CIR has exactly this body twist.
+        self.linear = self._linear_mean.push(ds / inc.dt)
+        self.angular = self._angular_mean.push(dtheta / inc.dt)
+
+
+def yaw_to_quaternion(theta: float) -> tuple[float, float, float, float]:
+    """Planar yaw -> quaternion ``(x, y, z, w)``; continuous in theta across +-pi up to sign."""
+    half = 0.5 * theta
+    return 0.0, 0.0, math.sin(half), math.cos(half)

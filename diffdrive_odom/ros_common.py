@@ -1,0 +1,155 @@
+"""The thin rclpy layer every node shares: parameters, QoS, stamps, ``main()``.
+
+Kept apart from the pure core so that the core never imports rclpy, and kept in one
+place so the three nodes refuse bad parameters, log bad input and exit on Ctrl-C in
+exactly the same way.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any, Generic, TypeVar
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+
+from diffdrive_odom.params import ParameterError, ParamSpec, ParamValue
+
+T = TypeVar("T")
+
+# A best-effort subscriber matches reliable *and* best-effort publishers, so encoder
+# drivers of either kind connect; the deep queue absorbs bursts (bag replay).
+SENSOR_IN_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
+# What Nav2 and robot_localization expect of odometry.
+RELIABLE_OUT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+TF_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+WARN_THROTTLE_S = 5.0
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """builtin_interfaces/Time -> integer nanoseconds (no float rounding)."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def ns_to_stamp(ns: int, msg: Any) -> Any:
+    """Fill a builtin_interfaces/Time from integer nanoseconds; returns it."""
+    msg.sec, msg.nanosec = divmod(int(ns), 1_000_000_000)
+    return msg
+
+
+def _param_value(param: Parameter) -> ParamValue:
+    value = param.value
+    # Sequences come back as array.array or lists; normalise to lists.
+    if value is not None and not isinstance(value, (str, bytes, bool, int, float)):
+        return list(value)
+    return value
+
+
+def declare(node: Node, specs: Iterable[ParamSpec]) -> dict[str, ParamValue]:
+    """Declare every spec (dynamically typed: the spec coerces) and return raw values."""
+    values: dict[str, ParamValue] = {}
+    for spec in specs:
+        descriptor = ParameterDescriptor(
+            description=spec.description,
+            dynamic_typing=True,
+            read_only=spec.read_only,
+        )
+        param = node.declare_parameter(spec.name, spec.default, descriptor)
+        values[spec.name] = _param_value(param)
+    return values
+
+
+class ParameterGuard(Generic[T]):
+    """Validates parameter changes at runtime and applies the accepted ones.
+
+    ``build`` turns the full set of raw values into validated settings (raising
+    ParameterError); ``apply`` installs them. A refused change leaves the node as it
+    was and tells the caller why, as ``ros2 param set`` prints.
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        values: dict[str, ParamValue],
+        build: Callable[[dict[str, ParamValue]], T],
+        apply: Callable[[T], None],
+    ) -> None:
+        self._values = dict(values)
+        self._build = build
+        self._apply = apply
+        self._pending: tuple[dict[str, ParamValue], T] | None = None
+        node.add_on_set_parameters_callback(self._validate)
+        node.add_post_set_parameters_callback(self._post_set)
+
+    def _validate(self, params: Sequence[Parameter]) -> SetParametersResult:
+        candidate = dict(self._values)
+        for p in params:
+            if p.name in candidate:
+                candidate[p.name] = _param_value(p)
+        try:
+            settings = self._build(candidate)
+        except ParameterError as err:
+            self._pending = None
+            return SetParametersResult(successful=False, reason=str(err))
+        self._pending = (candidate, settings)
+        return SetParametersResult(successful=True)
+
+    def _post_set(self, params: Sequence[Parameter]) -> None:
+        if self._pending is not None:
+            self._values, settings = self._pending
+            self._pending = None
+            self._apply(settings)
+
+
+def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+    """Init rclpy, build the node, spin until Ctrl-C; a bad parameter exits 2 with one line."""
+    rclpy.init(args=list(args) if args is not None else sys.argv)
+    node: Node | None = None
+    try:
+        try:
+            node = node_factory()
+        except ParameterError as err:
+            print(f"[{_program()}] {err}", file=sys.stderr)
+            return 2
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def _program() -> str:
+    import os
+
+    return os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else "diffdrive_odom"

@@ -1,0 +1,39 @@
+"""ament_python package: builds with colcon on a robot and installs with pip anywhere."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "diffdrive_odom"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+    ],
+    package_data={PACKAGE: ["data/*", "data/**/*"]},
+    include_package_data=True,
+    install_requires=["setuptools", "numpy"],
+    extras_require={
+        "test": ["pytest", "hypothesis"],
+        "tools": ["rosbags", "matplotlib"],
+    },
+    zip_safe=True,
+    maintainer="diffdrive_odom maintainers",
+    maintainer_email="maintainers@diffdrive-odom.invalid",
+    description="Exact CIR wheel odometry and cmd_vel kinematics for differential-drive robots",
+    license="Apache-2.0",
+    python_requires=">=3.10",
+    entry_points={
+        "console_scripts": [
+            "odometry_node = diffdrive_odom.odometry_node:main",
+            "cmd_vel_node = diffdrive_odom.cmd_vel_node:main",
+            "sim_node = diffdrive_odom.sim_node:main",
+            "diffdrive-odom = diffdrive_odom.cli:main",
+        ],
+    },
+)
