@@ -1,0 +1,100 @@
+"""Helpers for tests that talk to the nodes over real DDS (no mocks).
+
+A test owns a private rclpy Context and an executor; the node under test runs as a
+separate process started from the venv's console script, exactly as a user runs it.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+BIN = Path(sys.executable).parent
+ROOT = Path(__file__).resolve().parent.parent
+DATA = Path(__file__).resolve().parent / "data"
+
+
+def executable(name: str) -> str:
+    """Path of a console script installed in this venv."""
+    path = BIN / name
+    if not path.exists():
+        raise FileNotFoundError(f"{path} missing: run `make venv` (pip install -e .)")
+    return str(path)
+
+
+@contextmanager
+def node_process(
+    name: str, args: Sequence[str] = (), env: dict[str, str] | None = None
+) -> Iterator[subprocess.Popen[str]]:
+    """Run a console script as its own process; stop it with SIGINT at the end."""
+    proc = subprocess.Popen(
+        [executable(name), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, **(env or {})},
+    )
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+@contextmanager
+def ros_test_node(name: str = "test_peer") -> Iterator[tuple[Node, SingleThreadedExecutor]]:
+    """A node in a private Context, with its executor; both torn down afterwards."""
+    context = Context()
+    rclpy.init(context=context)
+    node = Node(name, context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        yield node, executor
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def spin_until(
+    executor: SingleThreadedExecutor, condition: Callable[[], Any], timeout: float = 10.0
+) -> bool:
+    """Spin until ``condition()`` is truthy or ``timeout`` seconds pass."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        executor.spin_once(timeout_sec=0.05)
+    return bool(condition())
+
+
+def spin_for(executor: SingleThreadedExecutor, seconds: float) -> None:
+    """Spin for a fixed time."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
+
+
+def wait_for_subscriber(
+    executor: SingleThreadedExecutor, publisher: Any, timeout: float = 15.0
+) -> bool:
+    """Wait until DDS discovery has matched ``publisher`` with a subscriber."""
+    return spin_until(executor, lambda: publisher.get_subscription_count() > 0, timeout)
