@@ -1,0 +1,320 @@
+"""The odometry node over real DDS on loopback, checked against closed forms.
+
+Each test starts ``odometry_node`` as its own process (the console script a user
+runs) and talks to it from a private-Context peer node.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from builtin_interfaces.msg import Time
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
+
+from rosutil import ROOT, node_process, ros_test_node, spin_for, spin_until
+
+T0_NS = 1_700_000_000 * 10**9  # an arbitrary, realistic epoch for stamps
+STEP_NS = 20_000_000  # 50 Hz
+
+
+def stamp(ns: int) -> Time:
+    return Time(sec=ns // 10**9, nanosec=ns % 10**9)
+
+
+def yaw(q: Any) -> float:
+    return 2.0 * math.atan2(q.z, q.w)
+
+
+@dataclass
+class Sink:
+    """Collects what the node publishes."""
+
+    odom: list[Odometry] = field(default_factory=list)
+    tf: list[TFMessage] = field(default_factory=list)
+
+
+def listen(node: Node, odom_topic: str) -> Sink:
+    sink = Sink()
+    node.create_subscription(Odometry, odom_topic, sink.odom.append, 50)
+    node.create_subscription(TFMessage, "/tf", sink.tf.append, 50)
+    return sink
+
+
+def arc_closed_form(s_left: float, s_right: float, b: float) -> tuple[float, float, float]:
+    """Pose after rolling arcs s_left, s_right at constant ratio (seed 004, R sin, R(1-cos))."""
+    theta = (s_right - s_left) / b
+    ds = 0.5 * (s_left + s_right)
+    if theta == 0.0:
+        return ds, 0.0, 0.0
+    radius = ds / theta
+    return radius * math.sin(theta), radius * (1.0 - math.cos(theta)), theta
+
+
+def wait_ready(executor: Any, pub: Any, sink: Sink, proc: Any) -> None:
+    """Wait for discovery: our publisher matched with the node's subscription."""
+    assert spin_until(executor, lambda: pub.get_subscription_count() > 0, 20.0), (
+        "odometry_node never subscribed: " + _output(proc)
+    )
+
+
+def send_first(executor: Any, pub: Any, sink: Sink, msg: JointState) -> None:
+    """Send the reference reading until the node answers it.
+
+    Discovery can report a match a moment before the first sample is deliverable;
+    repeating the same stamp is harmless (the node drops repeats).
+    """
+    want = _ns(msg.header.stamp)
+    for _ in range(100):
+        pub.publish(msg)
+        if spin_until(executor, lambda: any(_ns(o.header.stamp) == want for o in sink.odom), 0.2):
+            return
+    raise AssertionError("the node never answered the first reading")
+
+
+def _output(proc: Any) -> str:
+    if proc.poll() is None:
+        return "(still running)"
+    return proc.stdout.read() if proc.stdout else ""
+
+
+def test_ticks_wrap_shuffled_names_sign_flip_and_nonzero_start() -> None:
+    """Raw 16-bit counts that wrap, names shuffled, extra joints, right joint reversed."""
+    r, b, tpr = 0.05, 0.3, 1000.0
+    left_inc, right_inc = 40, -60  # counts per reading; right joint axis reversed
+    steps = 100
+    args = [
+        "--ros-args",
+        "-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}",
+        "-p", f"ticks_per_revolution:={tpr}", "-p", "encoder_counter_bits:=16",
+        "-p", "right_wheel_sign:=-1",
+        "-p", "left_wheel_names:=['lw']", "-p", "right_wheel_names:=['rw']",
+    ]
+    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
+        sink = listen(node, "/odom")
+        pub = node.create_publisher(JointState, "/joint_states", 10)
+        wait_ready(ex, pub, sink, proc)
+        left0, right0 = 65_000, 100  # left wraps up through 65535, right down through 0
+        for k in range(steps + 1):
+            msg = JointState()
+            msg.header.stamp = stamp(T0_NS + k * STEP_NS)
+            left = (left0 + k * left_inc) % 65536
+            right = (right0 + k * right_inc) % 65536
+            names = [("caster", 123.0 * k), ("rw", float(right)), ("lw", float(left))]
+            if k % 2:
+                names.reverse()
+            msg.name = [n for n, _ in names]
+            msg.position = [v for _, v in names]
+            if k == 0:
+                send_first(ex, pub, sink, msg)
+            else:
+                pub.publish(msg)
+                spin_for(ex, 0.005)
+        last_ns = T0_NS + steps * STEP_NS
+        assert spin_until(
+            ex, lambda: any(_ns(o.header.stamp) == last_ns for o in sink.odom), 10.0
+        ), f"no odom for the last reading ({len(sink.odom)} received)"
+
+    s_left = r * steps * left_inc * 2 * math.pi / tpr
+    s_right = r * steps * (-right_inc) * 2 * math.pi / tpr
+    ex_x, ex_y, ex_th = arc_closed_form(s_left, s_right, b)
+    first = min(sink.odom, key=lambda o: _ns(o.header.stamp))
+    assert _ns(first.header.stamp) == T0_NS
+    assert first.pose.pose.position.x == 0.0 and first.pose.pose.position.y == 0.0
+    final = max(sink.odom, key=lambda o: _ns(o.header.stamp))
+    p = final.pose.pose
+    assert math.isclose(p.position.x, ex_x, abs_tol=1e-9)
+    assert math.isclose(p.position.y, ex_y, abs_tol=1e-9)
+    assert math.isclose(math.remainder(yaw(p.orientation) - ex_th, 2 * math.pi), 0.0, abs_tol=1e-9)
+    assert final.header.frame_id == "odom" and final.child_frame_id == "base_link"
+    # Twist in the child frame: constant over the run, so equal to the arc rates.
+    dt = STEP_NS * 1e-9
+    assert math.isclose(final.twist.twist.linear.x, 0.5 * (s_left + s_right) / (steps * dt),
+                        rel_tol=1e-9)
+    assert math.isclose(final.twist.twist.angular.z, ex_th / (steps * dt), rel_tol=1e-9)
+    assert final.pose.covariance[0] > 0.0 and final.twist.covariance[35] > 0.0
+    # Every stamp published is a stamp we sent (never the node's clock).
+    sent = {T0_NS + k * STEP_NS for k in range(steps + 1)}
+    assert {_ns(o.header.stamp) for o in sink.odom} <= sent
+    tfs = [t for m in sink.tf for t in m.transforms if _ns(t.header.stamp) == last_ns]
+    assert tfs, "no /tf for the last reading"
+    t = tfs[-1]
+    assert (t.header.frame_id, t.child_frame_id) == ("odom", "base_link")
+    assert math.isclose(t.transform.translation.x, ex_x, abs_tol=1e-9)
+    assert math.isclose(t.transform.translation.y, ex_y, abs_tol=1e-9)
+
+
+def _ns(t: Time) -> int:
+    return int(t.sec) * 10**9 + int(t.nanosec)
+
+
+def _drive_straight(pub: Any, ex: Any, sink: Sink, start_k: int, steps: int,
+                    rad_per_step: float, prime: bool = True) -> int:
+    for k in range(start_k, start_k + steps + 1):
+        msg = JointState()
+        msg.header.stamp = stamp(T0_NS + k * STEP_NS)
+        msg.name = ["left_wheel_joint", "right_wheel_joint"]
+        msg.position = [k * rad_per_step, k * rad_per_step]
+        if k == start_k and prime:
+            send_first(ex, pub, sink, msg)
+        else:
+            pub.publish(msg)
+            spin_for(ex, 0.005)
+    return start_k + steps
+
+
+def test_params_file_namespace_remap_and_reset_service() -> None:
+    """The shipped YAML, a namespace, a remapped input and the reset service."""
+    args = ["--ros-args", "--params-file", str(ROOT / "config" / "diffdrive_odom.yaml"),
+            "-r", "__ns:=/robot1", "-r", "joint_states:=wheel_states"]
+    r = 0.042  # config/diffdrive_odom.yaml's example robot
+    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
+        sink = listen(node, "/robot1/odom")
+        pub = node.create_publisher(JointState, "/robot1/wheel_states", 10)
+        wait_ready(ex, pub, sink, proc)
+        per_step = 0.5 / r / 50  # 0.5 m in 50 steps
+        k = _drive_straight(pub, ex, sink, 0, 50, per_step)
+        last = T0_NS + k * STEP_NS
+        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
+        before = max(sink.odom, key=lambda o: _ns(o.header.stamp))
+        assert math.isclose(before.pose.pose.position.x, 0.5, abs_tol=1e-9)
+        assert before.header.frame_id == "robot1/odom"
+        assert before.child_frame_id == "robot1/base_link"
+
+        client = node.create_client(Trigger, "/robot1/odometry_node/reset_odometry")
+        assert client.wait_for_service(timeout_sec=10.0)
+        future = client.call_async(Trigger.Request())
+        assert spin_until(ex, future.done, 10.0)
+        result = future.result()
+        assert result is not None and result.success
+
+        # Drive on from where the wheels are: no jump, 0.25 m more from the origin.
+        k2 = _drive_straight(pub, ex, sink, k + 1, 24, per_step, prime=False)
+        last2 = T0_NS + k2 * STEP_NS
+        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last2 for o in sink.odom), 10.0)
+        after = max(sink.odom, key=lambda o: _ns(o.header.stamp))
+        assert math.isclose(after.pose.pose.position.x, 0.25, abs_tol=1e-9)
+        assert after.pose.pose.position.y == 0.0
+
+
+def test_bad_parameters_stop_the_node_with_their_name() -> None:
+    cases = {
+        "wheel_radius": ["-p", "wheel_radius:=-0.1", "-p", "wheel_separation:=0.3"],
+        "wheel_separation": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=.nan"],
+        "right_wheel_names": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
+                              "-p", "right_wheel_names:=['a','b']"],
+        "pose_covariance_diagonal": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
+                                     "-p", "pose_covariance_diagonal:=[1.0,2.0]"],
+        "enable_odom_tf": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
+                           "-p", "enable_odom_tf:=3"],
+    }
+    for name, params in cases.items():
+        with node_process("odometry_node", ["--ros-args", *params]) as proc:
+            code = proc.wait(timeout=20)
+            out = proc.stdout.read() if proc.stdout else ""
+        assert code != 0, f"{name}: node started with a bad value"
+        lines = [ln for ln in out.splitlines() if ln.strip()]
+        assert len(lines) == 1 and f"'{name}'" in lines[0], out
+
+
+def _set_param(node: Node, ex: Any, name: str, value: ParameterValue) -> Any:
+    client = node.create_client(SetParameters, "/odometry_node/set_parameters")
+    assert client.wait_for_service(timeout_sec=10.0)
+    req = SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)])
+    future = client.call_async(req)
+    assert spin_until(ex, future.done, 10.0)
+    return future.result().results[0]
+
+
+def test_runtime_parameter_refused_with_reason_and_bad_messages_dropped() -> None:
+    r, b = 0.1, 0.4
+    args = ["--ros-args", "-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}"]
+    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
+        sink = listen(node, "/odom")
+        pub = node.create_publisher(JointState, "/joint_states", 10)
+        wait_ready(ex, pub, sink, proc)
+        bad = _set_param(node, ex, "wheel_radius",
+                         ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=-1.0))
+        assert not bad.successful and "wheel_radius" in bad.reason
+        ok = _set_param(node, ex, "wheel_radius",
+                        ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.2))
+        assert ok.successful
+
+        names = ["left_wheel_joint", "right_wheel_joint"]
+
+        def send(k: int, position: list[float], name: list[str] | None = None) -> None:
+            msg = JointState()
+            msg.header.stamp = stamp(T0_NS + k * STEP_NS)
+            msg.name = name if name is not None else names
+            msg.position = position
+            pub.publish(msg)
+            spin_for(ex, 0.01)
+
+        first = JointState()
+        first.header.stamp = stamp(T0_NS)
+        first.name, first.position = names, [0.0, 0.0]
+        send_first(ex, pub, sink, first)
+        send(1, [float("nan"), 1.0])  # NaN: dropped
+        send(2, [float("inf"), 1.0])  # inf: dropped
+        send(3, [1.0])  # shorter than names: dropped
+        send(4, [1.0, 1.0], ["left_wheel_joint"])  # right wheel missing: dropped
+        send(5, [1.0, 1.0])  # good: 1 rad on both wheels
+        send(5, [9.0, 9.0])  # repeated stamp: dropped
+        send(4, [9.0, 9.0])  # slightly older: dropped
+        send(6, [1e6, 1e6])  # implausibly fast: skipped, re-anchored
+        send(7, [1e6 + 1.0, 1e6 + 1.0])  # good: 1 rad more
+        last = T0_NS + 7 * STEP_NS
+        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
+        assert proc.poll() is None, "node died on bad input"
+    for o in sink.odom:
+        values = [o.pose.pose.position.x, o.pose.pose.position.y, o.pose.pose.orientation.z,
+                  o.pose.pose.orientation.w, o.twist.twist.linear.x, o.twist.twist.angular.z]
+        assert all(math.isfinite(v) for v in values)
+    final = max(sink.odom, key=lambda o: _ns(o.header.stamp))
+    # radius 0.2 after the runtime change: 2 rad of good motion = 0.4 m straight ahead.
+    assert math.isclose(final.pose.pose.position.x, 0.4, abs_tol=1e-9)
+    assert final.pose.pose.position.y == 0.0
+
+
+def test_best_effort_publisher_and_sim_time_loop_reset() -> None:
+    """A best-effort driver connects; a bag-like stamp jump back restarts at the origin."""
+    r, b = 0.1, 0.4
+    args = ["--ros-args", "-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}",
+            "-p", "use_sim_time:=true", "-p", "time_jump_threshold:=0.2"]
+    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
+        sink = listen(node, "/odom")
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+        pub = node.create_publisher(JointState, "/joint_states", qos)
+        wait_ready(ex, pub, sink, proc)
+        k = _drive_straight(pub, ex, sink, 0, 20, 0.5)  # 10 rad -> 1 m
+        last = T0_NS + k * STEP_NS
+        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
+        assert math.isclose(
+            max(sink.odom, key=lambda o: _ns(o.header.stamp)).pose.pose.position.x, 1.0,
+            abs_tol=1e-9)
+        sink.odom.clear()
+        # The "bag" starts again: same stamps and wheel angles as at its beginning.
+        time.sleep(0.05)
+        _drive_straight(pub, ex, sink, 0, 10, 0.5)  # 0.5 m in the new run
+        last = T0_NS + 10 * STEP_NS
+        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
+        final = [o for o in sink.odom if _ns(o.header.stamp) == last][-1]
+        assert math.isclose(final.pose.pose.position.x, 0.5, abs_tol=1e-9)
+        assert proc.poll() is None
+    out = _output_after_stop(proc)
+    assert "jumped back" in out
+
+
+def _output_after_stop(proc: Any) -> str:
+    proc.wait(timeout=10)
+    return proc.stdout.read() if proc.stdout else ""
