@@ -1,0 +1,237 @@
+"""``cmd_vel_node``: velocity commands -> wheel velocity commands, limited and watched.
+
+Thin rclpy shell around :mod:`diffdrive_odom.limits` and
+:mod:`diffdrive_odom.kinematics`: it declares parameters, converts messages and
+runs one steady timer. Wheel commands go out at ``publish_rate`` whatever happens on
+``cmd_vel`` (drivers use them as a heartbeat); without a valid command for
+``cmd_vel_timeout`` seconds they are zeros, never the last command repeated forever.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, cast
+
+from geometry_msgs.msg import Twist, TwistStamped
+from rclpy.clock import Clock
+from rclpy.clock_type import ClockType
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.timer import Timer
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from diffdrive_odom import ros_common
+from diffdrive_odom.cmd_vel_settings import (
+    CMD_VEL_PARAMS,
+    JOINT_STATE,
+    TICKS_PER_SECOND,
+    CmdVelSettings,
+    cmd_vel_settings,
+)
+from diffdrive_odom.kinematics import point_velocity_to_twist
+from diffdrive_odom.limits import LimitedCommand, TwistLimiter, Watchdog
+
+NODE_NAME = "cmd_vel_node"
+
+# Best effort matches reliable and best-effort publishers alike (teleop, Nav2,
+# joystick drivers); only the newest command matters, so the queue is short.
+CMD_IN_QOS: QoSProfile = cast(Any, QoSProfile)(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=5,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+
+@dataclass(frozen=True)
+class Command:
+    """The parts of a Twist the kinematics use."""
+
+    linear_x: float
+    linear_y: float
+    angular_z: float
+
+
+class CmdVelNode(Node):
+    """Turns cmd_vel into wheel velocity commands at a steady rate."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self._log: Any = cast(Any, self).get_logger()  # rclpy's get_logger is untyped
+        values = ros_common.declare(self, CMD_VEL_PARAMS)
+        s = cmd_vel_settings(values)
+        self._settings = s
+        self._limiter = TwistLimiter(s.limits, s.geometry)
+        self._watchdog: Watchdog[Command] = Watchdog(s.cmd_vel_timeout)
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._last_tick_ns: int | None = None
+        self._moving = False  # a command is being followed (for the timeout log)
+        self._received = False
+        self._zero_stamp_warned = False
+        self._type_checked_ns = 0
+        self._guard = ros_common.ParameterGuard(self, values, cmd_vel_settings, self._apply)
+
+        if s.wheel_command_format == JOINT_STATE:
+            self._wheel_pub = self.create_publisher(
+                JointState, "wheel_commands", ros_common.RELIABLE_OUT_QOS)
+        else:
+            self._wheel_pub = self.create_publisher(
+                Float64MultiArray, "wheel_commands", ros_common.RELIABLE_OUT_QOS)
+        self._limited_pub: Any = None
+        if s.publish_limited_velocity:
+            self._make_limited_pub()
+        if s.enable_stamped_cmd_vel:
+            self._sub = self.create_subscription(
+                TwistStamped, "cmd_vel", self._on_twist_stamped, CMD_IN_QOS)
+        else:
+            self._sub = self.create_subscription(Twist, "cmd_vel", self._on_twist, CMD_IN_QOS)
+        self._timer = self._make_timer(s.publish_rate)
+        g = s.geometry
+        self._log.info(
+            f"cmd_vel ({'TwistStamped' if s.enable_stamped_cmd_vel else 'Twist'}) -> "
+            f"wheel_commands ({s.wheel_command_format}) at {s.publish_rate:g} Hz: "
+            f"r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
+            f"b={g.separation:.6g} m, timeout {s.cmd_vel_timeout:g} s, "
+            f"wheels {list(s.left_wheel_names)} / {list(s.right_wheel_names)}"
+        )
+
+    # --- parameters -------------------------------------------------------------
+
+    def _make_timer(self, rate: float) -> Timer:
+        # Steady clock: the heartbeat must not stop when /clock pauses (use_sim_time).
+        return self.create_timer(1.0 / rate, self._on_tick, clock=self._steady)
+
+    def _make_limited_pub(self) -> None:
+        self._limited_pub = self.create_publisher(
+            TwistStamped, "cmd_vel_out", ros_common.RELIABLE_OUT_QOS)
+
+    def _apply(self, s: CmdVelSettings) -> None:
+        """Install accepted runtime changes; the motion state carries on (no jump)."""
+        old = self._settings
+        self._settings = s
+        self._limiter.configure(s.limits, s.geometry)
+        self._watchdog.timeout_ns = round(s.cmd_vel_timeout * 1e9)
+        if s.publish_rate != old.publish_rate:
+            self.destroy_timer(self._timer)
+            self._timer = self._make_timer(s.publish_rate)
+        if s.publish_limited_velocity and self._limited_pub is None:
+            self._make_limited_pub()
+        self._log.info("parameters updated")
+
+    # --- input ------------------------------------------------------------------
+
+    def _warn(self, text: str) -> None:
+        self._log.warning(text, throttle_duration_sec=ros_common.WARN_THROTTLE_S)
+
+    def _on_twist(self, msg: Twist) -> None:
+        self._accept(msg, None)
+
+    def _on_twist_stamped(self, msg: TwistStamped) -> None:
+        stamp_ns: int | None = ros_common.stamp_to_ns(msg.header.stamp)
+        if stamp_ns == 0:
+            if not self._zero_stamp_warned:
+                self._zero_stamp_warned = True
+                self._log.warning(
+                    "cmd_vel header stamp is zero: taken as 'now' (this warning is shown "
+                    "once; stamp commands so that delayed ones can be recognised)")
+            stamp_ns = None
+        self._accept(msg.twist, stamp_ns)
+
+    def _accept(self, twist: Twist, stamp_ns: int | None) -> None:
+        self._received = True
+        lin, ang = twist.linear, twist.angular
+        parts = (lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+        if not all(math.isfinite(p) for p in parts):
+            self._warn(f"cmd_vel with NaN/inf ignored: linear=({lin.x}, {lin.y}, {lin.z}) "
+                       f"angular=({ang.x}, {ang.y}, {ang.z})")
+            return
+        ros_now = self.get_clock().now().nanoseconds
+        if stamp_ns is not None and self._watchdog.is_stale(stamp_ns, ros_now):
+            self._warn(f"stale cmd_vel ignored: stamped {(ros_now - stamp_ns) * 1e-9:.3f} s "
+                       f"ago, cmd_vel_timeout is {self._settings.cmd_vel_timeout:g} s")
+            return
+        self._watchdog.accept(Command(lin.x, lin.y, ang.z),
+                              self._steady.now().nanoseconds, stamp_ns)
+
+    # --- output -----------------------------------------------------------------
+
+    def _on_tick(self) -> None:
+        now = self._steady.now().nanoseconds
+        period = 1.0 / self._settings.publish_rate
+        last, self._last_tick_ns = self._last_tick_ns, now
+        # Measured period, capped: after a stall the limits must not allow a leap.
+        dt = period if last is None else min((now - last) * 1e-9, 2.0 * period)
+        command = self._watchdog.current(now, self.get_clock().now().nanoseconds)
+        if command is None:
+            if self._moving:
+                self._log.info(
+                    f"no valid cmd_vel for {self._settings.cmd_vel_timeout:g} s: stopping")
+            self._moving = False
+            linear, angular = 0.0, 0.0
+            if not self._received:
+                self._check_input_type(now)
+        else:
+            self._moving = True
+            linear, angular = self._body_twist(command)
+        out = self._limiter.step(linear, angular, dt)
+        self._publish(out)
+
+    def _body_twist(self, c: Command) -> tuple[float, float]:
+        offset = self._settings.control_point_offset
+        if offset != 0.0:
+            return point_velocity_to_twist(offset, c.linear_x, c.linear_y)
+        return c.linear_x, c.angular_z
+
+    def _publish(self, out: LimitedCommand) -> None:
+        s = self._settings
+        left, right = out.left, out.right
+        if not (math.isfinite(left) and math.isfinite(right)):  # cannot happen; never NaN
+            self._warn("non-finite wheel command replaced by zeros")
+            left = right = 0.0
+            self._limiter.reset()
+        if s.wheel_command_format == TICKS_PER_SECOND:
+            k = s.ticks_per_revolution / (2.0 * math.pi)
+            left, right = left * k, right * k
+        rates = [left] * len(s.left_wheel_names) + [right] * len(s.right_wheel_names)
+        stamp = self.get_clock().now().to_msg()
+        if s.wheel_command_format == JOINT_STATE:
+            js = JointState()
+            js.header.stamp = stamp
+            js.name = list(s.wheel_names)
+            js.velocity = rates
+            self._wheel_pub.publish(js)
+        else:
+            self._wheel_pub.publish(Float64MultiArray(data=rates))
+        if s.publish_limited_velocity and self._limited_pub is not None:
+            ts = TwistStamped()
+            ts.header.stamp = stamp
+            ts.twist.linear.x = out.linear
+            ts.twist.angular.z = out.angular
+            self._limited_pub.publish(ts)
+
+    def _check_input_type(self, now_ns: int) -> None:
+        """Nothing ever arrived: say so if cmd_vel's publishers use the other message type."""
+        if now_ns - self._type_checked_ns < 2_000_000_000:
+            return
+        self._type_checked_ns = now_ns
+        expected = ("geometry_msgs/msg/TwistStamped" if self._settings.enable_stamped_cmd_vel
+                    else "geometry_msgs/msg/Twist")
+        topic = self._sub.topic_name
+        for info in self.get_publishers_info_by_topic(topic):
+            if info.topic_type != expected:
+                self._warn(
+                    f"{topic} has a publisher of type {info.topic_type} but this node "
+                    f"expects {expected}: set enable_stamped_cmd_vel to "
+                    f"{str(expected.endswith('Twist')).lower()}")
+                return
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script / ``ros2 run diffdrive_odom cmd_vel_node``."""
+    return ros_common.run(CmdVelNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

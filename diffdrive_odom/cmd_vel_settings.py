@@ -1,0 +1,178 @@
+"""The cmd_vel node's parameters and their validation (no rclpy import).
+
+The geometry rows are the odometry node's own (``params.GEOMETRY_PARAMS``), so one
+YAML under ``/**`` configures both nodes and they can never disagree on the robot.
+The limits keep diff_drive_controller's dotted names and signs (see ``limits``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from diffdrive_odom.encoders import EncoderConfig, EncoderConfigError
+from diffdrive_odom.kinematics import Geometry
+from diffdrive_odom.limits import AxisLimits, CommandLimits, LimitError
+from diffdrive_odom.params import (
+    GEOMETRY_PARAMS,
+    ParameterError,
+    ParamSpec,
+    ParamValue,
+    build_geometry,
+    coerce_all,
+)
+
+FLOAT64_ARRAY = "float64_array"
+JOINT_STATE = "joint_state"
+TICKS_PER_SECOND = "ticks_per_second"
+WHEEL_COMMAND_FORMATS: tuple[str, ...] = (FLOAT64_ARRAY, JOINT_STATE, TICKS_PER_SECOND)
+
+# Odometry-only geometry rows the cmd_vel node has no use for.
+_NOT_USED = ("encoder_counter_bits",)
+
+_AXES: tuple[tuple[str, str, str], ...] = (
+    ("linear.x", "m/s", "linear velocity"),
+    ("angular.z", "rad/s", "angular velocity"),
+)
+
+
+def _limit_specs(axis: str, unit: str) -> tuple[ParamSpec, ...]:
+    nan = math.nan
+    return (
+        ParamSpec(f"{axis}.max_velocity", "double", nan,
+                  f"Highest velocity [{unit}], >= 0; .nan = no limit."),
+        ParamSpec(f"{axis}.min_velocity", "double", nan,
+                  f"Lowest velocity [{unit}], <= 0; .nan = -max_velocity."),
+        ParamSpec(f"{axis}.max_acceleration", "double", nan,
+                  f"Speeding up forwards / from rest [{unit}/s], > 0; .nan = no limit."),
+        ParamSpec(f"{axis}.max_deceleration", "double", nan,
+                  f"Slowing down while moving forwards [{unit}/s], < 0; "
+                  ".nan = max_acceleration_reverse."),
+        ParamSpec(f"{axis}.max_acceleration_reverse", "double", nan,
+                  f"Speeding up backwards / from rest [{unit}/s], < 0; "
+                  ".nan = -max_acceleration."),
+        ParamSpec(f"{axis}.max_deceleration_reverse", "double", nan,
+                  f"Slowing down while moving backwards [{unit}/s], > 0; "
+                  ".nan = -max_deceleration."),
+        ParamSpec(f"{axis}.max_jerk", "double", nan,
+                  f"Upper bound of the change of acceleration [{unit}/s^2], > 0; "
+                  ".nan = no limit."),
+        ParamSpec(f"{axis}.min_jerk", "double", nan,
+                  f"Lower bound of the change of acceleration [{unit}/s^2], < 0; "
+                  ".nan = -max_jerk."),
+    )
+
+
+CMD_VEL_OWN_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("enable_stamped_cmd_vel", "bool", False,
+              "Subscribe geometry_msgs/TwistStamped (true) or Twist (false) on cmd_vel "
+              "(Nav2's name and Jazzy default).", read_only=True),
+    ParamSpec("wheel_command_format", "string", FLOAT64_ARRAY,
+              "Output on wheel_commands: float64_array (std_msgs/Float64MultiArray, rad/s), "
+              "joint_state (sensor_msgs/JointState velocity, rad/s) or ticks_per_second "
+              "(Float64MultiArray, encoder counts/s).", read_only=True),
+    ParamSpec("cmd_vel_timeout", "double", 0.5,
+              "Publish zeros when no valid command arrived for this long [s]; 0 = never."),
+    ParamSpec("publish_rate", "double", 50.0,
+              "Rate of wheel_commands [Hz], steady whether or not commands arrive (> 0)."),
+    ParamSpec("publish_limited_velocity", "bool", False,
+              "Publish the twist actually commanded (after limits) on cmd_vel_out."),
+    ParamSpec("control_point_offset", "double", 0.0,
+              "l [m]: linear.x/linear.y command the velocity of the point l ahead of the "
+              "axle (seed 001 sec. 4); 0 = off (linear.x/angular.z as usual)."),
+    ParamSpec("max_wheel_velocity", "double", math.nan,
+              "Fastest joint rate [rad/s]; faster commands scale both wheels alike "
+              "(keeps curvature); .nan or 0 = no limit."),
+    *(spec for axis, unit, _ in _AXES for spec in _limit_specs(axis, unit)),
+)
+
+CMD_VEL_PARAMS: tuple[ParamSpec, ...] = (
+    tuple(s for s in GEOMETRY_PARAMS if s.name not in _NOT_USED) + CMD_VEL_OWN_PARAMS
+)
+
+
+@dataclass(frozen=True)
+class CmdVelSettings:
+    """All validated settings of the cmd_vel node."""
+
+    geometry: Geometry
+    left_wheel_names: tuple[str, ...]
+    right_wheel_names: tuple[str, ...]
+    ticks_per_revolution: float
+    enable_stamped_cmd_vel: bool
+    wheel_command_format: str
+    cmd_vel_timeout: float
+    publish_rate: float
+    publish_limited_velocity: bool
+    control_point_offset: float
+    limits: CommandLimits
+
+    @property
+    def wheel_names(self) -> tuple[str, ...]:
+        """Left wheels then right wheels: the order of every wheel command."""
+        return self.left_wheel_names + self.right_wheel_names
+
+
+def _axis_limits(axis: str, v: Mapping[str, Any]) -> AxisLimits:
+    prefix = axis + "."
+    try:
+        return AxisLimits(**{
+            name[len(prefix):]: value for name, value in v.items() if name.startswith(prefix)
+        })
+    except LimitError as err:
+        raise ParameterError(prefix + err.field, err.reason) from err
+
+
+def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
+    """Validate every cmd_vel parameter; the first bad one raises ParameterError."""
+    v = coerce_all(CMD_VEL_PARAMS, values)
+    geometry = build_geometry(v)
+    try:
+        wheels = EncoderConfig(
+            left_wheel_names=v["left_wheel_names"],
+            right_wheel_names=v["right_wheel_names"],
+            ticks_per_revolution=v["ticks_per_revolution"],
+        )
+    except EncoderConfigError as err:
+        raise ParameterError(err.field, err.reason) from err
+    fmt = v["wheel_command_format"]
+    if fmt not in WHEEL_COMMAND_FORMATS:
+        raise ParameterError("wheel_command_format",
+                             f"must be one of {', '.join(WHEEL_COMMAND_FORMATS)}, got {fmt!r}")
+    if fmt == TICKS_PER_SECOND and wheels.ticks_per_revolution <= 0.0:
+        raise ParameterError("ticks_per_revolution",
+                             f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")
+    timeout = v["cmd_vel_timeout"]
+    if not (math.isfinite(timeout) and timeout >= 0.0):
+        raise ParameterError("cmd_vel_timeout",
+                             f"must be finite and >= 0 (0 = no timeout), got {timeout!r}")
+    rate = v["publish_rate"]
+    if not (math.isfinite(rate) and 0.0 < rate <= 10_000.0):
+        raise ParameterError("publish_rate",
+                             f"must be > 0 and <= 10000 [Hz] (drivers take wheel_commands "
+                             f"as a heartbeat), got {rate!r}")
+    offset = v["control_point_offset"]
+    if not math.isfinite(offset):
+        raise ParameterError("control_point_offset",
+                             f"must be finite (0 = off), got {offset!r}")
+    linear = _axis_limits("linear.x", v)
+    angular = _axis_limits("angular.z", v)
+    try:
+        limits = CommandLimits(linear, angular, v["max_wheel_velocity"])
+    except LimitError as err:
+        raise ParameterError(err.field, err.reason) from err
+    return CmdVelSettings(
+        geometry=geometry,
+        left_wheel_names=wheels.left_wheel_names,
+        right_wheel_names=wheels.right_wheel_names,
+        ticks_per_revolution=wheels.ticks_per_revolution,
+        enable_stamped_cmd_vel=v["enable_stamped_cmd_vel"],
+        wheel_command_format=fmt,
+        cmd_vel_timeout=timeout,
+        publish_rate=rate,
+        publish_limited_velocity=v["publish_limited_velocity"],
+        control_point_offset=offset,
+        limits=limits,
+    )
