@@ -1,0 +1,379 @@
+"""Bag input/output for the offline tools (no rclpy): read JointState, write odometry.
+
+Reading goes through rosbags' ``AnyReader``, so rosbag2 (sqlite3 or mcap) and ROS 1
+bags look the same; a ROS 2 Jazzy typestore is the default for bags that carry no
+message definitions, and ROS 1 messages are converted to ROS 2 CDR where they have to
+leave the bag (``--keep-input``, ``play``): same field names, minus ``Header.seq``.
+
+Readings come out in *header stamp* order, because the estimator works on
+measurement time and a recorder logs in arrival order; a small heap reorders them
+while streaming, so memory stays constant whatever the bag's length.
+
+Output bags are written with rosbags' own message classes (not rclpy's serializer,
+which pads some messages in a way strict readers reject), as rosbag2 with mcap
+storage by default or sqlite3 on request; ``ros2 bag play`` and independent readers
+(mcap-ros2-support) read them.
+
+CSV columns (one row per published odometry, see :data:`CSV_COLUMNS`):
+
+==============  =============================================================
+``stamp_ns``    measurement time: the JointState header stamp [ns]
+``time``        the same in seconds (float, for plotting)
+``x``, ``y``    position of the base frame in the odom frame [m]
+``yaw``         heading in (-pi, pi] [rad]
+``linear``      forward speed along base x [m/s] (rolling mean as the node)
+``angular``     yaw rate [rad/s] (rolling mean as the node)
+``status``      estimator verdict: reference / updated / time_reset
+==============  =============================================================
+"""
+
+from __future__ import annotations
+
+import csv
+import heapq
+import itertools
+import math
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any
+
+import numpy as np
+from rosbags.convert.converter import is_same_wireformat, migrate_bytes
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import Connection
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
+
+JOINT_STATE = "sensor_msgs/msg/JointState"
+ODOMETRY = "nav_msgs/msg/Odometry"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+STORAGES = ("mcap", "sqlite3")
+CSV_COLUMNS = ("stamp_ns", "time", "x", "y", "yaw", "linear", "angular", "status")
+# Readings displaced further than this many messages from stamp order still come out,
+# in arrival order (the estimator then drops the late one, as the node would).
+REORDER_WINDOW = 64
+
+
+class BagError(RuntimeError):
+    """A bag that cannot be used as asked (missing topic, wrong type, bad path)."""
+
+
+def typestore() -> Typestore:
+    """Return the ROS 2 Jazzy typestore (JointState, Odometry, TFMessage, Clock, ...)."""
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def open_bag(path: str | Path) -> AnyReader:
+    """Return an unopened reader for a rosbag2 dir / ``.mcap`` / ``.db3`` or ROS 1 ``.bag``.
+
+    Use as a context manager. A single rosbag2 storage file is accepted for
+    convenience: its directory is opened when it holds the metadata.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise BagError(f"{p}: no such bag")
+    if p.is_file() and p.suffix in (".mcap", ".db3") and (p.parent / "metadata.yaml").exists():
+        p = p.parent
+    return AnyReader([p], default_typestore=typestore())
+
+
+def connections_for(
+    reader: AnyReader, topic: str, msgtypes: Iterable[str] = ()
+) -> list[Connection]:
+    """Return the connections on ``topic``; BagError naming what exists if none fit."""
+    wanted = set(msgtypes)
+    found = [c for c in reader.connections if c.topic == topic]
+    if not found:
+        have = ", ".join(sorted({c.topic for c in reader.connections})) or "none"
+        raise BagError(f"topic {topic} is not in the bag (topics: {have})")
+    if wanted:
+        typed = [c for c in found if c.msgtype in wanted]
+        if not typed:
+            raise BagError(
+                f"topic {topic} has type {found[0].msgtype}, expected one of {sorted(wanted)}"
+            )
+        found = typed
+    return found
+
+
+def stamp_ns(stamp: Any) -> int:
+    """builtin_interfaces/Time of a rosbags message -> integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+@dataclass(frozen=True)
+class JointReading:
+    """One JointState as the estimator takes it, plus where it sat in the bag."""
+
+    stamp_ns: int  # header stamp (measurement time)
+    log_ns: int  # time the recorder logged it
+    names: Sequence[str]
+    position: Sequence[float]
+    velocity: Sequence[float]
+
+
+def _reading(msg: Any, log_ns: int) -> JointReading:
+    return JointReading(
+        stamp_ns(msg.header.stamp), log_ns, msg.name, msg.position, msg.velocity
+    )
+
+
+Passthrough = Callable[[Connection, int, bytes], None]
+
+
+def iter_joint_states(
+    reader: AnyReader,
+    topic: str = "/joint_states",
+    passthrough: Passthrough | None = None,
+    window: int = REORDER_WINDOW,
+) -> Iterator[JointReading]:
+    """JointState readings of an open reader, in header stamp order, streaming.
+
+    With ``passthrough``, every message of the bag (JointState included) is also handed
+    to it raw, in log time order, interleaved with the readings (``replay
+    --keep-input`` copies them).
+    """
+    joints = connections_for(reader, topic, (JOINT_STATE,))
+    conns = reader.connections if passthrough is not None else joints
+    joint_ids = {id(c) for c in joints}
+    heap: list[tuple[int, int, JointReading]] = []
+    order = itertools.count()
+    for conn, log_ns, raw in reader.messages(connections=conns):
+        if passthrough is not None:
+            passthrough(conn, log_ns, raw)
+            if id(conn) not in joint_ids:
+                continue
+        reading = _reading(reader.deserialize(raw, conn.msgtype), log_ns)
+        heapq.heappush(heap, (reading.stamp_ns, next(order), reading))
+        if len(heap) > window:
+            yield heapq.heappop(heap)[2]
+    while heap:
+        yield heapq.heappop(heap)[2]
+
+
+def read_joint_states(path: str | Path, topic: str = "/joint_states") -> Iterator[JointReading]:
+    """Open ``path`` and stream its JointState readings in stamp order."""
+    with open_bag(path) as reader:
+        yield from iter_joint_states(reader, topic)
+
+
+def count_messages(reader: AnyReader, topic: str) -> int:
+    """Messages on ``topic`` according to the bag's index (no decoding)."""
+    return sum(c.msgcount for c in reader.connections if c.topic == topic)
+
+
+# --- ROS 1 -> ROS 2 -------------------------------------------------------------------
+
+
+class CdrConverter:
+    """Raw bytes of any connection of a bag -> ROS 2 CDR with a Jazzy type name.
+
+    rosbag2 data passes through untouched. ROS 1 data is re-encoded; types whose
+    fields differ from Jazzy's (only ``Header.seq`` for the common messages) are
+    migrated field by field, as ``rosbags-convert`` does. Types Jazzy lacks are
+    registered from the bag's own definitions.
+    """
+
+    def __init__(self, reader: AnyReader) -> None:
+        self._reader = reader
+        self.typestore = typestore()
+        self._funcs: dict[str, Callable[[bytes], bytes]] = {}
+        self._cache: dict[str, object] = {}
+
+    def __call__(self, conn: Connection, raw: bytes) -> bytes:
+        """CDR bytes of one message of ``conn``."""
+        func = self._funcs.get(conn.msgtype)
+        if func is None:
+            func = self._funcs[conn.msgtype] = self._make(conn.msgtype)
+        return func(raw)
+
+    def _make(self, msgtype: str) -> Callable[[bytes], bytes]:
+        src = self._reader.typestore
+        if self._reader.is2:
+            if msgtype not in self.typestore.fielddefs:
+                self.typestore.register({msgtype: src.fielddefs[msgtype]})
+            return bytes
+        if msgtype not in self.typestore.fielddefs:
+            missing = {
+                k: v
+                for k, v in src.fielddefs.items()
+                if k not in self.typestore.fielddefs and k != "std_msgs/msg/Header"
+            }
+            self.typestore.register(missing)
+        if is_same_wireformat(src, self.typestore, msgtype, msgtype):
+            to_cdr = partial(self.typestore.ros1_to_cdr, typename=msgtype)
+            return lambda raw: bytes(to_cdr(raw))
+        migrate = partial(
+            migrate_bytes, src, self.typestore, msgtype, msgtype, self._cache,
+            src_is2=False, dst_is2=True,
+        )
+        return lambda raw: bytes(migrate(raw))
+
+
+# --- writing ---------------------------------------------------------------------------
+
+
+def yaw_of(q: Any) -> float:
+    """Yaw of a quaternion message (x, y, z, w), for any roll/pitch."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+class OdomMessages:
+    """Builds nav_msgs/Odometry and tf2_msgs/TFMessage with rosbags' message classes."""
+
+    def __init__(self, store: Typestore, odom_frame: str, base_frame: str) -> None:
+        t = store.types
+        self._t = t
+        self.odom_frame = odom_frame
+        self.base_frame = base_frame
+
+    def _header(self, ns: int) -> Any:
+        t = self._t
+        sec, nanosec = divmod(int(ns), 1_000_000_000)
+        return t["std_msgs/msg/Header"](
+            stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
+            frame_id=self.odom_frame,
+        )
+
+    def _quaternion(self, yaw: float) -> Any:
+        half = 0.5 * yaw
+        return self._t["geometry_msgs/msg/Quaternion"](
+            x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)
+        )
+
+    def odometry(
+        self,
+        ns: int,
+        x: float,
+        y: float,
+        yaw: float,
+        linear: float,
+        angular: float,
+        pose_covariance: Sequence[float],
+        twist_covariance: Sequence[float],
+    ) -> Any:
+        """Build an Odometry as the node publishes it (header stamp = measurement time)."""
+        t = self._t
+        vec = t["geometry_msgs/msg/Vector3"]
+        pose = t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+            orientation=self._quaternion(yaw),
+        )
+        twist = t["geometry_msgs/msg/Twist"](
+            linear=vec(x=linear, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=angular)
+        )
+        return t[ODOMETRY](
+            header=self._header(ns),
+            child_frame_id=self.base_frame,
+            pose=t["geometry_msgs/msg/PoseWithCovariance"](
+                pose=pose, covariance=np.asarray(pose_covariance, dtype=np.float64)
+            ),
+            twist=t["geometry_msgs/msg/TwistWithCovariance"](
+                twist=twist, covariance=np.asarray(twist_covariance, dtype=np.float64)
+            ),
+        )
+
+    def tf(self, ns: int, x: float, y: float, yaw: float) -> Any:
+        """Build a TFMessage with the single odom -> base transform."""
+        t = self._t
+        transform = t["geometry_msgs/msg/Transform"](
+            translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0),
+            rotation=self._quaternion(yaw),
+        )
+        stamped = t["geometry_msgs/msg/TransformStamped"](
+            header=self._header(ns), child_frame_id=self.base_frame, transform=transform
+        )
+        return t[TF_MESSAGE](transforms=[stamped])
+
+
+class BagWriter:
+    """A rosbag2 being written: topics by name, messages as objects or CDR bytes.
+
+    Refuses an existing output path (rosbag2 does too) rather than mixing two runs.
+    """
+
+    def __init__(self, path: str | Path, storage: str = "mcap") -> None:
+        if storage not in STORAGES:
+            raise BagError(f"storage must be one of {STORAGES}, got {storage!r}")
+        self.path = Path(path)
+        if self.path.exists():
+            raise BagError(f"{self.path} exists: remove it or choose another output")
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        self._writer = Writer(self.path, version=9, storage_plugin=plugin)
+        self.typestore = typestore()
+        self._conns: dict[str, tuple[Connection, str]] = {}
+        self.count = 0
+
+    def __enter__(self) -> BagWriter:
+        self._writer.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self._writer.close()
+
+    def add_topic(self, topic: str, msgtype: str, store: Typestore | None = None) -> None:
+        """Register ``topic`` once; a second type on the same topic is an error."""
+        known = self._conns.get(topic)
+        if known is not None:
+            if known[1] != msgtype:
+                raise BagError(f"topic {topic} would carry both {known[1]} and {msgtype}")
+            return
+        conn = self._writer.add_connection(topic, msgtype, typestore=store or self.typestore)
+        self._conns[topic] = (conn, msgtype)
+
+    def has_topic(self, topic: str) -> bool:
+        """Tell whether ``topic`` is registered."""
+        return topic in self._conns
+
+    def write(self, topic: str, log_ns: int, msg: Any) -> None:
+        """Serialize a rosbags message object (Jazzy types) onto ``topic``."""
+        conn, msgtype = self._conns[topic]
+        self._writer.write(conn, log_ns, self.typestore.serialize_cdr(msg, msgtype))
+        self.count += 1
+
+    def write_cdr(self, topic: str, log_ns: int, data: bytes) -> None:
+        """Write already-serialized CDR bytes onto ``topic``."""
+        self._writer.write(self._conns[topic][0], log_ns, data)
+        self.count += 1
+
+
+class CsvWriter:
+    """Odometry rows with the documented :data:`CSV_COLUMNS` (full float precision)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._file: IO[str] | None = None
+        self._csv: Any = None
+
+    def __enter__(self) -> CsvWriter:
+        self._file = open(self.path, "w", newline="", encoding="utf-8")
+        self._csv = csv.writer(self._file)
+        self._csv.writerow(CSV_COLUMNS)
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if self._file is not None:
+            self._file.close()
+
+    def row(
+        self, ns: int, x: float, y: float, yaw: float, linear: float, angular: float, status: str
+    ) -> None:
+        """One published pose; floats by ``repr`` so reading back is lossless."""
+        self._csv.writerow(
+            (ns, repr(ns * 1e-9), repr(x), repr(y), repr(yaw), repr(linear), repr(angular),
+             status)
+        )

@@ -1,0 +1,412 @@
+"""``diffdrive-odom replay``: run the node's estimator over a bag offline, as fast as the disk.
+
+One code path with the node: the same parameter file (``params.load_params_file`` +
+``params.odometry_settings``, so a bad value is refused with the same one line), the
+same :class:`~diffdrive_odom.odometry.OdometryEstimator`, the same rules for what gets
+published (zero stamps dropped, ``publish_rate``, frames with the tf prefix). The
+output is what the node would have published, written as a rosbag2 (``odom`` and
+``/tf``) and/or a CSV (columns in :mod:`diffdrive_odom.bagio`).
+
+Two ways through a bag:
+
+- streaming (:func:`replay_readings`): one reading at a time, constant memory, used
+  by the CLI;
+- vectorised (:func:`wheel_steps` then :func:`integrate_steps`): the bag decoded once
+  into geometry-free wheel increments, then integrated for any geometry with numpy
+  (``kinematics.body_increment`` on arrays, ``integration.integrate_batch``). The
+  estimator itself decides which readings become steps, so both ways agree on what
+  is dropped; calibration re-runs only the cheap second half in its fitting loop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from array import array
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import Connection
+
+from diffdrive_odom import bagio
+from diffdrive_odom.encoders import JointLookup, WheelReading, decode, increment
+from diffdrive_odom.integration import Pose2D, integrate_batch, wrap_angle
+from diffdrive_odom.kinematics import Geometry, body_increment
+from diffdrive_odom.odometry import OdometryEstimator, Status
+from diffdrive_odom.params import (
+    OdometrySettings,
+    ParameterError,
+    load_params_file,
+    odometry_settings,
+)
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+NODE_NAME = "odometry_node"
+PROGRESS_MIN_READINGS = 20_000  # below this a bar is noise
+
+
+def load_settings(
+    params_file: str | Path, node_name: str = NODE_NAME, namespace: str = "/"
+) -> OdometrySettings:
+    """Read the node's settings from its params YAML, validated exactly as the node does."""
+    values = load_params_file(params_file, node_name)
+    ns = namespace.strip("/")
+    if ns:
+        values.update(load_params_file(params_file, f"{ns}/{node_name}"))
+    return odometry_settings(values, "/" + ns)
+
+
+def covariance_matrix(diagonal: Sequence[float]) -> list[float]:
+    """6x6 row-major covariance with the given diagonal (as the node publishes it)."""
+    cov = [0.0] * 36
+    for i, d in enumerate(diagonal):
+        cov[7 * i] = float(d)
+    return cov
+
+
+class PublishGate:
+    """The node's ``publish_rate`` rule: at most one pose per period of measurement time."""
+
+    def __init__(self, rate: float) -> None:
+        self.rate = rate
+        self.last_ns: int | None = None
+
+    def due(self, stamp_ns: int) -> bool:
+        """Tell whether a pose stamped ``stamp_ns`` is published (and remember it if so)."""
+        last = self.last_ns
+        ok = (
+            self.rate <= 0.0
+            or last is None
+            or stamp_ns < last
+            or (stamp_ns - last) >= 1e9 / self.rate - 1e3  # 1 us slack for stamp jitter
+        )
+        if ok:
+            self.last_ns = stamp_ns
+        return ok
+
+
+@dataclass
+class Published:
+    """One pose the node would publish."""
+
+    stamp_ns: int
+    log_ns: int
+    pose: Pose2D
+    linear: float
+    angular: float
+    status: Status
+
+
+@dataclass
+class ReplayStats:
+    """What a replay did, for the summary line and the tests."""
+
+    readings: int = 0
+    published: int = 0
+    statuses: Counter[str] = field(default_factory=Counter)
+    reasons: Counter[str] = field(default_factory=Counter)
+    final_pose: Pose2D = field(default_factory=Pose2D)
+    final_stamp_ns: int | None = None
+    seconds: float = 0.0
+
+    def summary(self) -> str:
+        """One human line."""
+        p = self.final_pose
+        rate = self.readings / self.seconds if self.seconds > 0 else float("inf")
+        counts = ", ".join(f"{k} {v}" for k, v in sorted(self.statuses.items()))
+        return (
+            f"{self.readings} readings ({counts}) -> {self.published} poses in "
+            f"{self.seconds:.2f} s ({rate:,.0f} readings/s); final pose x={p.x:.6f} m "
+            f"y={p.y:.6f} m yaw={p.theta:.6f} rad"
+        )
+
+
+def replay_readings(
+    readings: Iterable[bagio.JointReading],
+    settings: OdometrySettings,
+    sink: Callable[[Published], None] | None = None,
+) -> ReplayStats:
+    """Feed readings to a fresh estimator; hand every pose the node would publish to ``sink``."""
+    est = OdometryEstimator(settings.geometry, settings.encoders, settings.estimator)
+    gate = PublishGate(settings.publish_rate)
+    stats = ReplayStats()
+    start = time.perf_counter()
+    for r in readings:
+        stats.readings += 1
+        if r.stamp_ns <= 0:  # the node drops unstamped readings
+            stats.statuses["dropped"] += 1
+            stats.reasons["header stamp is zero"] += 1
+            continue
+        verdict = est.update(r.stamp_ns, r.names, r.position, r.velocity)
+        stats.statuses[verdict.status.value] += 1
+        if verdict.reason and verdict.status is not Status.REFERENCE:
+            stats.reasons[verdict.reason.split(":")[0][:60]] += 1
+        if verdict.has_new_pose and gate.due(r.stamp_ns):
+            stats.published += 1
+            if sink is not None:
+                sink(Published(r.stamp_ns, r.log_ns, est.pose, est.linear, est.angular,
+                               verdict.status))
+    stats.seconds = time.perf_counter() - start
+    stats.final_pose = est.pose
+    stats.final_stamp_ns = est.stamp_ns
+    return stats
+
+
+# --- vectorised path -------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class WheelSteps:
+    """A bag's accepted steps, geometry-free: joint angle increments per side.
+
+    ``segment`` numbers the runs between restarts (a stamp jump back starts the pose
+    over at the origin); ``segments`` counts them, so a restart with no step after it
+    is still known.
+    """
+
+    stamp_ns: IntArray  # stamp of the reading that ends each step
+    dt: FloatArray
+    d_left: FloatArray
+    d_right: FloatArray
+    segment: IntArray
+    segments: int
+
+    def __len__(self) -> int:
+        return len(self.dt)
+
+
+def wheel_steps(
+    readings: Iterable[bagio.JointReading], settings: OdometrySettings
+) -> WheelSteps:
+    """Decode a bag once into the steps the estimator integrates (its verdicts decide)."""
+    est = OdometryEstimator(settings.geometry, settings.encoders, settings.estimator)
+    lookup = JointLookup(settings.encoders)
+    stamps, dts, lefts, rights, segs = array("q"), array("d"), array("d"), array("d"), array("q")
+    reference: WheelReading | None = None
+    segments = 0
+    for r in readings:
+        if r.stamp_ns <= 0:
+            continue
+        verdict = est.update(r.stamp_ns, r.names, r.position, r.velocity)
+        if verdict.status is Status.DROPPED:
+            continue
+        current = decode(lookup, r.stamp_ns, r.names, r.position, r.velocity)
+        assert isinstance(current, WheelReading)  # the estimator accepted it
+        if verdict.status is Status.UPDATED:
+            assert reference is not None
+            inc = increment(settings.encoders, reference, current)
+            stamps.append(r.stamp_ns)
+            dts.append(inc.dt)
+            lefts.append(inc.d_left)
+            rights.append(inc.d_right)
+            segs.append(segments - 1)
+        elif verdict.status is Status.TIME_RESET or segments == 0:
+            segments += 1
+        reference = current
+    return WheelSteps(
+        np.frombuffer(stamps, dtype=np.int64).copy(),
+        np.frombuffer(dts, dtype=np.float64).copy(),
+        np.frombuffer(lefts, dtype=np.float64).copy(),
+        np.frombuffer(rights, dtype=np.float64).copy(),
+        np.frombuffer(segs, dtype=np.int64).copy(),
+        segments,
+    )
+
+
+def integrate_steps(
+    steps: WheelSteps, geometry: Geometry
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Pose after every step for ``geometry``: ``x, y, theta`` (theta continuous per segment)."""
+    ds, dtheta = body_increment(geometry, steps.d_left, steps.d_right)
+    if steps.segments <= 1:
+        return integrate_batch(ds, dtheta)
+    x, y, th = (np.empty(len(steps)) for _ in range(3))
+    bounds = np.flatnonzero(np.diff(steps.segment)) + 1
+    for lo, hi in zip(
+        np.concatenate(([0], bounds)), np.concatenate((bounds, [len(steps)])), strict=True
+    ):
+        x[lo:hi], y[lo:hi], th[lo:hi] = integrate_batch(ds[lo:hi], dtheta[lo:hi])
+    return x, y, th
+
+
+def final_pose(steps: WheelSteps, geometry: Geometry) -> Pose2D:
+    """Where the vectorised path ends (the origin if the last segment has no step)."""
+    if len(steps) == 0 or steps.segment[-1] != steps.segments - 1:
+        return Pose2D()
+    x, y, th = integrate_steps(steps, geometry)
+    return Pose2D(float(x[-1]), float(y[-1]), wrap_angle(float(th[-1])))
+
+
+# --- CLI -------------------------------------------------------------------------------
+
+
+class _Trajectory:
+    """Published poses kept compactly (32 bytes each) for ``--eval``."""
+
+    def __init__(self) -> None:
+        self.stamp_ns = array("q")
+        self.xyz = array("d")
+
+    def add(self, p: Published) -> None:
+        self.stamp_ns.append(p.stamp_ns)
+        self.xyz.extend((p.pose.x, p.pose.y, p.pose.theta))
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="diffdrive-odom replay",
+        description="Run the odometry node's estimator over a bag offline and write what "
+        "the node would publish (odom + /tf) to a rosbag2 and/or CSV.",
+    )
+    ap.add_argument("bag", help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag")
+    ap.add_argument("--params-file", required=True, help="the node's ROS 2 params YAML")
+    ap.add_argument("--node-name", default=NODE_NAME, help="section of the YAML to read")
+    ap.add_argument("--namespace", default="/", help="node namespace (frame prefix rule)")
+    ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bag")
+    ap.add_argument("-o", "--output", help="output rosbag2 directory (must not exist)")
+    ap.add_argument("--storage", choices=bagio.STORAGES, default="mcap")
+    ap.add_argument("--odom-topic", default="/odom", help="odometry topic in the output bag")
+    ap.add_argument("--tf-topic", default="/tf")
+    ap.add_argument("--csv", help="write published poses as CSV (columns: see README)")
+    ap.add_argument("--keep-input", action="store_true",
+                    help="copy every input topic into the output bag (ROS 1 -> CDR)")
+    ap.add_argument("--eval", nargs="?", const="/ground_truth/pose", default=None,
+                    metavar="GT_TOPIC", help="evaluate against ground truth in the input bag "
+                    "(default topic /ground_truth/pose)")
+    ap.add_argument("--child-frame", default=None,
+                    help="ground truth child frame when it is on /tf")
+    ap.add_argument("--json", help="with --eval: write the figures as JSON")
+    ap.add_argument("--plot", help="with --eval: write a PNG plot")
+    ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                    help="progress bar (default: on a terminal, for long bags)")
+    return ap
+
+
+def main(argv: Sequence[str]) -> int:
+    """``diffdrive-odom replay``; exit 2 on a bad parameter or unusable bag."""
+    args = _parser().parse_args(list(argv))
+    try:
+        settings = load_settings(args.params_file, args.node_name, args.namespace)
+    except ParameterError as err:
+        print(f"[replay] {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"[replay] --params-file: {err}", file=sys.stderr)
+        return 2
+    if (args.json or args.plot) and not args.eval:
+        print("[replay] --json/--plot need --eval", file=sys.stderr)
+        return 2
+    try:
+        stats, traj = _run(args, settings)
+    except bagio.BagError as err:
+        print(f"[replay] {err}", file=sys.stderr)
+        return 2
+    print(stats.summary())
+    if args.eval:
+        from diffdrive_odom import evaluate
+
+        try:
+            est = evaluate.Trajectory.from_arrays(
+                np.frombuffer(traj.stamp_ns, dtype=np.int64),
+                *np.frombuffer(traj.xyz, dtype=np.float64).reshape(-1, 3).T,
+            )
+            ref = evaluate.read_trajectory(args.bag, args.eval, args.child_frame)
+            metrics = evaluate.evaluate(est, ref)
+        except (bagio.BagError, ValueError) as err:
+            print(f"[replay] --eval: {err}", file=sys.stderr)
+            return 2
+        evaluate.report(metrics, est, ref, args.json, args.plot,
+                        labels=("replay", args.eval))
+    return 0
+
+
+def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, _Trajectory]:
+    from contextlib import ExitStack
+
+    traj = _Trajectory()
+    with ExitStack() as stack:
+        reader = stack.enter_context(bagio.open_bag(args.bag))
+        total = bagio.count_messages(reader, args.topic)
+        writer = (
+            stack.enter_context(bagio.BagWriter(args.output, args.storage))
+            if args.output else None
+        )
+        csv_out = stack.enter_context(bagio.CsvWriter(args.csv)) if args.csv else None
+        passthrough = None
+        if writer is not None:
+            writer.add_topic(args.odom_topic, bagio.ODOMETRY)
+            if settings.enable_odom_tf:
+                writer.add_topic(args.tf_topic, bagio.TF_MESSAGE)
+            if args.keep_input:
+                passthrough = _keep_input(reader, writer, args)
+        readings = bagio.iter_joint_states(reader, args.topic, passthrough)
+        show = args.progress if args.progress is not None else (
+            sys.stderr.isatty() and total >= PROGRESS_MIN_READINGS)
+        if show:
+            from tqdm import tqdm  # type: ignore[import-untyped]
+
+            readings = stack.enter_context(
+                tqdm(readings, total=total, unit="reading", unit_scale=True, file=sys.stderr))
+        sink = _sink(settings, writer, csv_out, traj if args.eval else None, args)
+        stats = replay_readings(readings, settings, sink)
+    return stats, traj
+
+
+def _keep_input(
+    reader: AnyReader, writer: bagio.BagWriter, args: argparse.Namespace
+) -> bagio.Passthrough:
+    """Copy every input message (converted to CDR) into the output bag as it streams by."""
+    convert = bagio.CdrConverter(reader)
+    for conn in reader.connections:
+        if conn.topic == args.odom_topic:
+            raise bagio.BagError(
+                f"--keep-input: the input bag already has {conn.topic}; choose another "
+                "--odom-topic for the replayed odometry")
+    registered: set[str] = set()
+
+    def passthrough(conn: Connection, log_ns: int, raw: bytes) -> None:
+        data = convert(conn, raw)
+        if conn.topic not in registered:
+            writer.add_topic(conn.topic, conn.msgtype, convert.typestore)
+            registered.add(conn.topic)
+        writer.write_cdr(conn.topic, log_ns, data)
+
+    return passthrough
+
+
+def _sink(
+    settings: OdometrySettings,
+    writer: bagio.BagWriter | None,
+    csv_out: bagio.CsvWriter | None,
+    traj: _Trajectory | None,
+    args: argparse.Namespace,
+) -> Callable[[Published], None]:
+    msgs = bagio.OdomMessages(bagio.typestore(), settings.odom_frame_id, settings.base_frame_id)
+    pose_cov = covariance_matrix(settings.pose_covariance_diagonal)
+    twist_cov = covariance_matrix(settings.twist_covariance_diagonal)
+    tf = settings.enable_odom_tf
+
+    def sink(p: Published) -> None:
+        x, y, yaw = p.pose.x, p.pose.y, p.pose.theta
+        if writer is not None:
+            writer.write(args.odom_topic, p.log_ns, msgs.odometry(
+                p.stamp_ns, x, y, yaw, p.linear, p.angular, pose_cov, twist_cov))
+            if tf:
+                writer.write(args.tf_topic, p.log_ns, msgs.tf(p.stamp_ns, x, y, yaw))
+        if csv_out is not None:
+            csv_out.row(p.stamp_ns, x, y, yaw, p.linear, p.angular, p.status.value)
+        if traj is not None:
+            traj.add(p)
+
+    return sink
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
