@@ -25,7 +25,7 @@ test: venv
 	$(PY) -m pytest -q
 
 lint: venv
-	$(VENV)/bin/ruff check diffdrive_odom test bench
+	$(VENV)/bin/ruff check diffdrive_odom test bench scripts
 	$(VENV)/bin/mypy
 
 check: test lint

@@ -169,11 +169,11 @@ def increment(
     dt = (current.stamp_ns - previous.stamp_ns) * 1e-9
     scale = config.radians_per_unit
     if current.from_velocity:
-        deltas = [0.5 * (a + b) * dt * scale for a, b in zip(previous.values, current.values)]
+        deltas = [0.5 * (a + b) * dt * scale for a, b in zip(previous.values, current.values, strict=True)]
     else:
         deltas = [
             unwrap_difference(b - a, config.counter_bits) * scale
-            for a, b in zip(previous.values, current.values)
+            for a, b in zip(previous.values, current.values, strict=True)
         ]
     n = len(config.left_wheel_names)
     return WheelIncrement(dt, math.fsum(deltas[:n]) / n, math.fsum(deltas[n:]) / n)
