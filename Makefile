@@ -31,7 +31,7 @@ lint: venv
 check: test lint
 
 bench: venv
-	$(PY) bench/run_all.py
+	set -e; for f in bench/bench_*.py; do echo "== $$f"; $(PY) $$f; done
 
 clean:
 	rm -rf $(VENV) build install log demo_output .pytest_cache .mypy_cache .ruff_cache
