@@ -9,6 +9,7 @@ coerced here rather than by rclpy's static typing so that ``-p wheel_radius:=1``
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -292,3 +293,21 @@ def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, ParamValue]
         else:
             flat[name] = value
     return flat
+
+
+def yaml_text(value: object) -> str:
+    """YAML 1.1 text that both rcl's parser and PyYAML read back as the same type."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        if value != value:
+            return ".nan"
+        if value in (float("inf"), float("-inf")):
+            return ".inf" if value > 0 else "-.inf"
+        mantissa, _, exponent = repr(value).partition("e")
+        if "." not in mantissa:
+            mantissa += ".0"
+        return mantissa + (f"e{exponent}" if exponent else "")
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(yaml_text(v) for v in value) + "]"
+    return json.dumps(value)

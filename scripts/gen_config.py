@@ -8,10 +8,9 @@ Run: .venv/bin/python scripts/gen_config.py > config/diffdrive_odom.yaml
 from __future__ import annotations
 
 import importlib
-import json
 import sys
 
-from diffdrive_odom.params import GEOMETRY_PARAMS, ODOMETRY_PARAMS, ParamSpec
+from diffdrive_odom.params import GEOMETRY_PARAMS, ODOMETRY_PARAMS, ParamSpec, yaml_text
 
 # Values for the example robot instead of the defaults (the OptiOdom robot whose
 # recordings are in test/data): the geometry has no usable default.
@@ -29,27 +28,9 @@ def node_tables() -> list[tuple[str, tuple[ParamSpec, ...]]]:
     return tables
 
 
-def yaml_scalar(value: object) -> str:
-    """YAML 1.1 text that both rcl's parser and PyYAML read back as the same type."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        if value != value:
-            return ".nan"
-        if value in (float("inf"), float("-inf")):
-            return ".inf" if value > 0 else "-.inf"
-        mantissa, _, exponent = repr(value).partition("e")
-        if "." not in mantissa:
-            mantissa += ".0"
-        return mantissa + (f"e{exponent}" if exponent else "")
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(yaml_scalar(v) for v in value) + "]"
-    return json.dumps(value)
-
-
 def dump(spec: ParamSpec, indent: str) -> str:
     value = EXAMPLE.get(spec.name, spec.default)
-    text = yaml_scalar(value)
+    text = yaml_text(value)
     note = spec.description
     if spec.name in EXAMPLE:
         note += f" (default {spec.default!r}; example robot's value)"
