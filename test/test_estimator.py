@@ -1,0 +1,350 @@
+"""OdometryEstimator end to end without DDS: closed forms and the safety rules.
+
+Expected poses are circle geometry (constant curvature) computed here; the safety
+rules are checked by comparing with an estimator that never saw the bad reading.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+
+import pytest
+
+from diffdrive_odom.encoders import EncoderConfig
+from diffdrive_odom.integration import Pose2D, wrap_angle
+from diffdrive_odom.kinematics import Geometry
+from diffdrive_odom.odometry import EstimatorConfig, OdometryEstimator, Status
+
+LEFT, RIGHT = "left_wheel_joint", "right_wheel_joint"
+NAMES = [LEFT, RIGHT]
+ONE = EncoderConfig((LEFT,), (RIGHT,))
+GEOMETRY = Geometry(wheel_radius=0.1, wheel_separation=0.4)
+DEFAULTS = EstimatorConfig()
+T0 = 1_700_000_000_000_000_000  # a realistic epoch stamp in ns
+
+
+def ns(seconds: float) -> int:
+    return T0 + round(seconds * 1e9)
+
+
+def make(geometry: Geometry = GEOMETRY, config: EstimatorConfig = DEFAULTS,
+         encoders: EncoderConfig = ONE) -> OdometryEstimator:
+    return OdometryEstimator(geometry, encoders, config)
+
+
+def arc_pose(arc: float, heading: float) -> Pose2D:
+    """Where an arc of length ``arc`` turning by ``heading`` ends, from the origin."""
+    if heading == 0.0:
+        return Pose2D(arc, 0.0, 0.0)
+    radius = arc / heading
+    return Pose2D(radius * math.sin(heading), radius * (1.0 - math.cos(heading)), heading)
+
+
+def assert_pose(got: Pose2D, expected: Pose2D, tol: float = 1e-12) -> None:
+    assert abs(got.x - expected.x) <= tol, (got, expected)
+    assert abs(got.y - expected.y) <= tol, (got, expected)
+    assert abs(wrap_angle(got.theta - expected.theta)) <= tol, (got, expected)
+
+
+def irregular_times(total: float) -> list[float]:
+    """Stamps from 0 to about ``total`` with uneven gaps, as a real driver sends them."""
+    gaps = (0.005, 0.02, 0.013, 0.031, 0.0101)
+    times = [0.0]
+    while times[-1] < total:
+        times.append(times[-1] + gaps[len(times) % len(gaps)])
+    return times
+
+
+def feed_positions(est: OdometryEstimator,
+                   readings: Sequence[tuple[float, float, float]]) -> None:
+    for t, left, right in readings:
+        verdict = est.update(ns(t), NAMES, [left, right])
+        assert verdict.status in (Status.REFERENCE, Status.UPDATED), verdict
+
+
+# --------------------------------------------------------------- joint lookup
+
+
+def test_shuffled_order_and_extra_joints_give_the_same_pose() -> None:
+    plain, shuffled = make(), make()
+    for k in range(50):
+        left, right = 0.02 * k, 0.035 * k
+        assert plain.update(ns(0.01 * k), NAMES, [left, right]).has_new_pose
+        verdict = shuffled.update(ns(0.01 * k), ["caster", RIGHT, "arm", LEFT],
+                                  [123.0, right, math.nan, left])
+        assert verdict.has_new_pose
+        assert shuffled.pose == plain.pose
+
+
+def test_missing_wheel_joint_drops_the_reading() -> None:
+    est = make()
+    feed_positions(est, [(0.0, 0.0, 0.0), (0.01, 0.1, 0.2)])
+    before = est.pose
+    verdict = est.update(ns(0.02), [LEFT, "caster"], [0.3, 0.0])
+    assert verdict.status == Status.DROPPED and verdict.reason
+    assert est.pose == before and est.stamp_ns == ns(0.01)
+
+
+def test_several_wheels_per_side_are_averaged() -> None:
+    four = make(encoders=EncoderConfig(("fl", "rl"), ("fr", "rr")))
+    names = ["rr", "fl", "fr", "rl"]
+    four.update(ns(0.0), names, [5.0, 1.0, -3.0, 2.0])
+    # Left wheels turn 0.3 and 0.5 (mean 0.4), right 1.1 and 0.9 (mean 1.0).
+    four.update(ns(0.05), names, [5.9, 1.3, -1.9, 2.5])
+    arc = 0.1 * (0.4 + 1.0) / 2
+    heading = 0.1 * (1.0 - 0.4) / 0.4
+    assert_pose(four.pose, arc_pose(arc, heading))
+
+
+# ---------------------------------------------------------- geometry and signs
+
+
+def test_different_wheel_radii_follow_seed_003() -> None:
+    # Seed 003 eq. 1: v = (r_R w_R + r_L w_L) / 2, w = (r_R w_R - r_L w_L) / d.
+    geometry = Geometry(0.1, 0.4, left_wheel_radius_multiplier=0.9,
+                        right_wheel_radius_multiplier=1.2, wheel_separation_multiplier=1.1)
+    r_left, r_right, d = 0.09, 0.12, 0.44
+    est = make(geometry)
+    feed_positions(est, [(t, 2.0 * t, 2.0 * t) for t in irregular_times(1.5)])
+    duration = irregular_times(1.5)[-1]
+    v = (r_right * 2.0 + r_left * 2.0) / 2
+    w = (r_right * 2.0 - r_left * 2.0) / d
+    assert_pose(est.pose, arc_pose(v * duration, w * duration))
+
+
+def test_right_joint_measured_the_other_way_as_in_seed_000() -> None:
+    est = make(Geometry(0.1, 0.4, right_wheel_sign=-1))
+    feed_positions(est, [(0.01 * k, 0.05 * k, -0.05 * k) for k in range(101)])
+    assert_pose(est.pose, Pose2D(0.1 * 5.0, 0.0, 0.0))
+
+
+def test_geometry_change_applies_from_the_next_step() -> None:
+    est = make()
+    feed_positions(est, [(0.0, 0.0, 0.0), (0.1, 1.0, 1.0)])
+    est.set_geometry(Geometry(0.2, 0.4))
+    feed_positions(est, [(0.2, 2.0, 2.0)])
+    assert_pose(est.pose, Pose2D(0.1 * 1.0 + 0.2 * 1.0, 0.0, 0.0))
+
+
+# ----------------------------------------------------------- velocity-only input
+
+
+def test_constant_wheel_speeds_from_velocity_only() -> None:
+    est = make()
+    times = irregular_times(2.0)
+    for t in times:
+        assert est.update(ns(t), NAMES, [], [3.0, 5.0]).has_new_pose
+    v, w = 0.1 * (3.0 + 5.0) / 2, 0.1 * (5.0 - 3.0) / 0.4
+    assert_pose(est.pose, arc_pose(v * times[-1], w * times[-1]))
+    assert est.linear == pytest.approx(v, rel=1e-9)
+    assert est.angular == pytest.approx(w, rel=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("left_gain", "right_gain", "a", "k"),
+    [
+        (1.0, 3.0, 2.0, 1.5),  # accelerating on a circle of radius 0.3 m
+        (1.0, 1.0, 0.5, 2.0),  # accelerating straight
+        (2.0, -1.0, 2.0, -2.0),  # decelerating through zero into reverse
+    ],
+)
+def test_linearly_changing_wheel_speeds_from_velocity_only(
+    left_gain: float, right_gain: float, a: float, k: float
+) -> None:
+    # w_side(t) = gain * (a + k t): the ratio of the wheels, hence the curvature, is
+    # constant, and the trapezoidal rule is exact for a linear speed, so the CIR steps
+    # land on the circle: arc s(t) and heading phi(t) both grow as a t + k t^2 / 2.
+    r, b = 0.05, 0.3
+    est = make(Geometry(r, b))
+    times = irregular_times(2.0)
+    for t in times:
+        speed = a + k * t
+        assert est.update(ns(t), NAMES, [], [left_gain * speed, right_gain * speed]).has_new_pose
+    t_end = times[-1]
+    angle = a * t_end + k * t_end**2 / 2
+    assert_pose(est.pose, arc_pose(r * (left_gain + right_gain) / 2 * angle,
+                                   r * (right_gain - left_gain) / b * angle))
+    # The twist is the step's mean: the speed at the middle of the last interval.
+    mid_speed = a + k * (times[-2] + t_end) / 2
+    assert est.linear == pytest.approx(r * (left_gain + right_gain) / 2 * mid_speed, abs=1e-9)
+    assert est.angular == pytest.approx(r * (right_gain - left_gain) / b * mid_speed, abs=1e-9)
+
+
+def test_switching_between_position_and_velocity_takes_a_new_reference() -> None:
+    est = make()
+    feed_positions(est, [(0.0, 0.0, 0.0), (0.1, 1.0, 1.0)])
+    before = est.pose
+    verdict = est.update(ns(0.2), NAMES, [], [50.0, 50.0])
+    assert verdict.status == Status.REFERENCE
+    assert est.pose == before
+    assert est.update(ns(0.3), NAMES, [], [50.0, 50.0]).status == Status.UPDATED
+    assert_pose(est.pose, Pose2D(0.1 * 1.0 + 0.1 * 50.0 * 0.1, 0.0, 0.0))
+
+
+# ------------------------------------------------------ the first reading rule
+
+
+def test_non_zero_first_reading_is_only_a_reference() -> None:
+    est = make(Geometry(1.0, 1.0))
+    verdict = est.update(ns(0.0), NAMES, [1234.5, -987.25])
+    assert verdict.status == Status.REFERENCE and verdict.has_new_pose
+    assert est.pose == Pose2D()
+    assert est.linear == 0.0 and est.angular == 0.0
+    # Then left 1 rad, right 2 rad in 0.1 s: radius 1.5 m through 1 rad.
+    assert est.update(ns(0.1), NAMES, [1235.5, -985.25]).status == Status.UPDATED
+    assert_pose(est.pose, Pose2D(1.5 * math.sin(1.0), 1.5 * (1 - math.cos(1.0)), 1.0))
+
+
+# ------------------------------------------------------------ dropped readings
+
+
+BAD_READINGS: list[tuple[str, float, list[str], list[float], list[float]]] = [
+    ("nan position", 0.03, NAMES, [math.nan, 0.25], []),
+    ("inf position", 0.03, NAMES, [0.15, math.inf], []),
+    ("-inf position", 0.03, NAMES, [-math.inf, 0.25], []),
+    ("nan velocity", 0.03, NAMES, [], [math.nan, 1.0]),
+    ("short position", 0.03, NAMES, [0.15], []),
+    ("short velocity", 0.03, NAMES, [], [1.0]),
+    ("no data", 0.03, NAMES, [], []),
+    ("missing wheel", 0.03, [LEFT], [0.15], []),
+    ("repeated stamp", 0.02, NAMES, [0.15, 0.25], []),
+    ("slightly older stamp", 0.019, NAMES, [0.15, 0.25], []),
+    ("older, under the jump threshold", 0.02 - 0.999, NAMES, [0.15, 0.25], []),
+]
+
+
+@pytest.mark.parametrize(("what", "t", "names", "position", "velocity"), BAD_READINGS,
+                         ids=[b[0] for b in BAD_READINGS])
+def test_unusable_reading_is_dropped_without_touching_state(
+    what: str, t: float, names: list[str], position: list[float], velocity: list[float]
+) -> None:
+    good = [(0.0, 0.0, 0.0), (0.02, 0.1, 0.3)]
+    after = (0.04, 0.2, 0.5)
+    est, clean = make(), make()
+    feed_positions(est, good)
+    feed_positions(clean, good)
+    state = (est.pose, est.stamp_ns, est.linear, est.angular, est.last_step)
+    verdict = est.update(ns(t), names, position, velocity)
+    assert verdict.status == Status.DROPPED and verdict.reason, what
+    assert not verdict.has_new_pose
+    assert (est.pose, est.stamp_ns, est.linear, est.angular, est.last_step) == state
+    # The next good reading integrates from the last good one, as if nothing happened.
+    feed_positions(est, [after])
+    feed_positions(clean, [after])
+    assert est.pose == clean.pose
+    assert (est.linear, est.angular) == (clean.linear, clean.angular)
+
+
+@pytest.mark.parametrize(("threshold", "back", "restarts"),
+                         [(1.0, 1.5, True), (1.0, 0.5, False), (0.1, 0.2, True),
+                          (0.1, 0.05, False), (0.0, 0.001, True)])
+def test_stamp_far_back_restarts_at_the_origin(
+    threshold: float, back: float, restarts: bool
+) -> None:
+    est = make(config=EstimatorConfig(time_jump_threshold=threshold))
+    feed_positions(est, [(10.0, 0.0, 0.0), (10.1, 1.0, 2.0)])
+    moved = est.pose
+    assert moved != Pose2D()
+    verdict = est.update(ns(10.1 - back), NAMES, [7.0, 7.0])
+    if not restarts:
+        assert verdict.status == Status.DROPPED
+        assert est.pose == moved
+        return
+    assert verdict.status == Status.TIME_RESET and verdict.has_new_pose and verdict.reason
+    assert est.pose == Pose2D()
+    assert (est.linear, est.angular, est.last_step) == (0.0, 0.0, None)
+    assert est.stamp_ns == ns(10.1 - back)
+    # The bag's first reading is the new reference: only motion from it counts.
+    assert est.update(ns(10.1 - back + 0.05), NAMES, [7.5, 7.5]).status == Status.UPDATED
+    assert_pose(est.pose, Pose2D(0.1 * 0.5, 0.0, 0.0))
+
+
+@pytest.mark.parametrize(("left", "right"), [(5.0, 0.3), (0.3, -4.0), (-100.0, -100.0)])
+def test_implausible_step_is_skipped_and_reanchors(left: float, right: float) -> None:
+    # max 10 rad/s over 0.1 s allows 1 rad per step.
+    est = make(config=EstimatorConfig(max_wheel_speed=10.0))
+    feed_positions(est, [(0.0, 0.0, 0.0), (0.1, 0.9, 0.9)])
+    assert_pose(est.pose, Pose2D(0.09, 0.0, 0.0))
+    before = est.pose
+    verdict = est.update(ns(0.2), NAMES, [0.9 + left, 0.9 + right])
+    assert verdict.status == Status.REANCHORED and verdict.reason
+    assert not verdict.has_new_pose
+    assert est.pose == before and est.stamp_ns == ns(0.2)
+    # The glitch value is the new reference: the next step counts from it.
+    assert est.update(ns(0.3), NAMES, [1.4 + left, 1.4 + right]).status == Status.UPDATED
+    assert_pose(est.pose, Pose2D(0.09 + 0.05, 0.0, 0.0))
+
+
+# ------------------------------------------------------------- reset / restart
+
+
+def test_reset_returns_to_zero_with_no_jump_on_the_next_step() -> None:
+    est = make()
+    feed_positions(est, [(0.0, 3.0, 4.0), (0.1, 4.0, 6.0), (0.2, 5.0, 8.0)])
+    assert est.pose != Pose2D()
+    est.reset()
+    assert est.pose == Pose2D()
+    assert (est.linear, est.angular, est.last_step) == (0.0, 0.0, None)
+    assert est.stamp_ns == ns(0.2)  # the last reading stays the reference
+    assert est.update(ns(0.3), NAMES, [5.5, 8.5]).status == Status.UPDATED
+    assert_pose(est.pose, Pose2D(0.05, 0.0, 0.0))
+
+
+def test_restart_forgets_the_reference() -> None:
+    est = make()
+    feed_positions(est, [(0.0, 3.0, 4.0), (0.1, 4.0, 6.0)])
+    est.restart()
+    assert est.stamp_ns is None and est.pose == Pose2D()
+    assert est.update(ns(0.2), NAMES, [90.0, -90.0]).status == Status.REFERENCE
+    assert est.pose == Pose2D()
+
+
+# ----------------------------------------------------------------------- twist
+
+
+def test_twist_is_the_step_over_its_interval() -> None:
+    est = make()
+    feed_positions(est, [(0.0, 0.0, 0.0), (0.05, 0.2, 0.6)])
+    ds, dtheta = 0.1 * (0.2 + 0.6) / 2, 0.1 * (0.6 - 0.2) / 0.4
+    assert est.last_step is not None
+    assert est.last_step.dt == pytest.approx(0.05, abs=1e-15)
+    assert est.last_step.ds == pytest.approx(ds, abs=1e-15)
+    assert est.last_step.dtheta == pytest.approx(dtheta, abs=1e-15)
+    assert est.linear == pytest.approx(ds / 0.05, rel=1e-12)
+    assert est.angular == pytest.approx(dtheta / 0.05, rel=1e-12)
+
+
+def test_rolling_window_smooths_the_twist_only() -> None:
+    window = 3
+    plain = make()
+    smooth = make(config=replace(DEFAULTS, velocity_rolling_window_size=window))
+    readings = [(0.0, 0.0, 0.0)]
+    step_linear: list[float] = []  # each step's own twist, from the geometry
+    step_angular: list[float] = []
+    for dt, dl, dr in [(0.02, 0.1, 0.1), (0.01, 0.3, -0.1), (0.03, 0.0, 0.5),
+                       (0.02, 0.2, 0.2), (0.05, -0.4, 0.1), (0.02, 0.1, 0.3)]:
+        t, left, right = readings[-1]
+        readings.append((t + dt, left + dl, right + dr))
+        step_linear.append(0.1 * (dl + dr) / 2 / dt)
+        step_angular.append(0.1 * (dr - dl) / 0.4 / dt)
+    for k, reading in enumerate(readings):
+        feed_positions(plain, [reading])
+        feed_positions(smooth, [reading])
+        assert smooth.pose == plain.pose  # never applied to the pose
+        if k == 0:
+            continue
+        assert plain.linear == pytest.approx(step_linear[k - 1], rel=1e-9)
+        recent = slice(max(0, k - window), k)
+        assert smooth.linear == pytest.approx(
+            sum(step_linear[recent]) / len(step_linear[recent]), rel=1e-9)
+        assert smooth.angular == pytest.approx(
+            sum(step_angular[recent]) / len(step_angular[recent]), rel=1e-9)
+    # After a reset the window starts empty again.
+    smooth.reset()
+    plain.reset()
+    t, left, right = readings[-1]
+    feed_positions(plain, [(t + 0.02, left + 0.2, right + 0.1)])
+    feed_positions(smooth, [(t + 0.02, left + 0.2, right + 0.1)])
+    assert (smooth.linear, smooth.angular) == (plain.linear, plain.angular)
