@@ -34,6 +34,8 @@ from diffdrive_odom.kinematics import point_velocity_to_twist
 from diffdrive_odom.limits import LimitedCommand, TwistLimiter, Watchdog
 
 NODE_NAME = "cmd_vel_node"
+# Each warning below is throttled on its own (rclpy keys the throttle by call site).
+THROTTLE_S = ros_common.WARN_THROTTLE_S
 
 # Best effort matches reliable and best-effort publishers alike (teleop, Nav2,
 # joystick drivers); only the newest command matters, so the queue is short.
@@ -122,9 +124,6 @@ class CmdVelNode(Node):
 
     # --- input ------------------------------------------------------------------
 
-    def _warn(self, text: str) -> None:
-        self._log.warning(text, throttle_duration_sec=ros_common.WARN_THROTTLE_S)
-
     def _on_twist(self, msg: Twist) -> None:
         self._accept(msg, None)
 
@@ -144,13 +143,16 @@ class CmdVelNode(Node):
         lin, ang = twist.linear, twist.angular
         parts = (lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
         if not all(math.isfinite(p) for p in parts):
-            self._warn(f"cmd_vel with NaN/inf ignored: linear=({lin.x}, {lin.y}, {lin.z}) "
-                       f"angular=({ang.x}, {ang.y}, {ang.z})")
+            self._log.warning(
+                f"cmd_vel with NaN/inf ignored: linear=({lin.x}, {lin.y}, {lin.z}) "
+                f"angular=({ang.x}, {ang.y}, {ang.z})", throttle_duration_sec=THROTTLE_S)
             return
         ros_now = self.get_clock().now().nanoseconds
         if stamp_ns is not None and self._watchdog.is_stale(stamp_ns, ros_now):
-            self._warn(f"stale cmd_vel ignored: stamped {(ros_now - stamp_ns) * 1e-9:.3f} s "
-                       f"ago, cmd_vel_timeout is {self._settings.cmd_vel_timeout:g} s")
+            self._log.warning(
+                f"stale cmd_vel ignored: stamped {(ros_now - stamp_ns) * 1e-9:.3f} s ago, "
+                f"cmd_vel_timeout is {self._settings.cmd_vel_timeout:g} s",
+                throttle_duration_sec=THROTTLE_S)
             return
         self._watchdog.accept(Command(lin.x, lin.y, ang.z),
                               self._steady.now().nanoseconds, stamp_ns)
@@ -188,7 +190,8 @@ class CmdVelNode(Node):
         s = self._settings
         left, right = out.left, out.right
         if not (math.isfinite(left) and math.isfinite(right)):  # cannot happen; never NaN
-            self._warn("non-finite wheel command replaced by zeros")
+            self._log.warning("non-finite wheel command replaced by zeros",
+                              throttle_duration_sec=THROTTLE_S)
             left = right = 0.0
             self._limiter.reset()
         if s.wheel_command_format == TICKS_PER_SECOND:
@@ -221,10 +224,11 @@ class CmdVelNode(Node):
         topic = self._sub.topic_name
         for info in self.get_publishers_info_by_topic(topic):
             if info.topic_type != expected:
-                self._warn(
+                self._log.warning(
                     f"{topic} has a publisher of type {info.topic_type} but this node "
                     f"expects {expected}: set enable_stamped_cmd_vel to "
-                    f"{str(expected.endswith('Twist')).lower()}")
+                    f"{str(expected.endswith('Twist')).lower()}",
+                    throttle_duration_sec=THROTTLE_S)
                 return
 
 

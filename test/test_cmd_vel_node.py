@@ -1,0 +1,374 @@
+"""The cmd_vel node over real DDS on loopback, plus its parameter validation.
+
+Each DDS test starts ``cmd_vel_node`` as its own process (the console script a user
+runs) and talks to it from a private-Context peer node. Expected wheel speeds are the
+closed-form inverse kinematics left = (v - w b/2) / r, right = (v + w b/2) / r.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Twist, TwistStamped
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from diffdrive_odom.cmd_vel_settings import CMD_VEL_PARAMS, cmd_vel_settings
+from diffdrive_odom.params import ParameterError, load_params_file
+
+from rosutil import node_process, ros_test_node, spin_for, spin_until
+
+# --- parameters (pure) ---------------------------------------------------------------
+
+GOOD = {"wheel_radius": 0.1, "wheel_separation": 0.4}
+
+
+def test_parameter_names_are_unique_and_geometry_is_shared() -> None:
+    names = [s.name for s in CMD_VEL_PARAMS]
+    assert len(names) == len(set(names))
+    for name in ("wheel_radius", "wheel_separation", "left_wheel_sign", "ticks_per_revolution",
+                 "linear.x.max_deceleration_reverse", "angular.z.min_jerk"):
+        assert name in names
+
+
+def test_defaults_refuse_to_guess_the_geometry() -> None:
+    with pytest.raises(ParameterError) as err:
+        cmd_vel_settings({})
+    assert err.value.name == "wheel_radius"
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("linear.x.max_deceleration", 2.0),
+        ("angular.z.max_acceleration_reverse", 1.0),
+        ("linear.x.min_velocity", 0.2),
+        ("angular.z.max_jerk", -1.0),
+        ("max_wheel_velocity", -3.0),
+        ("publish_rate", 0.0),
+        ("cmd_vel_timeout", -0.1),
+        ("control_point_offset", math.inf),
+        ("wheel_command_format", "rpm"),
+        ("enable_stamped_cmd_vel", 1),
+    ],
+)
+def test_bad_values_are_refused_by_name(name: str, value: Any) -> None:
+    with pytest.raises(ParameterError) as err:
+        cmd_vel_settings({**GOOD, name: value})
+    assert err.value.name == name
+
+
+def test_ticks_format_needs_ticks_per_revolution() -> None:
+    with pytest.raises(ParameterError) as err:
+        cmd_vel_settings({**GOOD, "wheel_command_format": "ticks_per_second"})
+    assert err.value.name == "ticks_per_revolution"
+
+
+def test_nested_yaml_limits_read_like_the_node_reads_them(tmp_path: Path) -> None:
+    path = tmp_path / "p.yaml"
+    path.write_text(PARAMS_YAML)
+    s = cmd_vel_settings(load_params_file(path, "cmd_vel_node"))
+    assert s.limits.linear.max_acceleration == 2.0
+    assert math.isnan(s.limits.linear.max_velocity)
+    assert s.limits.angular.max_velocity == 3.0
+    assert s.geometry.left_wheel_sign == -1
+    assert s.wheel_command_format == "ticks_per_second"
+
+
+# --- DDS helpers -----------------------------------------------------------------------
+
+R, B = 0.1, 0.4
+TIMEOUT, RATE = 0.5, 50.0
+PERIOD = 1.0 / RATE
+
+
+@dataclass
+class Sink:
+    """What the node publishes, with the (monotonic) time each message arrived."""
+
+    msgs: list[tuple[float, Any]] = field(default_factory=list)
+
+    def add(self, msg: Any) -> None:
+        self.msgs.append((time.monotonic(), msg))
+
+    def since(self, t: float) -> list[tuple[float, Any]]:
+        return [(ts, m) for ts, m in self.msgs if ts >= t]
+
+
+def output(proc: Any) -> str:
+    """The node's output once it has ended."""
+    if proc.poll() is None:
+        return "(still running)"
+    return str(proc.stdout.read()) if proc.stdout else ""
+
+
+@contextmanager
+def cmd_vel_node(args: list[str]) -> Iterator[tuple[Any, Node, Any]]:
+    with node_process("cmd_vel_node", ["--ros-args", *args]) as proc, \
+            ros_test_node() as (node, ex):
+        yield proc, node, ex
+
+
+def wait_connected(ex: Any, pub: Any, sink: Sink, proc: Any) -> None:
+    """The node heard (subscription matched) and speaks (heartbeat arrives)."""
+    assert spin_until(ex, lambda: pub.get_subscription_count() > 0 and sink.msgs, 20.0), (
+        "cmd_vel_node never connected: " + output(proc)
+    )
+
+
+def drive(ex: Any, pub: Any, make: Callable[[], Any], seconds: float, hz: float = 20.0) -> float:
+    """Publish ``make()`` at ``hz`` for ``seconds``; return the time of the last publish."""
+    end = time.monotonic() + seconds
+    last = time.monotonic()
+    while time.monotonic() < end:
+        pub.publish(make())
+        last = time.monotonic()
+        spin_for(ex, 1.0 / hz)
+    return last
+
+
+def twist(v: float, w: float, vy: float = 0.0) -> Twist:
+    msg = Twist()
+    msg.linear.x, msg.linear.y, msg.angular.z = v, vy, w
+    return msg
+
+
+def stamped(v: float, w: float, stamp_ns: int) -> TwistStamped:
+    msg = TwistStamped()
+    msg.header.stamp = Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+    msg.twist = twist(v, w)
+    return msg
+
+
+def wall_ns() -> int:
+    return time.time_ns()
+
+
+def is_zero(values: Any) -> bool:
+    return all(x == 0.0 for x in values)
+
+
+# --- DDS tests ---------------------------------------------------------------------------
+
+
+def test_twist_to_float64_array_watchdog_rate_nan_and_runtime_parameters() -> None:
+    args = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}",
+            "-p", "left_wheel_names:=['fl','rl']", "-p", "right_wheel_names:=['fr','rr']",
+            "-p", "right_wheel_sign:=-1",
+            "-p", f"cmd_vel_timeout:={TIMEOUT}", "-p", f"publish_rate:={RATE}"]
+    with cmd_vel_node(args) as (proc, node, ex):
+        sink = Sink()
+        node.create_subscription(Float64MultiArray, "/wheel_commands", sink.add, 100)
+        pub = node.create_publisher(Twist, "/cmd_vel", 10)
+        wait_connected(ex, pub, sink, proc)
+
+        # Heartbeat before any command: zeros at publish_rate.
+        t0 = time.monotonic()
+        spin_for(ex, 1.0)
+        idle = sink.since(t0)
+        assert 0.6 * RATE <= len(idle) <= 1.2 * RATE, len(idle)
+        print(f"heartbeat: {len(idle)} messages in 1 s at publish_rate {RATE:g} Hz")
+        assert all(is_zero(m.data) for _, m in idle)
+
+        v, w = 0.5, 1.0
+        left, right = (v - w * B / 2) / R, -(v + w * B / 2) / R  # right joint is flipped
+        expected = [left, left, right, right]
+        assert spin_until(ex, lambda: (pub.publish(twist(v, w)), sink.msgs[-1][1].data)[1]
+                          .tolist() == pytest.approx(expected), 10.0)
+        t_last = drive(ex, pub, lambda: twist(v, w), 1.0)
+        spin_for(ex, 1.5)
+        after = sink.since(t_last)
+        zero_at = next((ts for ts, m in after if is_zero(m.data)), None)
+        assert zero_at is not None, "the node never stopped after the last command"
+        delay = zero_at - t_last
+        print(f"watchdog: zeros {delay * 1e3:.0f} ms after the last command "
+              f"(timeout {TIMEOUT * 1e3:.0f} ms + period {PERIOD * 1e3:.0f} ms)")
+        # Held until the timeout, then zeros within one period (+ slack for a loaded CPU).
+        assert TIMEOUT - 0.05 <= delay <= TIMEOUT + PERIOD + 0.15, delay
+        assert all(list(m.data) == pytest.approx(expected) for ts, m in after
+                   if ts < t_last + TIMEOUT - 0.05)
+        stopped = [m for ts, m in after if ts >= zero_at]
+        assert len(stopped) >= 0.6 * RATE and all(is_zero(m.data) for m in stopped)
+
+        # NaN / inf commands count as no command: the robot stays stopped.
+        t_nan = time.monotonic()
+        drive(ex, pub, lambda: twist(math.nan, 1.0), 0.4)
+        drive(ex, pub, lambda: twist(0.3, math.inf), 0.4)
+        assert all(is_zero(m.data) for _, m in sink.since(t_nan))
+
+        # Runtime parameters: refused with a reason naming them; a good one takes effect.
+        client = AsyncParameterClient(node, "cmd_vel_node")
+        assert client.wait_for_services(timeout_sec=10.0)
+
+        def set_param(name: str, value: Any) -> Any:
+            future = client.set_parameters([Parameter(name, value=value)])
+            assert spin_until(ex, future.done, 10.0)
+            return future.result().results[0]
+
+        bad = set_param("linear.x.max_acceleration", -1.0)
+        assert not bad.successful and "linear.x.max_acceleration" in bad.reason
+        assert not set_param("wheel_command_format", "joint_state").successful  # read-only
+        assert set_param("max_wheel_velocity", 3.5).successful
+        # |right| = 7 > 3.5: both wheels halved, curvature kept.
+        scaled = [left / 2, left / 2, right / 2, right / 2]
+        assert spin_until(ex, lambda: (pub.publish(twist(v, w)), sink.msgs[-1][1].data)[1]
+                          .tolist() == pytest.approx(scaled), 10.0)
+        assert proc.poll() is None, "node died: " + output(proc)
+    for _, m in sink.msgs:
+        assert all(math.isfinite(x) for x in m.data)
+
+
+def test_twist_stamped_to_joint_state_stale_and_zero_stamps() -> None:
+    r, b = 0.05, 0.3
+    args = ["-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}",
+            "-p", "enable_stamped_cmd_vel:=true", "-p", "wheel_command_format:=joint_state",
+            "-p", f"cmd_vel_timeout:={TIMEOUT}"]
+    with cmd_vel_node(args) as (proc, node, ex):
+        sink = Sink()
+        node.create_subscription(JointState, "/wheel_commands", sink.add, 100)
+        pub = node.create_publisher(TwistStamped, "/cmd_vel", 10)
+        wait_connected(ex, pub, sink, proc)
+
+        t0 = time.monotonic()
+        drive(ex, pub, lambda: stamped(0.3, 0.0, wall_ns() - 2 * 10**9), 0.8)  # 2 s old
+        assert all(is_zero(m.velocity) for _, m in sink.since(t0))
+
+        def latest() -> list[float]:
+            return list(sink.msgs[-1][1].velocity)
+
+        assert spin_until(ex, lambda: (pub.publish(stamped(0.3, 0.0, wall_ns())),
+                                       latest())[1] == pytest.approx([6.0, 6.0]), 10.0)
+        msg = sink.msgs[-1][1]
+        assert list(msg.name) == ["left_wheel_joint", "right_wheel_joint"]
+        assert msg.header.stamp.sec > 0
+
+        # Zero stamp = now: accepted (turn on the spot: w b/2 / r = +-3 rad/s).
+        assert spin_until(ex, lambda: (pub.publish(stamped(0.0, 1.0, 0)),
+                                       latest())[1] == pytest.approx([-3.0, 3.0]), 10.0)
+        drive(ex, pub, lambda: stamped(0.0, 1.0, 0), 0.3)
+        # Slightly old but within the timeout: still accepted.
+        assert spin_until(ex, lambda: (pub.publish(stamped(-0.1, 0.0, wall_ns() - 2 * 10**8)),
+                                       latest())[1] == pytest.approx([-2.0, -2.0]), 10.0)
+    out = output(proc)
+    assert out.count("stamp is zero") == 1, out
+    assert "stale cmd_vel ignored" in out
+
+
+PARAMS_YAML = """\
+/**:
+  ros__parameters:
+    wheel_radius: 0.1
+    wheel_separation: 0.5
+    left_wheel_sign: -1
+    ticks_per_revolution: 4096.0
+cmd_vel_node:
+  ros__parameters:
+    wheel_command_format: ticks_per_second
+    publish_limited_velocity: true
+    linear:
+      x:
+        max_velocity: .nan
+        max_acceleration: 2.0
+    angular:
+      z:
+        max_velocity: 3.0
+"""
+
+
+def test_ticks_params_file_acceleration_limit_and_cmd_vel_out(tmp_path: Path) -> None:
+    path = tmp_path / "params.yaml"
+    path.write_text(PARAMS_YAML)
+    with cmd_vel_node(["--params-file", str(path)]) as (proc, node, ex):
+        sink, limited = Sink(), Sink()
+        node.create_subscription(Float64MultiArray, "/wheel_commands", sink.add, 100)
+        node.create_subscription(TwistStamped, "/cmd_vel_out", limited.add, 100)
+        pub = node.create_publisher(Twist, "/cmd_vel", 10)
+        wait_connected(ex, pub, sink, proc)
+        assert spin_until(ex, lambda: limited.msgs, 10.0)
+
+        t0 = time.monotonic()
+        drive(ex, pub, lambda: twist(1.0, 5.0), 1.2)  # angular is capped at 3 rad/s
+        moving = [(ts, m.twist) for ts, m in limited.since(t0) if m.twist.linear.x > 0.0]
+        assert moving, output(proc)
+        start = moving[0][0]
+        full = next(ts for ts, t in moving if t.linear.x == pytest.approx(1.0))
+        # 2 m/s^2 from rest to 1 m/s: 0.5 s on the node's clock (arrival jitter aside).
+        assert 0.35 <= full - start <= 0.75, full - start
+        print(f"limiter: 0 -> 1 m/s in {(full - start) * 1e3:.0f} ms at 2 m/s^2 (ideal 500 ms)")
+        # Never more than 2 m/s^2 over a (capped, two-period) step.
+        xs = [t.linear.x for _, t in moving]
+        assert max(b - a for a, b in itertools.pairwise(xs)) <= 2.0 * 2 * 0.02 + 1e-9
+        assert max(t.angular.z for _, t in moving) == pytest.approx(3.0)
+
+        k = 4096.0 / (2 * math.pi)
+        v, w = 1.0, 3.0
+        left = -(v - w * 0.5 / 2) / 0.1 * k  # left joint is flipped
+        right = (v + w * 0.5 / 2) / 0.1 * k
+        assert list(sink.msgs[-1][1].data) == pytest.approx([left, right])
+
+
+def test_sim_time_stale_stamps_ignored_and_fresh_ones_followed() -> None:
+    args = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}",
+            "-p", "enable_stamped_cmd_vel:=true", "-p", "use_sim_time:=true"]
+    sim0 = 1000 * 10**9
+    with cmd_vel_node(args) as (proc, node, ex):
+        sink = Sink()
+        node.create_subscription(Float64MultiArray, "/wheel_commands", sink.add, 100)
+        pub = node.create_publisher(TwistStamped, "/cmd_vel", 10)
+        clock_pub = node.create_publisher(Clock, "/clock", 10)
+        wait_connected(ex, pub, sink, proc)
+        assert spin_until(ex, lambda: clock_pub.get_subscription_count() > 0, 10.0)
+        w0 = time.monotonic_ns()
+
+        def sim_now() -> int:
+            return sim0 + (time.monotonic_ns() - w0)
+
+        def tick(make: Callable[[], TwistStamped]) -> TwistStamped:
+            clock_pub.publish(Clock(clock=Time(sec=sim_now() // 10**9,
+                                               nanosec=sim_now() % 10**9)))
+            return make()
+
+        drive(ex, pub, lambda: tick(lambda: twist_stamped_none()), 0.5)  # clock only
+        t0 = time.monotonic()
+        drive(ex, pub, lambda: tick(lambda: stamped(0.4, 0.0, sim_now() - 2 * 10**9)), 0.8)
+        assert all(is_zero(m.data) for _, m in sink.since(t0))
+        # Fresh by the simulated clock (but ~1.7e9 s old by the wall clock): followed.
+        assert spin_until(ex, lambda: (pub.publish(tick(lambda: stamped(0.4, 0.0, sim_now()))),
+                                       list(sink.msgs[-1][1].data))[1]
+                          == pytest.approx([4.0, 4.0]), 10.0)
+    assert "stale cmd_vel ignored" in output(proc)
+
+
+def twist_stamped_none() -> TwistStamped:
+    """A message that the node must ignore: NaN (used to keep the clock ticking)."""
+    return stamped(math.nan, 0.0, 1)
+
+
+def test_bad_parameters_stop_the_node_with_their_name() -> None:
+    geometry = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}"]
+    cases = {
+        "linear.x.max_deceleration": [*geometry, "-p", "linear.x.max_deceleration:=2.0"],
+        "ticks_per_revolution": [*geometry, "-p", "wheel_command_format:=ticks_per_second"],
+        "publish_rate": [*geometry, "-p", "publish_rate:=0.0"],
+        "wheel_radius": ["-p", f"wheel_separation:={B}"],
+    }
+    for name, params in cases.items():
+        with node_process("cmd_vel_node", ["--ros-args", *params]) as proc:
+            code = proc.wait(timeout=20)
+            out = proc.stdout.read() if proc.stdout else ""
+        assert code != 0, f"{name}: node started with a bad value"
+        lines = [ln for ln in out.splitlines() if ln.strip()]
+        assert len(lines) == 1 and f"'{name}'" in lines[0], out
