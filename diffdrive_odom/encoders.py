@@ -56,7 +56,10 @@ class EncoderConfig:
             )
         all_names = self.left_wheel_names + self.right_wheel_names
         if len(set(all_names)) != len(all_names):
-            raise EncoderConfigError("right_wheel_names", "a joint is listed twice")
+            # Name the list that holds the repeat: within left, or within/into right.
+            left_repeats = len(set(self.left_wheel_names)) != len(self.left_wheel_names)
+            field = "left_wheel_names" if left_repeats else "right_wheel_names"
+            raise EncoderConfigError(field, "a joint is listed twice")
         tpr = self.ticks_per_revolution
         if not math.isfinite(tpr) or tpr < 0.0:
             raise EncoderConfigError(
