@@ -1,0 +1,324 @@
+"""Parameter validation, frame prefixes, the params YAML reader and config/diffdrive_odom.yaml."""
+
+from __future__ import annotations
+
+import importlib
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from diffdrive_odom.params import (
+    GEOMETRY_PARAMS,
+    ODOMETRY_PARAMS,
+    ParameterError,
+    ParamSpec,
+    frame_prefix,
+    load_params_file,
+    odometry_settings,
+)
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIG = ROOT / "config" / "diffdrive_odom.yaml"
+VALID: dict[str, Any] = {"wheel_radius": 0.05, "wheel_separation": 0.3}
+# The example robot of config/diffdrive_odom.yaml: OptiOdom, r = 0.042 m, b = 0.200 m.
+EXAMPLE_ROBOT = {"wheel_radius": 0.042, "wheel_separation": 0.200}
+SIX = [0.1] * 6
+nan, inf = math.nan, math.inf
+
+
+# ------------------------------------------------------------------ validation
+
+
+def test_valid_settings_are_typed_and_complete() -> None:
+    settings = odometry_settings({
+        "wheel_radius": 1,  # an integer from the command line is a fine radius
+        "wheel_separation": 0.3,
+        "left_wheel_names": ["fl", "rl"],
+        "right_wheel_names": ["fr", "rr"],
+        "ticks_per_revolution": 2796.8,
+        "encoder_counter_bits": 16.0,  # an integral float is an integer
+        "publish_rate": 20,
+        "right_wheel_sign": -1,
+    })
+    assert settings.geometry.wheel_radius == 1.0
+    assert isinstance(settings.geometry.wheel_radius, float)
+    assert settings.geometry.right_wheel_sign == -1
+    assert settings.encoders.left_wheel_names == ("fl", "rl")
+    assert settings.encoders.ticks_per_revolution == 2796.8
+    assert settings.encoders.counter_bits == 16
+    assert settings.publish_rate == 20.0
+    assert settings.odom_frame_id == "odom" and settings.base_frame_id == "base_link"
+    assert settings.enable_odom_tf is True
+    assert len(settings.pose_covariance_diagonal) == 6
+    assert all(d > 0 for d in settings.pose_covariance_diagonal[:2])  # non-zero defaults
+    assert all(d > 0 for d in settings.twist_covariance_diagonal)
+
+
+def test_geometry_has_no_usable_default() -> None:
+    with pytest.raises(ParameterError) as err:
+        odometry_settings({})
+    assert err.value.name == "wheel_radius"
+    with pytest.raises(ParameterError) as err:
+        odometry_settings({"wheel_radius": 0.05})
+    assert err.value.name == "wheel_separation"
+
+
+BAD: list[tuple[str, Any, dict[str, Any]]] = [
+    # (parameter named in the error, its bad value, other values it needs)
+    ("wheel_radius", 0.0, {}),
+    ("wheel_radius", -0.05, {}),
+    ("wheel_radius", nan, {}),
+    ("wheel_radius", inf, {}),
+    ("wheel_radius", "0.05", {}),
+    ("wheel_radius", True, {}),
+    ("wheel_radius", None, {}),
+    ("wheel_separation", 0.0, {}),
+    ("wheel_separation", nan, {}),
+    ("wheel_separation", -1.0, {}),
+    ("wheel_separation", [0.3], {}),
+    ("left_wheel_radius_multiplier", 0.0, {}),
+    ("right_wheel_radius_multiplier", nan, {}),
+    ("wheel_separation_multiplier", -1.0, {}),
+    ("left_wheel_sign", 0, {}),
+    ("right_wheel_sign", 2, {}),
+    ("left_wheel_sign", 1.5, {}),
+    ("right_wheel_sign", "-1", {}),
+    ("left_wheel_names", [], {}),
+    ("right_wheel_names", [], {}),
+    ("left_wheel_names", "left_wheel_joint", {}),
+    ("left_wheel_names", [3], {}),
+    ("left_wheel_names", [""], {}),
+    ("right_wheel_names", ["a", "b"], {}),  # unequal to the one left wheel
+    ("right_wheel_names", ["left_wheel_joint"], {}),  # same joint on both sides
+    ("left_wheel_names", ["a", "a"], {"right_wheel_names": ["b", "c"]}),
+    ("right_wheel_names", ["b", "b"], {"left_wheel_names": ["a", "c"]}),
+    ("ticks_per_revolution", -1.0, {}),
+    ("ticks_per_revolution", nan, {}),
+    ("ticks_per_revolution", "2796.8", {}),
+    ("encoder_counter_bits", 16, {}),  # a wrapping counter without ticks
+    ("encoder_counter_bits", 65, {"ticks_per_revolution": 100.0}),
+    ("encoder_counter_bits", -1, {"ticks_per_revolution": 100.0}),
+    ("encoder_counter_bits", 16.5, {"ticks_per_revolution": 100.0}),
+    ("odom_frame_id", "", {}),
+    ("odom_frame_id", "/", {}),
+    ("odom_frame_id", 5, {}),
+    ("base_frame_id", "", {}),
+    ("base_frame_id", "odom", {}),  # child frame equal to the parent frame
+    ("tf_frame_prefix_enable", "true", {}),
+    ("tf_frame_prefix_enable", 1, {}),
+    ("tf_frame_prefix", 3, {}),
+    ("enable_odom_tf", "yes", {}),
+    ("publish_rate", -1.0, {}),
+    ("publish_rate", nan, {}),
+    ("publish_rate", inf, {}),
+    ("publish_rate", "fast", {}),
+    ("pose_covariance_diagonal", [0.1, 0.1, 0.1], {}),
+    ("pose_covariance_diagonal", [0.1] * 7, {}),
+    ("pose_covariance_diagonal", [nan] + [0.1] * 5, {}),
+    ("pose_covariance_diagonal", [-0.1] + [0.1] * 5, {}),
+    ("pose_covariance_diagonal", "0.1", {}),
+    ("twist_covariance_diagonal", [], {}),
+    ("twist_covariance_diagonal", [0.1] * 5 + ["x"], {}),
+    ("twist_covariance_diagonal", [inf] + [0.1] * 5, {}),
+    ("velocity_rolling_window_size", 0, {}),
+    ("velocity_rolling_window_size", -3, {}),
+    ("velocity_rolling_window_size", 2.5, {}),
+    ("max_wheel_speed", 0.0, {}),
+    ("max_wheel_speed", -1.0, {}),
+    ("max_wheel_speed", nan, {}),
+    ("time_jump_threshold", -1.0, {}),
+    ("time_jump_threshold", nan, {}),
+    ("time_jump_threshold", inf, {}),
+]
+
+
+@pytest.mark.parametrize(("name", "value", "others"), BAD,
+                         ids=[f"{n}={v!r}" for n, v, _ in BAD])
+def test_bad_value_is_refused_naming_the_parameter(
+    name: str, value: Any, others: dict[str, Any]
+) -> None:
+    values = {**VALID, **others, name: value}
+    with pytest.raises(ParameterError) as err:
+        odometry_settings(values)
+    assert err.value.name == name
+    assert f"'{name}'" in str(err.value)  # the one line the node prints
+    assert err.value.reason
+
+
+@pytest.mark.parametrize(("name", "value"), [
+    ("max_wheel_speed", inf),  # no plausibility check
+    ("publish_rate", 0.0),  # every reading
+    ("time_jump_threshold", 0.0),
+    ("encoder_counter_bits", 64),
+    ("pose_covariance_diagonal", [0.0] * 6),
+])
+def test_boundary_values_are_accepted(name: str, value: Any) -> None:
+    odometry_settings({**VALID, "ticks_per_revolution": 1024.0, name: value})
+
+
+# -------------------------------------------------------------- frame prefixes
+
+
+@pytest.mark.parametrize(
+    ("enable", "prefix", "namespace", "expected"),
+    [
+        (True, "", "/", ""),  # no namespace, no prefix
+        (True, "", "/robot1", "robot1/"),  # empty prefix = the node's namespace
+        (True, "", "/fleet/robot1", "fleet/robot1/"),
+        (True, "r2", "/robot1", "r2/"),  # an explicit prefix wins over the namespace
+        (True, "r2/", "/", "r2/"),  # a '/' is appended only when missing
+        (True, "/r2/", "/", "r2/"),  # tf frame ids never start with '/'
+        (False, "r2", "/robot1", ""),
+        (False, "", "/robot1", ""),
+    ],
+)
+def test_frame_prefix_rules(enable: bool, prefix: str, namespace: str, expected: str) -> None:
+    assert frame_prefix(enable, prefix, namespace) == expected
+
+
+def test_frames_carry_the_prefix() -> None:
+    s = odometry_settings(VALID, namespace="/robot1")
+    assert (s.odom_frame_id, s.base_frame_id) == ("robot1/odom", "robot1/base_link")
+    s = odometry_settings({**VALID, "odom_frame_id": "/odom"}, namespace="/robot1")
+    assert s.odom_frame_id == "robot1/odom"
+    s = odometry_settings({**VALID, "tf_frame_prefix": "r2"}, namespace="/robot1")
+    assert (s.odom_frame_id, s.base_frame_id) == ("r2/odom", "r2/base_link")
+    s = odometry_settings({**VALID, "tf_frame_prefix_enable": False}, namespace="/robot1")
+    assert (s.odom_frame_id, s.base_frame_id) == ("odom", "base_link")
+
+
+# ------------------------------------------------------------ load_params_file
+
+
+def names(specs: tuple[ParamSpec, ...]) -> list[str]:
+    return [s.name for s in specs]
+
+
+def cmd_vel_params() -> tuple[ParamSpec, ...] | None:
+    """The cmd_vel node's table if that module exists yet (another issue adds it)."""
+    try:
+        module = importlib.import_module("diffdrive_odom.cmd_vel_settings")
+    except ImportError:
+        return None
+    table = getattr(module, "CMD_VEL_PARAMS", None)
+    return tuple(table) if table is not None else None
+
+
+def test_config_file_gives_the_odometry_node_every_parameter() -> None:
+    values = load_params_file(CONFIG, "odometry_node")
+    assert set(values) == set(names(GEOMETRY_PARAMS + ODOMETRY_PARAMS))
+    settings = odometry_settings(values)
+    assert settings.geometry.wheel_radius == EXAMPLE_ROBOT["wheel_radius"]
+    assert settings.geometry.wheel_separation == EXAMPLE_ROBOT["wheel_separation"]
+
+
+def test_config_file_gives_the_cmd_vel_node_its_parameters() -> None:
+    table = cmd_vel_params()
+    if table is None:
+        pytest.skip("diffdrive_odom.cmd_vel_settings.CMD_VEL_PARAMS does not exist yet")
+    values = load_params_file(CONFIG, "cmd_vel_node")
+    assert set(names(table)) <= set(values)
+    assert set(values) == set(names(GEOMETRY_PARAMS)) | set(names(table))
+    # Its own publish_rate, not the odometry node's.
+    own = {s.name: s for s in table}
+    if "publish_rate" in own:
+        assert values["publish_rate"] == own["publish_rate"].default
+
+
+def test_a_node_without_a_section_gets_the_wildcard_only() -> None:
+    values = load_params_file(CONFIG, "some_other_node")
+    assert set(values) == set(names(GEOMETRY_PARAMS))
+
+
+def test_node_section_overrides_the_wildcard(tmp_path: Path) -> None:
+    path = tmp_path / "p.yaml"
+    path.write_text(
+        "/**:\n  ros__parameters:\n    wheel_radius: 0.1\n    wheel_separation: 0.5\n"
+        "/odometry_node:\n  ros__parameters:\n    wheel_radius: 0.2\n"
+        "    linear:\n      x:\n        max_velocity: 1.5\n"
+        "other_node:\n  ros__parameters:\n    wheel_separation: 9.0\n",
+        encoding="utf-8",
+    )
+    values = load_params_file(path, "odometry_node")
+    assert values == {"wheel_radius": 0.2, "wheel_separation": 0.5,
+                      "linear.x.max_velocity": 1.5}
+
+
+def test_empty_and_malformed_files(tmp_path: Path) -> None:
+    empty = tmp_path / "empty.yaml"
+    empty.write_text("", encoding="utf-8")
+    assert load_params_file(empty, "odometry_node") == {}
+    listing = tmp_path / "list.yaml"
+    listing.write_text("- 1\n- 2\n", encoding="utf-8")
+    with pytest.raises(ParameterError) as err:
+        load_params_file(listing, "odometry_node")
+    assert err.value.name == "--params-file"
+
+
+# ------------------------------------------------- config/diffdrive_odom.yaml
+
+
+def sections(text: str) -> dict[str, list[str]]:
+    """Parameter lines of each top-level section, in file order."""
+    out: dict[str, list[str]] = {}
+    current = ""
+    for line in text.splitlines():
+        if line and not line[0].isspace() and not line.startswith("#"):
+            current = line.rstrip(":")
+            out[current] = []
+        elif line.startswith("    ") and current:
+            out[current].append(line.strip())
+    return out
+
+
+def same(a: Any, b: Any) -> bool:
+    """Equality where NaN equals NaN and lists equal tuples."""
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return bool(a == b) and type(a) is type(b)
+
+
+PYTHON_TYPE = {"double": float, "integer": int, "bool": bool, "string": str}
+
+
+def check_section(doc: Mapping[str, Any], lines: list[str], section: str,
+                  specs: tuple[ParamSpec, ...], expected: Mapping[str, Any]) -> None:
+    params = doc[section]["ros__parameters"]
+    assert list(params) == names(specs), section
+    assert len(lines) == len(specs)
+    for spec, line in zip(specs, lines, strict=True):
+        value = params[spec.name]
+        want = expected.get(spec.name, spec.default)
+        assert same(value, want), (section, spec.name, value, want)
+        if spec.kind in PYTHON_TYPE:  # so rcl declares the parameter with the right type
+            assert type(value) is PYTHON_TYPE[spec.kind], (spec.name, value)
+        elif spec.kind == "double_array":
+            assert all(type(v) is float for v in value), (spec.name, value)
+        assert line.startswith(f"{spec.name}: ")
+        assert f"# {spec.description}" in line, (section, spec.name)
+        spec.coerce(value)
+
+
+def test_config_lists_exactly_the_spec_tables_with_their_defaults() -> None:
+    text = CONFIG.read_text(encoding="utf-8")
+    doc = yaml.safe_load(text)
+    lines = sections(text)
+    cmd_vel = cmd_vel_params()
+    expected_sections = ["/**", "odometry_node"] + (["cmd_vel_node"] if cmd_vel else [])
+    assert list(doc) == expected_sections
+    assert list(lines) == expected_sections
+    check_section(doc, lines["/**"], "/**", GEOMETRY_PARAMS, EXAMPLE_ROBOT)
+    check_section(doc, lines["odometry_node"], "odometry_node", ODOMETRY_PARAMS, {})
+    if cmd_vel:
+        geometry = {s.name: s for s in GEOMETRY_PARAMS}
+        for spec in cmd_vel:  # shared rows come from the /** section: they must agree
+            if spec.name in geometry:
+                assert same(spec.default, geometry[spec.name].default), spec.name
+        own = tuple(s for s in cmd_vel if s.name not in geometry)
+        check_section(doc, lines["cmd_vel_node"], "cmd_vel_node", own, {})
