@@ -32,36 +32,34 @@ WHEEL_COMMAND_FORMATS: tuple[str, ...] = (FLOAT64_ARRAY, JOINT_STATE, TICKS_PER_
 # Odometry-only geometry rows the cmd_vel node has no use for.
 _NOT_USED = ("encoder_counter_bits",)
 
-_AXES: tuple[tuple[str, str, str], ...] = (
-    ("linear.x", "m/s", "linear velocity"),
-    ("angular.z", "rad/s", "angular velocity"),
+# axis, velocity unit, positive / negative direction
+_AXES: tuple[tuple[str, str, str, str], ...] = (
+    ("linear.x", "m/s", "forwards", "backwards"),
+    ("angular.z", "rad/s", "counter-clockwise", "clockwise"),
 )
 
 
-def _limit_specs(axis: str, unit: str) -> tuple[ParamSpec, ...]:
+def _limit_specs(axis: str, unit: str, pos: str, neg: str) -> tuple[ParamSpec, ...]:
     nan = math.nan
+    acc, jerk = f"{unit}^2", f"{unit}^3"
     return (
         ParamSpec(f"{axis}.max_velocity", "double", nan,
                   f"Highest velocity [{unit}], >= 0; .nan = no limit."),
         ParamSpec(f"{axis}.min_velocity", "double", nan,
                   f"Lowest velocity [{unit}], <= 0; .nan = -max_velocity."),
         ParamSpec(f"{axis}.max_acceleration", "double", nan,
-                  f"Speeding up forwards / from rest [{unit}/s], > 0; .nan = no limit."),
+                  f"Speeding up {pos} or from rest [{acc}], > 0; .nan = no limit."),
         ParamSpec(f"{axis}.max_deceleration", "double", nan,
-                  f"Slowing down while moving forwards [{unit}/s], < 0; "
+                  f"Slowing down while moving {pos} [{acc}], < 0; "
                   ".nan = max_acceleration_reverse."),
         ParamSpec(f"{axis}.max_acceleration_reverse", "double", nan,
-                  f"Speeding up backwards / from rest [{unit}/s], < 0; "
-                  ".nan = -max_acceleration."),
+                  f"Speeding up {neg} or from rest [{acc}], < 0; .nan = -max_acceleration."),
         ParamSpec(f"{axis}.max_deceleration_reverse", "double", nan,
-                  f"Slowing down while moving backwards [{unit}/s], > 0; "
-                  ".nan = -max_deceleration."),
+                  f"Slowing down while moving {neg} [{acc}], > 0; .nan = -max_deceleration."),
         ParamSpec(f"{axis}.max_jerk", "double", nan,
-                  f"Upper bound of the change of acceleration [{unit}/s^2], > 0; "
-                  ".nan = no limit."),
+                  f"Upper bound of the change of acceleration [{jerk}], > 0; .nan = no limit."),
         ParamSpec(f"{axis}.min_jerk", "double", nan,
-                  f"Lower bound of the change of acceleration [{unit}/s^2], < 0; "
-                  ".nan = -max_jerk."),
+                  f"Lower bound of the change of acceleration [{jerk}], < 0; .nan = -max_jerk."),
     )
 
 
@@ -85,7 +83,7 @@ CMD_VEL_OWN_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("max_wheel_velocity", "double", math.nan,
               "Fastest joint rate [rad/s]; faster commands scale both wheels alike "
               "(keeps curvature); .nan or 0 = no limit."),
-    *(spec for axis, unit, _ in _AXES for spec in _limit_specs(axis, unit)),
+    *(spec for axis in _AXES for spec in _limit_specs(*axis)),
 )
 
 CMD_VEL_PARAMS: tuple[ParamSpec, ...] = (
