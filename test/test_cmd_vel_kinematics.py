@@ -128,11 +128,10 @@ def test_saturation_in_reverse_keeps_reversing_on_the_same_arc(
     assert max(abs(out.left), abs(out.right)) <= limit * (1 + 1e-12)
     left, right = wheel_rates(geometry, -speed, w)
     assert out.left * left >= 0.0 and out.right * right >= 0.0
-    radius_cmd = -speed / w if w != 0.0 else math.inf
-    radius_out = out.linear / out.angular if out.angular != 0.0 else math.inf
-    if math.isfinite(radius_cmd):
-        assert math.isclose(radius_out, radius_cmd, rel_tol=1e-9)
-    else:
-        assert out.angular == 0.0
+    # Same curvature: out.angular / out.linear == w / -speed (cross-multiplied: no
+    # division by a tiny w), and the same turn direction.
+    assert math.isclose(out.angular * -speed, w * out.linear, rel_tol=1e-9,
+                        abs_tol=1e-12 * (speed + abs(w)) ** 2)
+    assert out.angular * w >= 0.0
     v2, w2 = body_increment(geometry, out.left, out.right)
     assert close(v2, out.linear, speed) and close(w2, out.angular, abs(w) + speed)
