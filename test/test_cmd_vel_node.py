@@ -197,7 +197,7 @@ def test_twist_to_float64_array_watchdog_rate_nan_and_runtime_parameters() -> No
         print(f"watchdog: zeros {delay * 1e3:.0f} ms after the last command "
               f"(timeout {TIMEOUT * 1e3:.0f} ms + period {PERIOD * 1e3:.0f} ms)")
         # Held until the timeout, then zeros within one period (+ slack for a loaded CPU).
-        assert TIMEOUT - 0.05 <= delay <= TIMEOUT + PERIOD + 0.15, delay
+        assert TIMEOUT - 0.05 <= delay <= TIMEOUT + PERIOD + 0.25, delay
         assert all(list(m.data) == pytest.approx(expected) for ts, m in after
                    if ts < t_last + TIMEOUT - 0.05)
         stopped = [m for ts, m in after if ts >= zero_at]
