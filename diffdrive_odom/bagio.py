@@ -130,8 +130,13 @@ def iter_joint_states(
     topic: str = "/joint_states",
     passthrough: Passthrough | None = None,
     window: int = REORDER_WINDOW,
+    jump_back_ns: int = 1_000_000_000,
 ) -> Iterator[JointReading]:
     """JointState readings of an open reader, in header stamp order, streaming.
+
+    A stamp more than ``jump_back_ns`` behind the newest one seen is a new run (a bag
+    recorded from a looped play, a restarted simulation): everything before it comes
+    out first, so two runs are never merged by the reordering.
 
     With ``passthrough``, every message of the bag (JointState included) is also handed
     to it raw, in log time order, interleaved with the readings (``replay
@@ -142,12 +147,18 @@ def iter_joint_states(
     joint_ids = {id(c) for c in joints}
     heap: list[tuple[int, int, JointReading]] = []
     order = itertools.count()
+    newest: int | None = None
     for conn, log_ns, raw in reader.messages(connections=conns):
         if passthrough is not None:
             passthrough(conn, log_ns, raw)
             if id(conn) not in joint_ids:
                 continue
         reading = _reading(reader.deserialize(raw, conn.msgtype), log_ns)
+        if newest is not None and reading.stamp_ns < newest - jump_back_ns:
+            while heap:
+                yield heapq.heappop(heap)[2]
+            newest = None
+        newest = reading.stamp_ns if newest is None else max(newest, reading.stamp_ns)
         heapq.heappush(heap, (reading.stamp_ns, next(order), reading))
         if len(heap) > window:
             yield heapq.heappop(heap)[2]
@@ -155,10 +166,12 @@ def iter_joint_states(
         yield heapq.heappop(heap)[2]
 
 
-def read_joint_states(path: str | Path, topic: str = "/joint_states") -> Iterator[JointReading]:
+def read_joint_states(
+    path: str | Path, topic: str = "/joint_states", jump_back_ns: int = 1_000_000_000
+) -> Iterator[JointReading]:
     """Open ``path`` and stream its JointState readings in stamp order."""
     with open_bag(path) as reader:
-        yield from iter_joint_states(reader, topic)
+        yield from iter_joint_states(reader, topic, jump_back_ns=jump_back_ns)
 
 
 def count_messages(reader: AnyReader, topic: str) -> int:

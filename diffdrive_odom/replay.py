@@ -346,7 +346,9 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
                 writer.add_topic(args.tf_topic, bagio.TF_MESSAGE)
             if args.keep_input:
                 passthrough = _keep_input(reader, writer, args)
-        readings = bagio.iter_joint_states(reader, args.topic, passthrough)
+        readings = bagio.iter_joint_states(
+            reader, args.topic, passthrough,
+            jump_back_ns=int(settings.estimator.time_jump_threshold * 1e9))
         show = args.progress if args.progress is not None else (
             sys.stderr.isatty() and total >= PROGRESS_MIN_READINGS)
         if show:

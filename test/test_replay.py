@@ -1,0 +1,310 @@
+"""Offline replay: real bags through the node's estimator, outputs read back independently.
+
+References: the robot's own firmware odometry (/firmware/odom), wheel angles integrated
+here from first principles (the exact arc), and the step-by-step estimator for the
+vectorised path.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import itertools
+import json
+import math
+import tracemalloc
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, mcap_messages, write_params
+from rosbags.highlevel import AnyReader
+
+from diffdrive_odom import bagio, replay
+from diffdrive_odom.cli import main as cli
+from diffdrive_odom.kinematics import Geometry
+from diffdrive_odom.params import OdometrySettings
+
+from rosutil import DATA
+
+RUNS = ("square_231220200029_run-01", "square_231220200029_run-04")
+TB3 = DATA / "turtlebot3_sim" / "turtlebot3.bag"
+
+
+def _ns(t: Any) -> int:
+    return int(t.sec) * 10**9 + int(t.nanosec)
+
+
+def _settings(tmp_path: Path, values: dict[str, Any]) -> OdometrySettings:
+    return replay.load_settings(write_params(tmp_path / "p.yaml", values))
+
+
+def _published(bag: Path, settings: OdometrySettings) -> list[replay.Published]:
+    out: list[replay.Published] = []
+    replay.replay_readings(bagio.read_joint_states(bag), settings, out.append)
+    return out
+
+
+def _arc_integrate(readings: list[Any], r: float, b: float, left: int, right: int
+                   ) -> tuple[float, float, float]:
+    """Exact arc per step, written from the geometry (not the package's chord form)."""
+    x = y = th = 0.0
+    for prev, cur in itertools.pairwise(readings):
+        sl = r * (cur.position[left] - prev.position[left])
+        sr = r * (cur.position[right] - prev.position[right])
+        ds, dth = 0.5 * (sl + sr), (sr - sl) / b
+        if abs(dth) < 1e-12:
+            x += ds * math.cos(th)
+            y += ds * math.sin(th)
+        else:
+            rad = ds / dth
+            x += rad * (math.sin(th + dth) - math.sin(th))
+            y += -rad * (math.cos(th + dth) - math.cos(th))
+        th += dth
+    return x, y, th
+
+
+@pytest.mark.parametrize("run", RUNS)
+def test_optiodom_replay_matches_firmware_and_first_principles(tmp_path: Path, run: str) -> None:
+    bag = DATA / "optiodom" / run
+    params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+    out, table = tmp_path / "out", tmp_path / "out.csv"
+    assert cli(["replay", str(bag), "--params-file", str(params), "-o", str(out),
+                "--csv", str(table)]) == 0
+    odoms = [(t, m) for t, _, m in mcap_messages(out, ["/odom"])]
+    tfs = [m for _, _, m in mcap_messages(out, ["/tf"])]
+    readings = list(bagio.read_joint_states(bag))
+    assert len(odoms) == len(tfs) == len(readings)  # every reading published, first = origin
+    last = odoms[-1][1]
+    assert _ns(last.header.stamp) == readings[-1].stamp_ns
+    assert last.header.frame_id == "odom" and last.child_frame_id == "base_link"
+    # The robot's own dead reckoning of the same encoders, 4 significant digits: ~1 mm.
+    with AnyReader([bag], default_typestore=bagio.typestore()) as reader:
+        fw: Any = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()
+                   if c.topic == "/firmware/odom"][-1]
+    p = last.pose.pose
+    assert math.hypot(p.position.x - fw.pose.pose.position.x,
+                      p.position.y - fw.pose.pose.position.y) < 1e-3
+    assert abs(math.remainder(bagio.yaw_of(p.orientation) - bagio.yaw_of(fw.pose.pose.orientation),
+                              2 * math.pi)) < 2e-3
+    # Exact arcs from the wheel angles (left first in this bag).
+    x, y, th = _arc_integrate(readings, 0.042, 0.200, 0, 1)
+    assert math.hypot(p.position.x - x, p.position.y - y) < 1e-9
+    assert abs(math.remainder(bagio.yaw_of(p.orientation) - th, 2 * math.pi)) < 1e-9
+    # The CSV carries the same poses.
+    with open(table, newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(odoms)
+    assert int(rows[-1]["stamp_ns"]) == readings[-1].stamp_ns
+    assert float(rows[-1]["x"]) == p.position.x and float(rows[-1]["y"]) == p.position.y
+    assert rows[0]["status"] == "reference" and rows[1]["status"] == "updated"
+
+
+@pytest.mark.parametrize("run", RUNS)
+def test_vectorised_path_equals_the_step_by_step_estimator(tmp_path: Path, run: str) -> None:
+    bag = DATA / "optiodom" / run
+    settings = _settings(tmp_path, OPTIODOM_PARAMS)
+    steps = replay.wheel_steps(bagio.read_joint_states(bag), settings)
+    x, y, th = replay.integrate_steps(steps, settings.geometry)
+    stepwise = [p for p in _published(bag, settings) if p.status.value == "updated"]
+    readings = 1385 if run.endswith("04") else 1388  # metadata.yaml
+    assert len(stepwise) == len(steps) == readings - 1  # every step after the reference
+    sx = np.array([p.pose.x for p in stepwise])
+    sy = np.array([p.pose.y for p in stepwise])
+    sth = np.array([p.pose.theta for p in stepwise])
+    assert np.array_equal(steps.stamp_ns, [p.stamp_ns for p in stepwise])
+    assert np.max(np.hypot(x - sx, y - sy)) < 1e-9
+    assert np.max(np.abs(np.remainder(th - sth + np.pi, 2 * np.pi) - np.pi)) < 1e-9
+    end = replay.final_pose(steps, settings.geometry)
+    assert math.hypot(end.x - sx[-1], end.y - sy[-1]) < 1e-9
+    # The geometry-free steps serve any geometry (calibration's fitting loop): the same
+    # steps with other multipliers equal a fresh estimator run with those multipliers.
+    g2 = Geometry(0.042, 0.2, left_wheel_radius_multiplier=1.01,
+                         wheel_separation_multiplier=0.99)
+    s2 = dataclasses.replace(settings, geometry=g2)
+    final2 = replay.replay_readings(bagio.read_joint_states(bag), s2).final_pose
+    end2 = replay.final_pose(steps, g2)
+    assert math.hypot(end2.x - final2.x, end2.y - final2.y) < 1e-9
+
+
+def test_turtlebot3_ros1_bag_replays_without_a_jump_at_start(tmp_path: Path) -> None:
+    settings = _settings(tmp_path, TB3_PARAMS)
+    poses = _published(TB3, settings)
+    readings = list(bagio.read_joint_states(TB3))
+    first = poses[0]
+    # The first reading (wheels at -4.23 / 9.01 rad, sim time 112.54 s) is the origin.
+    assert first.stamp_ns == readings[0].stamp_ns and 112e9 < first.stamp_ns < 113e9
+    assert (first.pose.x, first.pose.y, first.pose.theta) == (0.0, 0.0, 0.0)
+    # No step anywhere faster than 1 m/s (a Waffle drives at most 0.26 m/s, its slipping
+    # simulated wheels spin up to about 0.5 m/s). Integrating the first reading as
+    # motion would move >= 0.033 m * 4.23 rad = 0.14 m in one 33 ms step (4 m/s).
+    for a, b in itertools.pairwise(poses):
+        dt = (b.stamp_ns - a.stamp_ns) * 1e-9
+        assert math.hypot(b.pose.x - a.pose.x, b.pose.y - a.pose.y) <= 1.0 * dt
+    # Right wheel listed first: the same as integrating columns (1 = left, 0 = right).
+    x, y, th = _arc_integrate(readings, 0.033, 0.287, 1, 0)
+    end = poses[-1].pose
+    assert math.hypot(end.x - x, end.y - y) < 1e-9
+    assert abs(math.remainder(end.theta - th, 2 * math.pi)) < 1e-9
+    assert math.hypot(x, y) > 1.0  # it did drive somewhere
+
+
+def test_keep_input_copies_ros1_topics_as_cdr_and_refuses_a_topic_clash(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    params = write_params(tmp_path / "p.yaml", TB3_PARAMS)
+    # The bag's /odom is Gazebo's ground truth: the output topic must not clash with it.
+    assert cli(["replay", str(TB3), "--params-file", str(params), "-o",
+                str(tmp_path / "clash"), "--keep-input"]) == 2
+    assert "--odom-topic" in capsys.readouterr().err
+    out = tmp_path / "out"
+    assert cli(["replay", str(TB3), "--params-file", str(params), "-o", str(out),
+                "--keep-input", "--odom-topic", "/wheel/odom", "--storage", "sqlite3"]) == 0
+    with bagio.open_bag(TB3) as src:
+        counts_in = {c.topic: c.msgcount for c in src.connections}
+    with bagio.open_bag(out) as dst:
+        counts_out = {c.topic: c.msgcount for c in dst.connections}
+        gazebo: Any = next(dst.deserialize(raw, c.msgtype) for c, _, raw in dst.messages()
+                           if c.topic == "/odom")
+        assert not hasattr(gazebo.header, "seq")  # ROS 2 header
+    readings = counts_in["/joint_states"]
+    assert counts_out == {**counts_in, "/wheel/odom": readings, "/tf": readings}
+    assert gazebo.child_frame_id == "base_footprint"
+
+
+def test_same_parameter_validation_as_the_node(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = write_params(tmp_path / "bad.yaml", {"wheel_radius": -0.1, "wheel_separation": 0.2})
+    assert cli(["replay", str(TB3), "--params-file", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "wheel_radius" in err[0]
+    assert cli(["replay", str(TB3), "--params-file", str(tmp_path / "none.yaml")]) == 2
+    # The node's section only: another node's parameters are ignored, "/**" applies.
+    doc = tmp_path / "multi.yaml"
+    doc.write_text(
+        "/**:\n  ros__parameters:\n    wheel_separation: 0.287\n"
+        "cmd_vel_node:\n  ros__parameters:\n    wheel_radius: 9.0\n"
+        "odometry_node:\n  ros__parameters:\n    wheel_radius: 0.033\n"
+        "    odom_frame_id: odom\n    tf_frame_prefix: robot1\n", encoding="utf-8")
+    s = replay.load_settings(doc)
+    assert s.geometry.wheel_radius == 0.033 and s.geometry.wheel_separation == 0.287
+    assert s.odom_frame_id == "robot1/odom" and s.base_frame_id == "robot1/base_link"
+
+
+def test_publish_rate_and_frames_follow_the_params(tmp_path: Path) -> None:
+    bag = DATA / "optiodom" / RUNS[1]
+    params = write_params(tmp_path / "p.yaml", {**OPTIODOM_PARAMS, "publish_rate": 5.0,
+                                                "enable_odom_tf": False,
+                                                "base_frame_id": "base_footprint"})
+    out = tmp_path / "out"
+    assert cli(["replay", str(bag), "--params-file", str(params), "-o", str(out)]) == 0
+    odoms = [m for _, _, m in mcap_messages(out)]
+    assert all(m.child_frame_id == "base_footprint" for m in odoms)  # and no /tf at all
+    stamps = [_ns(m.header.stamp) for m in odoms]
+    assert min(np.diff(stamps)) >= 0.2e9 - 1e3
+    assert len(stamps) == pytest.approx(69.2 * 5, abs=2)  # 20 Hz data, 5 Hz out
+
+
+def _write_run(path: Path, stamps: list[int], wheels: list[tuple[float, float]],
+               storage: str = "mcap") -> None:
+    """JointState bag; logged 1 ms apart in list order, whatever the stamps."""
+    with bagio.BagWriter(path, storage) as w:
+        w.add_topic("/joint_states", bagio.JOINT_STATE)
+        t = w.typestore.types
+        for k, (ns, (left, right)) in enumerate(zip(stamps, wheels, strict=True)):
+            sec, nsec = divmod(ns, 10**9)
+            w.write("/joint_states", 10**9 + k * 10**6, t[bagio.JOINT_STATE](
+                header=t["std_msgs/msg/Header"](
+                    stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
+                    frame_id=""),
+                name=["left_wheel_joint", "right_wheel_joint"],
+                position=np.array([left, right]), velocity=np.zeros(0), effort=np.zeros(0)))
+
+
+def test_a_looped_bag_restarts_both_paths_at_the_origin(tmp_path: Path) -> None:
+    """Stamps jumping back (a bag recorded from a looped play) restart the pose."""
+    r, b = 0.05, 0.25
+    settings = _settings(tmp_path, {"wheel_radius": r, "wheel_separation": b})
+    n = 100  # 2 s per run: the jump back is over time_jump_threshold (1 s)
+    # A circle arc: left 0.1 rad, right 0.2 rad per 20 ms step; then the same again.
+    stamps = [10**9 + k * 20_000_000 for k in range(n)] * 2
+    wheels = [(0.1 * k, 0.2 * k) for k in range(n)] * 2
+    bag = tmp_path / "looped"
+    _write_run(bag, stamps, wheels)
+    # The reordering must not merge the two runs.
+    readings = list(bagio.read_joint_states(bag))
+    assert [r.stamp_ns for r in readings] == stamps
+    poses: list[replay.Published] = []
+    stats = replay.replay_readings(readings, settings, poses.append)
+    assert stats.statuses["time_reset"] == 1
+    steps = replay.wheel_steps(readings, settings)
+    assert steps.segments == 2 and len(steps) == 2 * (n - 1)
+    # Closed form: constant ds, dtheta per step -> arc of radius ds/dtheta.
+    ds, dth = r * 0.15, r * 0.1 / b
+    k = n - 1
+    x_end, y_end = ds / dth * math.sin(k * dth), ds / dth * (1 - math.cos(k * dth))
+    end = stats.final_pose
+    assert math.hypot(end.x - x_end, end.y - y_end) < 1e-12
+    vec = replay.final_pose(steps, settings.geometry)
+    assert math.hypot(vec.x - x_end, vec.y - y_end) < 1e-12
+    restart = next(i for i, p in enumerate(poses) if p.status.value == "time_reset")
+    assert (poses[restart].pose.x, poses[restart].pose.y) == (0.0, 0.0)
+    first_run = [(p.pose.x, p.pose.y) for p in poses[:restart]]
+    second_run = [(p.pose.x, p.pose.y) for p in poses[restart:]]
+    assert first_run == second_run
+
+
+def test_streaming_memory_does_not_grow_with_the_bag(tmp_path: Path) -> None:
+    settings = _settings(tmp_path, {"wheel_radius": 0.05, "wheel_separation": 0.25})
+    peaks = []
+    # sqlite3 both ways: its pages are small, so any growth would show. (MCAP holds one
+    # chunk, a few MB whatever the length: bench/bench_replay.py measures it.)
+    for n in (2_000, 8_000):
+        bag = tmp_path / f"long{n}"
+        _write_run(bag, [10**9 + k * 10**7 for k in range(n)],
+                   [(0.01 * k, 0.011 * k) for k in range(n)], "sqlite3")
+        out = tmp_path / f"out{n}"
+        tracemalloc.start()
+        with bagio.BagWriter(out, "sqlite3") as w:
+            w.add_topic("/odom", bagio.ODOMETRY)
+            msgs = bagio.OdomMessages(w.typestore, "odom", "base_link")
+            cov = [0.0] * 36
+
+            def sink(p: replay.Published, w: bagio.BagWriter = w,
+                     msgs: bagio.OdomMessages = msgs, cov: list[float] = cov) -> None:
+                w.write("/odom", p.log_ns, msgs.odometry(
+                    p.stamp_ns, p.pose.x, p.pose.y, p.pose.theta, 0.0, 0.0, cov, cov))
+
+            stats = replay.replay_readings(bagio.read_joint_states(bag), settings, sink)
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+        assert stats.published == n
+    # Four times the bag, the same peak.
+    assert peaks[1] < 1.2 * peaks[0] + 100_000, peaks
+
+
+def test_replay_eval_in_one_go_equals_eval_on_the_output(tmp_path: Path) -> None:
+    bag = DATA / "optiodom" / RUNS[1]
+    params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+    one, two = tmp_path / "one.json", tmp_path / "two.json"
+    out = tmp_path / "out"
+    assert cli(["replay", str(bag), "--params-file", str(params), "-o", str(out),
+                "--eval", "--json", str(one), "--plot", str(tmp_path / "p.png")]) == 0
+    assert cli(["eval", str(out), "--odom", "/odom", "--reference-bag", str(bag),
+                "--json", str(two)]) == 0
+    a, b = json.loads(one.read_text()), json.loads(two.read_text())
+    assert a.keys() == b.keys()
+    for key in a:
+        assert a[key] == pytest.approx(b[key], abs=1e-12), key
+    assert a["final_position_error_m"] == pytest.approx(0.1075, abs=5e-4)
+    assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_progress_bar_on_request(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    params = write_params(tmp_path / "p.yaml", TB3_PARAMS)
+    assert cli(["replay", str(TB3), "--params-file", str(params), "--progress"]) == 0
+    captured = capfd.readouterr()
+    assert "2.74k/2.74k" in captured.err  # tqdm's bar, total from the bag index
+    assert "2741 readings" in captured.out
