@@ -99,6 +99,7 @@ def test_spin_in_place(rate: float) -> None:
     for pose in poses:
         assert pose.x == 0.0  # opposite arcs: ds == 0 exactly, the centre never moves
         assert pose.y == 0.0
+        assert -math.pi < pose.theta <= math.pi  # kept wrapped, turn after turn
     expected = 2.0 * 0.05 * rate * duration / 0.25
     assert angle_diff(poses[-1].theta, expected) < 1e-12
 
@@ -271,6 +272,7 @@ def test_integrate_batch_equals_repeated_compose() -> None:
     pose = start
     for i in range(n):
         pose = compose(pose, float(ds[i]), float(dtheta[i]))
+        assert -math.pi < pose.theta <= math.pi
         assert abs(xs[i] - pose.x) < 1e-9
         assert abs(ys[i] - pose.y) < 1e-9
         assert angle_diff(float(thetas[i]), pose.theta) < 1e-9
