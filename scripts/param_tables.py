@@ -1,13 +1,16 @@
 """Print the README's parameter tables (markdown) from the spec tables.
 
 Why: the README must match what the code declares; test_docs.py checks every
-parameter appears there. Run: .venv/bin/python scripts/param_tables.py [table ...]
+parameter appears there. Run: .venv/bin/python scripts/param_tables.py [--update-readme | table ...]
 """
 
 from __future__ import annotations
 
 import importlib
+import re
 import sys
+from collections.abc import Callable
+from pathlib import Path
 
 from diffdrive_odom.params import ParamSpec, yaml_text
 
@@ -29,18 +32,42 @@ def table(specs: tuple[ParamSpec, ...], skip: tuple[ParamSpec, ...] = ()) -> str
     return "\n".join(rows)
 
 
-def main(argv: list[str]) -> int:
+def rendered(name: str) -> str | None:
+    """The markdown table for one entry of TABLES (None if its module is absent)."""
     from diffdrive_odom.params import GEOMETRY_PARAMS
 
-    for name in argv or list(TABLES):
-        module, attr = TABLES[name]
-        try:
-            specs = getattr(importlib.import_module(module), attr)
-        except (ImportError, AttributeError) as err:
-            print(f"<!-- {name}: {err} -->")
+    module, attr = TABLES[name]
+    try:
+        specs = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError):
+        return None
+    skip = GEOMETRY_PARAMS if name != "geometry" else ()
+    return table(tuple(specs), skip)
+
+
+def _replacement(body: str) -> Callable[[re.Match[str]], str]:
+    return lambda m: m.group(1) + body + "\n"
+
+
+def update_readme(path: Path) -> None:
+    """Replace each ``<!-- name -->`` table in the README with the current one."""
+    text = path.read_text(encoding="utf-8")
+    for name in TABLES:
+        body = rendered(name)
+        if body is None:
             continue
-        skip = GEOMETRY_PARAMS if name != "geometry" else ()
-        print(f"<!-- {name} -->\n{table(tuple(specs), skip)}\n")
+        pattern = re.compile(rf"(<!-- {name} -->\n)(\|.*\|\n)+")
+        text = pattern.sub(_replacement(body), text)
+    path.write_text(text, encoding="utf-8")
+
+
+def main(argv: list[str]) -> int:
+    if argv[:1] == ["--update-readme"]:
+        update_readme(Path(__file__).resolve().parent.parent / "README.md")
+        return 0
+    for name in argv or list(TABLES):
+        body = rendered(name)
+        print(f"<!-- {name} -->\n{body}\n" if body else f"<!-- {name}: absent -->")
     return 0
 
 
