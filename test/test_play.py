@@ -1,0 +1,150 @@
+"""Live replay: ``diffdrive-odom play`` feeding the real odometry node over DDS.
+
+The node's every published pose must equal offline replay's pose for the same
+reading to 1e-9 m (one estimator, two paths); /clock must carry the bag's time; a
+looped play must restart the node cleanly, every pass identical to the first.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+from pathlib import Path
+from typing import Any
+
+from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, write_params
+from nav_msgs.msg import Odometry
+from rosgraph_msgs.msg import Clock
+
+from diffdrive_odom import bagio, replay
+from diffdrive_odom.cli import main as cli
+
+from rosutil import DATA, node_process, ros_test_node, spin_until
+
+RUN04 = DATA / "optiodom" / "square_231220200029_run-04"
+TB3 = DATA / "turtlebot3_sim" / "turtlebot3.bag"
+
+
+def _ns(t: Any) -> int:
+    return int(t.sec) * 10**9 + int(t.nanosec)
+
+
+def _offline(bag: Path, params: Path, until_ns: int | None = None) -> dict[int, replay.Published]:
+    settings = replay.load_settings(params)
+    readings = bagio.read_joint_states(bag)
+    if until_ns is not None:
+        readings = (r for r in readings if r.log_ns < until_ns)
+    out: list[replay.Published] = []
+    replay.replay_readings(readings, settings, out.append)
+    return {p.stamp_ns: p for p in out}
+
+
+def _assert_same(odom: Odometry, expected: replay.Published) -> None:
+    p = odom.pose.pose
+    assert math.hypot(p.position.x - expected.pose.x, p.position.y - expected.pose.y) < 1e-9
+    yaw = 2 * math.atan2(p.orientation.z, p.orientation.w)
+    assert abs(math.remainder(yaw - expected.pose.theta, 2 * math.pi)) < 1e-9
+
+
+def _node_args(params: Path) -> list[str]:
+    return ["--ros-args", "--params-file", str(params), "-p", "use_sim_time:=true"]
+
+
+def test_play_with_clock_drives_the_node_to_offline_replays_poses(tmp_path: Path) -> None:
+    params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+    expected = _offline(RUN04, params)
+    last_ns = max(expected)
+    with bagio.open_bag(RUN04) as reader:
+        bag_start, bag_end = reader.start_time, reader.end_time
+    odoms: list[Odometry] = []
+    clocks: list[int] = []
+    with node_process("odometry_node", _node_args(params)) as node_proc, \
+            ros_test_node() as (node, ex):
+        node.create_subscription(Odometry, "/odom", odoms.append, 2000)
+        node.create_subscription(Clock, "/clock", lambda m: clocks.append(_ns(m.clock)), 100)
+        play = ["play", str(RUN04), "--topics", "/joint_states", "--rate", "12", "--clock",
+                "--wait-for", "/joint_states"]
+        with node_process("diffdrive-odom", play) as player:
+            assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last_ns for o in odoms),
+                              25.0), "the node did not publish the bag's last reading"
+            assert spin_until(ex, lambda: player.poll() is not None, 10.0)
+            assert player.returncode == 0
+        assert node_proc.poll() is None
+    stamps = [_ns(o.header.stamp) for o in odoms]
+    # Every reading reached the node and came back as the pose offline replay computes.
+    assert len(set(stamps)) == len(expected), (len(set(stamps)), len(expected))
+    for o in odoms:
+        _assert_same(o, expected[_ns(o.header.stamp)])
+    # /clock carried the bag's time, forwards.
+    assert len(clocks) > 20
+    assert all(bag_start <= c <= bag_end for c in clocks)
+    assert clocks == sorted(clocks)
+    assert clocks[-1] == bag_end
+
+
+def test_looped_play_restarts_the_node_cleanly_and_ctrl_c_exits_0(tmp_path: Path) -> None:
+    params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+    with bagio.open_bag(RUN04) as reader:
+        until = reader.start_time + 4 * 10**9
+    expected = _offline(RUN04, params, until)  # the first 4 s of the bag
+    first_ns, last_ns = min(expected), max(expected)
+    odoms: list[Odometry] = []
+    with node_process("odometry_node", _node_args(params)) as node_proc, \
+            ros_test_node() as (node, ex):
+        node.create_subscription(Odometry, "/odom", odoms.append, 2000)
+        play = ["play", str(RUN04), "--topics", "/joint_states", "--rate", "4", "--loop",
+                "--duration", "4", "--clock", "--wait-for", "/joint_states"]
+        with node_process("diffdrive-odom", play) as player:
+            # Three ends of a pass = at least two restarts.
+            assert spin_until(
+                ex, lambda: sum(_ns(o.header.stamp) == last_ns for o in odoms) >= 3, 20.0)
+            player.send_signal(signal.SIGINT)
+            assert player.wait(timeout=10) == 0
+        assert node_proc.poll() is None
+        node_proc.send_signal(signal.SIGINT)
+        node_proc.wait(timeout=10)
+        log = node_proc.stdout.read() if node_proc.stdout else ""
+    passes: list[list[Odometry]] = [[]]
+    for o in odoms:
+        if passes[-1] and _ns(o.header.stamp) < _ns(passes[-1][-1].header.stamp):
+            passes.append([])
+        passes[-1].append(o)
+    assert len(passes) >= 3
+    for run in passes[:3]:
+        stamps = [_ns(o.header.stamp) for o in run]
+        assert stamps == sorted(expected), "a pass lost or repeated a reading"
+        for o in run:
+            _assert_same(o, expected[_ns(o.header.stamp)])
+        first = run[0].pose.pose.position
+        assert _ns(run[0].header.stamp) == first_ns and (first.x, first.y) == (0.0, 0.0)
+    assert log.count("jumped back") >= 2, log
+
+
+def test_play_converts_a_ros1_bag_for_the_node(tmp_path: Path) -> None:
+    """TurtleBot3 (ROS 1, right wheel first, wheels not at zero): no jump at the start."""
+    params = write_params(tmp_path / "p.yaml", TB3_PARAMS)
+    with bagio.open_bag(TB3) as reader:
+        until = reader.start_time + 3 * 10**9
+    expected = _offline(TB3, params, until)
+    odoms: list[Odometry] = []
+    with node_process("odometry_node", _node_args(params)), ros_test_node() as (node, ex):
+        node.create_subscription(Odometry, "/odom", odoms.append, 2000)
+        play = ["play", str(TB3), "--topics", "/joint_states", "--duration", "3", "--rate",
+                "3", "--clock", "--wait-for", "/joint_states"]
+        with node_process("diffdrive-odom", play) as player:
+            assert spin_until(ex, lambda: any(_ns(o.header.stamp) == max(expected)
+                                              for o in odoms), 20.0)
+            assert player.wait(timeout=10) == 0
+    assert [_ns(o.header.stamp) for o in odoms] == sorted(expected)
+    first = odoms[0]
+    assert 112 * 10**9 < _ns(first.header.stamp) < 113 * 10**9  # simulated time
+    assert (first.pose.pose.position.x, first.pose.pose.position.y) == (0.0, 0.0)
+    for o in odoms:
+        _assert_same(o, expected[_ns(o.header.stamp)])
+
+
+def test_play_refuses_bad_arguments(tmp_path: Path) -> None:
+    assert cli(["play", str(RUN04), "--rate", "0"]) == 2
+    assert cli(["play", str(tmp_path / "missing")]) == 2
+    assert cli(["play", str(RUN04), "--topics", "/nope"]) == 2
+    assert cli(["play", str(RUN04), "--remap", "nonsense"]) == 2
