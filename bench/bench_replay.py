@@ -1,0 +1,162 @@
+"""Replay speed next to the speed of merely reading / decoding the same bag, and the
+vectorised path next to the step-by-step estimator, in one run.
+
+    .venv/bin/python bench/bench_replay.py [--long 40000]
+
+Rows per bag (readings/s, higher is better; ratios against "decode only"):
+  read only        iterate the bag's raw JointState records (no deserialization)
+  decode only      JointState -> JointReading in stamp order (what replay must pay anyway)
+  replay           decode + the node's estimator, nothing written
+  replay -> bag    decode + estimator + Odometry and /tf into an MCAP bag + CSV
+and, on the decoded readings held in memory:
+  step-by-step     OdometryEstimator.update per reading (the node's path)
+  vectorised       wheel_steps (decode once) + integrate_steps (numpy)
+  integrate only   integrate_steps alone: calibration's inner loop
+Memory: peak traced allocation of streaming replay -> bag on a synthetic bag and on
+one four times longer.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+import time
+import tracemalloc
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from diffdrive_odom import bagio, replay  # noqa: E402
+from diffdrive_odom.params import OdometrySettings, odometry_settings  # noqa: E402
+
+DATA = ROOT / "test" / "data"
+
+
+def _best(fn: Callable[[], object], repeat: int = 3) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _synthetic(path: Path, n: int, storage: str = "mcap") -> None:
+    """A JointState bag of a robot weaving at 100 Hz (random-ish wheel speeds)."""
+    rng = np.random.default_rng(1)
+    left = np.cumsum(0.05 + 0.02 * rng.standard_normal(n))
+    right = np.cumsum(0.05 + 0.02 * rng.standard_normal(n))
+    with bagio.BagWriter(path, storage) as w:
+        w.add_topic("/joint_states", bagio.JOINT_STATE)
+        t = w.typestore.types
+        for k in range(n):
+            ns = 10**9 + k * 10**7
+            sec, nsec = divmod(ns, 10**9)
+            w.write("/joint_states", ns, t[bagio.JOINT_STATE](
+                header=t["std_msgs/msg/Header"](
+                    stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=""),
+                name=["left_wheel_joint", "right_wheel_joint"],
+                position=np.array([left[k], right[k]]), velocity=np.zeros(0),
+                effort=np.zeros(0)))
+
+
+def _read_only(bag: Path) -> int:
+    with bagio.open_bag(bag) as reader:
+        conns = bagio.connections_for(reader, "/joint_states")
+        return sum(1 for _ in reader.messages(connections=conns))
+
+
+def _replay_to_bag(bag: Path, settings: OdometrySettings, out: Path) -> None:
+    shutil.rmtree(out, ignore_errors=True)
+    msgs = bagio.OdomMessages(bagio.typestore(), settings.odom_frame_id, settings.base_frame_id)
+    cov = replay.covariance_matrix(settings.pose_covariance_diagonal)
+    with bagio.BagWriter(out) as w, bagio.CsvWriter(out.with_suffix(".csv")) as table:
+        w.add_topic("/odom", bagio.ODOMETRY)
+        w.add_topic("/tf", bagio.TF_MESSAGE)
+
+        def sink(p: replay.Published) -> None:
+            x, y, yaw = p.pose.x, p.pose.y, p.pose.theta
+            w.write("/odom", p.log_ns, msgs.odometry(p.stamp_ns, x, y, yaw, p.linear,
+                                                     p.angular, cov, cov))
+            w.write("/tf", p.log_ns, msgs.tf(p.stamp_ns, x, y, yaw))
+            table.row(p.stamp_ns, x, y, yaw, p.linear, p.angular, p.status.value)
+
+        replay.replay_readings(bagio.read_joint_states(bag), settings, sink)
+
+
+def bench_bag(name: str, bag: Path, settings: OdometrySettings, tmp: Path) -> None:
+    readings = list(bagio.read_joint_states(bag))
+    n = len(readings)
+    rows: list[tuple[str, float]] = []
+    rows.append(("read only", _best(lambda: _read_only(bag))))
+    decode = _best(lambda: sum(1 for _ in bagio.read_joint_states(bag)))
+    rows.append(("decode only", decode))
+    rows.append(("replay", _best(
+        lambda: replay.replay_readings(bagio.read_joint_states(bag), settings))))
+    rows.append(("replay -> bag + csv", _best(
+        lambda: _replay_to_bag(bag, settings, tmp / f"{name}_out"), repeat=2)))
+    step = _best(lambda: replay.replay_readings(readings, settings))
+    rows.append(("step-by-step (in memory)", step))
+    rows.append(("vectorised (in memory)", _best(lambda: replay.integrate_steps(
+        replay.wheel_steps(readings, settings), settings.geometry))))
+    steps = replay.wheel_steps(readings, settings)
+    integrate = _best(lambda: replay.integrate_steps(steps, settings.geometry), repeat=20)
+    rows.append(("integrate only (numpy)", integrate))
+    # Agreement of the two paths (the test asserts < 1e-9 m).
+    end_step = replay.replay_readings(readings, settings).final_pose
+    end_vec = replay.final_pose(steps, settings.geometry)
+    gap = float(np.hypot(end_step.x - end_vec.x, end_step.y - end_vec.y))
+    print(f"\n{name}: {n} readings ({bag.name})")
+    print(f"  {'path':28s} {'readings/s':>14s} {'vs decode':>10s} {'vs step':>9s}")
+    for label, seconds in rows:
+        print(f"  {label:28s} {n / seconds:14,.0f} {decode / seconds:10.2f}x "
+              f"{step / seconds:8.2f}x")
+    print(f"  final pose, step-by-step vs vectorised: {gap:.1e} m")
+
+
+def bench_memory(tmp: Path, n: int, settings: OdometrySettings) -> None:
+    print(f"\nmemory (streaming replay -> MCAP bag, peak traced allocation), {n} readings base:")
+    for k in (n, 4 * n):
+        bag = tmp / f"synthetic{k}"
+        if not bag.exists():
+            _synthetic(bag, k)
+        tracemalloc.start()
+        t0 = time.perf_counter()
+        _replay_to_bag(bag, settings, tmp / f"mem_out{k}")
+        seconds = time.perf_counter() - t0
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        print(f"  {k:8d} readings: peak {peak / 1e6:6.2f} MB  "
+              f"({k / seconds:,.0f} readings/s under tracemalloc)")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    ap.add_argument("--long", type=int, default=20_000,
+                    help="readings of the synthetic bag (the memory check uses 4x too)")
+    args = ap.parse_args()
+    optiodom = odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
+    tb3 = odometry_settings({"wheel_radius": 0.033, "wheel_separation": 0.287,
+                             "left_wheel_names": ["wheel_left_joint"],
+                             "right_wheel_names": ["wheel_right_joint"]})
+    synth = odometry_settings({"wheel_radius": 0.05, "wheel_separation": 0.3})
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        long_bag = tmp / f"synthetic{args.long}"
+        _synthetic(long_bag, args.long)
+        bench_bag("OptiOdom run-04 (rosbag2 mcap)",
+                  DATA / "optiodom" / "square_231220200029_run-04", optiodom, tmp)
+        bench_bag("TurtleBot3 (ROS 1 bag)", DATA / "turtlebot3_sim" / "turtlebot3.bag", tb3, tmp)
+        bench_bag("synthetic (rosbag2 mcap)", long_bag, synth, tmp)
+        bench_memory(tmp, args.long // 4, synth)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
