@@ -139,26 +139,32 @@ def decode(
     position: Sequence[float],
     velocity: Sequence[float],
 ) -> WheelReading | str:
-    """Pick the wheels' values out of a JointState's arrays; a reason string if unusable."""
+    """Pick the wheels' values out of a JointState's arrays; a reason string if unusable.
+
+    Positions are preferred. Velocities are used when ``position`` is empty or holds
+    NaN for every wheel (ros2_control's joint_state_broadcaster reports a missing
+    position interface as NaN).
+    """
     idx = lookup.indices(names)
     if idx is None:
         return "joint_states lacks a configured wheel joint"
     n = len(names)
+    if 0 < len(position) < n:
+        return f"position has {len(position)} entries for {n} names"
+    if 0 < len(velocity) < n:
+        return f"velocity has {len(velocity)} entries for {n} names"
     if len(position) > 0:
-        if len(position) < n:
-            return f"position has {len(position)} entries for {n} names"
         values = tuple(float(position[i]) for i in idx)
-        from_velocity = False
-    elif len(velocity) > 0:
-        if len(velocity) < n:
-            return f"velocity has {len(velocity)} entries for {n} names"
-        values = tuple(float(velocity[i]) for i in idx)
-        from_velocity = True
-    else:
+        if all(math.isfinite(v) for v in values):
+            return WheelReading(stamp_ns, values, False)
+        if not (len(velocity) > 0 and all(math.isnan(v) for v in values)):
+            return "a wheel position is NaN or infinite"
+    if len(velocity) == 0:
         return "neither position nor velocity is filled"
+    values = tuple(float(velocity[i]) for i in idx)
     if not all(math.isfinite(v) for v in values):
-        return "a wheel value is NaN or infinite"
-    return WheelReading(stamp_ns, values, from_velocity)
+        return "a wheel velocity is NaN or infinite"
+    return WheelReading(stamp_ns, values, True)
 
 
 def increment(
@@ -172,7 +178,10 @@ def increment(
     dt = (current.stamp_ns - previous.stamp_ns) * 1e-9
     scale = config.radians_per_unit
     if current.from_velocity:
-        deltas = [0.5 * (a + b) * dt * scale for a, b in zip(previous.values, current.values, strict=True)]
+        deltas = [
+            0.5 * (a + b) * dt * scale
+            for a, b in zip(previous.values, current.values, strict=True)
+        ]
     else:
         deltas = [
             unwrap_difference(b - a, config.counter_bits) * scale

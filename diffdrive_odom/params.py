@@ -263,11 +263,14 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
     )
 
 
-def load_params_file(path: str | Path, node_name: str) -> dict[str, ParamValue]:
+def load_params_file(
+    path: str | Path, node_name: str, namespace: str = "/"
+) -> dict[str, ParamValue]:
     """Parameters for ``node_name`` from a ROS 2 params YAML (as ``--params-file`` reads it).
 
-    Honours the ``/**`` wildcard and both ``name`` and ``/ns/name`` keys, so the tools
-    take the very file the node takes.
+    Sections apply in rcl's order of precedence: wildcards (``/**``), then
+    ``/**/node``, then the plain or fully qualified node name, so the tools take the
+    very file the node takes. Nested maps become dotted names.
     """
     import yaml
 
@@ -275,8 +278,11 @@ def load_params_file(path: str | Path, node_name: str) -> dict[str, ParamValue]:
         doc = yaml.safe_load(f) or {}
     if not isinstance(doc, dict):
         raise ParameterError("--params-file", f"{path} is not a mapping")
+    ns = namespace.strip("/")
+    full = f"/{ns}/{node_name}" if ns else f"/{node_name}"
+    keys = ("/**", "**", f"/**/{node_name}", node_name, f"/{node_name}", full, full[1:])
     merged: dict[str, ParamValue] = {}
-    for key in ("/**", "**", node_name, f"/{node_name}"):
+    for key in dict.fromkeys(keys):  # ordered, without repeats
         section = doc.get(key)
         if isinstance(section, dict):
             merged.update(_flatten(section.get("ros__parameters", {}) or {}))

@@ -108,6 +108,12 @@ def test_decode_uses_velocity_when_position_is_empty() -> None:
     assert reading == WheelReading(7, (-0.25, 0.5), True)
 
 
+def test_decode_falls_back_to_velocity_when_every_wheel_position_is_nan() -> None:
+    # ros2_control's joint_state_broadcaster fills a missing position interface with NaN.
+    reading = decode(JointLookup(ONE), 7, [LEFT, RIGHT], [math.nan, math.nan], [0.5, -0.25])
+    assert reading == WheelReading(7, (0.5, -0.25), True)
+
+
 def test_decode_ignores_a_bad_value_on_a_joint_that_is_not_a_wheel() -> None:
     reading = decode(JointLookup(ONE), 7, ["arm", LEFT, RIGHT], [math.nan, 1.0, 2.0], [])
     assert reading == WheelReading(7, (1.0, 2.0), False)
@@ -123,6 +129,9 @@ def test_decode_ignores_a_bad_value_on_a_joint_that_is_not_a_wheel() -> None:
         ([LEFT, RIGHT], [math.nan, 1.0], []),
         ([LEFT, RIGHT], [1.0, math.inf], []),
         ([LEFT, RIGHT], [], [-math.inf, 0.0]),
+        ([LEFT, RIGHT], [math.nan, 1.0], [0.5, 0.5]),  # one NaN: a glitch
+        ([LEFT, RIGHT], [math.nan, math.nan], [math.nan, 0.5]),
+        ([LEFT, RIGHT], [1.0, 1.0], [0.5]),  # velocity shorter than names
     ],
 )
 def test_decode_rejects_unusable_arrays_with_a_reason(

@@ -322,3 +322,17 @@ def test_config_lists_exactly_the_spec_tables_with_their_defaults() -> None:
                 assert same(spec.default, geometry[spec.name].default), spec.name
         own = tuple(s for s in cmd_vel if s.name not in geometry)
         check_section(doc, lines["cmd_vel_node"], "cmd_vel_node", own, {})
+
+
+def test_load_params_file_namespaced_sections_in_rcl_precedence(tmp_path: Path) -> None:
+    path = tmp_path / "ns.yaml"
+    path.write_text(
+        "/**:\n  ros__parameters: {wheel_radius: 0.1, wheel_separation: 0.5}\n"
+        "/**/odometry_node:\n  ros__parameters: {wheel_separation: 0.6, publish_rate: 5.0}\n"
+        "/robot1/odometry_node:\n  ros__parameters: {publish_rate: 7.0}\n",
+        encoding="utf-8",
+    )
+    plain = load_params_file(path, "odometry_node")
+    assert plain == {"wheel_radius": 0.1, "wheel_separation": 0.6, "publish_rate": 5.0}
+    spaced = load_params_file(path, "odometry_node", "/robot1")
+    assert spaced == {"wheel_radius": 0.1, "wheel_separation": 0.6, "publish_rate": 7.0}
