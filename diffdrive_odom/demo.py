@@ -216,6 +216,29 @@ def load_settings(opts: DemoOptions) -> tuple[OdometrySettings, SimSettings]:
     return odo, sim
 
 
+def write_run_params(source: Path, changes: dict[str, dict[str, ParamValue]],
+                     path: Path) -> Path:
+    """Write the params file with this run's settings in the nodes' own sections.
+
+    In a params file a node's own section wins over ``-p`` on the command line, so
+    the run's values go into the file rather than onto the command line.
+    """
+    try:
+        doc = yaml.safe_load(source.read_text(encoding="utf-8")) or {}
+    except (OSError, yaml.YAMLError) as err:
+        raise DemoError(f"{source}: {err}") from err
+    if not isinstance(doc, dict):
+        raise DemoError(f"{source} is not a ROS 2 params file")
+    for node, values in changes.items():
+        section = doc.setdefault(node, {}).setdefault("ros__parameters", {})
+        section.update(values)
+    path.write_text("# Written by diffdrive-odom demo for this run: " + str(source)
+                    + " with the run's settings applied.\n"
+                    + yaml.safe_dump(doc, default_flow_style=None, sort_keys=False),
+                    encoding="utf-8")
+    return path
+
+
 def calibrated_geometry(odo: OdometrySettings, sim: SimSettings) -> OdometrySettings:
     """The odometry settings with multipliers that make its geometry the sim's true one."""
     g, true = odo.geometry, sim.config.geometry
@@ -420,7 +443,8 @@ class Recorder:
         """Every link of the loop is up: clock, encoders, odometry, cmd_vel -> sim."""
         n = self.node
         return (self.driver.now_ns is not None and self.counts["/joint_states"] > 0
-                and self.counts["/odom"] > 0
+                and self.counts["/odom"] > 0 and self.counts["/ground_truth/odom"] > 0
+                and self.counts["/tf"] > 0
                 and self.driver.cmd_pub.get_subscription_count() > 0
                 and n.count_publishers("/wheel_commands") > 0
                 and n.count_subscribers("/wheel_commands") > 0)
@@ -471,30 +495,34 @@ def run(opts: DemoOptions) -> DemoResult:
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain),
            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     env.pop("ROS_LOCALHOST_ONLY", None)
-    params = str(opts.params_file)
     rtf = opts.real_time_factor
-    sim_args = ["--params-file", params, "-p", "publish_clock:=true",
-                "-p", f"real_time_factor:={rtf:g}"]
-    # The cmd_vel node's heartbeat runs on the wall clock; the sim's watchdog on
-    # simulated time. Scale the watchdog so a 0.5 s hiccup of a busy machine does not
+    sim_changes: dict[str, ParamValue] = {
+        k: _yaml_value(v) for k, v in opts.sim_overrides.items()}
+    # The cmd_vel node's heartbeat runs on the wall clock, the sim's watchdog on
+    # simulated time: scale the watchdog so a 0.5 s hiccup of a busy machine does not
     # stop the robot in the middle of the route.
     timeout = sim.config.command_timeout
-    if timeout > 0.0 and "command_timeout" not in opts.sim_overrides:
-        sim_args += ["-p", f"command_timeout:={timeout * max(1.0, rtf):g}"]
-    for name, value in opts.sim_overrides.items():
-        sim_args += ["-p", f"{name}:={value}"]
+    if timeout > 0.0 and "command_timeout" not in sim_changes:
+        sim_changes["command_timeout"] = timeout * max(1.0, rtf)
+    sim_changes.update(publish_clock=True, real_time_factor=float(rtf))
     # The cmd_vel heartbeat is on the wall clock: keep it at one command per sim step.
     cmd_rate = max(50.0, sim.publish_rate * rtf)
-    common = ["--params-file", params, "-p", "use_sim_time:=true"]
+    params = str(write_run_params(opts.params_file, {
+        "sim_node": sim_changes,
+        "cmd_vel_node": {"use_sim_time": True, "publish_rate": float(cmd_rate)},
+        "odometry_node": {"use_sim_time": True},
+    }, output / "params.yaml"))
+    args = ["--params-file", params]
 
     wall0 = time.monotonic()
     children: list[Child] = []
     recorder = Recorder(domain, opts.route, bag_path if opts.write_bag else None)
     try:
-        children.append(start_child("sim_node", sim_args, env, logs))
-        children.append(start_child(
-            "cmd_vel_node", [*common, "-p", f"publish_rate:={cmd_rate:g}"], env, logs))
-        children.append(start_child("odometry_node", common, env, logs))
+        for name in ("sim_node", "cmd_vel_node", "odometry_node"):
+            children.append(start_child(name, args, env, logs))
+        print(f"[{PROGRAM}] ROS_DOMAIN_ID={domain}; "
+              + ", ".join(f"{c.name} pid {c.proc.pid}" for c in children)
+              + f"; logs in {logs}", flush=True)
         _wait(recorder, children, wall0 + STARTUP_TIMEOUT_S, "starting the nodes",
               recorder.ready)
         recorder.driver.start_route(SETTLE_S)
