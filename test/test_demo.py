@@ -99,7 +99,10 @@ def test_one_percent_larger_right_wheel_drifts_as_the_kinematics_predict(
     right_arc = route.distance + 0.5 * B * 2 * math.pi
     predicted_heading = 0.01 * right_arc / B  # truth - odometry, about 0.165 rad
     heading_gap = math.remainder(truth_final[2] - odom_final[2], 2 * math.pi)
-    assert abs(heading_gap - predicted_heading) < 0.005, (heading_gap, predicted_heading)
+    # (10 %: the executed distance may differ from the script by a few centimetres;
+    # the exact check from the counted wheel rotations follows below.)
+    assert abs(heading_gap - predicted_heading) < 0.1 * predicted_heading, (
+        heading_gap, predicted_heading)
 
     # Position, from the route: each commanded (v, w) becomes the true robot's
     # (v', w') (seed 003 eq. 1 with the wheel rates of the nominal inverse kinematics);
