@@ -139,7 +139,13 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
             return 2
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        try:
+            executor.spin()
+        except RuntimeError:
+            # rclpy can raise from a half-torn-down wait set when SIGINT lands mid-take;
+            # after shutdown that is the end of the run, not a fault to report.
+            if rclpy.ok():
+                raise
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -18,7 +18,7 @@ TABLES = {
     "geometry": ("diffdrive_odom.params", "GEOMETRY_PARAMS"),
     "odometry": ("diffdrive_odom.params", "ODOMETRY_PARAMS"),
     "cmd_vel": ("diffdrive_odom.cmd_vel_settings", "CMD_VEL_PARAMS"),
-    "sim": ("diffdrive_odom.sim_node", "SIM_PARAMS"),
+    "sim": ("diffdrive_odom.sim", "SIM_PARAMS"),
 }
 
 
