@@ -150,8 +150,9 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
                                start_ns, stop_ns, args)
             if not args.loop or not rclpy.ok():
                 break
-        for topic in by_name.values():  # let reliable readers get the tail
-            topic.publisher.wait_for_all_acked(Duration(seconds=1.0))
+        tail = [t.publisher for t in by_name.values()] + ([clock_pub] if clock_pub else [])
+        for pub in tail:  # let reliable readers get the last messages before exiting
+            pub.wait_for_all_acked(Duration(seconds=1.0))
         log.info(f"done: {sent} messages")
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -194,12 +195,15 @@ def _play_once(
     next_clock = wall0
     sent = 0
 
+    end_ns = min(stop_ns, reader.end_time - 1)  # rosbags' end_time is exclusive
+    last_ns = start_ns
+
     def bag_now() -> int:
         return start_ns + int((time.monotonic() - wall0) * rate * 1e9)
 
     def publish_clock(ns: int) -> None:
         msg = clock_cls()
-        msg.clock.sec, msg.clock.nanosec = divmod(min(max(ns, start_ns), stop_ns), 10**9)
+        msg.clock.sec, msg.clock.nanosec = divmod(min(max(ns, start_ns), end_ns), 10**9)
         clock_pub.publish(msg)
 
     if clock_pub is not None:
@@ -219,9 +223,10 @@ def _play_once(
             wake = due if clock_pub is None else min(due, next_clock)
             time.sleep(max(0.0, wake - now))
         topic.publisher.publish(convert(conn, bytes(raw)))
+        last_ns = log_ns
         sent += 1
-    if clock_pub is not None:
-        publish_clock(stop_ns if stop_ns <= reader.end_time else reader.end_time)
+    if clock_pub is not None:  # the pass ends at its last message's time
+        publish_clock(last_ns)
     return sent
 
 

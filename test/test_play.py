@@ -19,7 +19,7 @@ from rosgraph_msgs.msg import Clock
 from diffdrive_odom import bagio, replay
 from diffdrive_odom.cli import main as cli
 
-from rosutil import DATA, node_process, ros_test_node, spin_until
+from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until
 
 RUN04 = DATA / "optiodom" / "square_231220200029_run-04"
 TB3 = DATA / "turtlebot3_sim" / "turtlebot3.bag"
@@ -29,14 +29,36 @@ def _ns(t: Any) -> int:
     return int(t.sec) * 10**9 + int(t.nanosec)
 
 
-def _offline(bag: Path, params: Path, until_ns: int | None = None) -> dict[int, replay.Published]:
+def _offline(bag: Path, params: Path, until_ns: int | None = None,
+             only: set[int] | None = None) -> dict[int, replay.Published]:
+    """Offline replay's poses by stamp; ``only``: just the readings with these stamps.
+
+    Best-effort DDS may drop a reading on a loaded machine; the node then integrates
+    one longer step, so the fair comparison feeds replay exactly the readings the node
+    got (its output has one pose per reading received, stamped with it).
+    """
     settings = replay.load_settings(params)
     readings = bagio.read_joint_states(bag)
     if until_ns is not None:
         readings = (r for r in readings if r.log_ns < until_ns)
+    if only is not None:
+        readings = (r for r in readings if r.stamp_ns in only)
     out: list[replay.Published] = []
     replay.replay_readings(readings, settings, out.append)
     return {p.stamp_ns: p for p in out}
+
+
+def _check_pass(odoms: list[Odometry], bag: Path, params: Path, everything: set[int],
+                until_ns: int | None = None) -> None:
+    """The node's poses equal replay's on the same readings; almost none were lost."""
+    stamps = [_ns(o.header.stamp) for o in odoms]
+    assert stamps == sorted(set(stamps)), "a reading was answered twice or out of order"
+    assert set(stamps) <= everything
+    assert len(stamps) >= 0.98 * len(everything), (len(stamps), len(everything))
+    expected = _offline(bag, params, until_ns, set(stamps))
+    assert sorted(expected) == stamps
+    for o in odoms:
+        _assert_same(o, expected[_ns(o.header.stamp)])
 
 
 def _assert_same(odom: Odometry, expected: replay.Published) -> None:
@@ -46,6 +68,20 @@ def _assert_same(odom: Odometry, expected: replay.Published) -> None:
     assert abs(math.remainder(yaw - expected.pose.theta, 2 * math.pi)) < 1e-9
 
 
+def _wait_for_node(node: Any, ex: Any) -> None:
+    """Until the node's /odom reaches this test's subscriber (discovery takes a while)."""
+    assert spin_until(ex, lambda: node.count_publishers("/odom") > 0, 20.0)
+    spin_for(ex, 0.5)
+
+
+def _spin_until_quiet(ex: Any, odoms: list[Odometry], quiet: float = 0.5) -> None:
+    """Spin until no odometry has arrived for ``quiet`` seconds (the node has caught up)."""
+    count = -1
+    while count != len(odoms):
+        count = len(odoms)
+        spin_for(ex, quiet)
+
+
 def _node_args(params: Path) -> list[str]:
     return ["--ros-args", "--params-file", str(params), "-p", "use_sim_time:=true"]
 
@@ -53,29 +89,25 @@ def _node_args(params: Path) -> list[str]:
 def test_play_with_clock_drives_the_node_to_offline_replays_poses(tmp_path: Path) -> None:
     params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
     expected = _offline(RUN04, params)
-    last_ns = max(expected)
-    with bagio.open_bag(RUN04) as reader:
-        bag_start, bag_end = reader.start_time, reader.end_time
+    logged = [r.log_ns for r in bagio.read_joint_states(RUN04)]
+    bag_start, bag_end = min(logged), max(logged)
     odoms: list[Odometry] = []
     clocks: list[int] = []
     with node_process("odometry_node", _node_args(params)) as node_proc, \
             ros_test_node() as (node, ex):
         node.create_subscription(Odometry, "/odom", odoms.append, 2000)
         node.create_subscription(Clock, "/clock", lambda m: clocks.append(_ns(m.clock)), 100)
-        play = ["play", str(RUN04), "--topics", "/joint_states", "--rate", "12", "--clock",
-                "--wait-for", "/joint_states"]
+        _wait_for_node(node, ex)
+        play = ["play", str(RUN04), "--topics", "/joint_states", "--rate", "8", "--clock",
+                "20", "--wait-for", "/joint_states"]
         with node_process("diffdrive-odom", play) as player:
-            assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last_ns for o in odoms),
-                              25.0), "the node did not publish the bag's last reading"
-            assert spin_until(ex, lambda: player.poll() is not None, 10.0)
+            assert spin_until(ex, lambda: player.poll() is not None, 25.0)
             assert player.returncode == 0
+            _spin_until_quiet(ex, odoms)
         assert node_proc.poll() is None
-    stamps = [_ns(o.header.stamp) for o in odoms]
-    # Every reading reached the node and came back as the pose offline replay computes.
-    assert len(set(stamps)) == len(expected), (len(set(stamps)), len(expected))
-    for o in odoms:
-        _assert_same(o, expected[_ns(o.header.stamp)])
-    # /clock carried the bag's time, forwards.
+    # The readings came back as the poses offline replay computes (usually all of them).
+    _check_pass(odoms, RUN04, params, set(expected))
+    # /clock carried the bag's time, forwards, up to the last message played.
     assert len(clocks) > 20
     assert all(bag_start <= c <= bag_end for c in clocks)
     assert clocks == sorted(clocks)
@@ -92,6 +124,7 @@ def test_looped_play_restarts_the_node_cleanly_and_ctrl_c_exits_0(tmp_path: Path
     with node_process("odometry_node", _node_args(params)) as node_proc, \
             ros_test_node() as (node, ex):
         node.create_subscription(Odometry, "/odom", odoms.append, 2000)
+        _wait_for_node(node, ex)
         play = ["play", str(RUN04), "--topics", "/joint_states", "--rate", "4", "--loop",
                 "--duration", "4", "--clock", "--wait-for", "/joint_states"]
         with node_process("diffdrive-odom", play) as player:
@@ -110,11 +143,8 @@ def test_looped_play_restarts_the_node_cleanly_and_ctrl_c_exits_0(tmp_path: Path
             passes.append([])
         passes[-1].append(o)
     assert len(passes) >= 3
-    for run in passes[:3]:
-        stamps = [_ns(o.header.stamp) for o in run]
-        assert stamps == sorted(expected), "a pass lost or repeated a reading"
-        for o in run:
-            _assert_same(o, expected[_ns(o.header.stamp)])
+    for run in passes[:3]:  # each pass starts over at the origin and repeats the first
+        _check_pass(run, RUN04, params, set(expected), until)
         first = run[0].pose.pose.position
         assert _ns(run[0].header.stamp) == first_ns and (first.x, first.y) == (0.0, 0.0)
     assert log.count("jumped back") >= 2, log
@@ -129,18 +159,17 @@ def test_play_converts_a_ros1_bag_for_the_node(tmp_path: Path) -> None:
     odoms: list[Odometry] = []
     with node_process("odometry_node", _node_args(params)), ros_test_node() as (node, ex):
         node.create_subscription(Odometry, "/odom", odoms.append, 2000)
+        _wait_for_node(node, ex)
         play = ["play", str(TB3), "--topics", "/joint_states", "--duration", "3", "--rate",
                 "3", "--clock", "--wait-for", "/joint_states"]
         with node_process("diffdrive-odom", play) as player:
-            assert spin_until(ex, lambda: any(_ns(o.header.stamp) == max(expected)
-                                              for o in odoms), 20.0)
-            assert player.wait(timeout=10) == 0
-    assert [_ns(o.header.stamp) for o in odoms] == sorted(expected)
+            assert spin_until(ex, lambda: player.poll() is not None, 20.0)
+            assert player.returncode == 0
+            _spin_until_quiet(ex, odoms)
+    _check_pass(odoms, TB3, params, set(expected), until)
     first = odoms[0]
     assert 112 * 10**9 < _ns(first.header.stamp) < 113 * 10**9  # simulated time
     assert (first.pose.pose.position.x, first.pose.pose.position.y) == (0.0, 0.0)
-    for o in odoms:
-        _assert_same(o, expected[_ns(o.header.stamp)])
 
 
 def test_play_refuses_bad_arguments(tmp_path: Path) -> None:
