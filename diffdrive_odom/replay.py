@@ -312,6 +312,8 @@ def main(argv: Sequence[str]) -> int:
         print("[replay] interrupted; outputs hold the poses written so far", file=sys.stderr)
         return 130
     print(stats.summary())
+    for reason, count in stats.reasons.most_common(5):
+        print(f"  {count} x {reason}", file=sys.stderr)
     if args.eval:
         from diffdrive_odom import evaluate
 
