@@ -119,7 +119,7 @@ def timing() -> None:
     t0 = time.perf_counter()
     reps = 20
     for _ in range(reps):
-        x, y, th = integrate_batch(ds, dth)
+        x, y, _ = integrate_batch(ds, dth)
     t_batch = (time.perf_counter() - t0) / reps
     gap = math.hypot(x[-1] - est.pose.x, y[-1] - est.pose.y)
     print("Cost per reading (same 20000 readings, one run)")
