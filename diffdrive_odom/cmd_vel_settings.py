@@ -12,7 +12,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from diffdrive_odom.encoders import EncoderConfig, EncoderConfigError
+from diffdrive_odom.encoders import EncoderConfig
+from diffdrive_odom.errors import as_parameter_error
 from diffdrive_odom.kinematics import Geometry
 from diffdrive_odom.limits import AxisLimits, CommandLimits, LimitError
 from diffdrive_odom.params import (
@@ -115,26 +116,22 @@ class CmdVelSettings:
 
 def _axis_limits(axis: str, v: Mapping[str, Any]) -> AxisLimits:
     prefix = axis + "."
-    try:
+    with as_parameter_error(prefix):
         return AxisLimits(**{
             name[len(prefix):]: value for name, value in v.items() if name.startswith(prefix)
         })
-    except LimitError as err:
-        raise ParameterError(prefix + err.field, err.reason) from err
 
 
 def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
     """Validate every cmd_vel parameter; the first bad one raises ParameterError."""
     v = coerce_all(CMD_VEL_PARAMS, values)
     geometry = build_geometry(v)
-    try:
+    with as_parameter_error():
         wheels = EncoderConfig(
             left_wheel_names=v["left_wheel_names"],
             right_wheel_names=v["right_wheel_names"],
             ticks_per_revolution=v["ticks_per_revolution"],
         )
-    except EncoderConfigError as err:
-        raise ParameterError(err.field, err.reason) from err
     fmt = v["wheel_command_format"]
     if fmt not in WHEEL_COMMAND_FORMATS:
         raise ParameterError("wheel_command_format",

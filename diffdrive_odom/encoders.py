@@ -14,16 +14,13 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from diffdrive_odom.errors import ConfigError
+
 TWO_PI = 2.0 * math.pi
 
 
-class EncoderConfigError(ValueError):
+class EncoderConfigError(ConfigError):
     """An encoder setting that cannot work (names the parameter)."""
-
-    def __init__(self, field: str, reason: str) -> None:
-        super().__init__(f"{field}: {reason}")
-        self.field = field
-        self.reason = reason
 
 
 @dataclass(frozen=True)

@@ -19,16 +19,13 @@ from typing import TypeVar
 import numpy as np
 import numpy.typing as npt
 
+from diffdrive_odom.errors import ConfigError
+
 FloatOrArray = TypeVar("FloatOrArray", float, npt.NDArray[np.float64])
 
 
-class GeometryError(ValueError):
+class GeometryError(ConfigError):
     """A geometry value that would make the kinematics meaningless (names the field)."""
-
-    def __init__(self, field: str, reason: str) -> None:
-        super().__init__(f"{field}: {reason}")
-        self.field = field
-        self.reason = reason
 
 
 def _positive_finite(field: str, value: float) -> None:

@@ -43,6 +43,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
+from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.kinematics import Geometry, scale_to_wheel_limit, wheel_rates
 
 NAN = math.nan
@@ -51,13 +52,8 @@ INF = math.inf
 C = TypeVar("C")
 
 
-class LimitError(ValueError):
+class LimitError(ConfigError):
     """A limit that cannot be used (``field`` is the name within the axis)."""
-
-    def __init__(self, field: str, reason: str) -> None:
-        super().__init__(f"{field}: {reason}")
-        self.field = field
-        self.reason = reason
 
 
 def _clamp(value: float, low: float, high: float) -> float:

@@ -31,6 +31,7 @@ from diffdrive_odom.encoders import (
     decode,
     increment,
 )
+from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.integration import Pose2D, compose
 from diffdrive_odom.kinematics import Geometry, body_increment
 
@@ -58,13 +59,8 @@ class Verdict:
         return self.status in (Status.UPDATED, Status.REFERENCE, Status.TIME_RESET)
 
 
-class EstimatorConfigError(ValueError):
+class EstimatorConfigError(ConfigError):
     """An estimator setting that cannot work (names the parameter)."""
-
-    def __init__(self, field: str, reason: str) -> None:
-        super().__init__(f"{field}: {reason}")
-        self.field = field
-        self.reason = reason
 
 
 @dataclass(frozen=True)

@@ -17,19 +17,12 @@ from pathlib import Path
 from typing import Any
 
 from diffdrive_odom.encoders import EncoderConfig
+from diffdrive_odom.errors import ParameterError as ParameterError  # re-exported
+from diffdrive_odom.errors import as_parameter_error
 from diffdrive_odom.kinematics import Geometry
 from diffdrive_odom.odometry import EstimatorConfig
 
 ParamValue = Any
-
-
-class ParameterError(ValueError):
-    """A parameter value that cannot be used; ``name`` is the ROS parameter's name."""
-
-    def __init__(self, name: str, reason: str) -> None:
-        super().__init__(f"invalid parameter '{name}': {reason}")
-        self.name = name
-        self.reason = reason
 
 
 def _as_float(name: str, value: ParamValue) -> float:
@@ -163,7 +156,7 @@ def coerce_all(specs: Iterable[ParamSpec], values: Mapping[str, ParamValue]) -> 
 
 def build_geometry(v: Mapping[str, Any]) -> Geometry:
     """Geometry from coerced values; errors name the ROS parameter."""
-    try:
+    with as_parameter_error():
         return Geometry(
             wheel_radius=v["wheel_radius"],
             wheel_separation=v["wheel_separation"],
@@ -173,33 +166,27 @@ def build_geometry(v: Mapping[str, Any]) -> Geometry:
             left_wheel_sign=v["left_wheel_sign"],
             right_wheel_sign=v["right_wheel_sign"],
         )
-    except ValueError as err:
-        raise ParameterError(getattr(err, "field", "?"), getattr(err, "reason", str(err))) from err
 
 
 def build_encoders(v: Mapping[str, Any]) -> EncoderConfig:
     """Encoder config from coerced values; errors name the ROS parameter."""
-    try:
+    with as_parameter_error():
         return EncoderConfig(
             left_wheel_names=v["left_wheel_names"],
             right_wheel_names=v["right_wheel_names"],
             ticks_per_revolution=v["ticks_per_revolution"],
             counter_bits=v["encoder_counter_bits"],
         )
-    except ValueError as err:
-        raise ParameterError(getattr(err, "field", "?"), getattr(err, "reason", str(err))) from err
 
 
 def build_estimator_config(v: Mapping[str, Any]) -> EstimatorConfig:
     """Estimator config from coerced values; errors name the ROS parameter."""
-    try:
+    with as_parameter_error():
         return EstimatorConfig(
             max_wheel_speed=v["max_wheel_speed"],
             velocity_rolling_window_size=v["velocity_rolling_window_size"],
             time_jump_threshold=v["time_jump_threshold"],
         )
-    except ValueError as err:
-        raise ParameterError(getattr(err, "field", "?"), getattr(err, "reason", str(err))) from err
 
 
 @dataclass(frozen=True)

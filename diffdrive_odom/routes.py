@@ -17,18 +17,14 @@ import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
+from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.integration import Pose2D, wrap_angle
 
 ORIGIN = Pose2D()
 
 
-class RouteError(ValueError):
+class RouteError(ConfigError):
     """A route setting that cannot be driven (names the setting)."""
-
-    def __init__(self, field: str, reason: str) -> None:
-        super().__init__(f"{field}: {reason}")
-        self.field = field
-        self.reason = reason
 
 
 @dataclass(frozen=True)

@@ -35,22 +35,18 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.encoders import EncoderConfig, EncoderConfigError
+from diffdrive_odom.encoders import EncoderConfig
+from diffdrive_odom.errors import ConfigError, as_parameter_error
 from diffdrive_odom.integration import Pose2D, compose
-from diffdrive_odom.kinematics import Geometry, GeometryError, body_increment
+from diffdrive_odom.kinematics import Geometry, body_increment
 from diffdrive_odom.params import ParameterError, ParamSpec, ParamValue, coerce_all
 
 TWO_PI = 2.0 * math.pi
 Array = npt.NDArray[np.float64]
 
 
-class SimConfigError(ValueError):
+class SimConfigError(ConfigError):
     """A simulator setting that cannot work (names the field)."""
-
-    def __init__(self, field: str, reason: str) -> None:
-        super().__init__(f"{field}: {reason}")
-        self.field = field
-        self.reason = reason
 
 
 @dataclass(frozen=True)
@@ -367,7 +363,7 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
         if not (math.isfinite(v[name]) and v[name] >= 0.0):
             raise ParameterError(name, f"must be 0 (= nominal) or > 0, got {v[name]!r}")
     r = v["wheel_radius"]
-    try:
+    with as_parameter_error():
         geometry = Geometry(
             wheel_radius=r,
             wheel_separation=_true(v["wheel_separation"], v["true_wheel_separation"]),
@@ -378,8 +374,6 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
         )
         encoders = EncoderConfig(v["left_wheel_names"], v["right_wheel_names"],
                                  v["ticks_per_revolution"], v["encoder_counter_bits"])
-    except (GeometryError, EncoderConfigError) as err:
-        raise ParameterError(err.field, err.reason) from err
     units = v["joint_state_units"]
     if units not in JOINT_STATE_UNITS:
         raise ParameterError("joint_state_units",
