@@ -318,3 +318,22 @@ def test_best_effort_publisher_and_sim_time_loop_reset() -> None:
 def _output_after_stop(proc: Any) -> str:
     proc.wait(timeout=10)
     return proc.stdout.read() if proc.stdout else ""
+
+
+def test_publish_rate_throttles_by_stamp_and_tf_can_be_disabled() -> None:
+    """10 Hz out of 50 Hz readings: every fifth stamp, decided by the stamps themselves."""
+    args = ["--ros-args", "-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4",
+            "-p", "publish_rate:=10.0", "-p", "enable_odom_tf:=false"]
+    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
+        sink = listen(node, "/odom")
+        pub = node.create_publisher(JointState, "/joint_states", 10)
+        wait_ready(ex, pub, sink, proc)
+        k = _drive_straight(pub, ex, sink, 0, 50, 0.1)  # 1 s of readings at 50 Hz
+        last = T0_NS + k * STEP_NS
+        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
+        spin_for(ex, 0.3)
+    stamps = sorted({_ns(o.header.stamp) for o in sink.odom})
+    assert stamps == [T0_NS + i * 100_000_000 for i in range(11)]
+    final = max(sink.odom, key=lambda o: _ns(o.header.stamp))
+    assert math.isclose(final.pose.pose.position.x, 0.1 * 0.1 * 50, abs_tol=1e-9)
+    assert not any(t.child_frame_id == "base_link" for m in sink.tf for t in m.transforms)
