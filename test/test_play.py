@@ -68,9 +68,13 @@ def _assert_same(odom: Odometry, expected: replay.Published) -> None:
     assert abs(math.remainder(yaw - expected.pose.theta, 2 * math.pi)) < 1e-9
 
 
-def _wait_for_node(node: Any, ex: Any) -> None:
+def _wait_for_node(node: Any, ex: Any, proc: Any) -> None:
     """Until the node's /odom reaches this test's subscriber (discovery takes a while)."""
-    assert spin_until(ex, lambda: node.count_publishers("/odom") > 0, 20.0)
+    if not spin_until(ex, lambda: node.count_publishers("/odom") > 0, 20.0):
+        alive = proc.poll() is None
+        if not alive and proc.stdout:
+            print(proc.stdout.read())
+        raise AssertionError(f"odometry_node's /odom not discovered (alive: {alive})")
     spin_for(ex, 0.5)
 
 
@@ -97,7 +101,7 @@ def test_play_with_clock_drives_the_node_to_offline_replays_poses(tmp_path: Path
             ros_test_node() as (node, ex):
         node.create_subscription(Odometry, "/odom", odoms.append, 2000)
         node.create_subscription(Clock, "/clock", lambda m: clocks.append(_ns(m.clock)), 100)
-        _wait_for_node(node, ex)
+        _wait_for_node(node, ex, node_proc)
         play = ["play", str(RUN04), "--topics", "/joint_states", "--rate", "8", "--clock",
                 "20", "--wait-for", "/joint_states"]
         with node_process("diffdrive-odom", play) as player:
@@ -124,7 +128,7 @@ def test_looped_play_restarts_the_node_cleanly_and_ctrl_c_exits_0(tmp_path: Path
     with node_process("odometry_node", _node_args(params)) as node_proc, \
             ros_test_node() as (node, ex):
         node.create_subscription(Odometry, "/odom", odoms.append, 2000)
-        _wait_for_node(node, ex)
+        _wait_for_node(node, ex, node_proc)
         play = ["play", str(RUN04), "--topics", "/joint_states", "--rate", "4", "--loop",
                 "--duration", "4", "--clock", "--wait-for", "/joint_states"]
         with node_process("diffdrive-odom", play) as player:
@@ -157,9 +161,10 @@ def test_play_converts_a_ros1_bag_for_the_node(tmp_path: Path) -> None:
         until = reader.start_time + 3 * 10**9
     expected = _offline(TB3, params, until)
     odoms: list[Odometry] = []
-    with node_process("odometry_node", _node_args(params)), ros_test_node() as (node, ex):
+    with node_process("odometry_node", _node_args(params)) as node_proc, \
+            ros_test_node() as (node, ex):
         node.create_subscription(Odometry, "/odom", odoms.append, 2000)
-        _wait_for_node(node, ex)
+        _wait_for_node(node, ex, node_proc)
         play = ["play", str(TB3), "--topics", "/joint_states", "--duration", "3", "--rate",
                 "3", "--clock", "--wait-for", "/joint_states"]
         with node_process("diffdrive-odom", play) as player:
