@@ -356,14 +356,17 @@ def report(
     plot_path: str | None,
     labels: tuple[str, str] = ("odometry", "reference"),
 ) -> None:
-    """Print the table; write JSON and PNG when asked."""
-    print(metrics.table())
+    """Write JSON and PNG when asked, then print the table.
+
+    Files first: a closed pipe on stdout must not lose them.
+    """
     if json_path:
         figures = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                    for k, v in metrics.as_dict().items()}
         Path(json_path).write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
     if plot_path:
         plot(est, ref, plot_path, labels)
+    print(metrics.table())
 
 
 def _parser() -> argparse.ArgumentParser:
