@@ -56,11 +56,8 @@ def load_settings(
     params_file: str | Path, node_name: str = NODE_NAME, namespace: str = "/"
 ) -> OdometrySettings:
     """Read the node's settings from its params YAML, validated exactly as the node does."""
-    values = load_params_file(params_file, node_name)
-    ns = namespace.strip("/")
-    if ns:
-        values.update(load_params_file(params_file, f"{ns}/{node_name}"))
-    return odometry_settings(values, "/" + ns)
+    values = load_params_file(params_file, node_name, namespace)
+    return odometry_settings(values, "/" + namespace.strip("/"))
 
 
 def covariance_matrix(diagonal: Sequence[float]) -> list[float]:
