@@ -191,6 +191,15 @@ def test_same_parameter_validation_as_the_node(
     s = replay.load_settings(doc)
     assert s.geometry.wheel_radius == 0.033 and s.geometry.wheel_separation == 0.287
     assert s.odom_frame_id == "robot1/odom" and s.base_frame_id == "robot1/base_link"
+    # -r __ns:=/robot2: the namespaced section wins and the prefix is the namespace.
+    ns_doc = tmp_path / "ns.yaml"
+    ns_doc.write_text(
+        "/**:\n  ros__parameters:\n    wheel_radius: 0.05\n    wheel_separation: 0.3\n"
+        "/robot2/odometry_node:\n  ros__parameters:\n    wheel_radius: 0.07\n",
+        encoding="utf-8")
+    s2 = replay.load_settings(ns_doc, namespace="/robot2")
+    assert s2.geometry.wheel_radius == 0.07 and s2.odom_frame_id == "robot2/odom"
+    assert replay.load_settings(ns_doc).geometry.wheel_radius == 0.05
 
 
 def test_publish_rate_and_frames_follow_the_params(tmp_path: Path) -> None:
