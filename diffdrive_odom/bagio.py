@@ -48,6 +48,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from diffdrive_odom.odometry import stamp_to_ns
+
 JOINT_STATE = "sensor_msgs/msg/JointState"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
@@ -104,11 +106,6 @@ def connections_for(
     return found
 
 
-def stamp_ns(stamp: Any) -> int:
-    """builtin_interfaces/Time of a rosbags message -> integer nanoseconds."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
 @dataclass(frozen=True)
 class JointReading:
     """One JointState as the estimator takes it, plus where it sat in the bag."""
@@ -122,7 +119,7 @@ class JointReading:
 
 def _reading(msg: Any, log_ns: int) -> JointReading:
     return JointReading(
-        stamp_ns(msg.header.stamp), log_ns, msg.name, msg.position, msg.velocity
+        stamp_to_ns(msg.header.stamp), log_ns, msg.name, msg.position, msg.velocity
     )
 
 
@@ -232,11 +229,6 @@ class CdrConverter:
 
 
 # --- writing ---------------------------------------------------------------------------
-
-
-def yaw_of(q: Any) -> float:
-    """Yaw of a quaternion message (x, y, z, w), for any roll/pitch."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
 class OdomMessages:

@@ -47,7 +47,7 @@ from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import bagio, evaluate, ros_common, routes
-from diffdrive_odom.odometry import OdometryEstimator
+from diffdrive_odom.odometry import OdometryEstimator, quaternion_to_yaw
 from diffdrive_odom.params import (
     OdometrySettings,
     ParameterError,
@@ -326,7 +326,7 @@ _TYPES: dict[str, Any] = {
 
 def _pose_of(msg: Any) -> tuple[float, float, float]:
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    return float(p.x), float(p.y), 2.0 * math.atan2(float(q.z), float(q.w))
+    return float(p.x), float(p.y), quaternion_to_yaw(q)
 
 
 class Driver:

@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from diffdrive_odom import bagio
+from diffdrive_odom.odometry import quaternion_to_yaw, stamp_to_ns
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -291,10 +292,10 @@ def read_trajectory(
                     p, q = _pose_of(item, "geometry_msgs/msg/TransformStamped")
                 else:
                     p, q = _pose_of(item, conn.msgtype)
-                ts.append(bagio.stamp_ns(item.header.stamp))
+                ts.append(stamp_to_ns(item.header.stamp))
                 xs.append(float(p.x))
                 ys.append(float(p.y))
-                yaws.append(bagio.yaw_of(q))
+                yaws.append(quaternion_to_yaw(q))
     if not ts:
         if children:
             raise bagio.BagError(

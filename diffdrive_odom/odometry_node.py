@@ -19,7 +19,14 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import ros_common
-from diffdrive_odom.odometry import OdometryEstimator, Status, Verdict, yaw_to_quaternion
+from diffdrive_odom.odometry import (
+    OdometryEstimator,
+    PublishGate,
+    Status,
+    Verdict,
+    covariance_matrix,
+    yaw_to_quaternion,
+)
 from diffdrive_odom.params import (
     GEOMETRY_PARAMS,
     ODOMETRY_PARAMS,
@@ -29,14 +36,6 @@ from diffdrive_odom.params import (
 )
 
 NODE_NAME = "odometry_node"
-
-
-def covariance_matrix(diagonal: tuple[float, ...]) -> list[float]:
-    """6x6 row-major covariance with the given diagonal."""
-    cov = [0.0] * 36
-    for i, d in enumerate(diagonal):
-        cov[7 * i] = d
-    return cov
 
 
 class OdometryNode(Node):
@@ -52,7 +51,7 @@ class OdometryNode(Node):
         )
         self._pose_cov = covariance_matrix(settings.pose_covariance_diagonal)
         self._twist_cov = covariance_matrix(settings.twist_covariance_diagonal)
-        self._last_published_ns: int | None = None
+        self._gate = PublishGate(settings.publish_rate)
         self._guard = ros_common.ParameterGuard(self, values, self._build, self._apply)
 
         self._odom_pub = self.create_publisher(Odometry, "odom", ros_common.RELIABLE_OUT_QOS)
@@ -78,6 +77,7 @@ class OdometryNode(Node):
         self._settings = settings
         self._pose_cov = covariance_matrix(settings.pose_covariance_diagonal)
         self._twist_cov = covariance_matrix(settings.twist_covariance_diagonal)
+        self._gate.rate = settings.publish_rate
         if settings.encoders != old.encoders or settings.estimator != old.estimator:
             # The units of the reference reading changed: keep the pose, take the next
             # reading as the new reference.
@@ -92,7 +92,7 @@ class OdometryNode(Node):
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self._estimator.reset()
-        self._last_published_ns = None
+        self._gate.last_ns = None
         response.success = True
         response.message = "odometry reset to the origin"
         self.get_logger().info(response.message)
@@ -106,7 +106,7 @@ class OdometryNode(Node):
             return
         verdict = self._estimator.update(stamp_ns, msg.name, msg.position, msg.velocity)
         self._report(verdict)
-        if verdict.has_new_pose and self._due(stamp_ns):
+        if verdict.has_new_pose and self._gate.due(stamp_ns):
             self._publish(msg.header.stamp)
 
     def _report(self, verdict: Verdict) -> None:
@@ -117,13 +117,6 @@ class OdometryNode(Node):
 
     def _warn(self, text: str) -> None:
         self.get_logger().warning(text, throttle_duration_sec=ros_common.WARN_THROTTLE_S)
-
-    def _due(self, stamp_ns: int) -> bool:
-        rate = self._settings.publish_rate
-        last = self._last_published_ns
-        if rate <= 0.0 or last is None or stamp_ns < last:
-            return True
-        return (stamp_ns - last) >= 1e9 / rate - 1e3  # 1 us slack for stamp jitter
 
     def _publish(self, stamp: Any) -> None:
         est = self._estimator
@@ -145,7 +138,6 @@ class OdometryNode(Node):
         odom.twist.twist.angular.z = est.angular
         odom.twist.covariance = self._twist_cov
         self._odom_pub.publish(odom)
-        self._last_published_ns = ros_common.stamp_to_ns(stamp)
         if s.enable_odom_tf:
             tf = TransformStamped()
             tf.header = odom.header

@@ -38,7 +38,12 @@ from diffdrive_odom import bagio
 from diffdrive_odom.encoders import JointLookup, WheelReading, decode, increment
 from diffdrive_odom.integration import Pose2D, integrate_batch, wrap_angle
 from diffdrive_odom.kinematics import Geometry, body_increment
-from diffdrive_odom.odometry import OdometryEstimator, Status
+from diffdrive_odom.odometry import (
+    OdometryEstimator,
+    PublishGate,
+    Status,
+    covariance_matrix,
+)
 from diffdrive_odom.params import (
     OdometrySettings,
     ParameterError,
@@ -58,35 +63,6 @@ def load_settings(
     """Read the node's settings from its params YAML, validated exactly as the node does."""
     values = load_params_file(params_file, node_name, namespace)
     return odometry_settings(values, "/" + namespace.strip("/"))
-
-
-def covariance_matrix(diagonal: Sequence[float]) -> list[float]:
-    """6x6 row-major covariance with the given diagonal (as the node publishes it)."""
-    cov = [0.0] * 36
-    for i, d in enumerate(diagonal):
-        cov[7 * i] = float(d)
-    return cov
-
-
-class PublishGate:
-    """The node's ``publish_rate`` rule: at most one pose per period of measurement time."""
-
-    def __init__(self, rate: float) -> None:
-        self.rate = rate
-        self.last_ns: int | None = None
-
-    def due(self, stamp_ns: int) -> bool:
-        """Tell whether a pose stamped ``stamp_ns`` is published (and remember it if so)."""
-        last = self.last_ns
-        ok = (
-            self.rate <= 0.0
-            or last is None
-            or stamp_ns < last
-            or (stamp_ns - last) >= 1e9 / self.rate - 1e3  # 1 us slack for stamp jitter
-        )
-        if ok:
-            self.last_ns = stamp_ns
-        return ok
 
 
 @dataclass

@@ -23,6 +23,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
+from diffdrive_odom.odometry import stamp_to_ns as stamp_to_ns  # re-exported
 from diffdrive_odom.params import ParameterError, ParamSpec, ParamValue
 
 T = TypeVar("T")
@@ -50,11 +51,6 @@ TF_QOS = QoSProfile(
 )
 
 WARN_THROTTLE_S = 5.0
-
-
-def stamp_to_ns(stamp: Any) -> int:
-    """builtin_interfaces/Time -> integer nanoseconds (no float rounding)."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def ns_to_stamp(ns: int, msg: Any) -> Any:

@@ -21,6 +21,7 @@ from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 
 from diffdrive_odom import bagio
+from diffdrive_odom.odometry import quaternion_to_yaw
 
 from rosutil import DATA
 
@@ -154,7 +155,7 @@ def test_odometry_and_tf_round_trip(tmp_path: Path, storage: str) -> None:
             assert (o.pose.pose.position.x, o.pose.pose.position.y) == (x, y)
             assert list(o.pose.covariance) == pose_cov
             assert tfm.transforms[0].transform.translation.x == x
-            assert bagio.yaw_of(o.pose.pose.orientation) == pytest.approx(yaw, abs=1e-12)
+            assert quaternion_to_yaw(o.pose.pose.orientation) == pytest.approx(yaw, abs=1e-12)
 
 
 def test_csv_header_is_the_documented_one_and_values_round_trip(tmp_path: Path) -> None:

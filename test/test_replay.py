@@ -24,6 +24,7 @@ from rosbags.highlevel import AnyReader
 from diffdrive_odom import bagio, replay
 from diffdrive_odom.cli import main as cli
 from diffdrive_odom.kinematics import Geometry
+from diffdrive_odom.odometry import quaternion_to_yaw
 from diffdrive_odom.params import OdometrySettings
 
 from rosutil import DATA
@@ -86,12 +87,12 @@ def test_optiodom_replay_matches_firmware_and_first_principles(tmp_path: Path, r
     p = last.pose.pose
     assert math.hypot(p.position.x - fw.pose.pose.position.x,
                       p.position.y - fw.pose.pose.position.y) < 1e-3
-    assert abs(math.remainder(bagio.yaw_of(p.orientation) - bagio.yaw_of(fw.pose.pose.orientation),
-                              2 * math.pi)) < 2e-3
+    heading_gap = quaternion_to_yaw(p.orientation) - quaternion_to_yaw(fw.pose.pose.orientation)
+    assert abs(math.remainder(heading_gap, 2 * math.pi)) < 2e-3
     # Exact arcs from the wheel angles (left first in this bag).
     x, y, th = _arc_integrate(readings, 0.042, 0.200, 0, 1)
     assert math.hypot(p.position.x - x, p.position.y - y) < 1e-9
-    assert abs(math.remainder(bagio.yaw_of(p.orientation) - th, 2 * math.pi)) < 1e-9
+    assert abs(math.remainder(quaternion_to_yaw(p.orientation) - th, 2 * math.pi)) < 1e-9
     # The CSV carries the same poses.
     with open(table, newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
