@@ -39,7 +39,6 @@ from nav_msgs.msg import Odometry
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -305,19 +304,9 @@ def stop_children(children: Sequence[Child], grace: float = 5.0) -> None:
 
 # --- recording and driving (this process's own node) -----------------------------------
 
-RECORD_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1000,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+RECORD_QOS = ros_common.qos(1000, reliable=True)
 # Only the newest /clock matters to the driver.
-LATEST_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.BEST_EFFORT,
-    durability=DurabilityPolicy.VOLATILE,
-)
+LATEST_QOS = ros_common.qos(1, reliable=False)
 _TYPES: dict[str, Any] = {
     "/joint_states": JointState, "/odom": Odometry, "/ground_truth/odom": Odometry,
     "/tf": TFMessage, "/cmd_vel": Twist,

@@ -28,27 +28,22 @@ from diffdrive_odom.params import ParameterError, ParamSpec, ParamValue
 
 T = TypeVar("T")
 
+def qos(depth: int, reliable: bool) -> QoSProfile:
+    """Keep-last, volatile QoS: the only knobs our topics differ in are depth and reliability."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
 # A best-effort subscriber matches reliable *and* best-effort publishers, so encoder
 # drivers of either kind connect; the deep queue absorbs bursts (bag replay).
-SENSOR_IN_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=100,
-    reliability=ReliabilityPolicy.BEST_EFFORT,
-    durability=DurabilityPolicy.VOLATILE,
-)
+SENSOR_IN_QOS = qos(100, reliable=False)
 # What Nav2 and robot_localization expect of odometry.
-RELIABLE_OUT_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=10,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
-TF_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=100,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+RELIABLE_OUT_QOS = qos(10, reliable=True)
+TF_QOS = qos(100, reliable=True)
 
 WARN_THROTTLE_S = 5.0
 

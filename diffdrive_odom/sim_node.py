@@ -23,7 +23,6 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -47,18 +46,8 @@ NODE_NAME = "sim_node"
 MAX_STEP_NS = 1_000_000_000  # a clock jump larger than this is not simulated as motion
 
 # Commands: best effort matches reliable and best-effort publishers; only the newest counts.
-COMMAND_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=5,
-    reliability=ReliabilityPolicy.BEST_EFFORT,
-    durability=DurabilityPolicy.VOLATILE,
-)
-CLOCK_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+COMMAND_QOS = ros_common.qos(5, reliable=False)
+CLOCK_QOS = ros_common.qos(1, reliable=True)
 
 
 class SimNode(Node):

@@ -98,3 +98,15 @@ def wait_for_subscriber(
 ) -> bool:
     """Wait until DDS discovery has matched ``publisher`` with a subscriber."""
     return spin_until(executor, lambda: publisher.get_subscription_count() > 0, timeout)
+
+
+def assert_refuses_to_start(executable_name: str, cases: dict[str, list[str]]) -> None:
+    """Each case (parameter name -> ``-p`` arguments) must stop the node at start with
+    a non-zero exit and exactly one output line naming that parameter."""
+    for name, params in cases.items():
+        with node_process(executable_name, ["--ros-args", *params]) as proc:
+            code = proc.wait(timeout=20)
+            out = proc.stdout.read() if proc.stdout else ""
+        assert code != 0, f"{name}: node started with a bad value"
+        lines = [ln for ln in out.splitlines() if ln.strip()]
+        assert len(lines) == 1 and f"'{name}'" in lines[0], out

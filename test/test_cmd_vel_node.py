@@ -29,7 +29,7 @@ from std_msgs.msg import Float64MultiArray
 from diffdrive_odom.cmd_vel_settings import CMD_VEL_PARAMS, cmd_vel_settings
 from diffdrive_odom.params import ParameterError, load_params_file
 
-from rosutil import node_process, ros_test_node, spin_for, spin_until
+from rosutil import assert_refuses_to_start, node_process, ros_test_node, spin_for, spin_until
 
 # --- parameters (pure) ---------------------------------------------------------------
 
@@ -365,10 +365,4 @@ def test_bad_parameters_stop_the_node_with_their_name() -> None:
         "publish_rate": [*geometry, "-p", "publish_rate:=0.0"],
         "wheel_radius": ["-p", f"wheel_separation:={B}"],
     }
-    for name, params in cases.items():
-        with node_process("cmd_vel_node", ["--ros-args", *params]) as proc:
-            code = proc.wait(timeout=20)
-            out = proc.stdout.read() if proc.stdout else ""
-        assert code != 0, f"{name}: node started with a bad value"
-        lines = [ln for ln in out.splitlines() if ln.strip()]
-        assert len(lines) == 1 and f"'{name}'" in lines[0], out
+    assert_refuses_to_start("cmd_vel_node", cases)

@@ -22,7 +22,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from rosutil import ROOT, node_process, ros_test_node, spin_for, spin_until
+from rosutil import ROOT, assert_refuses_to_start, node_process, ros_test_node, spin_for, spin_until
 
 T0_NS = 1_700_000_000 * 10**9  # an arbitrary, realistic epoch for stamps
 STEP_NS = 20_000_000  # 50 Hz
@@ -218,13 +218,7 @@ def test_bad_parameters_stop_the_node_with_their_name() -> None:
         "enable_odom_tf": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
                            "-p", "enable_odom_tf:=3"],
     }
-    for name, params in cases.items():
-        with node_process("odometry_node", ["--ros-args", *params]) as proc:
-            code = proc.wait(timeout=20)
-            out = proc.stdout.read() if proc.stdout else ""
-        assert code != 0, f"{name}: node started with a bad value"
-        lines = [ln for ln in out.splitlines() if ln.strip()]
-        assert len(lines) == 1 and f"'{name}'" in lines[0], out
+    assert_refuses_to_start("odometry_node", cases)
 
 
 def _set_param(node: Node, ex: Any, name: str, value: ParameterValue) -> Any:
