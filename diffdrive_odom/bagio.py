@@ -33,7 +33,6 @@ import csv
 import functools
 import heapq
 import itertools
-import math
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,7 +47,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.odometry import stamp_to_ns
+from diffdrive_odom.odometry import stamp_to_ns, yaw_to_quaternion
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -249,10 +248,8 @@ class OdomMessages:
         )
 
     def _quaternion(self, yaw: float) -> Any:
-        half = 0.5 * yaw
-        return self._t["geometry_msgs/msg/Quaternion"](
-            x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)
-        )
+        x, y, z, w = yaw_to_quaternion(yaw)
+        return self._t["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)
 
     def odometry(
         self,

@@ -635,7 +635,7 @@ def plot(path: Path, truth: evaluate.Trajectory, odom: evaluate.Trajectory,
     for traj, color, style, label in ((odom, "tab:red", "-", "nominal geometry"),
                                       (calibrated, "tab:green", "--", "perfectly calibrated")):
         m = evaluate.match(traj, truth)
-        dist = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(m.ref[:, :2], axis=0).T))))
+        dist = evaluate.path_length(m.ref)
         err = np.hypot(*(m.est[:, :2] - m.ref[:, :2]).T)
         ax2.plot(dist, err, style, color=color, lw=1.5, label=label)
     ax2.set_xlabel("distance driven [m]")

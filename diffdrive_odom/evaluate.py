@@ -79,8 +79,7 @@ class Trajectory:
 
     def path_length(self) -> FloatArray:
         """Cumulative distance travelled at each pose (0 at the first)."""
-        step = np.hypot(np.diff(self.x), np.diff(self.y))
-        return np.concatenate(([0.0], np.cumsum(step)))
+        return path_length(np.column_stack((self.x, self.y)))
 
 
 @dataclass(frozen=True)
@@ -197,6 +196,12 @@ def _rmse(est: FloatArray, ref: FloatArray) -> float:
     return float(np.sqrt(np.mean(np.sum((est[:, :2] - ref[:, :2]) ** 2, axis=1))))
 
 
+def path_length(xy: FloatArray) -> FloatArray:
+    """Cumulative distance along rows ``(x, y, ...)`` of ``xy`` (0 at the first)."""
+    step = np.hypot(*np.diff(xy[:, :2], axis=0).T)
+    return np.concatenate(([0.0], np.cumsum(step)))
+
+
 def relative_errors(
     est: FloatArray, ref: FloatArray, segment_length: float
 ) -> tuple[float, float, int]:
@@ -205,7 +210,7 @@ def relative_errors(
     For every matched pose i, j is the first pose at least ``segment_length`` further
     along the reference path; the motion i -> j seen from pose i is compared.
     """
-    dist = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(ref[:, :2], axis=0).T))))
+    dist = path_length(ref)
     j = np.searchsorted(dist, dist + segment_length, side="left")
     i = np.flatnonzero(j < len(dist))
     if len(i) == 0:

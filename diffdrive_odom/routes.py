@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from diffdrive_odom.errors import ConfigError
-from diffdrive_odom.integration import Pose2D, wrap_angle
+from diffdrive_odom.integration import Pose2D, compose, wrap_angle
 
 ORIGIN = Pose2D()
 
@@ -90,21 +90,10 @@ class Route:
 def arc(pose: Pose2D, linear: float, angular: float, duration: float) -> Pose2D:
     """Closed-form pose after holding (v, omega) for ``duration`` (exact, any curvature).
 
-    ``x' = x + v/w (sin(th + w t) - sin th)``, ``y' = y - v/w (cos(th + w t) - cos th)``,
-    written with the half-angle identities so the straight line (w -> 0) is the same
-    formula without a division by zero.
+    A constant twist is a rotation about a fixed CIR, which is exactly the core's
+    elementary transform (integration.compose), straight lines included.
     """
-    dtheta = angular * duration
-    half = 0.5 * dtheta
-    # 2 sin(a/2) / a, i.e. sinc(a/2): chord length over arc length.
-    ratio = math.sin(half) / half if half != 0.0 else 1.0
-    chord = linear * duration * ratio
-    heading = pose.theta + half
-    return Pose2D(
-        pose.x + chord * math.cos(heading),
-        pose.y + chord * math.sin(heading),
-        wrap_angle(pose.theta + dtheta),
-    )
+    return compose(pose, linear * duration, angular * duration)
 
 
 def pose_after(
