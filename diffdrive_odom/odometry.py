@@ -131,6 +131,8 @@ class OdometryEstimator:
         self.linear = 0.0  # m/s along base x, smoothed
         self.angular = 0.0  # rad/s about base z, smoothed
         self.last_step: Step | None = None
+        # Geometry-free joint increments of the last integrated step (for batch replay).
+        self.last_increment: WheelIncrement | None = None
         self._reference: WheelReading | None = None
         self._linear_mean = _RollingMean(self.config.velocity_rolling_window_size)
         self._angular_mean = _RollingMean(self.config.velocity_rolling_window_size)
@@ -203,6 +205,7 @@ class OdometryEstimator:
         ds, dtheta = body_increment(self.geometry, inc.d_left, inc.d_right)
         self.pose = compose(self.pose, ds, dtheta)
         self.last_step = Step(inc.dt, ds, dtheta)
+        self.last_increment = inc
         # Constant-velocity motion about the CIR has exactly this body twist.
         self.linear = self._linear_mean.push(ds / inc.dt)
         self.angular = self._angular_mean.push(dtheta / inc.dt)

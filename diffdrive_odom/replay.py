@@ -35,7 +35,6 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 
 from diffdrive_odom import bagio
-from diffdrive_odom.encoders import JointLookup, WheelReading, decode, increment
 from diffdrive_odom.integration import Pose2D, integrate_batch, wrap_angle
 from diffdrive_odom.kinematics import Geometry, body_increment
 from diffdrive_odom.odometry import (
@@ -160,29 +159,22 @@ def wheel_steps(
 ) -> WheelSteps:
     """Decode a bag once into the steps the estimator integrates (its verdicts decide)."""
     est = OdometryEstimator(settings.geometry, settings.encoders, settings.estimator)
-    lookup = JointLookup(settings.encoders)
     stamps, dts, lefts, rights, segs = array("q"), array("d"), array("d"), array("d"), array("q")
-    reference: WheelReading | None = None
     segments = 0
     for r in readings:
         if r.stamp_ns <= 0:
             continue
-        verdict = est.update(r.stamp_ns, r.names, r.position, r.velocity)
-        if verdict.status is Status.DROPPED:
-            continue
-        current = decode(lookup, r.stamp_ns, r.names, r.position, r.velocity)
-        assert isinstance(current, WheelReading)  # the estimator accepted it
-        if verdict.status is Status.UPDATED:
-            assert reference is not None
-            inc = increment(settings.encoders, reference, current)
+        status = est.update(r.stamp_ns, r.names, r.position, r.velocity).status
+        if status is Status.UPDATED:
+            inc = est.last_increment
+            assert inc is not None  # set by every UPDATED step
             stamps.append(r.stamp_ns)
             dts.append(inc.dt)
             lefts.append(inc.d_left)
             rights.append(inc.d_right)
             segs.append(segments - 1)
-        elif verdict.status is Status.TIME_RESET or segments == 0:
+        elif status is Status.TIME_RESET or (status is Status.REFERENCE and segments == 0):
             segments += 1
-        reference = current
     return WheelSteps(
         np.frombuffer(stamps, dtype=np.int64).copy(),
         np.frombuffer(dts, dtype=np.float64).copy(),
