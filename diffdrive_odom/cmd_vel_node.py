@@ -30,10 +30,21 @@ from diffdrive_odom.cmd_vel_settings import (
     CmdVelSettings,
     cmd_vel_settings,
 )
+from diffdrive_odom.diagnostics import (
+    CommandHealth,
+    CommandState,
+    RateMeter,
+    Report,
+    Reporter,
+    cmd_vel_report,
+)
 from diffdrive_odom.kinematics import point_velocity_to_twist
-from diffdrive_odom.limits import LimitedCommand, TwistLimiter, Watchdog
+from diffdrive_odom.limits import LIMIT_REASONS, LimitedCommand, TwistLimiter, Watchdog
 
 NODE_NAME = "cmd_vel_node"
+DIAGNOSTIC_TASK = "cmd_vel"  # status "cmd_vel_node: cmd_vel" on /diagnostics
+# Why a command is refused (the /diagnostics "dropped" counters).
+DROP_REASONS = ("non_finite", "stale_stamp")
 # Each warning below is throttled on its own (rclpy keys the throttle by call site).
 THROTTLE_S = ros_common.WARN_THROTTLE_S
 
@@ -59,6 +70,15 @@ class Command:
 class CmdVelNode(Node):
     """Turns cmd_vel into wheel velocity commands at a steady rate."""
 
+    # Diagnostics state (see _init_diagnostics).
+    _accepted_ns: int | None  # steady time of the last valid command
+    _last_moving: bool  # it asked for motion
+    _limited: dict[str, int]
+    _counted_limits: set[str]  # limits already counted for the held command
+    _dropped: dict[str, int]
+    _command_rate: RateMeter
+    _output_rate: RateMeter
+
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._log: Any = cast(Any, self).get_logger()  # rclpy's get_logger is untyped
@@ -74,6 +94,7 @@ class CmdVelNode(Node):
         self._zero_stamp_warned = False
         self._type_checked_ns = 0
         self._guard = ros_common.ParameterGuard(self, values, cmd_vel_settings, self._apply)
+        self._init_diagnostics()
 
         if s.wheel_command_format == JOINT_STATE:
             self._wheel_pub = self.create_publisher(
@@ -143,19 +164,25 @@ class CmdVelNode(Node):
         lin, ang = twist.linear, twist.angular
         parts = (lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
         if not all(math.isfinite(p) for p in parts):
+            self._dropped["non_finite"] += 1
             self._log.warning(
                 f"cmd_vel with NaN/inf ignored: linear=({lin.x}, {lin.y}, {lin.z}) "
                 f"angular=({ang.x}, {ang.y}, {ang.z})", throttle_duration_sec=THROTTLE_S)
             return
         ros_now = self.get_clock().now().nanoseconds
         if stamp_ns is not None and self._watchdog.is_stale(stamp_ns, ros_now):
+            self._dropped["stale_stamp"] += 1
             self._log.warning(
                 f"stale cmd_vel ignored: stamped {(ros_now - stamp_ns) * 1e-9:.3f} s ago, "
                 f"cmd_vel_timeout is {self._settings.cmd_vel_timeout:g} s",
                 throttle_duration_sec=THROTTLE_S)
             return
-        self._watchdog.accept(Command(lin.x, lin.y, ang.z),
-                              self._steady.now().nanoseconds, stamp_ns)
+        now_ns = self._steady.now().nanoseconds
+        self._watchdog.accept(Command(lin.x, lin.y, ang.z), now_ns, stamp_ns)
+        self._accepted_ns = now_ns
+        self._command_rate.add(now_ns * 1e-9)
+        self._last_moving = any(p != 0.0 for p in parts)
+        self._counted_limits = set()
 
     # --- output -----------------------------------------------------------------
 
@@ -178,7 +205,10 @@ class CmdVelNode(Node):
             self._moving = True
             linear, angular = self._body_twist(command)
         out = self._limiter.step(linear, angular, dt)
+        if command is not None:
+            self._count_limits(out)
         self._publish(out)
+        self._output_rate.add(now * 1e-9)
 
     def _body_twist(self, c: Command) -> tuple[float, float]:
         offset = self._settings.control_point_offset
@@ -213,6 +243,50 @@ class CmdVelNode(Node):
             ts.twist.linear.x = out.linear
             ts.twist.angular.z = out.angular
             self._limited_pub.publish(ts)
+
+    # --- diagnostics --------------------------------------------------------------
+
+    def _init_diagnostics(self) -> None:
+        start = self._steady.now().nanoseconds * 1e-9
+        self._accepted_ns = None
+        self._last_moving = False
+        self._limited = dict.fromkeys(LIMIT_REASONS, 0)
+        self._counted_limits = set()
+        self._dropped = dict.fromkeys(DROP_REASONS, 0)
+        self._command_rate = RateMeter(start)
+        self._output_rate = RateMeter(start)
+        self._reporter = Reporter(cmd_vel_report)
+        self._diagnostics = ros_common.DiagnosticsPublisher(
+            self, DIAGNOSTIC_TASK, self._diagnose)
+
+    def _count_limits(self, out: LimitedCommand) -> None:
+        """Count each command once per limit that changed how it is followed."""
+        for reason in out.limited:
+            if reason not in self._counted_limits:
+                self._counted_limits.add(reason)
+                self._limited[reason] += 1
+
+    def _diagnose(self) -> Report:
+        now_ns = self._steady.now().nanoseconds
+        if self._moving:
+            state = CommandState.COMMANDING
+        elif self._accepted_ns is None:
+            state = CommandState.NEVER
+        else:
+            state = CommandState.TIMED_OUT
+        s = self._settings
+        return self._reporter(CommandHealth(
+            state=state,
+            command_age_s=None if self._accepted_ns is None
+            else (now_ns - self._accepted_ns) * 1e-9,
+            last_command_moving=self._last_moving,
+            limited=dict(self._limited),
+            dropped=dict(self._dropped),
+            command_rate_hz=self._command_rate.rate(now_ns * 1e-9),
+            output_rate_hz=self._output_rate.rate(now_ns * 1e-9),
+            expected_output_hz=s.publish_rate,
+            timeout_s=s.cmd_vel_timeout,
+        ))
 
     def _check_input_type(self, now_ns: int) -> None:
         """Nothing ever arrived: say so if cmd_vel's publishers use the other message type."""

@@ -51,6 +51,9 @@ INF = math.inf
 
 C = TypeVar("C")
 
+# Why a step's output differs from its target, as LimitedCommand.limited names it.
+LIMIT_REASONS = ("velocity", "acceleration", "jerk", "wheel_saturation")
+
 
 class LimitError(ConfigError):
     """A limit that cannot be used (``field`` is the name within the axis)."""
@@ -146,6 +149,7 @@ class AxisLimiter:
         self.acceleration = 0.0
         self._previous = 0.0
         self._dt = 0.0
+        self.limited_by: tuple[str, ...] = ()  # which bounds changed the last step
 
     def reset(self, velocity: float = 0.0) -> None:
         """Forget the history: the robot is taken to move at ``velocity`` and not accelerate."""
@@ -159,20 +163,31 @@ class AxisLimiter:
             raise ValueError(f"target must be finite, got {target!r}")
         v0, a0 = self.velocity, self.acceleration
         lim = self.limits
+        low, high = lim.velocity_bounds
         if not (dt > 0.0 and math.isfinite(dt)):
             # No time has passed: nothing may change except what the velocity bounds force.
-            low, high = lim.velocity_bounds
-            return self._commit(v0, _clamp(v0, low, high), 0.0)
+            v = _clamp(v0, low, high)
+            self.limited_by = ("velocity",) if v != v0 else ()
+            return self._commit(v0, v, 0.0)
+        limited_by: list[str] = []
         v = target
         j_low, j_high = lim.jerk_bounds
         if math.isfinite(j_low) or math.isfinite(j_high):
             a = (v - v0) / dt
             if (a - a0) * a > 0.0:  # acceleration building up: limit; releasing is free
-                a = _clamp(a, a0 + j_low * dt, a0 + j_high * dt)
+                a_limited = _clamp(a, a0 + j_low * dt, a0 + j_high * dt)
+                if a_limited != a:
+                    limited_by.append("jerk")
+                a = a_limited
                 v = v0 + a * dt
-        v = self._limit_acceleration(v0, v, dt)
-        low, high = lim.velocity_bounds
-        return self._commit(v0, _clamp(v, low, high), dt)
+        v_acc = self._limit_acceleration(v0, v, dt)
+        if v_acc != v:
+            limited_by.append("acceleration")
+        v = _clamp(v_acc, low, high)
+        if v != v_acc:
+            limited_by.append("velocity")
+        self.limited_by = tuple(limited_by)
+        return self._commit(v0, v, dt)
 
     def correct(self, velocity: float) -> None:
         """Replace the last output by what was really commanded (e.g. after wheel scaling).
@@ -233,6 +248,8 @@ class LimitedCommand:
     left: float
     right: float
     wheel_scale: float
+    # The bounds that changed this step (names from LIMIT_REASONS); () = followed as asked.
+    limited: tuple[str, ...] = ()
 
 
 class TwistLimiter:
@@ -264,7 +281,11 @@ class TwistLimiter:
             v, w = v * scale, w * scale  # the IK is linear: the twist these wheels give
             self.linear.correct(v)
             self.angular.correct(w)
-        return LimitedCommand(v, w, left, right, scale)
+        acted = {*self.linear.limited_by, *self.angular.limited_by}
+        if scale != 1.0:
+            acted.add("wheel_saturation")
+        limited = tuple(r for r in LIMIT_REASONS if r in acted)
+        return LimitedCommand(v, w, left, right, scale, limited)
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,14 @@ from collections.abc import Callable, Iterable, Sequence
 from typing import Any, Generic, TypeVar
 
 import rclpy
+from diagnostic_msgs.msg import (  # type: ignore[import-untyped]
+    DiagnosticArray,
+    DiagnosticStatus,
+    KeyValue,
+)
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock
+from rclpy.clock_type import ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -23,6 +30,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
+from diffdrive_odom.diagnostics import Report
 from diffdrive_odom.odometry import stamp_to_ns as stamp_to_ns  # re-exported
 from diffdrive_odom.params import ParameterError, ParamSpec, ParamValue
 
@@ -150,3 +158,62 @@ def _program() -> str:
     import os
 
     return os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else "diffdrive_odom"
+
+
+# --- /diagnostics --------------------------------------------------------------------
+# As ROS 2's diagnostic_updater: an absolute topic (one per robot, whatever the node's
+# namespace), keep-last 1, reliable, volatile (its create_publisher(..., 1)).
+DIAGNOSTICS_TOPIC = "/diagnostics"
+DIAGNOSTICS_QOS = qos(1, reliable=True)
+DIAGNOSTICS_PERIOD_S = 1.0
+
+
+def diagnostic_status_name(node: Node, task: str) -> str:
+    """``"<node>: <task>"`` as diagnostic_updater names a status.
+
+    At the root namespace that is the bare node name (its default); in a namespace
+    the fully qualified one (its ``diagnostic_updater.use_fqn``), so that two robots'
+    nodes do not share a status name on the aggregator.
+    """
+    base = node.get_name() if node.get_namespace() == "/" else node.get_fully_qualified_name()
+    return f"{base}: {task}"
+
+
+class DiagnosticsPublisher:
+    """Publishes ``report()`` as a one-status DiagnosticArray on /diagnostics at 1 Hz.
+
+    The timer runs on the steady clock, like the wheel-command heartbeat, so a paused
+    /clock (use_sim_time) does not silence the health report; the array is stamped
+    from the node's clock, as diagnostic_updater stamps it. ``hardware_id`` "none" is
+    diagnostic_updater's advice for a status that belongs to no device.
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        task: str,
+        report: Callable[[], Report],
+        hardware_id: str = "none",
+        period_s: float = DIAGNOSTICS_PERIOD_S,
+    ) -> None:
+        self._node = node
+        self._report = report
+        self.name = diagnostic_status_name(node, task)
+        self.hardware_id = hardware_id
+        self._pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DIAGNOSTICS_QOS)
+        self._timer = node.create_timer(
+            period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def publish(self) -> None:
+        """Publish the current report now (the timer calls this once a period)."""
+        report = self._report()
+        status = DiagnosticStatus()
+        status.level = bytes([int(report.level)])
+        status.name = self.name
+        status.message = report.message
+        status.hardware_id = self.hardware_id
+        status.values = [KeyValue(key=k, value=v) for k, v in report.values]
+        msg = DiagnosticArray()
+        msg.header.stamp = self._node.get_clock().now().to_msg()
+        msg.status = [status]
+        self._pub.publish(msg)
