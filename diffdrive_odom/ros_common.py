@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterable, Sequence
 from typing import Any, Generic, TypeVar
 
 import rclpy
-from diagnostic_msgs.msg import (  # type: ignore[import-untyped]
+from diagnostic_msgs.msg import (
     DiagnosticArray,
     DiagnosticStatus,
     KeyValue,
