@@ -33,7 +33,7 @@ test: venv
 	$(PY) -m pytest -q
 
 lint: venv
-	$(VENV)/bin/ruff check diffdrive_odom test bench scripts
+	$(VENV)/bin/ruff check diffdrive_odom test bench scripts launch
 	$(VENV)/bin/mypy
 
 check: test lint

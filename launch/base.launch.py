@@ -8,6 +8,7 @@ and a 0.5 s command timeout, publishing at 50 Hz. It publishes ``/clock`` only w
 ``use_sim_time:=true``; it never follows ``/clock`` itself, since it is the clock.
 """
 
+# ruff: noqa: I001 (ruff takes ./launch for first-party; this is ROS 2 launch)
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription
 from launch.conditions import IfCondition

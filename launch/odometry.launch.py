@@ -8,6 +8,7 @@ frames are prefixed with it (``robot1/odom``) unless the file sets ``tf_frame_pr
 ``/tf`` stays global, as tf2 expects.
 """
 
+# ruff: noqa: I001 (ruff takes ./launch for first-party; this is ROS 2 launch)
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
