@@ -54,6 +54,9 @@ def generate_launch_description() -> LaunchDescription:
             "joint_states_topic", default_value="joint_states",
             description="sensor_msgs/JointState encoder readings (relative = in the namespace)"),
         DeclareLaunchArgument(
+            "odom_topic", default_value="odom",
+            description="nav_msgs/Odometry output of odometry_node"),
+        DeclareLaunchArgument(
             "cmd_vel_topic", default_value="cmd_vel",
             description="Velocity command input of cmd_vel_node"),
         DeclareLaunchArgument(
