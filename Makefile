@@ -3,11 +3,15 @@ SHELL := /bin/bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.diffdrive_odom-installed
+# ROS 2 launch + launch_ros (not on PyPI) where CI keeps them beside the clone; a clone
+# without them skips the launch tests that need them (test/test_launch.py says why).
+SHARED_LAUNCH ?= ../shared/launch
+LAUNCH_STAMP := $(VENV)/.launch-installed
 PIP_QUIET := 2>&1 | grep -v '^WARNING: Location' || true
 
 .PHONY: venv demo test lint check bench clean
 
-venv: $(STAMP)
+venv: $(STAMP) $(if $(wildcard $(SHARED_LAUNCH)/install.sh),$(LAUNCH_STAMP))
 
 $(STAMP): requirements.txt setup.py setup.cfg package.xml scripts/build_tf2_msgs.sh
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -18,6 +22,10 @@ $(STAMP): requirements.txt setup.py setup.cfg package.xml scripts/build_tf2_msgs
 	$(PY) -c 'import rclpy, tf2_msgs.msg, nav_msgs.msg, rosbags, diffdrive_odom'
 	touch $(STAMP)
 
+$(LAUNCH_STAMP): $(STAMP) $(SHARED_LAUNCH)/install.sh
+	bash $(SHARED_LAUNCH)/install.sh $(VENV)
+	touch $(LAUNCH_STAMP)
+
 demo: venv
 	$(VENV)/bin/diffdrive-odom demo
 
@@ -25,7 +33,7 @@ test: venv
 	$(PY) -m pytest -q
 
 lint: venv
-	$(VENV)/bin/ruff check diffdrive_odom test bench scripts
+	$(VENV)/bin/ruff check diffdrive_odom test bench scripts launch
 	$(VENV)/bin/mypy
 
 check: test lint

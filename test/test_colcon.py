@@ -13,11 +13,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from rosutil import BIN, ROOT
 
 
 def _tracked_files() -> list[str]:
-    out = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True)
+    # Tracked and new (not ignored) files: what a commit of this checkout would hold.
+    out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+                         cwd=ROOT, capture_output=True, text=True)
     if out.returncode == 0 and out.stdout.strip():
         return out.stdout.split()
     # Not a git checkout (an sdist): take everything but caches and build outputs.
@@ -36,20 +40,41 @@ def _in_workspace(ws: Path, command: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_colcon_build_and_installed_executables(tmp_path: Path) -> None:
-    src = tmp_path / "src" / "diffdrive_odom"
+_BUILT: dict[str, Path] = {}
+
+
+def colcon_install(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The workspace with the package built by ``colcon build``, once per test session.
+
+    test_launch runs its launch files against this install too: one build serves both.
+    """
+    if "ws" in _BUILT:
+        return _BUILT["ws"]
+    ws = tmp_path_factory.mktemp("colcon_ws")
+    src = ws / "src" / "diffdrive_odom"
     for rel in _tracked_files():
-        if rel.startswith("test/data/"):
-            continue  # the workspace does not need the recordings
+        if rel.startswith("test/data/") or not (ROOT / rel).is_file():
+            continue  # the workspace does not need the recordings; skip deleted files
         dest = src / rel
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / rel, dest)
     env = {**os.environ, "PATH": f"{BIN}:{os.environ.get('PATH', '')}"}
     build = subprocess.run(
         [str(BIN / "colcon"), "build", "--event-handlers", "console_direct-"],
-        cwd=tmp_path, capture_output=True, text=True, env=env, timeout=300,
+        cwd=ws, capture_output=True, text=True, env=env, timeout=300,
     )
     assert build.returncode == 0, build.stdout + build.stderr
+    _BUILT["ws"] = ws
+    return ws
+
+
+@pytest.fixture(scope="session")
+def colcon_ws(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return colcon_install(tmp_path_factory)
+
+
+def test_colcon_build_and_installed_executables(colcon_ws: Path) -> None:
+    tmp_path = colcon_ws
     lib = tmp_path / "install" / "diffdrive_odom" / "lib" / "diffdrive_odom"
     for exe in ("odometry_node", "cmd_vel_node", "sim_node", "diffdrive-odom"):
         assert os.access(lib / exe, os.X_OK), f"{exe} not installed where ros2 run looks"

@@ -1,0 +1,88 @@
+"""Start a base: ``ros2 launch diffdrive_odom base.launch.py [use_sim:=true]``.
+
+``odometry_node`` (through ``odometry.launch.py``, which takes the same arguments) and
+``cmd_vel_node``, all from one params file; with ``use_sim:=true`` also ``sim_node``, a
+simulated base in place of the hardware driver. The simulation moves with the params
+file's geometry (its ``true_*`` parameters are left at 0 = nominal), a 50 ms motor lag
+and a 0.5 s command timeout, publishing at 50 Hz. It publishes ``/clock`` only with
+``use_sim_time:=true``; it never follows ``/clock`` itself, since it is the clock.
+"""
+
+# ruff: noqa: I001 (ruff takes ./launch for first-party; this is ROS 2 launch)
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription
+from launch.conditions import IfCondition
+from launch.launch_description_sources import PythonLaunchDescriptionSource
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, ThisLaunchFileDir
+from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
+from launch_ros.substitutions import FindPackageShare
+
+PACKAGE = "diffdrive_odom"
+
+# sim_node's own settings (the geometry comes from the params file's /** section).
+SIM_PARAMETERS = {
+    "motor_time_constant": 0.05,  # [s] first-order motor response
+    "command_timeout": 0.5,  # [s] no wheel command -> the wheels stop
+    "publish_rate": 50.0,  # [Hz] joint_states and ground_truth/odom
+}
+
+
+def generate_launch_description() -> LaunchDescription:
+    """The arguments, odometry.launch.py, cmd_vel_node and the optional sim_node."""
+    namespace = LaunchConfiguration("namespace")
+    params_file = LaunchConfiguration("params_file")
+    sim_time = LaunchConfiguration("use_sim_time")
+    use_sim_time = ParameterValue(sim_time, value_type=bool)
+    wheel_commands = ("wheel_commands", LaunchConfiguration("wheel_commands_topic"))
+    return LaunchDescription([
+        DeclareLaunchArgument(
+            "params_file",
+            default_value=PathJoinSubstitution(
+                [FindPackageShare(PACKAGE), "config", "diffdrive_odom.yaml"]),
+            description="ROS 2 params YAML for the nodes (parameters under /**)"),
+        DeclareLaunchArgument(
+            "namespace", default_value="",
+            description="Namespace of the nodes and their relative topics, e.g. robot1"),
+        DeclareLaunchArgument(
+            "use_sim_time", default_value="false",
+            description="Follow /clock; with use_sim:=true the simulation publishes it"),
+        DeclareLaunchArgument(
+            "use_sim", default_value="false",
+            description="Also start sim_node, a simulated base, instead of the hardware"),
+        DeclareLaunchArgument(
+            "joint_states_topic", default_value="joint_states",
+            description="sensor_msgs/JointState encoder readings (relative = in the namespace)"),
+        DeclareLaunchArgument(
+            "odom_topic", default_value="odom",
+            description="nav_msgs/Odometry output of odometry_node"),
+        DeclareLaunchArgument(
+            "cmd_vel_topic", default_value="cmd_vel",
+            description="Velocity command input of cmd_vel_node"),
+        DeclareLaunchArgument(
+            "wheel_commands_topic", default_value="wheel_commands",
+            description="Wheel velocity commands out of cmd_vel_node (into the driver)"),
+        IncludeLaunchDescription(PythonLaunchDescriptionSource(
+            PathJoinSubstitution([ThisLaunchFileDir(), "odometry.launch.py"]))),
+        Node(
+            package=PACKAGE,
+            executable="cmd_vel_node",
+            name="cmd_vel_node",
+            namespace=namespace,
+            parameters=[params_file, {"use_sim_time": use_sim_time}],
+            remappings=[("cmd_vel", LaunchConfiguration("cmd_vel_topic")), wheel_commands],
+            output="screen",
+        ),
+        Node(
+            package=PACKAGE,
+            executable="sim_node",
+            name="sim_node",
+            namespace=namespace,
+            condition=IfCondition(LaunchConfiguration("use_sim")),
+            parameters=[params_file, {
+                **SIM_PARAMETERS, "publish_clock": use_sim_time, "use_sim_time": False}],
+            remappings=[
+                ("joint_states", LaunchConfiguration("joint_states_topic")), wheel_commands],
+            output="screen",
+        ),
+    ])
