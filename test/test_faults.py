@@ -14,9 +14,9 @@ from contextlib import contextmanager
 from typing import Any
 
 from sensor_msgs.msg import JointState
+from test_odometry_node import STEP_NS, T0_NS, _ns, listen, send_first, stamp, wait_ready
 
 from rosutil import node_process, ros_test_node, spin_for, spin_until
-from test_odometry_node import STEP_NS, T0_NS, _ns, listen, send_first, stamp, wait_ready
 
 NAMES = ["left_wheel_joint", "right_wheel_joint"]
 R, B = 0.1, 0.4
