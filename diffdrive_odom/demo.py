@@ -46,7 +46,7 @@ from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import bagio, evaluate, ros_common, routes
-from diffdrive_odom.odometry import OdometryEstimator, quaternion_to_yaw
+from diffdrive_odom.odometry import quaternion_to_yaw
 from diffdrive_odom.params import (
     OdometrySettings,
     ParameterError,
@@ -54,6 +54,7 @@ from diffdrive_odom.params import (
     load_params_file,
     odometry_settings,
 )
+from diffdrive_odom.pipeline import ReadingPipeline
 from diffdrive_odom.routes import Route
 from diffdrive_odom.sim import SimSettings, sim_settings
 
@@ -550,12 +551,12 @@ def _final(est: evaluate.Trajectory, truth: evaluate.Trajectory) -> ErrorFigures
 
 
 def replay_calibrated(odo: OdometrySettings, joint_states: Sequence[Any]) -> PoseSeries:
-    """The estimator the node runs, fed the recorded readings, with the true geometry."""
-    est = OdometryEstimator(odo.geometry, odo.encoders, odo.estimator)
+    """The node's reading path, fed the recorded readings, with the true geometry."""
+    pipe = ReadingPipeline(odo)
     out = PoseSeries()
     for stamp_ns, names, position, velocity in sorted(joint_states, key=lambda j: j[0]):
-        if est.update(stamp_ns, names, position, velocity).has_new_pose:
-            p = est.pose
+        if pipe.feed(stamp_ns, names, position, velocity).publish:
+            p = pipe.estimator.pose
             out.add(stamp_ns, p.x, p.y, p.theta)
     return out
 

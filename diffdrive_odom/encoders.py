@@ -10,6 +10,7 @@ stamp interval.
 
 from __future__ import annotations
 
+import enum
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -17,6 +18,39 @@ from dataclasses import dataclass
 from diffdrive_odom.errors import ConfigError
 
 TWO_PI = 2.0 * math.pi
+
+
+class Reason(enum.StrEnum):
+    """Stable short keys for what happened to a reading, beside the human text.
+
+    Counters and diagnostics key on these, so wording can improve without breaking
+    anything that counts. Defined at the lowest layer because decoding gives most of them.
+    """
+
+    UPDATED = "updated"  # integrated as motion
+    FIRST = "first"  # first reading (or the first after a restart): the reference
+    ZERO_STAMP = "zero_stamp"  # header stamp zero or negative: driver does not stamp
+    MISSING_JOINT = "missing_joint"  # a configured wheel joint is not in the message
+    BAD_ARRAY = "bad_array"  # position/velocity shorter than name
+    NON_FINITE = "non_finite"  # a wheel value is NaN or infinite
+    NO_DATA = "no_data"  # neither position nor velocity filled
+    STALE_STAMP = "stale_stamp"  # same or slightly older stamp than the reference
+    TOO_FAST = "too_fast"  # step over max_wheel_speed: skipped, re-anchored
+    GAP = "gap"  # more than max_reading_gap since the last usable reading: re-anchored
+    TIME_RESET = "time_reset"  # stamp far back: restarted at the origin
+    INPUT_SWITCH = "input_switch"  # switched between position and velocity input
+
+
+class Rejection(str):
+    """Why a reading cannot be used: the human text (the string itself) and a stable code."""
+
+    code: Reason
+
+    def __new__(cls, code: Reason, text: str) -> Rejection:
+        """A str (so it reads and compares as the text) that also carries its code."""
+        self = super().__new__(cls, text)
+        self.code = code
+        return self
 
 
 class EncoderConfigError(ConfigError):
@@ -110,6 +144,8 @@ class JointLookup:
     """
 
     def __init__(self, config: EncoderConfig) -> None:
+        self._left = config.left_wheel_names
+        self._right = config.right_wheel_names
         self._wanted = config.left_wheel_names + config.right_wheel_names
         self._cache: dict[tuple[str, ...], tuple[int, ...] | None] = {}
 
@@ -128,6 +164,20 @@ class JointLookup:
                 self._cache[key] = found
         return found
 
+    def missing(self, names: Sequence[str]) -> Rejection:
+        """The reason for a name list that lacks a wheel: what was expected, what came.
+
+        A wrong name is a configuration mistake, so the text gives both lists in full.
+        """
+        have = set(names)
+        absent = [n for n in self._wanted if n not in have]
+        return Rejection(
+            Reason.MISSING_JOINT,
+            f"joint_states lacks wheel joint(s) {absent}: expected left_wheel_names "
+            f"{list(self._left)} and right_wheel_names {list(self._right)}, got names "
+            f"{list(names)}",
+        )
+
 
 def decode(
     lookup: JointLookup,
@@ -135,8 +185,8 @@ def decode(
     names: Sequence[str],
     position: Sequence[float],
     velocity: Sequence[float],
-) -> WheelReading | str:
-    """Pick the wheels' values out of a JointState's arrays; a reason string if unusable.
+) -> WheelReading | Rejection:
+    """Pick the wheels' values out of a JointState's arrays; a reason if unusable.
 
     Positions are preferred. Velocities are used when ``position`` is empty or holds
     NaN for every wheel (ros2_control's joint_state_broadcaster reports a missing
@@ -144,23 +194,23 @@ def decode(
     """
     idx = lookup.indices(names)
     if idx is None:
-        return "joint_states lacks a configured wheel joint"
+        return lookup.missing(names)
     n = len(names)
     if 0 < len(position) < n:
-        return f"position has {len(position)} entries for {n} names"
+        return Rejection(Reason.BAD_ARRAY, f"position has {len(position)} entries for {n} names")
     if 0 < len(velocity) < n:
-        return f"velocity has {len(velocity)} entries for {n} names"
+        return Rejection(Reason.BAD_ARRAY, f"velocity has {len(velocity)} entries for {n} names")
     if len(position) > 0:
         values = tuple(float(position[i]) for i in idx)
         if all(math.isfinite(v) for v in values):
             return WheelReading(stamp_ns, values, False)
         if not (len(velocity) > 0 and all(math.isnan(v) for v in values)):
-            return "a wheel position is NaN or infinite"
+            return Rejection(Reason.NON_FINITE, "a wheel position is NaN or infinite")
     if len(velocity) == 0:
-        return "neither position nor velocity is filled"
+        return Rejection(Reason.NO_DATA, "neither position nor velocity is filled")
     values = tuple(float(velocity[i]) for i in idx)
     if not all(math.isfinite(v) for v in values):
-        return "a wheel velocity is NaN or infinite"
+        return Rejection(Reason.NON_FINITE, "a wheel velocity is NaN or infinite")
     return WheelReading(stamp_ns, values, True)
 
 

@@ -11,7 +11,11 @@ Rules that make it safe to feed anything:
 - a reading that cannot be used (bad arrays, NaN, same or slightly older stamp) is
   dropped and the reference kept;
 - a step faster than ``max_wheel_speed`` is dropped and the reading becomes the new
-  reference, so one glitch or a driver restart costs one step instead of freezing;
+  reference, so one glitch costs one step instead of freezing;
+- a reading more than ``max_reading_gap`` after the last usable one becomes the new
+  reference: over a long pause (a driver restart that zeroes its counters) the
+  difference of two readings says nothing about the motion, even when it is slow
+  enough to pass the speed check;
 - a stamp far in the past (a bag played in a loop) starts over at the origin.
 """
 
@@ -32,6 +36,9 @@ from diffdrive_odom.encoders import (
     decode,
     increment,
 )
+from diffdrive_odom.encoders import (
+    Reason as Reason,  # re-exported: verdicts carry its codes
+)
 from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.integration import Pose2D, compose
 from diffdrive_odom.kinematics import Geometry, body_increment
@@ -49,9 +56,13 @@ class Status(enum.Enum):
 
 @dataclass(frozen=True)
 class Verdict:
-    """The outcome of :meth:`OdometryEstimator.update`; ``reason`` says why when not UPDATED."""
+    """The outcome of :meth:`OdometryEstimator.update`.
+
+    ``code`` is the stable key to count by; ``reason`` the human text for logs.
+    """
 
     status: Status
+    code: Reason = Reason.UPDATED
     reason: str = ""
 
     @property
@@ -71,6 +82,9 @@ class EstimatorConfig:
     max_wheel_speed: float = 200.0  # rad/s of a joint; faster steps are implausible
     velocity_rolling_window_size: int = 1
     time_jump_threshold: float = 1.0  # s; a stamp further back than this restarts
+    # s; a reading this long after the last usable one is a new reference (inf = off).
+    # 1 s: a 5 Hz driver (0.2 s) keeps integrating, a restart pause does not.
+    max_reading_gap: float = 1.0
 
     def __post_init__(self) -> None:
         if not (self.max_wheel_speed > 0.0):
@@ -85,6 +99,10 @@ class EstimatorConfig:
         if not (math.isfinite(self.time_jump_threshold) and self.time_jump_threshold >= 0.0):
             raise EstimatorConfigError(
                 "time_jump_threshold", f"must be finite and >= 0, got {self.time_jump_threshold!r}"
+            )
+        if not (self.max_reading_gap > 0.0):
+            raise EstimatorConfigError(
+                "max_reading_gap", f"must be > 0 (inf = no check), got {self.max_reading_gap!r}"
             )
 
 
@@ -142,6 +160,11 @@ class OdometryEstimator:
         """Stamp of the reading the current pose refers to (None before the first)."""
         return None if self._reference is None else self._reference.stamp_ns
 
+    @property
+    def from_velocity(self) -> bool:
+        """True when the reference reading came from wheel velocities, not positions."""
+        return self._reference is not None and self._reference.from_velocity
+
     def set_geometry(self, geometry: Geometry) -> None:
         """Swap geometry at runtime (a parameter change); the pose carries on from here."""
         self.geometry = geometry
@@ -149,8 +172,11 @@ class OdometryEstimator:
     def reset(self) -> None:
         """Pose and twist to zero; the last reading stays the reference, so no jump follows."""
         self.pose = Pose2D()
-        self.linear = self.angular = 0.0
         self.last_step = None
+        self._forget_twist()
+
+    def _forget_twist(self) -> None:
+        self.linear = self.angular = 0.0
         self._linear_mean.clear()
         self._angular_mean.clear()
 
@@ -168,32 +194,45 @@ class OdometryEstimator:
     ) -> Verdict:
         """Feed one JointState's content; returns what was done with it."""
         reading = decode(self._lookup, stamp_ns, names, position, velocity)
-        if isinstance(reading, str):
-            return Verdict(Status.DROPPED, reading)
+        if not isinstance(reading, WheelReading):
+            return Verdict(Status.DROPPED, reading.code, str(reading))
         ref = self._reference
         if ref is None:
             self._reference = reading
-            return Verdict(Status.REFERENCE, "first reading taken as reference")
+            return Verdict(Status.REFERENCE, Reason.FIRST, "first reading taken as reference")
         age_ns = ref.stamp_ns - reading.stamp_ns
         if age_ns >= 0:
             if age_ns > self.config.time_jump_threshold * 1e9:
                 self.restart()
                 self._reference = reading
                 return Verdict(
-                    Status.TIME_RESET,
+                    Status.TIME_RESET, Reason.TIME_RESET,
                     f"stamp jumped back {age_ns * 1e-9:.3f} s: odometry restarted at the origin",
                 )
             what = "repeats" if age_ns == 0 else "is older than"
-            return Verdict(Status.DROPPED, f"stamp {what} the previous reading's")
+            return Verdict(Status.DROPPED, Reason.STALE_STAMP,
+                           f"stamp {what} the previous reading's")
+        gap_s = -age_ns * 1e-9
+        if gap_s > self.config.max_reading_gap:
+            # Nothing is known of the motion over the gap: keep the pose, forget the twist.
+            self._forget_twist()
+            self._reference = reading
+            return Verdict(
+                Status.REFERENCE, Reason.GAP,
+                f"{gap_s:.3f} s since the last usable reading (max_reading_gap "
+                f"{self.config.max_reading_gap:g} s): taken as the new reference, no motion "
+                "integrated over the gap (driver restart?)",
+            )
         if reading.from_velocity != ref.from_velocity:
             self._reference = reading
-            return Verdict(Status.REFERENCE, "switched between position and velocity input")
+            return Verdict(Status.REFERENCE, Reason.INPUT_SWITCH,
+                           "switched between position and velocity input")
         inc = increment(self.encoders, ref, reading)
         limit = self.config.max_wheel_speed * inc.dt
         if abs(inc.d_left) > limit or abs(inc.d_right) > limit:
             self._reference = reading
             return Verdict(
-                Status.REANCHORED,
+                Status.REANCHORED, Reason.TOO_FAST,
                 f"wheel moved {max(abs(inc.d_left), abs(inc.d_right)):.4g} rad in "
                 f"{inc.dt:.4g} s, over max_wheel_speed; step skipped",
             )

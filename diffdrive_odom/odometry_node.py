@@ -1,7 +1,8 @@
 """``odometry_node``: sensor_msgs/JointState -> nav_msgs/Odometry and odom -> base_link.
 
-Thin rclpy shell around :class:`diffdrive_odom.odometry.OdometryEstimator`: it only
-declares parameters, converts messages and logs the estimator's verdicts. Output is
+Thin rclpy shell around :class:`diffdrive_odom.pipeline.ReadingPipeline` (the same
+reading path replay and the demo use): it only declares parameters, converts
+messages and logs the verdicts, one throttle per reason. Output is
 stamped with the JointState's own header stamp (the measurement time), never the
 time the message happened to be processed.
 """
@@ -13,6 +14,7 @@ from typing import Any
 
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -20,10 +22,8 @@ from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import ros_common
 from diffdrive_odom.odometry import (
-    OdometryEstimator,
-    PublishGate,
+    Reason,
     Status,
-    Verdict,
     covariance_matrix,
     yaw_to_quaternion,
 )
@@ -34,8 +34,10 @@ from diffdrive_odom.params import (
     ParamValue,
     odometry_settings,
 )
+from diffdrive_odom.pipeline import Outcome, ReadingPipeline
 
 NODE_NAME = "odometry_node"
+NO_INPUT_WARN_S = 5.0  # s of steady time without a reading before saying so
 
 
 class OdometryNode(Node):
@@ -46,20 +48,23 @@ class OdometryNode(Node):
         values = ros_common.declare(self, GEOMETRY_PARAMS + ODOMETRY_PARAMS)
         settings = self._build(values)
         self._settings = settings
-        self._estimator = OdometryEstimator(
-            settings.geometry, settings.encoders, settings.estimator
-        )
+        self._pipeline = ReadingPipeline(settings)
         self._pose_cov = covariance_matrix(settings.pose_covariance_diagonal)
         self._twist_cov = covariance_matrix(settings.twist_covariance_diagonal)
-        self._gate = PublishGate(settings.publish_rate)
+        self._throttle = ros_common.KeyedThrottle(self.get_logger())
         self._guard = ros_common.ParameterGuard(self, values, self._build, self._apply)
 
         self._odom_pub = self.create_publisher(Odometry, "odom", ros_common.RELIABLE_OUT_QOS)
         self._tf_pub = self.create_publisher(TFMessage, "/tf", ros_common.TF_QOS)
-        self.create_subscription(
+        self._sub = self.create_subscription(
             JointState, "joint_states", self._on_joint_state, ros_common.SENSOR_IN_QOS
         )
         self.create_service(Trigger, "~/reset_odometry", self._on_reset)
+        # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
+        # and a missing clock is one of the mistakes this warning is for.
+        self._input_timer = self.create_timer(
+            NO_INPUT_WARN_S, self._check_input, clock=Clock(clock_type=ClockType.STEADY_TIME)
+        )
         g = settings.geometry
         self.get_logger().info(
             f"wheel odometry: r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
@@ -73,57 +78,55 @@ class OdometryNode(Node):
 
     def _apply(self, settings: OdometrySettings) -> None:
         """Install accepted runtime changes; the pose carries on without a jump."""
-        old = self._settings
         self._settings = settings
         self._pose_cov = covariance_matrix(settings.pose_covariance_diagonal)
         self._twist_cov = covariance_matrix(settings.twist_covariance_diagonal)
-        self._gate.rate = settings.publish_rate
-        if settings.encoders != old.encoders or settings.estimator != old.estimator:
-            # The units of the reference reading changed: keep the pose, take the next
-            # reading as the new reference.
-            pose = self._estimator.pose
-            self._estimator = OdometryEstimator(
-                settings.geometry, settings.encoders, settings.estimator
-            )
-            self._estimator.pose = pose
-        else:
-            self._estimator.set_geometry(settings.geometry)
+        self._pipeline.reconfigure(settings)
         self.get_logger().info("parameters updated")
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        self._estimator.reset()
-        self._gate.last_ns = None
+        self._pipeline.reset()
         response.success = True
         response.message = "odometry reset to the origin"
         self.get_logger().info(response.message)
         return response
 
+    def _check_input(self) -> None:
+        """Say once if nothing arrived: the topic name (namespace, remap) is the usual cause."""
+        self._input_timer.cancel()
+        if self._pipeline.stats.readings == 0:
+            topic = self._sub.topic_name
+            self.get_logger().warning(
+                f"no JointState received on {topic} in {NO_INPUT_WARN_S:g} s "
+                f"({self.count_publishers(topic)} publisher(s) on it): check the driver's "
+                "topic, this node's namespace and remaps"
+            )
+
     def _on_joint_state(self, msg: JointState) -> None:
         stamp_ns = ros_common.stamp_to_ns(msg.header.stamp)
-        if stamp_ns <= 0:
-            self._warn("joint_states header stamp is zero: message dropped (odometry is "
-                       "stamped with the measurement time, so the driver must stamp it)")
-            return
-        verdict = self._estimator.update(stamp_ns, msg.name, msg.position, msg.velocity)
-        self._report(verdict)
-        if verdict.has_new_pose and self._gate.due(stamp_ns):
+        outcome = self._pipeline.feed(stamp_ns, msg.name, msg.position, msg.velocity)
+        self._report(outcome)
+        if outcome.publish:
             self._publish(msg.header.stamp)
 
-    def _report(self, verdict: Verdict) -> None:
+    def _report(self, outcome: Outcome) -> None:
+        verdict = outcome.verdict
+        if outcome.note:
+            self._throttle.info("input_mode", outcome.note)
         if verdict.status is Status.TIME_RESET:
             self.get_logger().warning(verdict.reason)
-        elif verdict.status in (Status.DROPPED, Status.REANCHORED):
-            self._warn(f"joint_states reading {verdict.status.value}: {verdict.reason}")
-
-    def _warn(self, text: str) -> None:
-        self.get_logger().warning(text, throttle_duration_sec=ros_common.WARN_THROTTLE_S)
+        elif verdict.status in (Status.DROPPED, Status.REANCHORED) or verdict.code is Reason.GAP:
+            what = "dropped" if verdict.status is Status.DROPPED else "re-anchored"
+            self._throttle.warning(
+                verdict.code, f"joint_states reading {what} [{verdict.code}]: {verdict.reason}"
+            )
 
     def _publish(self, stamp: Any) -> None:
-        est = self._estimator
+        est = self._pipeline.estimator
         pose, s = est.pose, self._settings
         values = (pose.x, pose.y, pose.theta, est.linear, est.angular)
         if not all(math.isfinite(v) for v in values):  # cannot happen; never publish NaN
-            self._warn("non-finite odometry suppressed")
+            self._throttle.warning("non_finite_output", "non-finite odometry suppressed")
             return
         qx, qy, qz, qw = yaw_to_quaternion(pose.theta)
         odom = Odometry()

@@ -141,6 +141,9 @@ ODOMETRY_PARAMS: tuple[ParamSpec, ...] = (
               "Fastest plausible joint speed [rad/s]; faster steps are skipped."),
     ParamSpec("time_jump_threshold", "double", 1.0,
               "A stamp this far [s] behind the last restarts odometry (bag loop)."),
+    ParamSpec("max_reading_gap", "double", 1.0,
+              "A reading this long [s] after the last usable one is a new reference, "
+              "no motion integrated (driver restart); .inf = off."),
 )
 
 
@@ -186,6 +189,7 @@ def build_estimator_config(v: Mapping[str, Any]) -> EstimatorConfig:
             max_wheel_speed=v["max_wheel_speed"],
             velocity_rolling_window_size=v["velocity_rolling_window_size"],
             time_jump_threshold=v["time_jump_threshold"],
+            max_reading_gap=v["max_reading_gap"],
         )
 
 

@@ -2,8 +2,8 @@
 
 One code path with the node: the same parameter file (``params.load_params_file`` +
 ``params.odometry_settings``, so a bad value is refused with the same one line), the
-same :class:`~diffdrive_odom.odometry.OdometryEstimator`, the same rules for what gets
-published (zero stamps dropped, ``publish_rate``, frames with the tf prefix). The
+same :class:`~diffdrive_odom.pipeline.ReadingPipeline` (estimator, zero stamps
+dropped, gap rule, ``publish_rate``), frames with the tf prefix. The
 output is what the node would have published, written as a rosbag2 (``odom`` and
 ``/tf``) and/or a CSV (columns in :mod:`diffdrive_odom.bagio`).
 
@@ -37,18 +37,14 @@ from rosbags.interfaces import Connection
 from diffdrive_odom import bagio
 from diffdrive_odom.integration import Pose2D, integrate_batch, wrap_angle
 from diffdrive_odom.kinematics import Geometry, body_increment
-from diffdrive_odom.odometry import (
-    OdometryEstimator,
-    PublishGate,
-    Status,
-    covariance_matrix,
-)
+from diffdrive_odom.odometry import Reason, Status, covariance_matrix
 from diffdrive_odom.params import (
     OdometrySettings,
     ParameterError,
     load_params_file,
     odometry_settings,
 )
+from diffdrive_odom.pipeline import PipelineStats, ReadingPipeline
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -78,15 +74,26 @@ class Published:
 
 @dataclass
 class ReplayStats:
-    """What a replay did, for the summary line and the tests."""
+    """What a replay did, for the summary line and the tests.
+
+    ``reasons`` counts by reason code (see ``encoders.Reason``), ``examples`` keeps
+    the first human text of each code; ``pipeline`` is the shared counters' snapshot.
+    """
 
     readings: int = 0
     published: int = 0
     statuses: Counter[str] = field(default_factory=Counter)
     reasons: Counter[str] = field(default_factory=Counter)
+    examples: dict[str, str] = field(default_factory=dict)
     final_pose: Pose2D = field(default_factory=Pose2D)
     final_stamp_ns: int | None = None
     seconds: float = 0.0
+    pipeline: PipelineStats = field(default_factory=PipelineStats)
+
+    @property
+    def usable(self) -> bool:
+        """True when at least one reading got past the drop rules."""
+        return self.pipeline.last_usable_stamp_ns is not None
 
     def summary(self) -> str:
         """One human line."""
@@ -105,27 +112,24 @@ def replay_readings(
     settings: OdometrySettings,
     sink: Callable[[Published], None] | None = None,
 ) -> ReplayStats:
-    """Feed readings to a fresh estimator; hand every pose the node would publish to ``sink``."""
-    est = OdometryEstimator(settings.geometry, settings.encoders, settings.estimator)
-    gate = PublishGate(settings.publish_rate)
+    """Feed readings through a fresh pipeline; the poses the node would publish go to ``sink``."""
+    pipe = ReadingPipeline(settings)
+    est = pipe.estimator
     stats = ReplayStats()
     start = time.perf_counter()
     for r in readings:
-        stats.readings += 1
-        if r.stamp_ns <= 0:  # the node drops unstamped readings
-            stats.statuses["dropped"] += 1
-            stats.reasons["header stamp is zero"] += 1
-            continue
-        verdict = est.update(r.stamp_ns, r.names, r.position, r.velocity)
+        outcome = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity)
+        verdict = outcome.verdict
         stats.statuses[verdict.status.value] += 1
-        if verdict.reason and verdict.status is not Status.REFERENCE:
-            stats.reasons[verdict.reason.split(":")[0][:60]] += 1
-        if verdict.has_new_pose and gate.due(r.stamp_ns):
-            stats.published += 1
-            if sink is not None:
-                sink(Published(r.stamp_ns, r.log_ns, est.pose, est.linear, est.angular,
-                               verdict.status))
+        if verdict.status is not Status.UPDATED and verdict.code is not Reason.FIRST:
+            stats.reasons[verdict.code] += 1
+            stats.examples.setdefault(verdict.code, verdict.reason)
+        if outcome.publish and sink is not None:
+            sink(Published(r.stamp_ns, r.log_ns, est.pose, est.linear, est.angular,
+                           verdict.status))
     stats.seconds = time.perf_counter() - start
+    stats.pipeline = pipe.stats
+    stats.readings, stats.published = stats.pipeline.readings, stats.pipeline.published
     stats.final_pose = est.pose
     stats.final_stamp_ns = est.stamp_ns
     return stats
@@ -157,14 +161,13 @@ class WheelSteps:
 def wheel_steps(
     readings: Iterable[bagio.JointReading], settings: OdometrySettings
 ) -> WheelSteps:
-    """Decode a bag once into the steps the estimator integrates (its verdicts decide)."""
-    est = OdometryEstimator(settings.geometry, settings.encoders, settings.estimator)
+    """Decode a bag once into the steps the estimator integrates (as the pipeline decides)."""
+    pipe = ReadingPipeline(settings)
+    est = pipe.estimator
     stamps, dts, lefts, rights, segs = array("q"), array("d"), array("d"), array("d"), array("q")
     segments = 0
     for r in readings:
-        if r.stamp_ns <= 0:
-            continue
-        status = est.update(r.stamp_ns, r.names, r.position, r.velocity).status
+        status = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity).verdict.status
         if status is Status.UPDATED:
             inc = est.last_increment
             assert inc is not None  # set by every UPDATED step
@@ -276,9 +279,13 @@ def main(argv: Sequence[str]) -> int:
     except KeyboardInterrupt:  # the writers closed on the way out: outputs stay readable
         print("[replay] interrupted; outputs hold the poses written so far", file=sys.stderr)
         return 130
+    if not stats.usable:
+        _remove_outputs(args)
+        print(f"[replay] {_no_usable_reading(stats, args.topic)}", file=sys.stderr)
+        return 2
     print(stats.summary())
-    for reason, count in stats.reasons.most_common(5):
-        print(f"  {count} x {reason}", file=sys.stderr)
+    for code, count in stats.reasons.most_common(5):
+        print(f"  {count} x {code}: {stats.examples[code]}", file=sys.stderr)
     if args.eval:
         from diffdrive_odom import evaluate
 
@@ -295,6 +302,25 @@ def main(argv: Sequence[str]) -> int:
         evaluate.report(metrics, est, ref, args.json, args.plot,
                         labels=("replay", args.eval))
     return 0
+
+
+def _no_usable_reading(stats: ReplayStats, topic: str) -> str:
+    """The one line for a bag none of whose readings could be used, with the main reason."""
+    head = f"no usable reading in {stats.readings} on {topic}: no output written"
+    if not stats.reasons:
+        return head
+    code, count = stats.reasons.most_common(1)[0]
+    return f"{head}; {count} x {code}: {stats.examples[code]}"
+
+
+def _remove_outputs(args: argparse.Namespace) -> None:
+    """Delete what this run created (the output path did not exist before it)."""
+    import shutil
+
+    if args.output:
+        shutil.rmtree(args.output, ignore_errors=True)
+    if args.csv:
+        Path(args.csv).unlink(missing_ok=True)
 
 
 def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, _Trajectory]:

@@ -217,3 +217,45 @@ class DiagnosticsPublisher:
         msg.header.stamp = self._node.get_clock().now().to_msg()
         msg.status = [status]
         self._pub.publish(msg)
+
+
+class KeyedThrottle:
+    """One throttle per key: the first line of each key at once, then one per period.
+
+    rclpy's ``throttle_duration_sec`` is keyed by call site, so when every reason is
+    logged from one place a frequent reason hides a rare one. Lines held back are
+    counted and the count rides on the next line of that key.
+    """
+
+    def __init__(
+        self,
+        logger: Any,
+        period_s: float = WARN_THROTTLE_S,
+        clock: Callable[[], float] | None = None,
+    ) -> None:
+        import time
+
+        self._logger = logger
+        self._period = period_s
+        self._clock = clock if clock is not None else time.monotonic
+        self._last: dict[str, float] = {}
+        self._held: dict[str, int] = {}
+
+    def warning(self, key: str, text: str) -> bool:
+        """Log ``text`` as a warning unless ``key`` was logged within the period."""
+        return self._log(key, text, self._logger.warning)
+
+    def info(self, key: str, text: str) -> bool:
+        """Log ``text`` as info unless ``key`` was logged within the period."""
+        return self._log(key, text, self._logger.info)
+
+    def _log(self, key: str, text: str, emit: Callable[[str], Any]) -> bool:
+        now = self._clock()
+        last = self._last.get(key)
+        if last is not None and now - last < self._period:
+            self._held[key] = self._held.get(key, 0) + 1
+            return False
+        self._last[key] = now
+        held = self._held.pop(key, 0)
+        emit(f"{text} ({held} more like this since the last report)" if held else text)
+        return True

@@ -13,9 +13,10 @@ from dataclasses import replace
 import pytest
 
 from diffdrive_odom.encoders import EncoderConfig
+from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.integration import Pose2D, wrap_angle
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import EstimatorConfig, OdometryEstimator, Status
+from diffdrive_odom.odometry import EstimatorConfig, OdometryEstimator, Reason, Status
 
 LEFT, RIGHT = "left_wheel_joint", "right_wheel_joint"
 NAMES = [LEFT, RIGHT]
@@ -348,3 +349,73 @@ def test_rolling_window_smooths_the_twist_only() -> None:
     feed_positions(plain, [(t + 0.02, left + 0.2, right + 0.1)])
     feed_positions(smooth, [(t + 0.02, left + 0.2, right + 0.1)])
     assert (smooth.linear, smooth.angular) == (plain.linear, plain.angular)
+
+
+# ------------------------------------------------------------------ reading gaps
+
+
+def test_driver_restart_after_a_pause_is_a_new_reference() -> None:
+    """Counters 0 -> 20 rad, 4 s of silence, counters from 0: 5 rad/s backwards would pass
+    the speed check, so only the gap rule keeps the pose."""
+    est = make()
+    feed_positions(est, [(0.1 * k, 2.0 * k, 2.0 * k) for k in range(11)])  # 20 rad, 1 s
+    assert_pose(est.pose, Pose2D(0.1 * 20.0, 0.0, 0.0))
+    verdict = est.update(ns(5.0), NAMES, [0.0, 0.0])
+    assert verdict.status == Status.REFERENCE and verdict.code == Reason.GAP
+    assert "4.000 s" in verdict.reason and "max_reading_gap" in verdict.reason
+    assert verdict.has_new_pose  # published: the pose as the pause left it
+    assert_pose(est.pose, Pose2D(2.0, 0.0, 0.0))
+    assert (est.linear, est.angular) == (0.0, 0.0)  # motion over the gap is unknown
+    feed_positions(est, [(5.0 + 0.1 * k, 1.0 * k, 1.0 * k) for k in range(1, 6)])
+    assert_pose(est.pose, Pose2D(0.1 * 25.0, 0.0, 0.0))
+
+
+def test_a_5_hz_driver_integrates_with_the_default_gap() -> None:
+    est = make()
+    feed_positions(est, [(0.2 * k, 0.1 * k, 0.1 * k) for k in range(26)])
+    assert_pose(est.pose, Pose2D(0.1 * 2.5, 0.0, 0.0), 1e-12)
+
+
+@pytest.mark.parametrize(("gap", "pause", "integrated"),
+                         [(1.0, 0.999, True), (1.0, 1.001, False), (math.inf, 60.0, True),
+                          (0.05, 0.06, False)])
+def test_max_reading_gap_bounds_the_integrated_interval(
+    gap: float, pause: float, integrated: bool
+) -> None:
+    est = make(config=EstimatorConfig(max_reading_gap=gap))
+    feed_positions(est, [(0.0, 0.0, 0.0)])
+    verdict = est.update(ns(pause), NAMES, [0.5, 0.5])
+    assert (verdict.status == Status.UPDATED) is integrated, verdict
+    assert_pose(est.pose, Pose2D(0.05 if integrated else 0.0, 0.0, 0.0))
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, math.nan, -math.inf])
+def test_max_reading_gap_must_be_positive(value: float) -> None:
+    with pytest.raises(ConfigError) as err:
+        EstimatorConfig(max_reading_gap=value)
+    assert err.value.field == "max_reading_gap"
+
+
+CODES = {
+    "nan position": Reason.NON_FINITE, "inf position": Reason.NON_FINITE,
+    "-inf position": Reason.NON_FINITE, "nan velocity": Reason.NON_FINITE,
+    "short position": Reason.BAD_ARRAY, "short velocity": Reason.BAD_ARRAY,
+    "no data": Reason.NO_DATA, "missing wheel": Reason.MISSING_JOINT,
+    "repeated stamp": Reason.STALE_STAMP, "slightly older stamp": Reason.STALE_STAMP,
+    "older, under the jump threshold": Reason.STALE_STAMP,
+}
+
+
+def test_every_dropped_reading_has_a_stable_code() -> None:
+    assert set(CODES) == {b[0] for b in BAD_READINGS}
+    for what, t, names, position, velocity in BAD_READINGS:
+        est = make()
+        feed_positions(est, [(0.0, 0.0, 0.0), (0.02, 0.1, 0.3)])
+        assert est.update(ns(t), names, position, velocity).code == CODES[what], what
+
+
+def test_missing_joint_reason_names_what_was_expected_and_what_came() -> None:
+    verdict = make().update(ns(0.0), ["wheel_l", "wheel_r"], [0.0, 0.0])
+    assert verdict.code == Reason.MISSING_JOINT
+    for name in (LEFT, RIGHT, "wheel_l", "wheel_r"):
+        assert repr(name) in verdict.reason, verdict.reason

@@ -217,6 +217,8 @@ def test_bad_parameters_stop_the_node_with_their_name() -> None:
                                      "-p", "pose_covariance_diagonal:=[1.0,2.0]"],
         "enable_odom_tf": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
                            "-p", "enable_odom_tf:=3"],
+        "max_reading_gap": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
+                            "-p", "max_reading_gap:=0.0"],
     }
     assert_refuses_to_start("odometry_node", cases)
 

@@ -318,3 +318,68 @@ def test_progress_bar_on_request(tmp_path: Path, capfd: pytest.CaptureFixture[st
     captured = capfd.readouterr()
     assert "2.74k/2.74k" in captured.err  # tqdm's bar, total from the bag index
     assert "2741 readings" in captured.out
+
+
+def _write_joint_bag(path: Path, readings: list[tuple[int, list[str], list[float]]]) -> None:
+    """A JointState MCAP written with rosbags directly (not the package's writer)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types: Any = store.types
+    msgtype = "sensor_msgs/msg/JointState"
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conn = w.add_connection("/joint_states", msgtype, typestore=store)
+        for k, (ns, names, position) in enumerate(readings):
+            sec, nsec = divmod(ns, 10**9)
+            msg = types[msgtype](
+                header=types["std_msgs/msg/Header"](
+                    stamp=types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
+                    frame_id=""),
+                name=names, position=np.array(position, dtype=np.float64),
+                velocity=np.zeros(0), effort=np.zeros(0))
+            w.write(conn, 10**9 + k * 10**6, store.serialize_cdr(msg, msgtype))
+
+
+def test_a_driver_restart_after_a_pause_keeps_the_pose_in_replay(tmp_path: Path) -> None:
+    """Counters 0 -> 20 rad, 4 s without readings, counters from 0 to 5 rad: 25 rad ahead."""
+    r = 0.05
+    settings = _settings(tmp_path, {"wheel_radius": r, "wheel_separation": 0.25})
+    names = ["left_wheel_joint", "right_wheel_joint"]
+    t0, step = 10**9, 20_000_000
+    run = [(t0 + k * step, names, [0.4 * k, 0.4 * k]) for k in range(51)]
+    restart = t0 + 50 * step + 4 * 10**9
+    run += [(restart + k * step, names, [0.2 * k, 0.2 * k]) for k in range(26)]
+    bag = tmp_path / "restart"
+    _write_joint_bag(bag, run)
+    stats = replay.replay_readings(bagio.read_joint_states(bag), settings)
+    assert stats.pipeline.gap_reanchors == 1 and stats.reasons["gap"] == 1
+    assert math.isclose(stats.final_pose.x, r * 25.0, abs_tol=1e-12)
+    assert stats.final_pose.y == 0.0
+    steps = replay.wheel_steps(bagio.read_joint_states(bag), settings)
+    assert steps.segments == 1 and len(steps) == 50 + 25
+    assert math.isclose(replay.final_pose(steps, settings.geometry).x, r * 25.0, abs_tol=1e-12)
+    out = tmp_path / "out"
+    params = write_params(tmp_path / "q.yaml", {"wheel_radius": r, "wheel_separation": 0.25})
+    assert cli(["replay", str(bag), "--params-file", str(params), "-o", str(out)]) == 0
+    last = [m for _, _, m in mcap_messages(out, ["/odom"])][-1]
+    assert math.isclose(last.pose.pose.position.x, r * 25.0, abs_tol=1e-12)
+
+
+def test_wrong_joint_names_exit_2_naming_both_lists_and_write_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    wrong = ["wheel_left", "wheel_right"]
+    bag = tmp_path / "wrong"
+    _write_joint_bag(bag, [(10**9 + k * 10**7, wrong, [0.1 * k, 0.1 * k]) for k in range(20)])
+    params = write_params(tmp_path / "p.yaml", {"wheel_radius": 0.05, "wheel_separation": 0.25})
+    out, table = tmp_path / "out", tmp_path / "out.csv"
+    assert cli(["replay", str(bag), "--params-file", str(params), "-o", str(out),
+                "--csv", str(table)]) == 2
+    captured = capsys.readouterr()
+    err = [ln for ln in captured.err.splitlines() if ln.strip()]
+    assert len(err) == 1, captured.err
+    assert "no usable reading" in err[0] and "20 x missing_joint" in err[0]
+    for name in ("left_wheel_joint", "right_wheel_joint", "wheel_left", "wheel_right"):
+        assert name in err[0], err[0]
+    assert not out.exists() and not table.exists()
