@@ -10,6 +10,7 @@ time the message happened to be processed.
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 from geometry_msgs.msg import TransformStamped
@@ -21,6 +22,13 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import ros_common
+from diffdrive_odom.diagnostics import (
+    RateMeter,
+    ReadingHealth,
+    Report,
+    Reporter,
+    odometry_report,
+)
 from diffdrive_odom.odometry import (
     Reason,
     Status,
@@ -65,6 +73,11 @@ class OdometryNode(Node):
         self._input_timer = self.create_timer(
             NO_INPUT_WARN_S, self._check_input, clock=Clock(clock_type=ClockType.STEADY_TIME)
         )
+        self._started = time.monotonic()
+        self._last_rx: float | None = None
+        self._rate = RateMeter(start=self._started)
+        self._reporter = Reporter(odometry_report)
+        ros_common.DiagnosticsPublisher(self, "odometry", self._diagnose)
         g = settings.geometry
         self.get_logger().info(
             f"wheel odometry: r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
@@ -102,7 +115,24 @@ class OdometryNode(Node):
                 "topic, this node's namespace and remaps"
             )
 
+    def _diagnose(self) -> Report:
+        """The /diagnostics status: input rate and age, and what the pipeline dropped."""
+        now = time.monotonic()
+        stats = self._pipeline.stats
+        return self._reporter(ReadingHealth(
+            uptime_s=now - self._started,
+            reading_rate_hz=self._rate.rate(now),
+            since_last_reading_s=None if self._last_rx is None else now - self._last_rx,
+            dropped=dict(stats.dropped),
+            reanchors=stats.reanchors,
+            gap_reanchors=stats.gap_reanchors,
+            time_resets=stats.time_resets,
+            velocity_fallback=stats.velocity_fallback,
+        ))
+
     def _on_joint_state(self, msg: JointState) -> None:
+        self._last_rx = t = time.monotonic()
+        self._rate.add(t)
         stamp_ns = ros_common.stamp_to_ns(msg.header.stamp)
         outcome = self._pipeline.feed(stamp_ns, msg.name, msg.position, msg.velocity)
         self._report(outcome)

@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from bagutil import mcap_messages
 from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
@@ -23,6 +22,7 @@ from sensor_msgs.msg import JointState
 from diffdrive_odom import bagio
 from diffdrive_odom.odometry import quaternion_to_yaw
 
+from bagutil import mcap_messages
 from rosutil import DATA
 
 RUN04 = DATA / "optiodom" / "square_231220200029_run-04"

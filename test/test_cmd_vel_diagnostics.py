@@ -12,88 +12,25 @@ import itertools
 import math
 import statistics
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from typing import Any
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 
-from rosutil import node_process, ros_test_node, spin_for, spin_until
+import diagutil
+from diagutil import Peer, assert_finite
+from rosutil import spin_for, spin_until
 
 GEOMETRY = ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4"]
 NAME = "cmd_vel_node: cmd_vel"
 
 
-@dataclass
-class Status:
-    """One received status, its array's stamp [s] and the receipt time (monotonic)."""
-
-    level: int
-    name: str
-    hardware_id: str
-    message: str
-    values: dict[str, str]
-    stamp_s: float
-    received: float
-
-
-@dataclass
-class Peer:
-    node: Node
-    executor: SingleThreadedExecutor
-    statuses: list[Status] = field(default_factory=list)
-    arrays: list[int] = field(default_factory=list)  # status count of each array
-    cursor: int = 0  # statuses before this one were looked at by wait_for
-
-    def wait_for(self, check: Callable[[Status], bool], timeout: float = 15.0) -> Status:
-        """The first status from now on (not seen by an earlier wait) that passes ``check``."""
-        found: list[Status] = []
-
-        def seen() -> bool:
-            while not found and self.cursor < len(self.statuses):
-                s = self.statuses[self.cursor]
-                self.cursor += 1
-                if check(s):
-                    found.append(s)
-            return bool(found)
-
-        assert spin_until(self.executor, seen, timeout), "no such status arrived"
-        return found[0]
-
-
 @contextmanager
 def diagnosed(args: list[str]) -> Iterator[Peer]:
-    with node_process("cmd_vel_node", ["--ros-args", *GEOMETRY, *args]) as proc, \
-            ros_test_node() as (node, executor):
-        peer = Peer(node, executor)
-
-        def on_array(msg: Any) -> None:
-            peer.arrays.append(len(msg.status))
-            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-            for s in msg.status:
-                peer.statuses.append(Status(
-                    s.level[0], s.name, s.hardware_id, s.message,
-                    {kv.key: kv.value for kv in s.values}, stamp, time.monotonic()))
-
-        node.create_subscription(DiagnosticArray, "/diagnostics", on_array, 10)
+    with diagutil.diagnosed("cmd_vel_node", [*GEOMETRY, *args]) as peer:
         yield peer
-        assert proc.poll() is None, "cmd_vel_node died"
-
-
-def assert_finite(s: Status) -> None:
-    """Every value is a finite number or a word ("never", "commanding", ...)."""
-    for key, value in s.values.items():
-        assert "nan" not in value.lower() and "inf" not in value.lower(), (key, value)
-        try:
-            number = float(value)
-        except ValueError:
-            continue
-        assert math.isfinite(number), (key, value)
 
 
 def publish_for(peer: Peer, pub: Any, msg: Twist, seconds: float, rate: float = 20.0) -> None:

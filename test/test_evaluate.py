@@ -10,12 +10,12 @@ from typing import Any
 
 import numpy as np
 import pytest
-from bagutil import OPTIODOM_PARAMS, mcap_messages, write_params
 
 from diffdrive_odom import bagio, evaluate
 from diffdrive_odom.cli import main as cli
 from diffdrive_odom.evaluate import Trajectory
 
+from bagutil import OPTIODOM_PARAMS, mcap_messages, write_params
 from rosutil import DATA
 
 RUN04 = DATA / "optiodom" / "square_231220200029_run-04"

@@ -11,7 +11,6 @@ import math
 from pathlib import Path
 
 import pytest
-from bagutil import write_params
 
 from diffdrive_odom import demo, replay
 from diffdrive_odom.integration import Pose2D
@@ -19,6 +18,8 @@ from diffdrive_odom.odometry import Reason, Status
 from diffdrive_odom.params import OdometrySettings
 from diffdrive_odom.pipeline import VELOCITY_ON, ReadingPipeline
 from diffdrive_odom.ros_common import KeyedThrottle
+
+from bagutil import write_params
 
 NAMES = ["left_wheel_joint", "right_wheel_joint"]
 T0 = 1_700_000_000 * 10**9

@@ -12,13 +12,13 @@ import signal
 from pathlib import Path
 from typing import Any
 
-from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, write_params
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 
 from diffdrive_odom import bagio, replay
 from diffdrive_odom.cli import main as cli
 
+from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, write_params
 from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until
 
 RUN04 = DATA / "optiodom" / "square_231220200029_run-04"

@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, mcap_messages, write_params
 from rosbags.highlevel import AnyReader
 
 from diffdrive_odom import bagio, replay
@@ -27,6 +26,7 @@ from diffdrive_odom.kinematics import Geometry
 from diffdrive_odom.odometry import quaternion_to_yaw
 from diffdrive_odom.params import OdometrySettings
 
+from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, mcap_messages, write_params
 from rosutil import DATA
 
 RUNS = ("square_231220200029_run-01", "square_231220200029_run-04")
