@@ -71,6 +71,19 @@ def test_bad_values_are_refused_by_name(name: str, value: Any) -> None:
     assert err.value.name == name
 
 
+def test_ddc_deprecated_switches_are_read_with_their_axis() -> None:
+    s = cmd_vel_settings({**GOOD, "linear.x.has_jerk_limits": False, "linear.x.max_jerk": 0.0,
+                          "angular.z.has_acceleration_limits": False,
+                          "angular.z.max_acceleration": 0.3,
+                          "angular.z.min_acceleration": -0.3})
+    assert math.isnan(s.limits.linear.max_jerk)
+    assert math.isnan(s.limits.angular.max_acceleration)
+    assert math.isnan(s.limits.angular.max_acceleration_reverse)
+    with pytest.raises(ParameterError) as err:  # jerk limits on: 0 forbids any change
+        cmd_vel_settings({**GOOD, "linear.x.max_jerk": 0.0})
+    assert err.value.name == "linear.x.max_jerk"
+
+
 def test_ticks_format_needs_ticks_per_revolution() -> None:
     with pytest.raises(ParameterError) as err:
         cmd_vel_settings({**GOOD, "wheel_command_format": "ticks_per_second"})
