@@ -2,8 +2,8 @@
 
 Thin rclpy shell around :mod:`diffdrive_odom.limits` and
 :mod:`diffdrive_odom.kinematics`: it declares parameters, converts messages and
-runs one steady timer. Wheel commands go out at ``publish_rate`` whatever happens on
-``cmd_vel`` (drivers use them as a heartbeat); without a valid command for
+runs one steady timer. Wheel commands go out at ``wheel_command_rate`` whatever
+happens on ``cmd_vel`` (drivers use them as a heartbeat); without a valid command for
 ``cmd_vel_timeout`` seconds they are zeros, never the last command repeated forever.
 """
 
@@ -110,11 +110,11 @@ class CmdVelNode(Node):
                 TwistStamped, "cmd_vel", self._on_twist_stamped, CMD_IN_QOS)
         else:
             self._sub = self.create_subscription(Twist, "cmd_vel", self._on_twist, CMD_IN_QOS)
-        self._timer = self._make_timer(s.publish_rate)
+        self._timer = self._make_timer(s.wheel_command_rate)
         g = s.geometry
         self._log.info(
             f"cmd_vel ({'TwistStamped' if s.enable_stamped_cmd_vel else 'Twist'}) -> "
-            f"wheel_commands ({s.wheel_command_format}) at {s.publish_rate:g} Hz: "
+            f"wheel_commands ({s.wheel_command_format}) at {s.wheel_command_rate:g} Hz: "
             f"r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
             f"b={g.separation:.6g} m, timeout {s.cmd_vel_timeout:g} s, "
             f"wheels {list(s.left_wheel_names)} / {list(s.right_wheel_names)}"
@@ -136,9 +136,9 @@ class CmdVelNode(Node):
         self._settings = s
         self._limiter.configure(s.limits, s.geometry)
         self._watchdog.timeout_ns = round(s.cmd_vel_timeout * 1e9)
-        if s.publish_rate != old.publish_rate:
+        if s.wheel_command_rate != old.wheel_command_rate:
             self.destroy_timer(self._timer)
-            self._timer = self._make_timer(s.publish_rate)
+            self._timer = self._make_timer(s.wheel_command_rate)
         if s.publish_limited_velocity and self._limited_pub is None:
             self._make_limited_pub()
         self._log.info("parameters updated")
@@ -188,7 +188,7 @@ class CmdVelNode(Node):
 
     def _on_tick(self) -> None:
         now = self._steady.now().nanoseconds
-        period = 1.0 / self._settings.publish_rate
+        period = 1.0 / self._settings.wheel_command_rate
         last, self._last_tick_ns = self._last_tick_ns, now
         # Measured period, capped: after a stall the limits must not allow a leap.
         dt = period if last is None else min((now - last) * 1e-9, 2.0 * period)

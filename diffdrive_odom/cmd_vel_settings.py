@@ -15,7 +15,7 @@ from typing import Any
 from diffdrive_odom.encoders import EncoderConfig
 from diffdrive_odom.errors import as_parameter_error
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.limits import AxisLimits, CommandLimits, LimitError
+from diffdrive_odom.limits import AxisLimits, CommandLimits, LimitError, ddc_axis_limits
 from diffdrive_odom.params import (
     GEOMETRY_PARAMS,
     ParameterError,
@@ -61,6 +61,18 @@ def _limit_specs(axis: str, unit: str, pos: str, neg: str) -> tuple[ParamSpec, .
                   f"Upper bound of the change of acceleration [{jerk}], > 0; .nan = no limit."),
         ParamSpec(f"{axis}.min_jerk", "double", nan,
                   f"Lower bound of the change of acceleration [{jerk}], < 0; .nan = -max_jerk."),
+        ParamSpec(f"{axis}.has_velocity_limits", "bool", True,
+                  "Deprecated diff_drive_controller switch: false = no velocity limits, "
+                  "whatever the values say."),
+        ParamSpec(f"{axis}.has_acceleration_limits", "bool", True,
+                  "Deprecated diff_drive_controller switch: false = no acceleration or "
+                  "deceleration limits."),
+        ParamSpec(f"{axis}.has_jerk_limits", "bool", True,
+                  "Deprecated diff_drive_controller switch: false = no jerk limits "
+                  "(a 0.0 jerk then means nothing)."),
+        ParamSpec(f"{axis}.min_acceleration", "double", nan,
+                  f"Deprecated diff_drive_controller name [{acc}], < 0: used as "
+                  "max_acceleration_reverse when that is .nan."),
     )
 
 
@@ -74,13 +86,14 @@ CMD_VEL_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "(Float64MultiArray, encoder counts/s).", read_only=True),
     ParamSpec("cmd_vel_timeout", "double", 0.5,
               "Publish zeros when no valid command arrived for this long [s]; 0 = never."),
-    ParamSpec("publish_rate", "double", 50.0,
-              "Rate of wheel_commands [Hz], steady whether or not commands arrive (> 0)."),
+    ParamSpec("wheel_command_rate", "double", 50.0,
+              "Rate of wheel_commands [Hz], steady whether or not commands arrive (> 0); "
+              "not publish_rate, which is the odometry node's."),
     ParamSpec("publish_limited_velocity", "bool", False,
               "Publish the twist actually commanded (after limits) on cmd_vel_out."),
     ParamSpec("control_point_offset", "double", 0.0,
               "l [m]: linear.x/linear.y command the velocity of the point l ahead of the "
-              "axle (seed 001 sec. 4); 0 = off (linear.x/angular.z as usual)."),
+              "axle (Kumar, Kinematics of Wheeled Robots); 0 = off (linear.x/angular.z as usual)."),
     ParamSpec("max_wheel_velocity", "double", math.nan,
               "Fastest joint rate [rad/s]; faster commands scale both wheels alike "
               "(keeps curvature); .nan or 0 = no limit."),
@@ -103,7 +116,7 @@ class CmdVelSettings:
     enable_stamped_cmd_vel: bool
     wheel_command_format: str
     cmd_vel_timeout: float
-    publish_rate: float
+    wheel_command_rate: float
     publish_limited_velocity: bool
     control_point_offset: float
     limits: CommandLimits
@@ -117,7 +130,7 @@ class CmdVelSettings:
 def _axis_limits(axis: str, v: Mapping[str, Any]) -> AxisLimits:
     prefix = axis + "."
     with as_parameter_error(prefix):
-        return AxisLimits(**{
+        return ddc_axis_limits({
             name[len(prefix):]: value for name, value in v.items() if name.startswith(prefix)
         })
 
@@ -143,9 +156,9 @@ def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
     if not (math.isfinite(timeout) and timeout >= 0.0):
         raise ParameterError("cmd_vel_timeout",
                              f"must be finite and >= 0 (0 = no timeout), got {timeout!r}")
-    rate = v["publish_rate"]
+    rate = v["wheel_command_rate"]
     if not (math.isfinite(rate) and 0.0 < rate <= 10_000.0):
-        raise ParameterError("publish_rate",
+        raise ParameterError("wheel_command_rate",
                              f"must be > 0 and <= 10000 [Hz] (drivers take wheel_commands "
                              f"as a heartbeat), got {rate!r}")
     offset = v["control_point_offset"]
@@ -166,7 +179,7 @@ def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
         enable_stamped_cmd_vel=v["enable_stamped_cmd_vel"],
         wheel_command_format=fmt,
         cmd_vel_timeout=timeout,
-        publish_rate=rate,
+        wheel_command_rate=rate,
         publish_limited_velocity=v["publish_limited_velocity"],
         control_point_offset=offset,
         limits=limits,

@@ -499,7 +499,7 @@ def run(opts: DemoOptions) -> DemoResult:
     cmd_rate = max(50.0, sim.publish_rate * rtf)
     params = str(write_run_params(opts.params_file, {
         "sim_node": sim_changes,
-        "cmd_vel_node": {"use_sim_time": True, "publish_rate": float(cmd_rate)},
+        "cmd_vel_node": {"use_sim_time": True, "wheel_command_rate": float(cmd_rate)},
         "odometry_node": {"use_sim_time": True},
     }, output / "params.yaml"))
     args = ["--params-file", params]

@@ -108,8 +108,9 @@ class AxisLimits:
             value = getattr(self, name)
             if not math.isnan(value) and value * sign <= 0.0:
                 relation = "> 0" if sign > 0 else "< 0"
+                zero = " (0 would forbid any change; .nan = no limit)" if value == 0 else ""
                 raise LimitError(name, f"must be {relation} (diff_drive_controller's sign "
-                                       f"convention: {why}), got {value!r}")
+                                       f"convention: {why}), got {value!r}{zero}")
 
     @property
     def velocity_bounds(self) -> tuple[float, float]:
@@ -138,6 +139,33 @@ class AxisLimits:
         """(min_jerk, max_jerk); +-inf where unlimited."""
         high = _or(self.max_jerk, INF)
         return _or(self.min_jerk, -high), high
+
+
+# diff_drive_controller's deprecated per-axis switches and their fields.
+_SWITCHES: dict[str, tuple[str, ...]] = {
+    "has_velocity_limits": ("max_velocity", "min_velocity"),
+    "has_acceleration_limits": ("max_acceleration", "max_deceleration",
+                                "max_acceleration_reverse", "max_deceleration_reverse"),
+    "has_jerk_limits": ("max_jerk", "min_jerk"),
+}
+
+
+def ddc_axis_limits(values: dict[str, float | bool]) -> AxisLimits:
+    """AxisLimits from one axis' diff_drive_controller parameters, deprecated ones included.
+
+    As Jazzy's diff_drive_controller does: ``has_X_limits: false`` clears those limits
+    whatever their values say (so ddc's ``max_jerk: 0.0`` next to ``has_jerk_limits:
+    false`` means no jerk limit), and Humble's ``min_acceleration`` (the most negative
+    acceleration) is ``max_acceleration_reverse`` when that is not set.
+    """
+    v = dict(values)
+    legacy = v.pop("min_acceleration", NAN)
+    if math.isnan(v.get("max_acceleration_reverse", NAN)):
+        v["max_acceleration_reverse"] = legacy
+    for switch, fields in _SWITCHES.items():
+        if v.pop(switch, True) is False:
+            v.update(dict.fromkeys(fields, NAN))
+    return AxisLimits(**v)  # type: ignore[arg-type]  # the switches are popped
 
 
 class AxisLimiter:

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Iterable, Mapping
+import re
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -254,42 +255,244 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
     )
 
 
-def load_params_file(
-    path: str | Path, node_name: str, namespace: str = "/"
-) -> dict[str, ParamValue]:
-    """Parameters for ``node_name`` from a ROS 2 params YAML (as ``--params-file`` reads it).
+# ------------------------------------------------------------------ rcl's rules
+#
+# What rclpy (Jazzy) does with ``--params-file`` and ``-p``, so that the offline tools
+# read a file exactly as the node does:
+#
+# * every ``--params-file`` and every ``-p`` feeds ONE table of node entries, in
+#   command-line order; ``-p name:=value`` is an entry of the node name ``/**``;
+#   an entry keeps the place where its node name first appeared, and a later value
+#   for the same entry and parameter overwrites the earlier one;
+# * a node takes every entry whose name matches its fully qualified name, where a
+#   leading ``/`` is implied, ``/*`` stands for one path element and ``/**`` for any
+#   number of them (``/**``, ``/**/odometry_node``, ``/robot1/*``, ``odometry_node``);
+# * the matching entries are merged in table order, later ones winning. So a node's
+#   own section that comes after ``/**`` beats a ``-p`` (that is ``/**`` too), and a
+#   ``/**`` section written after the node's section beats that section.
+#
+# Values are typed as rcl_yaml_param_parser types them (not as YAML 1.1 does): quoted
+# or ``!!str`` = string; else y/yes/true/on (and capitalised forms) = true, ...;
+# then a C integer (``0x1F``, ``017`` octal), then a C double (``5e-2``, ``.nan``);
+# else a string. A list must hold one type; nested maps become dotted names.
 
-    Sections apply in rcl's order of precedence: wildcards (``/**``), then
-    ``/**/node``, then the plain or fully qualified node name, so the tools take the
-    very file the node takes. Nested maps become dotted names.
-    """
+ParamSource = tuple[str, str]
+"""One ``--ros-args`` item that carries parameters: ``("file", path)`` or
+``("param", "name:=value")``."""
+
+_TRUE = {"Y", "y", "yes", "Yes", "YES", "true", "True", "TRUE", "on", "On", "ON"}
+_FALSE = {"N", "n", "no", "No", "NO", "false", "False", "FALSE", "off", "Off", "OFF"}
+_C_INT = re.compile(r"[+-]?(0[xX][0-9a-fA-F]+|0[0-7]*|[1-9][0-9]*)")
+_C_DOUBLE = re.compile(
+    r"[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|(?i:inf|infinity|nan)|\.(nan|NaN|NAN|inf|Inf|INF))")
+_STR_TAG = "tag:yaml.org,2002:str"
+_PLAIN = "!diffdrive_odom/plain"
+
+
+def _rcl_scalar(text: str, typed: bool) -> ParamValue:
+    """One scalar as rcl types it; ``typed`` is False for quoted / ``!!str`` ones."""
+    if not typed:
+        return text
+    if not text:
+        raise ValueError("no value")
+    if text in _TRUE:
+        return True
+    if text in _FALSE:
+        return False
+    if _C_INT.fullmatch(text):
+        number = int(text, 16) if text.lstrip("+-")[:2] in ("0x", "0X") else (
+            int(text, 8) if text.lstrip("+-").startswith("0") else int(text))
+        if -(2**63) <= number < 2**63:
+            return number
+    if _C_DOUBLE.fullmatch(text):
+        return float(text.replace(".", "", 1) if text.lstrip("+-").startswith(".")
+                     and text.lstrip("+-")[1:2].isalpha() else text)
+    return text
+
+
+def _yaml_tree(text: str) -> Any:
+    """Compose YAML keeping each scalar's style, so rcl's typing can be applied."""
     import yaml
 
-    with open(path, encoding="utf-8") as f:
-        doc = yaml.safe_load(f) or {}
-    if not isinstance(doc, dict):
-        raise ParameterError("--params-file", f"{path} is not a mapping")
+    class _Loader(yaml.BaseLoader):
+        def resolve(self, kind: Any, value: Any, implicit: Any) -> Any:
+            if kind is yaml.ScalarNode and implicit[0]:
+                return _PLAIN
+            return super().resolve(kind, value, implicit)  # type: ignore[no-untyped-call]
+
+    return yaml.compose(text, Loader=_Loader)
+
+
+def _rcl_value(node: Any, where: str) -> ParamValue:
+    """A composed YAML node as an rcl parameter value (scalar or one-typed list)."""
+    import yaml
+
+    if isinstance(node, yaml.ScalarNode):
+        typed = node.tag == _PLAIN or (node.tag == _STR_TAG and node.style in ("|", ">"))
+        try:
+            return _rcl_scalar(node.value, typed)
+        except ValueError as err:
+            raise ParameterError(where, str(err)) from None
+    if isinstance(node, yaml.SequenceNode):
+        items = [_rcl_value(item, where) for item in node.value]
+        if any(isinstance(i, list) for i in items):
+            raise ParameterError(where, "nested lists are not parameter values")
+        if len({type(i) for i in items}) > 1:
+            raise ParameterError(where, f"a list must hold one type (rcl), got {items!r}")
+        return items
+    raise ParameterError(where, "is a map where a value was expected")
+
+
+def _collect_params(node: Any, prefix: str, out: dict[str, ParamValue]) -> None:
+    import yaml
+
+    for key, value in node.value:
+        name = f"{prefix}{key.value}"
+        if isinstance(value, yaml.MappingNode):
+            _collect_params(value, name + ".", out)
+        else:
+            out[name] = _rcl_value(value, name)
+
+
+def _collect_nodes(node: Any, path: str, entries: dict[str, dict[str, ParamValue]]) -> None:
+    import yaml
+
+    for key, value in node.value:
+        if not isinstance(value, yaml.MappingNode):
+            continue
+        if key.value == "ros__parameters":
+            _collect_params(value, "", entries.setdefault(path, {}))
+        else:
+            _collect_nodes(value, f"{path}/{key.value}" if path else str(key.value), entries)
+
+
+def parse_override(text: str) -> tuple[str, ParamValue]:
+    """``name:=value`` of a ``-p`` as rcl reads it (the value is YAML, typed as above)."""
+    import yaml
+
+    name, sep, value = text.partition(":=")
+    if not sep or not name:
+        raise ParameterError("-p", f"expects NAME:=VALUE, got {text!r}")
+    try:
+        tree = _yaml_tree(value)
+    except yaml.YAMLError as err:
+        raise ParameterError(name, f"unreadable -p value {value!r}: {err}") from None
+    if tree is None:
+        raise ParameterError(name, "-p without a value")
+    return name, _rcl_value(tree, name)
+
+
+def rcl_entries(sources: Sequence[ParamSource]) -> dict[str, dict[str, ParamValue]]:
+    """The table rcl builds: node name -> parameters, in rcl's order."""
+    import yaml
+
+    entries: dict[str, dict[str, ParamValue]] = {}
+    for kind, item in sources:
+        if kind == "param":
+            name, value = parse_override(item)
+            entries.setdefault("/**", {})[name] = value
+            continue
+        with open(item, encoding="utf-8") as f:
+            text = f.read()
+        try:
+            tree = _yaml_tree(text)
+        except yaml.YAMLError as err:
+            raise ParameterError("--params-file", f"{item} is not YAML: {err}") from None
+        if tree is None:
+            continue
+        if not isinstance(tree, yaml.MappingNode):
+            raise ParameterError("--params-file", f"{item} is not a mapping")
+        _collect_nodes(tree, "", entries)
+    return entries
+
+
+def node_matches(pattern: str, fqn: str) -> bool:
+    """Tell whether an entry applies: leading ``/`` implied, ``/*`` = one element, ``/**`` = any."""
+    name = pattern if pattern.startswith("/") else "/" + pattern
+    try:
+        return re.fullmatch(name.replace("/*", r"(/\w+)"), fqn) is not None
+    except re.error:
+        return False
+
+
+def fully_qualified_name(node_name: str, namespace: str = "/") -> str:
+    """``/ns/name`` as rcl forms it from a node name and a namespace."""
     ns = namespace.strip("/")
-    full = f"/{ns}/{node_name}" if ns else f"/{node_name}"
-    keys = ("/**", "**", f"/**/{node_name}", node_name, f"/{node_name}", full, full[1:])
+    return f"/{ns}/{node_name}" if ns else f"/{node_name}"
+
+
+def resolve_parameters(
+    sources: Sequence[ParamSource], node_name: str, namespace: str = "/"
+) -> dict[str, ParamValue]:
+    """The overrides rclpy gives the node ``namespace/node_name`` for these sources."""
+    fqn = fully_qualified_name(node_name, namespace)
     merged: dict[str, ParamValue] = {}
-    for key in dict.fromkeys(keys):  # ordered, without repeats
-        section = doc.get(key)
-        if isinstance(section, dict):
-            merged.update(_flatten(section.get("ros__parameters", {}) or {}))
+    for pattern, values in rcl_entries(sources).items():
+        if node_matches(pattern, fqn):
+            merged.update(values)
     return merged
 
 
-def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, ParamValue]:
-    """Nested YAML maps -> dotted names (``linear: {x: {max_velocity: 1}}``)."""
-    flat: dict[str, ParamValue] = {}
-    for key, value in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            flat.update(_flatten(value, name + "."))
-        else:
-            flat[name] = value
-    return flat
+def load_params_file(
+    path: str | Path, node_name: str, namespace: str = "/"
+) -> dict[str, ParamValue]:
+    """Parameters for ``node_name`` from one params YAML, as ``--params-file`` gives them."""
+    return resolve_parameters([("file", str(path))], node_name, namespace)
+
+
+# ------------------------------------------------------------ unknown names
+
+# diff_drive_controller parameters that have no meaning for these nodes: a ddc file
+# is welcome, these are named once at start as ignored instead of warned about.
+DDC_IGNORED: tuple[str, ...] = (
+    "open_loop",  # odometry here always comes from the encoders (joint_states)
+    "position_feedback",  # positions are used when present, else velocities
+    "wheels_per_side",  # the wheel name lists say it
+    "use_stamped_vel",  # Humble's name; enable_stamped_cmd_vel selects the type here
+)
+# Names rclpy itself declares or reads on every node.
+_RCLPY_NAMES = ("use_sim_time", "start_type_description_service")
+_RCLPY_PREFIXES = ("qos_overrides.",)
+
+
+def known_names() -> frozenset[str]:
+    """Every parameter some node of this package declares, plus rclpy's own.
+
+    One params file feeds every node, so a name is only suspicious when no node
+    knows it (the cmd_vel node must not warn about the odometry node's names).
+    """
+    from diffdrive_odom.cmd_vel_settings import CMD_VEL_PARAMS  # imports this module
+    from diffdrive_odom.sim import SIM_PARAMS
+
+    tables = GEOMETRY_PARAMS + ODOMETRY_PARAMS + CMD_VEL_PARAMS + SIM_PARAMS
+    return frozenset(s.name for s in tables) | frozenset(_RCLPY_NAMES)
+
+
+def unknown_parameters_report(names: Iterable[str]) -> tuple[str | None, str | None]:
+    """Return (warning, info) lines about parameter names given to a node.
+
+    The warning names unknown ones with the closest real name (typos); the info line
+    names diff_drive_controller parameters that mean nothing here.
+    """
+    import difflib
+
+    known = known_names()
+    ddc = [n for n in names if n in DDC_IGNORED and n not in known]
+    unknown = sorted(
+        n for n in names
+        if n not in known and n not in DDC_IGNORED and not n.startswith(_RCLPY_PREFIXES))
+    warning = info = None
+    if unknown:
+        hints = []
+        for name in unknown:
+            close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
+            hints.append(f"{name} (did you mean {close[0]}?)" if close else name)
+        warning = ("unknown parameters, no diffdrive_odom node uses them (ignored): "
+                   + ", ".join(hints))
+    if ddc:
+        info = ("diff_drive_controller parameters with no meaning here (ignored): "
+                + ", ".join(sorted(ddc)))
+    return warning, info
 
 
 def yaml_text(value: object) -> str:

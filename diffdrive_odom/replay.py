@@ -1,6 +1,6 @@
 """``diffdrive-odom replay``: run the node's estimator over a bag offline, as fast as the disk.
 
-One code path with the node: the same parameter file (``params.load_params_file`` +
+One code path with the node: the same parameter file (``params.resolve_parameters`` +
 ``params.odometry_settings``, so a bad value is refused with the same one line), the
 same :class:`~diffdrive_odom.pipeline.ReadingPipeline` (estimator, zero stamps
 dropped, gap rule, ``publish_rate``), frames with the tf prefix. The
@@ -28,6 +28,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -41,8 +42,10 @@ from diffdrive_odom.odometry import Reason, Status, covariance_matrix
 from diffdrive_odom.params import (
     OdometrySettings,
     ParameterError,
-    load_params_file,
+    ParamSource,
     odometry_settings,
+    resolve_parameters,
+    unknown_parameters_report,
 )
 from diffdrive_odom.pipeline import PipelineStats, ReadingPipeline
 
@@ -53,11 +56,29 @@ PROGRESS_MIN_READINGS = 20_000  # below this a bar is noise
 
 
 def load_settings(
-    params_file: str | Path, node_name: str = NODE_NAME, namespace: str = "/"
+    params: str | Path | Sequence[ParamSource], node_name: str = NODE_NAME,
+    namespace: str = "/",
 ) -> OdometrySettings:
-    """Read the node's settings from its params YAML, validated exactly as the node does."""
-    values = load_params_file(params_file, node_name, namespace)
+    """Return the node's settings from its params files and ``-p`` overrides.
+
+    Sources are in command-line order, resolved as rclpy resolves them for this node
+    name and namespace, and validated exactly as the node does.
+    """
+    sources = [("file", str(params))] if isinstance(params, (str, Path)) else list(params)
+    values = resolve_parameters(sources, node_name, namespace)
+    for line in unknown_parameters_report(list(values)):
+        if line:
+            print(f"[replay] {line}", file=sys.stderr)
     return odometry_settings(values, "/" + namespace.strip("/"))
+
+
+class _RosParam(argparse.Action):
+    """Keeps ``--params-file`` and ``-p`` in one list, in command-line order (rcl's order)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        kind = "file" if option_string == "--params-file" else "param"
+        namespace.ros_params = [*(getattr(namespace, "ros_params", None) or []), (kind, values)]
 
 
 @dataclass
@@ -234,9 +255,15 @@ def _parser() -> argparse.ArgumentParser:
         "the node would publish (odom + /tf) to a rosbag2 and/or CSV.",
     )
     ap.add_argument("bag", help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag")
-    ap.add_argument("--params-file", required=True, help="the node's ROS 2 params YAML")
-    ap.add_argument("--node-name", default=NODE_NAME, help="section of the YAML to read")
-    ap.add_argument("--namespace", default="/", help="node namespace (frame prefix rule)")
+    ap.add_argument("--params-file", required=True, action=_RosParam, dest="ros_params",
+                    help="the node's ROS 2 params YAML (repeatable, later files win)")
+    ap.add_argument("-p", "--param", action=_RosParam, dest="ros_params", metavar="NAME:=VALUE",
+                    help="parameter override, as the node's -p (repeatable; order with "
+                         "--params-file matters as in rcl)")
+    ap.add_argument("--node-name", default=NODE_NAME,
+                    help="node name the params are resolved for (-r __node:=)")
+    ap.add_argument("--namespace", default="/",
+                    help="node namespace (-r __ns:=): params resolution and frame prefix")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bag")
     ap.add_argument("-o", "--output", help="output rosbag2 directory (must not exist)")
     ap.add_argument("--storage", choices=bagio.STORAGES, default="mcap")
@@ -261,7 +288,7 @@ def main(argv: Sequence[str]) -> int:
     """``diffdrive-odom replay``; exit 2 on a bad parameter or unusable bag."""
     args = _parser().parse_args(list(argv))
     try:
-        settings = load_settings(args.params_file, args.node_name, args.namespace)
+        settings = load_settings(args.ros_params, args.node_name, args.namespace)
     except ParameterError as err:
         print(f"[replay] {err}", file=sys.stderr)
         return 2

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, TypeVar, cast
 
 import rclpy
 from diagnostic_msgs.msg import (
@@ -32,7 +32,12 @@ from rclpy.qos import (
 
 from diffdrive_odom.diagnostics import Report
 from diffdrive_odom.odometry import stamp_to_ns as stamp_to_ns  # re-exported
-from diffdrive_odom.params import ParameterError, ParamSpec, ParamValue
+from diffdrive_odom.params import (
+    ParameterError,
+    ParamSpec,
+    ParamValue,
+    unknown_parameters_report,
+)
 
 T = TypeVar("T")
 
@@ -71,7 +76,12 @@ def _param_value(param: Parameter) -> ParamValue:
 
 
 def declare(node: Node, specs: Iterable[ParamSpec]) -> dict[str, ParamValue]:
-    """Declare every spec (dynamically typed: the spec coerces) and return raw values."""
+    """Declare every spec (dynamically typed: the spec coerces) and return raw values.
+
+    Also reports, once, the names given to this node (params files, ``-p``) that no
+    node of this package knows: rclpy keeps such overrides silently.
+    """
+    report_unknown_overrides(node)
     values: dict[str, ParamValue] = {}
     for spec in specs:
         descriptor = ParameterDescriptor(
@@ -82,6 +92,23 @@ def declare(node: Node, specs: Iterable[ParamSpec]) -> dict[str, ParamValue]:
         param = node.declare_parameter(spec.name, spec.default, descriptor)
         values[spec.name] = _param_value(param)
     return values
+
+
+def report_unknown_overrides(node: Node) -> None:
+    """Log unknown overrides (one warning) and ignored diff_drive_controller ones (one info).
+
+    Typos get the closest real name.
+    """
+    # rclpy 7.1 has no public accessor for the overrides; the public alternative,
+    # automatically_declare_parameters_from_overrides, would declare every stray name
+    # as a parameter of the node (and collide with declare_parameter below).
+    overrides = getattr(node, "_parameter_overrides", None) or {}
+    warning, info = unknown_parameters_report(list(overrides))
+    log: Any = cast(Any, node).get_logger()
+    if warning:
+        log.warning(warning)
+    if info:
+        log.info(info)
 
 
 class ParameterGuard(Generic[T]):

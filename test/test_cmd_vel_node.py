@@ -58,7 +58,7 @@ def test_defaults_refuse_to_guess_the_geometry() -> None:
         ("linear.x.min_velocity", 0.2),
         ("angular.z.max_jerk", -1.0),
         ("max_wheel_velocity", -3.0),
-        ("publish_rate", 0.0),
+        ("wheel_command_rate", 0.0),
         ("cmd_vel_timeout", -0.1),
         ("control_point_offset", math.inf),
         ("wheel_command_format", "rpm"),
@@ -69,6 +69,19 @@ def test_bad_values_are_refused_by_name(name: str, value: Any) -> None:
     with pytest.raises(ParameterError) as err:
         cmd_vel_settings({**GOOD, name: value})
     assert err.value.name == name
+
+
+def test_ddc_deprecated_switches_are_read_with_their_axis() -> None:
+    s = cmd_vel_settings({**GOOD, "linear.x.has_jerk_limits": False, "linear.x.max_jerk": 0.0,
+                          "angular.z.has_acceleration_limits": False,
+                          "angular.z.max_acceleration": 0.3,
+                          "angular.z.min_acceleration": -0.3})
+    assert math.isnan(s.limits.linear.max_jerk)
+    assert math.isnan(s.limits.angular.max_acceleration)
+    assert math.isnan(s.limits.angular.max_acceleration_reverse)
+    with pytest.raises(ParameterError) as err:  # jerk limits on: 0 forbids any change
+        cmd_vel_settings({**GOOD, "linear.x.max_jerk": 0.0})
+    assert err.value.name == "linear.x.max_jerk"
 
 
 def test_ticks_format_needs_ticks_per_revolution() -> None:
@@ -168,19 +181,19 @@ def test_twist_to_float64_array_watchdog_rate_nan_and_runtime_parameters() -> No
     args = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}",
             "-p", "left_wheel_names:=['fl','rl']", "-p", "right_wheel_names:=['fr','rr']",
             "-p", "right_wheel_sign:=-1",
-            "-p", f"cmd_vel_timeout:={TIMEOUT}", "-p", f"publish_rate:={RATE}"]
+            "-p", f"cmd_vel_timeout:={TIMEOUT}", "-p", f"wheel_command_rate:={RATE}"]
     with cmd_vel_node(args) as (proc, node, ex):
         sink = Sink()
         node.create_subscription(Float64MultiArray, "/wheel_commands", sink.add, 100)
         pub = node.create_publisher(Twist, "/cmd_vel", 10)
         wait_connected(ex, pub, sink, proc)
 
-        # Heartbeat before any command: zeros at publish_rate.
+        # Heartbeat before any command: zeros at wheel_command_rate.
         t0 = time.monotonic()
         spin_for(ex, 1.0)
         idle = sink.since(t0)
         assert 0.6 * RATE <= len(idle) <= 1.2 * RATE, len(idle)
-        print(f"heartbeat: {len(idle)} messages in 1 s at publish_rate {RATE:g} Hz")
+        print(f"heartbeat: {len(idle)} messages in 1 s at wheel_command_rate {RATE:g} Hz")
         assert all(is_zero(m.data) for _, m in idle)
 
         v, w = 0.5, 1.0
@@ -362,7 +375,7 @@ def test_bad_parameters_stop_the_node_with_their_name() -> None:
     cases = {
         "linear.x.max_deceleration": [*geometry, "-p", "linear.x.max_deceleration:=2.0"],
         "ticks_per_revolution": [*geometry, "-p", "wheel_command_format:=ticks_per_second"],
-        "publish_rate": [*geometry, "-p", "publish_rate:=0.0"],
+        "wheel_command_rate": [*geometry, "-p", "wheel_command_rate:=0.0"],
         "wheel_radius": ["-p", f"wheel_separation:={B}"],
     }
     assert_refuses_to_start("cmd_vel_node", cases)

@@ -21,6 +21,7 @@ from diffdrive_odom.limits import (
     LimitError,
     TwistLimiter,
     Watchdog,
+    ddc_axis_limits,
 )
 
 DT = 0.01
@@ -273,3 +274,31 @@ def test_watchdog_zero_timeout_holds_forever() -> None:
     wd.accept("go", arrival_ns=0, stamp_ns=0)
     assert wd.current(10**15, 10**15) == "go"
     assert not wd.is_stale(0, 10**15)
+
+
+# ------------------------------------------- diff_drive_controller's deprecated names
+
+
+def test_ddc_switches_off_clear_those_limits_whatever_the_values() -> None:
+    lim = ddc_axis_limits({
+        "has_velocity_limits": False, "max_velocity": 1.0, "min_velocity": -1.0,
+        "has_acceleration_limits": False, "max_acceleration": 1.0, "max_deceleration": -2.0,
+        "has_jerk_limits": False, "max_jerk": 0.0, "min_jerk": 0.0,  # ddc's example file
+    })
+    assert all(math.isnan(getattr(lim, f)) for f in lim.__dataclass_fields__)
+
+
+def test_ddc_switches_on_keep_the_values_and_a_zero_jerk_is_refused() -> None:
+    lim = ddc_axis_limits({"has_velocity_limits": True, "max_velocity": 1.0,
+                           "has_acceleration_limits": True, "max_acceleration": 0.5})
+    assert lim.velocity_bounds == (-1.0, 1.0) and lim.forward_bounds[1] == 0.5
+    with pytest.raises(LimitError) as err:
+        ddc_axis_limits({"has_jerk_limits": True, "max_jerk": 0.0})
+    assert err.value.field == "max_jerk" and "0 would forbid" in err.value.reason
+
+
+def test_ddc_min_acceleration_is_max_acceleration_reverse_when_that_is_unset() -> None:
+    assert ddc_axis_limits({"min_acceleration": -0.3}).max_acceleration_reverse == -0.3
+    both = ddc_axis_limits({"min_acceleration": -0.3, "max_acceleration_reverse": -0.7})
+    assert both.max_acceleration_reverse == -0.7
+    assert math.isnan(ddc_axis_limits({}).max_acceleration_reverse)

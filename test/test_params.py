@@ -19,6 +19,8 @@ from diffdrive_odom.params import (
     frame_prefix,
     load_params_file,
     odometry_settings,
+    parse_override,
+    unknown_parameters_report,
 )
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -208,9 +210,15 @@ def cmd_vel_params() -> tuple[ParamSpec, ...] | None:
     return tuple(table) if table is not None else None
 
 
+def all_package_params() -> tuple[ParamSpec, ...]:
+    from diffdrive_odom.cmd_vel_settings import CMD_VEL_OWN_PARAMS
+
+    return GEOMETRY_PARAMS + ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS
+
+
 def test_config_file_gives_the_odometry_node_every_parameter() -> None:
     values = load_params_file(CONFIG, "odometry_node")
-    assert set(values) == set(names(GEOMETRY_PARAMS + ODOMETRY_PARAMS))
+    assert set(names(GEOMETRY_PARAMS + ODOMETRY_PARAMS)) <= set(values)
     settings = odometry_settings(values)
     assert settings.geometry.wheel_radius == EXAMPLE_ROBOT["wheel_radius"]
     assert settings.geometry.wheel_separation == EXAMPLE_ROBOT["wheel_separation"]
@@ -218,20 +226,26 @@ def test_config_file_gives_the_odometry_node_every_parameter() -> None:
 
 def test_config_file_gives_the_cmd_vel_node_its_parameters() -> None:
     table = cmd_vel_params()
-    if table is None:
-        pytest.skip("diffdrive_odom.cmd_vel_settings.CMD_VEL_PARAMS does not exist yet")
+    assert table is not None
     values = load_params_file(CONFIG, "cmd_vel_node")
     assert set(names(table)) <= set(values)
-    assert set(values) == set(names(GEOMETRY_PARAMS)) | set(names(table))
-    # Its own publish_rate, not the odometry node's.
-    own = {s.name: s for s in table}
-    if "publish_rate" in own:
-        assert values["publish_rate"] == own["publish_rate"].default
 
 
-def test_a_node_without_a_section_gets_the_wildcard_only() -> None:
-    values = load_params_file(CONFIG, "some_other_node")
-    assert set(values) == set(names(GEOMETRY_PARAMS))
+@pytest.mark.parametrize(("node", "namespace"), [
+    ("odometry_node", "/"), ("odometry_node", "/robot1"), ("cmd_vel_node", "/fleet/robot2"),
+    ("diffbot_base_controller", "/"),  # -r __node:=diffbot_base_controller
+])
+def test_config_file_applies_under_any_name_and_namespace(node: str, namespace: str) -> None:
+    values = load_params_file(CONFIG, node, namespace)
+    assert set(values) == set(names(all_package_params()))
+
+
+def test_no_two_nodes_share_a_name_with_different_meanings() -> None:
+    """One /** section feeds both nodes: only the geometry rows may be shared."""
+    from diffdrive_odom.cmd_vel_settings import CMD_VEL_OWN_PARAMS
+
+    assert not set(names(ODOMETRY_PARAMS)) & set(names(CMD_VEL_OWN_PARAMS))
+    assert "wheel_command_rate" in names(CMD_VEL_OWN_PARAMS)
 
 
 def test_node_section_overrides_the_wildcard(tmp_path: Path) -> None:
@@ -270,7 +284,7 @@ def sections(text: str) -> dict[str, list[str]]:
         if line and not line[0].isspace() and not line.startswith("#"):
             current = line.rstrip(":")
             out[current] = []
-        elif line.startswith("    ") and current:
+        elif line.startswith("    ") and current and not line.strip().startswith("#"):
             out[current].append(line.strip())
     return out
 
@@ -309,30 +323,68 @@ def test_config_lists_exactly_the_spec_tables_with_their_defaults() -> None:
     text = CONFIG.read_text(encoding="utf-8")
     doc = yaml.safe_load(text)
     lines = sections(text)
+    assert list(doc) == ["/**"]
+    assert list(lines) == ["/**"]
+    check_section(doc, lines["/**"], "/**", all_package_params(), EXAMPLE_ROBOT)
     cmd_vel = cmd_vel_params()
-    expected_sections = ["/**", "odometry_node"] + (["cmd_vel_node"] if cmd_vel else [])
-    assert list(doc) == expected_sections
-    assert list(lines) == expected_sections
-    check_section(doc, lines["/**"], "/**", GEOMETRY_PARAMS, EXAMPLE_ROBOT)
-    check_section(doc, lines["odometry_node"], "odometry_node", ODOMETRY_PARAMS, {})
-    if cmd_vel:
-        geometry = {s.name: s for s in GEOMETRY_PARAMS}
-        for spec in cmd_vel:  # shared rows come from the /** section: they must agree
-            if spec.name in geometry:
-                assert same(spec.default, geometry[spec.name].default), spec.name
-        own = tuple(s for s in cmd_vel if s.name not in geometry)
-        check_section(doc, lines["cmd_vel_node"], "cmd_vel_node", own, {})
+    assert cmd_vel is not None
+    geometry = {s.name: s for s in GEOMETRY_PARAMS}
+    for spec in cmd_vel:  # shared rows come from the geometry table: they must agree
+        if spec.name in geometry:
+            assert same(spec.default, geometry[spec.name].default), spec.name
 
 
 def test_load_params_file_namespaced_sections_in_rcl_precedence(tmp_path: Path) -> None:
+    """rcl: every matching entry applies, in the order the entries first appeared."""
     path = tmp_path / "ns.yaml"
     path.write_text(
         "/**:\n  ros__parameters: {wheel_radius: 0.1, wheel_separation: 0.5}\n"
         "/**/odometry_node:\n  ros__parameters: {wheel_separation: 0.6, publish_rate: 5.0}\n"
-        "/robot1/odometry_node:\n  ros__parameters: {publish_rate: 7.0}\n",
+        "/robot1/odometry_node:\n  ros__parameters: {publish_rate: 7.0}\n"
+        "/robot1/*:\n  ros__parameters: {time_jump_threshold: 2.0}\n"
+        "/*:\n  ros__parameters: {max_wheel_speed: 9.0}\n",
         encoding="utf-8",
     )
     plain = load_params_file(path, "odometry_node")
-    assert plain == {"wheel_radius": 0.1, "wheel_separation": 0.6, "publish_rate": 5.0}
+    assert plain == {"wheel_radius": 0.1, "wheel_separation": 0.6, "publish_rate": 5.0,
+                     "max_wheel_speed": 9.0}
     spaced = load_params_file(path, "odometry_node", "/robot1")
-    assert spaced == {"wheel_radius": 0.1, "wheel_separation": 0.6, "publish_rate": 7.0}
+    assert spaced == {"wheel_radius": 0.1, "wheel_separation": 0.6, "publish_rate": 7.0,
+                      "time_jump_threshold": 2.0}
+
+
+def test_a_wildcard_after_the_node_section_wins(tmp_path: Path) -> None:
+    path = tmp_path / "order.yaml"
+    path.write_text("odometry_node:\n  ros__parameters: {wheel_radius: 0.2}\n"
+                    "/**:\n  ros__parameters: {wheel_radius: 0.1}\n", encoding="utf-8")
+    assert load_params_file(path, "odometry_node") == {"wheel_radius": 0.1}
+
+
+@pytest.mark.parametrize(("text", "value"), [
+    ("1", 1), ("017", 15), ("0x1F", 31), ("08", 8.0), ("5e-2", 0.05), ("-.inf", -inf),
+    ("y", True), ("Off", False), ('"1"', "1"), ("1_0", "1_0"), ("~", "~"),
+    ("[1, 2]", [1, 2]), ("[a, 'b']", ["a", "b"]),
+])
+def test_values_are_typed_as_rcl_types_them(text: str, value: Any) -> None:
+    """Figures from rclpy 7.1.5 itself (-p x:=TEXT, read back from the node)."""
+    name, got = parse_override(f"x:={text}")
+    assert name == "x" and same(got, value), (text, got)
+
+
+def test_a_mixed_list_is_refused_as_rcl_does() -> None:
+    with pytest.raises(ParameterError):
+        parse_override("x:=[1.0, 2]")
+
+
+def test_unknown_names_get_the_closest_real_one() -> None:
+    warning, info = unknown_parameters_report(
+        ["wheel_radius", "wheel_seperation_multiplier", "wheel_radious", "publish_rate",
+         "wheel_command_rate", "use_sim_time", "qos_overrides./tf.publisher.depth",
+         "open_loop", "position_feedback"])
+    assert warning is not None and "\n" not in warning
+    assert "wheel_seperation_multiplier (did you mean wheel_separation_multiplier?)" in warning
+    assert "wheel_radious (did you mean wheel_radius?)" in warning
+    for known in ("publish_rate", "wheel_command_rate", "use_sim_time", "qos_overrides"):
+        assert known not in warning
+    assert info is not None and "open_loop" in info and "position_feedback" in info
+    assert unknown_parameters_report(["wheel_radius", "publish_rate"]) == (None, None)
