@@ -284,7 +284,7 @@ class CmdVelNode(Node):
             dropped=dict(self._dropped),
             command_rate_hz=self._command_rate.rate(now_ns * 1e-9),
             output_rate_hz=self._output_rate.rate(now_ns * 1e-9),
-            expected_output_hz=s.publish_rate,
+            expected_output_hz=s.wheel_command_rate,
             timeout_s=s.cmd_vel_timeout,
         ))
 

@@ -250,7 +250,7 @@ class CommandHealth:
     timeout_s: float
 
 
-# Below this fraction of publish_rate the heartbeat drivers watch is late.
+# Below this fraction of wheel_command_rate the heartbeat drivers watch is late.
 MIN_OUTPUT_FRACTION = 0.5
 
 

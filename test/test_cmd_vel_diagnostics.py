@@ -65,7 +65,7 @@ def test_status_name_hardware_id_cadence_and_never_commanded() -> None:
     assert statistics.median(stamp_gaps) == pytest.approx(1.0, abs=0.05)
     assert all(0.5 < g < 1.5 for g in stamp_gaps), stamp_gaps
     assert abs(statuses[-1].stamp_s - time.time()) < 5.0  # stamped with the node's clock
-    # The heartbeat is 50 Hz (the default publish_rate) and is measured as such.
+    # The heartbeat is 50 Hz (the default wheel_command_rate) and is measured as such.
     assert abs(float(statuses[-1].values["output rate [Hz]"]) - 50.0) < 10.0
 
 
