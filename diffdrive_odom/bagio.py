@@ -33,6 +33,7 @@ import csv
 import functools
 import heapq
 import itertools
+import os
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,7 +42,7 @@ from typing import IO, Any
 
 import numpy as np
 from rosbags.convert.converter import is_same_wireformat, migrate_bytes
-from rosbags.highlevel import AnyReader
+from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import Connection
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
@@ -72,18 +73,53 @@ def typestore() -> Typestore:
     return get_typestore(Stores.ROS2_JAZZY)
 
 
+# What rosbags raises for a path that is not a bag (or a damaged one).
+_NOT_A_BAG = (AnyReaderError, OSError, KeyError, ValueError)
+
+
+class _Reader(AnyReader):
+    """AnyReader whose open() reports a file that is not a bag as one BagError."""
+
+    def open(self) -> None:
+        try:
+            super().open()
+        except _NOT_A_BAG as err:
+            raise BagError(f"{self.paths[0]}: not a readable bag ({err})") from err
+
+
 def open_bag(path: str | Path) -> AnyReader:
     """Return an unopened reader for a rosbag2 dir / ``.mcap`` / ``.db3`` or ROS 1 ``.bag``.
 
     Use as a context manager. A single rosbag2 storage file is accepted for
-    convenience: its directory is opened when it holds the metadata.
+    convenience: its directory is opened when it holds the metadata. Anything that is
+    not a bag raises :class:`BagError` naming the path, here or on opening.
     """
     p = Path(path)
     if not p.exists():
         raise BagError(f"{p}: no such bag")
     if p.is_file() and p.suffix in (".mcap", ".db3") and (p.parent / "metadata.yaml").exists():
         p = p.parent
-    return AnyReader([p], default_typestore=typestore())
+    try:
+        return _Reader([p], default_typestore=typestore())
+    except _NOT_A_BAG as err:
+        raise BagError(f"{p}: not a readable bag ({err})") from err
+
+
+def output_problem(path: str | Path, flag: str) -> str | None:
+    """Why ``path`` cannot be written (one line naming ``flag``), or None.
+
+    Checked before the work starts, so a long replay does not end in a traceback
+    over a typo in ``--plot``.
+    """
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    if p.is_dir():
+        return f"{flag} {p}: is a directory"
+    if not parent.is_dir():
+        return f"{flag} {p}: directory {parent} does not exist"
+    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        return f"{flag} {p}: not writable"
+    return None
 
 
 def connections_for(
