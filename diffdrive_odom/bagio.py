@@ -17,8 +17,9 @@ storage by default or sqlite3 on request; ``ros2 bag play`` and independent read
 CSV columns (one row per published odometry, see :data:`CSV_COLUMNS`):
 
 ==============  =============================================================
-``stamp_ns``    measurement time: the JointState header stamp [ns]
-``time``        the same in seconds (float, for plotting)
+``stamp_ns``    measurement time: the JointState header stamp [ns], an integer
+``time``        the same in seconds, written exactly: ``sec.nanosec`` with nine
+                decimals (``1600000000.100000001``), never a rounded float
 ``x``, ``y``    position of the base frame in the odom frame [m]
 ``yaw``         heading in (-pi, pi] [rad]
 ``linear``      forward speed along base x [m/s] (rolling mean as the node)
@@ -34,7 +35,9 @@ import functools
 import heapq
 import itertools
 import os
+import shutil
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -213,6 +216,25 @@ def read_joint_states(
 def count_messages(reader: AnyReader, topic: str) -> int:
     """Messages on ``topic`` according to the bag's index (no decoding)."""
     return sum(c.msgcount for c in reader.connections if c.topic == topic)
+
+
+@contextmanager
+def staged(path: str | Path) -> Iterator[Path]:
+    """Where to write ``path``: its name in a hidden sibling directory, moved on success.
+
+    On any exception (Ctrl-C included) the staging directory is removed, so a failed
+    run never leaves a half-written output under the name the user asked for. Same
+    file system, so the move is a rename; same name, so a bag's storage file inside
+    (``NAME_0.mcap``) is named as if written in place.
+    """
+    final = Path(path)
+    stage = final.parent / f".{final.name}.partial-{os.getpid()}"
+    stage.mkdir()
+    try:
+        yield stage / final.name
+        os.replace(stage / final.name, final)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 # --- ROS 1 -> ROS 2 -------------------------------------------------------------------
@@ -414,8 +436,18 @@ class CsvWriter:
     def row(
         self, ns: int, x: float, y: float, yaw: float, linear: float, angular: float, status: str
     ) -> None:
-        """One published pose; floats by ``repr`` so reading back is lossless."""
+        """One published pose; floats by ``repr`` so reading back is lossless.
+
+        The stamp is an integer, so it is written as integers too: a float in seconds
+        has only ~0.2 us resolution at today's epoch (``1600000000.1000001``).
+        """
         self._csv.writerow(
-            (ns, repr(ns * 1e-9), repr(x), repr(y), repr(yaw), repr(linear), repr(angular),
+            (ns, seconds_text(ns), repr(x), repr(y), repr(yaw), repr(linear), repr(angular),
              status)
         )
+
+
+def seconds_text(ns: int) -> str:
+    """Exact decimal seconds of an integer nanosecond stamp: ``sec.nanosec`` (9 places)."""
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return f"{sec}.{nanosec:09d}"

@@ -27,14 +27,18 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Every subcommand's ``--help`` shows each default; "no value" defaults are spelt out.
+    """Every subcommand's ``--help`` shows each default, once.
 
-    A default of None, False or empty says nothing useful as "(default: None)", so those
-    options state their default in their own help text instead.
+    A default of None, False or empty says nothing as "(default: None)": those options
+    spell out their default in their own help text, and an option whose help already
+    says "(default" is left as written.
     """
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
-        if action.default in (None, False, [], ()):
+        default = action.default
+        empty = default is None or default is False or (
+            isinstance(default, (list, tuple)) and not default)
+        if empty or "(default" in (action.help or ""):
             return action.help
         return super()._get_help_string(action)
 
