@@ -304,11 +304,15 @@ def main(argv: Sequence[str]) -> int:
     ref: evaluate.Trajectory | None = None
     gt_topic = ""
     if args.eval:  # the reference first: a wrong topic must not cost a whole replay
+
+        def notify(text: str) -> None:
+            print(f"[replay] --eval: {text}", file=sys.stderr)
+
         try:
             gt_topic = evaluate.reference_topic(
-                args.bag, None if args.eval == AUTO_REFERENCE else args.eval,
-                notify=lambda text: print(f"[replay] --eval: {text}", file=sys.stderr))
-            ref = evaluate.read_trajectory(args.bag, gt_topic, args.child_frame)
+                args.bag, None if args.eval == AUTO_REFERENCE else args.eval, notify=notify)
+            ref = evaluate.read_trajectory(args.bag, gt_topic, args.child_frame,
+                                           "--child-frame", notify)
         except bagio.BagError as err:
             return _error(f"--eval: {err}")
     try:

@@ -237,8 +237,8 @@ def usage(node_factory: Callable[[], Node], argv: Sequence[str] = ()) -> str:
     """``--help`` text: what the node does, its topics and services, where parameters go.
 
     The topics come from building the node (demo parameters, then the user's own ROS
-    arguments, so remaps and namespaces show) in a private context and asking it,
-    never from a hand-kept list that could drift from the code.
+    arguments, so remaps and namespaces show) and asking it, never from a hand-kept
+    list that could drift from the code.
     """
     program = _program()
     module = sys.modules.get(node_factory.__module__)
