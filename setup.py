@@ -1,14 +1,18 @@
 """ament_python package: builds with colcon on a robot and installs with pip anywhere."""
 
 from glob import glob
+from pathlib import Path
+from xml.etree import ElementTree
 
 from setuptools import find_packages, setup
 
 PACKAGE = "diffdrive_odom"
+# package.xml is the one place the version is written (rosdep, bloom and colcon read it).
+VERSION = ElementTree.parse(Path(__file__).resolve().parent / "package.xml").findtext("version")
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
+    version=(VERSION or "").strip(),
     packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

@@ -17,8 +17,9 @@ storage by default or sqlite3 on request; ``ros2 bag play`` and independent read
 CSV columns (one row per published odometry, see :data:`CSV_COLUMNS`):
 
 ==============  =============================================================
-``stamp_ns``    measurement time: the JointState header stamp [ns]
-``time``        the same in seconds (float, for plotting)
+``stamp_ns``    measurement time: the JointState header stamp [ns], an integer
+``time``        the same in seconds, written exactly: ``sec.nanosec`` with nine
+                decimals (``1600000000.100000001``), never a rounded float
 ``x``, ``y``    position of the base frame in the odom frame [m]
 ``yaw``         heading in (-pi, pi] [rad]
 ``linear``      forward speed along base x [m/s] (rolling mean as the node)
@@ -33,7 +34,10 @@ import csv
 import functools
 import heapq
 import itertools
+import os
+import shutil
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -41,7 +45,7 @@ from typing import IO, Any
 
 import numpy as np
 from rosbags.convert.converter import is_same_wireformat, migrate_bytes
-from rosbags.highlevel import AnyReader
+from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import Connection
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
@@ -72,18 +76,53 @@ def typestore() -> Typestore:
     return get_typestore(Stores.ROS2_JAZZY)
 
 
+# What rosbags raises for a path that is not a bag (or a damaged one).
+_NOT_A_BAG = (AnyReaderError, OSError, KeyError, ValueError)
+
+
+class _Reader(AnyReader):
+    """AnyReader whose open() reports a file that is not a bag as one BagError."""
+
+    def open(self) -> None:
+        try:
+            super().open()
+        except _NOT_A_BAG as err:
+            raise BagError(f"{self.paths[0]}: not a readable bag ({err})") from err
+
+
 def open_bag(path: str | Path) -> AnyReader:
     """Return an unopened reader for a rosbag2 dir / ``.mcap`` / ``.db3`` or ROS 1 ``.bag``.
 
     Use as a context manager. A single rosbag2 storage file is accepted for
-    convenience: its directory is opened when it holds the metadata.
+    convenience: its directory is opened when it holds the metadata. Anything that is
+    not a bag raises :class:`BagError` naming the path, here or on opening.
     """
     p = Path(path)
     if not p.exists():
         raise BagError(f"{p}: no such bag")
     if p.is_file() and p.suffix in (".mcap", ".db3") and (p.parent / "metadata.yaml").exists():
         p = p.parent
-    return AnyReader([p], default_typestore=typestore())
+    try:
+        return _Reader([p], default_typestore=typestore())
+    except _NOT_A_BAG as err:
+        raise BagError(f"{p}: not a readable bag ({err})") from err
+
+
+def output_problem(path: str | Path, flag: str) -> str | None:
+    """Why ``path`` cannot be written (one line naming ``flag``), or None.
+
+    Checked before the work starts, so a long replay does not end in a traceback
+    over a typo in ``--plot``.
+    """
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    if p.is_dir():
+        return f"{flag} {p}: is a directory"
+    if not parent.is_dir():
+        return f"{flag} {p}: directory {parent} does not exist"
+    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        return f"{flag} {p}: not writable"
+    return None
 
 
 def connections_for(
@@ -177,6 +216,25 @@ def read_joint_states(
 def count_messages(reader: AnyReader, topic: str) -> int:
     """Messages on ``topic`` according to the bag's index (no decoding)."""
     return sum(c.msgcount for c in reader.connections if c.topic == topic)
+
+
+@contextmanager
+def staged(path: str | Path) -> Iterator[Path]:
+    """Where to write ``path``: its name in a hidden sibling directory, moved on success.
+
+    On any exception (Ctrl-C included) the staging directory is removed, so a failed
+    run never leaves a half-written output under the name the user asked for. Same
+    file system, so the move is a rename; same name, so a bag's storage file inside
+    (``NAME_0.mcap``) is named as if written in place.
+    """
+    final = Path(path)
+    stage = final.parent / f".{final.name}.partial-{os.getpid()}"
+    stage.mkdir()
+    try:
+        yield stage / final.name
+        os.replace(stage / final.name, final)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 # --- ROS 1 -> ROS 2 -------------------------------------------------------------------
@@ -378,8 +436,18 @@ class CsvWriter:
     def row(
         self, ns: int, x: float, y: float, yaw: float, linear: float, angular: float, status: str
     ) -> None:
-        """One published pose; floats by ``repr`` so reading back is lossless."""
+        """One published pose; floats by ``repr`` so reading back is lossless.
+
+        The stamp is an integer, so it is written as integers too: a float in seconds
+        has only ~0.2 us resolution at today's epoch (``1600000000.1000001``).
+        """
         self._csv.writerow(
-            (ns, repr(ns * 1e-9), repr(x), repr(y), repr(yaw), repr(linear), repr(angular),
+            (ns, seconds_text(ns), repr(x), repr(y), repr(yaw), repr(linear), repr(angular),
              status)
         )
+
+
+def seconds_text(ns: int) -> str:
+    """Exact decimal seconds of an integer nanosecond stamp: ``sec.nanosec`` (9 places)."""
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return f"{sec}.{nanosec:09d}"

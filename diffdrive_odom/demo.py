@@ -46,6 +46,7 @@ from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import bagio, evaluate, ros_common, routes
+from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.odometry import quaternion_to_yaw
 from diffdrive_odom.params import (
     OdometrySettings,
@@ -665,7 +666,8 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog=PROGRAM,
         description="Closed-loop demo: sim_node + cmd_vel_node + odometry_node over DDS; "
-                    "prints odometry drift, writes a plot and a bag.")
+                    "prints odometry drift, writes a plot and a bag.",
+        formatter_class=HelpFormatter)
     ap.add_argument("--route", default="umbmark", choices=list(routes.names()),
                     help="route to drive (default: UMBmark, 4 m square CW then CCW)")
     ap.add_argument("--size", type=float, default=None,

@@ -26,7 +26,7 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from diffdrive_odom import bagio
+from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.odometry import quaternion_to_yaw, stamp_to_ns
 
 FloatArray = npt.NDArray[np.float64]
@@ -272,40 +273,89 @@ def _pose_of(msg: Any, msgtype: str) -> tuple[Any, Any]:
     return msg.transform.translation, msg.transform.rotation  # TransformStamped
 
 
+Notify = Callable[[str], None]
+DEFAULT_REFERENCE = "/ground_truth/pose"
+# Name parts that mark a topic as ground truth (sim_node and the demo write
+# /ground_truth/odom; motion-capture bridges use mocap/vicon/optitrack names).
+REFERENCE_HINTS = ("ground_truth", "groundtruth", "mocap", "vicon", "optitrack")
+
+
+def reference_topic(
+    bag: str | Path, requested: str | None, exclude: Iterable[str] = (),
+    notify: Notify | None = None,
+) -> str:
+    """The reference topic to read: ``requested``, else the default, else the one candidate.
+
+    With no topic asked for and no :data:`DEFAULT_REFERENCE` in the bag, a pose-typed
+    topic whose name looks like ground truth is taken when it is the only one (and
+    ``notify`` is told); otherwise BagError lists what there is.
+    """
+    if requested is not None:
+        return requested
+    with bagio.open_bag(bag) as reader:
+        posed: list[str] = sorted(
+            {str(c.topic) for c in reader.connections if c.msgtype in POSE_TYPES}
+            - set(exclude))
+    if DEFAULT_REFERENCE in posed:
+        return DEFAULT_REFERENCE
+    plausible = [t for t in posed if any(h in t.lower() for h in REFERENCE_HINTS)]
+    if len(plausible) == 1:
+        if notify is not None:
+            notify(f"{DEFAULT_REFERENCE} is not in {bag}; using {plausible[0]}, its only "
+                   "ground-truth topic (--ground-truth to choose another)")
+        return plausible[0]
+    which = "several ground-truth topics" if plausible else "no ground-truth topic"
+    raise bagio.BagError(
+        f"{bag}: {DEFAULT_REFERENCE} is absent and there are {which}; name one with "
+        f"--ground-truth (pose topics: {', '.join(posed) or 'none'})")
+
+
 def read_trajectory(
-    bag: str | Path, topic: str, child_frame: str | None = None
+    bag: str | Path, topic: str, child_frame: str | None = None,
+    frame_flag: str = "--child-frame", notify: Notify | None = None,
 ) -> Trajectory:
-    """Poses on ``topic`` by header stamp; for /tf, the transforms to ``child_frame``."""
-    ts: list[int] = []
-    xs: list[float] = []
-    ys: list[float] = []
-    yaws: list[float] = []
-    children: set[str] = set()
+    """Poses on ``topic`` by header stamp; for /tf, the transforms to ``child_frame``.
+
+    On a TFMessage topic without ``child_frame``, the only child frame is used (and
+    ``notify`` told); with several, BagError names them and ``frame_flag``, the
+    option that chooses one.
+    """
+    by_child: dict[str, tuple[list[int], list[float], list[float], list[float]]] = {}
+    seen: set[str] = set()
     with bagio.open_bag(bag) as reader:
         conns = bagio.connections_for(reader, topic, POSE_TYPES)
         for conn, _, raw in reader.messages(connections=conns):
             msg: Any = reader.deserialize(raw, conn.msgtype)
             items = list(msg.transforms) if conn.msgtype == bagio.TF_MESSAGE else [msg]
             for item in items:
+                key = ""  # every pose of a topic that is not a TFMessage
                 if conn.msgtype in (bagio.TF_MESSAGE, "geometry_msgs/msg/TransformStamped"):
                     child = str(item.child_frame_id).lstrip("/")
-                    children.add(child)
+                    seen.add(child)
                     if child_frame is not None and child != child_frame.lstrip("/"):
                         continue
-                    if child_frame is None and conn.msgtype == bagio.TF_MESSAGE:
-                        continue
+                    key = child if conn.msgtype == bagio.TF_MESSAGE else ""
                     p, q = _pose_of(item, "geometry_msgs/msg/TransformStamped")
                 else:
                     p, q = _pose_of(item, conn.msgtype)
+                ts, xs, ys, yaws = by_child.setdefault(key, ([], [], [], []))
                 ts.append(stamp_to_ns(item.header.stamp))
                 xs.append(float(p.x))
                 ys.append(float(p.y))
                 yaws.append(quaternion_to_yaw(q))
-    if not ts:
-        if children:
+    frames = sorted(k for k in by_child if k)
+    if child_frame is None and len(frames) > 1:
+        raise bagio.BagError(f"{topic}: name the child frame ({frame_flag}); frames: {frames}")
+    if child_frame is None and len(frames) == 1 and notify is not None:
+        notify(f"{topic}: using child frame '{frames[0]}', the only one ({frame_flag} to "
+               "choose)")
+    if not by_child:
+        if seen:
             raise bagio.BagError(
-                f"{topic}: name the child frame (--child-frame); frames: {sorted(children)}")
+                f"{topic}: no transform to '{child_frame}' ({frame_flag}); frames: "
+                f"{sorted(seen)}")
         raise bagio.BagError(f"{topic}: no poses")
+    ((ts, xs, ys, yaws),) = by_child.values()
     return Trajectory.from_arrays(ts, xs, ys, yaws)
 
 
@@ -379,39 +429,70 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="diffdrive-odom eval",
         description="Compare odometry with ground truth recorded in a bag.",
+        formatter_class=HelpFormatter,
     )
     ap.add_argument("bag", help="bag with the odometry (and, by default, the ground truth)")
-    ap.add_argument("--odom", default="/odom", help="odometry topic (any pose type, or /tf)")
-    ap.add_argument("--odom-child-frame", default=None, help="odometry child frame on /tf")
-    ap.add_argument("--ground-truth", default="/ground_truth/pose",
-                    help="reference topic: PoseStamped, Odometry, or TransformStamped on /tf")
-    ap.add_argument("--child-frame", default=None, help="reference child frame on /tf")
-    ap.add_argument("--reference-bag", default=None,
-                    help="read the reference from this bag instead (e.g. replay's input)")
-    ap.add_argument("--segment-length", type=float, default=1.0,
+    ap.add_argument("--odom", default="/odom", metavar="TOPIC",
+                    help="odometry topic (any pose type, or /tf)")
+    ap.add_argument("--odom-child-frame", default=None, metavar="FRAME",
+                    help="odometry child frame on /tf (default: the only one there)")
+    ap.add_argument("--ground-truth", default=None, metavar="TOPIC",
+                    help="reference topic: PoseStamped, PoseWithCovarianceStamped, Odometry, "
+                    f"or TransformStamped on /tf (default: {DEFAULT_REFERENCE}, else the "
+                    "bag's only ground-truth topic, e.g. sim_node's /ground_truth/odom)")
+    ap.add_argument("--child-frame", default=None, metavar="FRAME",
+                    help="reference child frame on /tf (default: the only one there)")
+    ap.add_argument("--reference-bag", default=None, metavar="BAG",
+                    help="read the reference from this bag instead, e.g. replay's input "
+                    "(default: BAG)")
+    ap.add_argument("--segment-length", type=float, default=1.0, metavar="M",
                     help="stretch length for the relative error [m]")
-    ap.add_argument("--max-gap", type=float, default=0.5,
+    ap.add_argument("--max-gap", type=float, default=0.5, metavar="S",
                     help="longest reference gap to interpolate across [s]")
-    ap.add_argument("--json", help="write the figures as JSON")
-    ap.add_argument("--plot", help="write a PNG plot")
+    ap.add_argument("--json", metavar="FILE",
+                    help="write the figures as JSON (default: not written)")
+    ap.add_argument("--plot", metavar="FILE", help="write a PNG plot (default: not written)")
     return ap
 
 
+def output_problem(json_path: str | None, plot_path: str | None) -> str | None:
+    """Why ``--json`` / ``--plot`` cannot be written, checked before any work."""
+    for flag, path in (("--json", json_path), ("--plot", plot_path)):
+        problem = bagio.output_problem(path, flag) if path else None
+        if problem:
+            return problem
+    return None
+
+
 def main(argv: Sequence[str]) -> int:
-    """``diffdrive-odom eval``; exit 2 when a topic or bag cannot be used."""
+    """``diffdrive-odom eval``; exit 2 when a topic, bag or output path cannot be used."""
     args = _parser().parse_args(list(argv))
     if not (args.segment_length > 0 and args.max_gap > 0):
         print("[eval] --segment-length and --max-gap must be > 0", file=sys.stderr)
         return 2
+    problem = output_problem(args.json, args.plot)
+    if problem:
+        print(f"[eval] {problem}", file=sys.stderr)
+        return 2
+
+    def notify(text: str) -> None:
+        print(f"[eval] {text}", file=sys.stderr)
+
+    ref_bag = args.reference_bag or args.bag
     try:
-        est = read_trajectory(args.bag, args.odom, args.odom_child_frame)
-        ref = read_trajectory(args.reference_bag or args.bag, args.ground_truth,
-                              args.child_frame)
+        est = read_trajectory(args.bag, args.odom, args.odom_child_frame,
+                              "--odom-child-frame", notify)
+        exclude = [args.odom] if ref_bag == args.bag else []
+        gt = reference_topic(ref_bag, args.ground_truth, exclude, notify)
+        ref = read_trajectory(ref_bag, gt, args.child_frame, "--child-frame", notify)
         metrics = evaluate(est, ref, args.segment_length, args.max_gap)
+        report(metrics, est, ref, args.json, args.plot, (args.odom, gt))
     except (bagio.BagError, ValueError) as err:
         print(f"[eval] {err}", file=sys.stderr)
         return 2
-    report(metrics, est, ref, args.json, args.plot, (args.odom, args.ground_truth))
+    except OSError as err:  # the output vanished or filled up after the check
+        print(f"[eval] cannot write: {err}", file=sys.stderr)
+        return 2
     return 0
 
 

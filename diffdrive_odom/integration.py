@@ -1,4 +1,7 @@
-"""The CIR elementary transform of seed 004 and its composition with the pose.
+"""The CIR elementary transform and its composition with the pose.
+
+After Furlan, Marzorati and Sorrenti, "2D transforms for the odometry of a
+differential kinematics mobile robot" (see docs/references.md).
 
 Between two encoder readings the robot turns by ``dtheta`` about the instantaneous
 centre of rotation (CIR), a distance ``R = ds / dtheta`` to its left. Composing the
@@ -15,8 +18,8 @@ mid-step heading ``dtheta / 2``, because ``R sin a = ds sinc(a)`` and
 ``R (1 - cos a) = ds sin(a/2) sinc(a/2)``. ``sinc(x) = sin(x) / x`` is accurate to
 the last bit for every non-zero float (``sin`` is correctly rounded near zero) and
 is exactly 1 at zero, so the straight-line limit is the same formula, not a switch
-to an approximation. Seed 003's midpoint (RK2) step is this chord with ``sinc``
-replaced by 1.
+to an approximation. The midpoint (RK2) step of Carroll and Jha ("Differential Drive
+Kinematics", ELEC6530) is this chord with ``sinc`` replaced by 1.
 
 Every function here takes a float or a numpy array (the batch form used by replay
 and calibration), so the step's math lives in this one place, together with its
@@ -77,7 +80,7 @@ def cir_increment(ds: float, dtheta: float) -> tuple[float, float]:
 
 
 def compose(pose: Pose2D, ds: float, dtheta: float) -> Pose2D:
-    """``T_t^W = T_{t-1}^W . T_t^{t-1}`` (seed 004 section V)."""
+    """``T_t^W = T_{t-1}^W . T_t^{t-1}`` (Furlan, Marzorati, Sorrenti, section V)."""
     dx, dy = cir_increment(ds, dtheta)
     c, s = math.cos(pose.theta), math.sin(pose.theta)
     return Pose2D(

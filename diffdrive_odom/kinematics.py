@@ -6,8 +6,10 @@ never drift apart.
 
 Conventions (REP-103): x forward, y left, yaw counter-clockwise. A wheel's *joint*
 angle is multiplied by its side's ``sign`` to get the angle that rolls the robot
-forward when positive; seed 000 flips the right wheel, seed 001 both, real robots
-either (see ``left_wheel_sign`` / ``right_wheel_sign``).
+forward when positive; the Caltech ME/CS 133 notes ("Kinematics and Odometry for a
+Differential Drive Vehicle") flip the right wheel, Kumar ("Kinematics of Wheeled
+Robots") both, real robots either (see ``left_wheel_sign`` / ``right_wheel_sign``).
+The papers are listed in docs/references.md.
 """
 
 from __future__ import annotations
@@ -89,9 +91,11 @@ def body_increment(
 ) -> tuple[FloatOrArray, FloatOrArray]:
     """Joint angle increments -> (arc length of the axle centre, heading change).
 
-    Seed 004 section II with REP-103 signs: the right wheel rolling further turns the
-    robot counter-clockwise, ``dtheta = (s_right - s_left) / b``. Works equally on
-    rates (rad/s -> m/s, rad/s), which is the forward kinematics of seeds 002/003.
+    Furlan, Marzorati and Sorrenti, section II, with REP-103 signs: the right wheel
+    rolling further turns the robot counter-clockwise,
+    ``dtheta = (s_right - s_left) / b``. Works equally on rates (rad/s -> m/s, rad/s):
+    the forward kinematics of the "Diff Drive kinematics" notes (after Lynch and Park,
+    Modern Robotics ch. 13) and of Carroll and Jha.
     """
     s_left, s_right = wheel_arcs(geometry, d_left, d_right)
     return 0.5 * (s_left + s_right), (s_right - s_left) / geometry.separation
@@ -100,7 +104,10 @@ def body_increment(
 def wheel_rates(
     geometry: Geometry, linear: FloatOrArray, angular: FloatOrArray
 ) -> tuple[FloatOrArray, FloatOrArray]:
-    """Inverse kinematics (seed 002 eq. 8-9, seed 001 eq. 15-16): body twist -> joint rates.
+    """Inverse kinematics: body twist -> joint rates.
+
+    As in the "Diff Drive kinematics" notes (eq. 8-9) and Kumar, "Kinematics of Wheeled
+    Robots" (eq. 15-16).
 
     Returns joint rates in rad/s with the per-side signs applied, so they can be sent
     to the joints as they are.
@@ -116,8 +123,9 @@ def point_velocity_to_twist(
 ) -> tuple[float, float]:
     """Velocity of a point ``offset`` ahead of the axle (body frame) -> (v, omega).
 
-    Seed 001 section 4: the point P = (l, 0) moves with (v, l * omega) in the body
-    frame, so its Jacobian J (eq. 22 at theta = 0) is invertible for l != 0.
+    Kumar, "Kinematics of Wheeled Robots", section 4: the point P = (l, 0) moves with
+    (v, l * omega) in the body frame, so its Jacobian J (eq. 22 at theta = 0) is
+    invertible for l != 0.
     """
     if not math.isfinite(offset) or offset == 0.0:
         raise GeometryError("control_point_offset", f"must be finite and non-zero, got {offset!r}")

@@ -23,6 +23,7 @@ from typing import Any
 from rosbags.interfaces import Connection
 
 from diffdrive_odom import bagio
+from diffdrive_odom.cli import HelpFormatter
 
 CLOCK_QOS_DEPTH = 1
 
@@ -47,22 +48,29 @@ def _parser() -> argparse.ArgumentParser:
         prog="diffdrive-odom play",
         description="Publish a bag's messages with their recorded timing (and /clock). "
         "The fallback where `ros2 bag play` is not installed.",
+        formatter_class=HelpFormatter,
     )
     ap.add_argument("bag", help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag")
     ap.add_argument("-r", "--rate", type=float, default=1.0, help="speed factor (> 0)")
-    ap.add_argument("-l", "--loop", action="store_true", help="start over at the end")
-    ap.add_argument("--topics", nargs="+", default=None, help="only these topics")
+    ap.add_argument("-l", "--loop", action="store_true",
+                    help="start over at the end (default: play once)")
+    ap.add_argument("--topics", nargs="+", default=None, metavar="TOPIC",
+                    help="only these topics (default: every topic of the bag)")
     ap.add_argument("--clock", nargs="?", type=float, const=100.0, default=None,
-                    metavar="HZ", help="publish /clock at HZ wall-clock rate (default 100)")
-    ap.add_argument("--start-offset", type=float, default=0.0,
+                    metavar="HZ", help="publish /clock at HZ wall-clock rate (default: no /clock; "
+                    "HZ defaults to 100)")
+    ap.add_argument("--start-offset", type=float, default=0.0, metavar="S",
                     help="skip this many seconds of the bag")
-    ap.add_argument("--duration", type=float, default=None,
-                    help="play only this many seconds of the bag (after the offset)")
-    ap.add_argument("--delay", type=float, default=0.0, help="wait this long before playing")
+    ap.add_argument("--duration", type=float, default=None, metavar="S",
+                    help="play only this many seconds of the bag after the offset "
+                    "(default: to the end)")
+    ap.add_argument("--delay", type=float, default=0.0, metavar="S",
+                    help="wait this long before playing")
     ap.add_argument("--wait-for", nargs="+", default=(), metavar="TOPIC",
-                    help="before playing, wait until these topics have a subscriber")
+                    help="before playing, wait until these topics have a subscriber "
+                    "(default: start at once)")
     ap.add_argument("--remap", nargs="+", default=(), metavar="FROM:=TO",
-                    help="publish topic FROM as TO")
+                    help="publish topic FROM as TO (default: recorded names)")
     return ap
 
 
@@ -82,8 +90,8 @@ def main(argv: Sequence[str]) -> int:
     try:
         reader = bagio.open_bag(args.bag)
         reader.open()
-    except Exception as err:  # BagError, or any of the several kinds rosbags raises
-        print(f"[play] {args.bag}: {err}", file=sys.stderr)
+    except bagio.BagError as err:  # open_bag turns rosbags' own errors into this one
+        print(f"[play] {err}", file=sys.stderr)
         return 2
     try:
         return _play(reader, args, remap)

@@ -25,7 +25,8 @@ import sys
 import time
 from array import array
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,8 @@ import numpy.typing as npt
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 
-from diffdrive_odom import bagio
+from diffdrive_odom import bagio, evaluate
+from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.integration import Pose2D, integrate_batch, wrap_angle
 from diffdrive_odom.kinematics import Geometry, body_increment
 from diffdrive_odom.odometry import Reason, Status, covariance_matrix
@@ -252,59 +254,105 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="diffdrive-odom replay",
         description="Run the odometry node's estimator over a bag offline and write what "
-        "the node would publish (odom + /tf) to a rosbag2 and/or CSV.",
+        "the node would publish (odom + /tf) to a rosbag2 and/or CSV, and/or evaluate it.",
+        formatter_class=HelpFormatter,
     )
     ap.add_argument("bag", help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag")
     ap.add_argument("--params-file", required=True, action=_RosParam, dest="ros_params",
-                    help="the node's ROS 2 params YAML (repeatable, later files win)")
+                    metavar="FILE",
+                    help="the node's ROS 2 params YAML (required; repeatable, later files win)")
     ap.add_argument("-p", "--param", action=_RosParam, dest="ros_params", metavar="NAME:=VALUE",
                     help="parameter override, as the node's -p (repeatable; order with "
-                         "--params-file matters as in rcl)")
+                         "--params-file matters as in rcl; default: none)")
     ap.add_argument("--node-name", default=NODE_NAME,
                     help="node name the params are resolved for (-r __node:=)")
     ap.add_argument("--namespace", default="/",
                     help="node namespace (-r __ns:=): params resolution and frame prefix")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bag")
-    ap.add_argument("-o", "--output", help="output rosbag2 directory (must not exist)")
-    ap.add_argument("--storage", choices=bagio.STORAGES, default="mcap")
+    ap.add_argument("-o", "--output", metavar="OUT_BAG",
+                    help="output rosbag2 directory, must not exist (default: none)")
+    ap.add_argument("--storage", choices=bagio.STORAGES, default="mcap",
+                    help="storage of the output bag")
     ap.add_argument("--odom-topic", default="/odom", help="odometry topic in the output bag")
-    ap.add_argument("--tf-topic", default="/tf")
-    ap.add_argument("--csv", help="write published poses as CSV (columns: see README)")
+    ap.add_argument("--tf-topic", default="/tf", help="transform topic in the output bag")
+    ap.add_argument("--csv", metavar="FILE",
+                    help="write published poses as CSV, columns in the README (default: none)")
     ap.add_argument("--keep-input", action="store_true",
-                    help="copy every input topic into the output bag (ROS 1 -> CDR)")
-    ap.add_argument("--eval", nargs="?", const="/ground_truth/pose", default=None,
+                    help="copy every input topic into the output bag (ROS 1 -> CDR) "
+                    "(default: only the replayed odom and /tf)")
+    ap.add_argument("--eval", nargs="?", const=AUTO_REFERENCE, default=None,
                     metavar="GT_TOPIC", help="evaluate against ground truth in the input bag "
-                    "(default topic /ground_truth/pose)")
-    ap.add_argument("--child-frame", default=None,
-                    help="ground truth child frame when it is on /tf")
-    ap.add_argument("--json", help="with --eval: write the figures as JSON")
-    ap.add_argument("--plot", help="with --eval: write a PNG plot")
+                    f"(default: no evaluation; GT_TOPIC defaults to "
+                    f"{evaluate.DEFAULT_REFERENCE}, else the bag's only ground-truth topic)")
+    ap.add_argument("--child-frame", default=None, metavar="FRAME",
+                    help="ground truth child frame when it is on /tf (default: the only one)")
+    ap.add_argument("--json", metavar="FILE",
+                    help="with --eval: write the figures as JSON (default: none)")
+    ap.add_argument("--plot", metavar="FILE",
+                    help="with --eval: write a PNG plot (default: none)")
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                    help="progress bar (default: on a terminal, for long bags)")
+                    help="progress line on stderr (default: on a terminal, for long bags)")
     return ap
 
 
+AUTO_REFERENCE = "<auto>"  # --eval without a topic: evaluate.reference_topic decides
+
+
+def _error(text: str) -> int:
+    print(f"[replay] {text}", file=sys.stderr)
+    return 2
+
+
+def _output_problem(args: argparse.Namespace) -> str | None:
+    """Why the asked-for outputs cannot be written (checked before any work), or None."""
+    if not (args.output or args.csv or args.eval):
+        return ("nothing to do: give -o OUT_BAG, --csv FILE and/or --eval "
+                "(see diffdrive-odom replay --help)")
+    if (args.json or args.plot) and not args.eval:
+        return "--json/--plot need --eval"
+    if args.output and Path(args.output).exists():
+        return f"-o {args.output}: exists: remove it or choose another output"
+    for flag, path in (("-o", args.output), ("--csv", args.csv)):
+        problem = bagio.output_problem(path, flag) if path else None
+        if problem:
+            return problem
+    return evaluate.output_problem(args.json, args.plot)
+
+
 def main(argv: Sequence[str]) -> int:
-    """``diffdrive-odom replay``; exit 2 on a bad parameter or unusable bag."""
+    """``diffdrive-odom replay``; exit 2 on a bad parameter, bag or output, or nothing to do."""
     args = _parser().parse_args(list(argv))
     try:
         settings = load_settings(args.ros_params, args.node_name, args.namespace)
     except ParameterError as err:
-        print(f"[replay] {err}", file=sys.stderr)
-        return 2
+        return _error(str(err))
     except OSError as err:
-        print(f"[replay] --params-file: {err}", file=sys.stderr)
-        return 2
-    if (args.json or args.plot) and not args.eval:
-        print("[replay] --json/--plot need --eval", file=sys.stderr)
-        return 2
+        return _error(f"--params-file: {err}")
+    problem = _output_problem(args)
+    if problem:
+        return _error(problem)
+    ref: evaluate.Trajectory | None = None
+    gt_topic = ""
+    if args.eval:  # the reference first: a wrong topic must not cost a whole replay
+
+        def notify(text: str) -> None:
+            print(f"[replay] --eval: {text}", file=sys.stderr)
+
+        try:
+            gt_topic = evaluate.reference_topic(
+                args.bag, None if args.eval == AUTO_REFERENCE else args.eval, notify=notify)
+            ref = evaluate.read_trajectory(args.bag, gt_topic, args.child_frame,
+                                           "--child-frame", notify)
+        except bagio.BagError as err:
+            return _error(f"--eval: {err}")
     try:
         stats, traj = _run(args, settings)
     except bagio.BagError as err:
-        print(f"[replay] {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:  # the writers closed on the way out: outputs stay readable
-        print("[replay] interrupted; outputs hold the poses written so far", file=sys.stderr)
+        return _error(str(err))
+    except OSError as err:
+        return _error(f"cannot write the output: {err}")
+    except KeyboardInterrupt:  # the staged outputs were removed on the way out
+        print("[replay] interrupted; no output written", file=sys.stderr)
         return 130
     if not stats.usable:
         _remove_outputs(args)
@@ -313,21 +361,19 @@ def main(argv: Sequence[str]) -> int:
     print(stats.summary())
     for code, count in stats.reasons.most_common(5):
         print(f"  {count} x {code}: {stats.examples[code]}", file=sys.stderr)
-    if args.eval:
-        from diffdrive_odom import evaluate
-
+    if ref is not None:
         try:
             est = evaluate.Trajectory.from_arrays(
                 np.frombuffer(traj.stamp_ns, dtype=np.int64),
                 *np.frombuffer(traj.xyz, dtype=np.float64).reshape(-1, 3).T,
             )
-            ref = evaluate.read_trajectory(args.bag, args.eval, args.child_frame)
             metrics = evaluate.evaluate(est, ref)
-        except (bagio.BagError, ValueError) as err:
-            print(f"[replay] --eval: {err}", file=sys.stderr)
-            return 2
-        evaluate.report(metrics, est, ref, args.json, args.plot,
-                        labels=("replay", args.eval))
+            evaluate.report(metrics, est, ref, args.json, args.plot,
+                            labels=("replay", gt_topic))
+        except ValueError as err:
+            return _error(f"--eval: {err}")
+        except OSError as err:
+            return _error(f"--eval: cannot write: {err}")
     return 0
 
 
@@ -350,18 +396,48 @@ def _remove_outputs(args: argparse.Namespace) -> None:
         Path(args.csv).unlink(missing_ok=True)
 
 
-def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, _Trajectory]:
-    from contextlib import ExitStack
+def _progress(readings: Iterable[bagio.JointReading], total: int) -> Iterator[bagio.JointReading]:
+    """Pass readings through, redrawing one ``done/total`` line on stderr twice a second.
 
+    A plain line instead of a progress-bar library: one dependency fewer on a robot,
+    and all a replay at ~10-50 k readings/s needs.
+    """
+    def line(n: int, elapsed: float) -> str:
+        rate = n / elapsed if elapsed > 0 else 0.0
+        share = f" ({100 * n / total:3.0f} %)" if total else ""
+        return f"\r[replay] {_si(n)}/{_si(total)} readings{share} {_si(int(rate))}/s"
+
+    start = last = time.monotonic()
+    n = 0
+    for n, r in enumerate(readings, 1):
+        now = time.monotonic()
+        if now - last >= 0.5:
+            sys.stderr.write(line(n, now - start))
+            sys.stderr.flush()
+            last = now
+        yield r
+    sys.stderr.write(line(n, time.monotonic() - start) + "\n")
+    sys.stderr.flush()
+
+
+def _si(n: int) -> str:
+    return f"{n / 1e6:.2f}M" if n >= 10**6 else f"{n / 1e3:.2f}k" if n >= 1000 else str(n)
+
+
+def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, _Trajectory]:
+    """Replay into staged outputs; they get their names only if the whole replay worked."""
     traj = _Trajectory()
     with ExitStack() as stack:
         reader = stack.enter_context(bagio.open_bag(args.bag))
         total = bagio.count_messages(reader, args.topic)
-        writer = (
-            stack.enter_context(bagio.BagWriter(args.output, args.storage))
-            if args.output else None
-        )
-        csv_out = stack.enter_context(bagio.CsvWriter(args.csv)) if args.csv else None
+        writer = None
+        if args.output:
+            staged = stack.enter_context(bagio.staged(args.output))
+            writer = stack.enter_context(bagio.BagWriter(staged, args.storage))
+        csv_out = None
+        if args.csv:
+            csv_out = stack.enter_context(bagio.CsvWriter(stack.enter_context(
+                bagio.staged(args.csv))))
         passthrough = None
         if writer is not None:
             writer.add_topic(args.odom_topic, bagio.ODOMETRY)
@@ -369,16 +445,13 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
                 writer.add_topic(args.tf_topic, bagio.TF_MESSAGE)
             if args.keep_input:
                 passthrough = _keep_input(reader, writer, args)
-        readings = bagio.iter_joint_states(
+        readings: Iterable[bagio.JointReading] = bagio.iter_joint_states(
             reader, args.topic, passthrough,
             jump_back_ns=int(settings.estimator.time_jump_threshold * 1e9))
         show = args.progress if args.progress is not None else (
             sys.stderr.isatty() and total >= PROGRESS_MIN_READINGS)
         if show:
-            from tqdm import tqdm  # type: ignore[import-untyped]
-
-            readings = stack.enter_context(
-                tqdm(readings, total=total, unit="reading", unit_scale=True, file=sys.stderr))
+            readings = _progress(readings, total)
         sink = _sink(settings, writer, csv_out, traj if args.eval else None, args)
         stats = replay_readings(readings, settings, sink)
     return stats, traj

@@ -7,8 +7,11 @@ exactly the same way.
 
 from __future__ import annotations
 
+import itertools
+import os
 import sys
 from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
 from typing import Any, Generic, TypeVar, cast
 
 import rclpy
@@ -154,8 +157,26 @@ class ParameterGuard(Generic[T]):
 
 
 def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
-    """Init rclpy, build the node, spin until Ctrl-C; a bad parameter exits 2 with one line."""
-    rclpy.init(args=list(args) if args is not None else sys.argv)
+    """Init rclpy, build the node, spin until Ctrl-C; a bad start exits 2 with one line.
+
+    Before rclpy sees the command line: ``--help`` prints :func:`usage` (exit 0);
+    arguments outside ``--ros-args`` and a missing ``--params-file`` are named with
+    the right form (exit 2), because rclpy would ignore the first and die with a
+    traceback on the second; any other error of rcl's start is one line too.
+    """
+    argv = list(args) if args is not None else list(sys.argv)
+    problem = _check_command_line(argv)
+    if problem == "--help":
+        print(usage(node_factory, argv))
+        return 0
+    if problem is not None:
+        print(f"[{_program()}] {problem}", file=sys.stderr)
+        return 2
+    try:
+        rclpy.init(args=argv)
+    except Exception as err:  # rclpy's RCLError: an unreadable params file, a bad remap
+        print(f"[{_program()}] cannot start: {_first_line(err)}", file=sys.stderr)
+        return 2
     node: Node | None = None
     try:
         try:
@@ -179,6 +200,141 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _first_line(err: BaseException) -> str:
+    """The message of an rcl error without its C source locations (", at parser.c:271")."""
+    text = str(err).strip()
+    line = text.splitlines()[0] if text else type(err).__name__
+    return line.split(", at /")[0]
+
+
+def _split_ros_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """(inside, outside) the ``--ros-args ... [--]`` blocks, program name excluded.
+
+    rclpy's ``remove_ros_args`` would also drop a bare ``name:=value`` outside the
+    blocks (rcl's deprecated remap syntax), hiding exactly the mistake of a parameter
+    given without ``--ros-args``; so the split is done here, by rcl's block rule.
+    """
+    inside: list[str] = []
+    outside: list[str] = []
+    in_block = False
+    for a in argv[1:]:
+        if a == "--ros-args":
+            in_block = True
+        elif a == "--" and in_block:
+            in_block = False
+        else:
+            (inside if in_block else outside).append(a)
+    return inside, outside
+
+
+def _ros_args(argv: Sequence[str]) -> list[str]:
+    return _split_ros_args(argv)[0]
+
+
+_ROS_FLAGS = ("-p", "--param", "-r", "--remap", "--params-file", "--log-level", "-e", "--enclave")
+
+
+def _check_command_line(argv: Sequence[str]) -> str | None:
+    """``"--help"``, a one-line reason the command line cannot work, or None."""
+    program = _program()
+    ros, rest = _split_ros_args(argv)
+    for flag, value in itertools.pairwise(ros):
+        if flag == "--params-file":
+            path = Path(value)
+            if not path.is_file():
+                return f"--params-file {value}: no such file"
+            if not os.access(path, os.R_OK):
+                return f"--params-file {value}: not readable"
+    if any(a in ("-h", "--help") for a in rest):
+        return "--help"
+    if not rest:
+        return None
+    given = " ".join(rest)
+    if all(a.startswith(_ROS_FLAGS) or ":=" in a or (i and rest[i - 1] in _ROS_FLAGS)
+           for i, a in enumerate(rest)):
+        fixed = " ".join(f"-p {a}" if ":=" in a and (not i or rest[i - 1] not in _ROS_FLAGS)
+                         else a for i, a in enumerate(rest))
+        return (f"'{given}' must follow --ros-args: `{program} --ros-args {fixed}` "
+                f"(see `{program} --help`)")
+    return (f"unexpected argument(s) '{given}': {program} takes its settings as ROS "
+            f"parameters after --ros-args, e.g. `{program} --ros-args --params-file FILE "
+            f"-p NAME:=VALUE` (see `{program} --help`)")
+
+
+# Ships with the package (the demo's file): valid values for every node, so --help can
+# build the node and list the topics it really creates.
+_EXAMPLE_PARAMS = Path(__file__).resolve().parent / "data" / "demo_params.yaml"
+
+
+def usage(node_factory: Callable[[], Node], argv: Sequence[str] = ()) -> str:
+    """``--help`` text: what the node does, its topics and services, where parameters go.
+
+    The topics come from building the node (demo parameters, then the user's own ROS
+    arguments, so remaps and namespaces show) and asking it, never from a hand-kept
+    list that could drift from the code.
+    """
+    program = _program()
+    module = sys.modules.get(node_factory.__module__)
+    summary = ((module.__doc__ if module else None) or "").strip().split("\n\n")[0]
+    lines = [
+        f"usage: {program} [--help] [--ros-args [--params-file FILE] [-p NAME:=VALUE ...] "
+        "[-r FROM:=TO ...]]",
+        "",
+        " ".join(summary.replace("``", "").split()),
+        "",
+    ]
+    endpoints = _endpoints(node_factory, argv)
+    if endpoints:
+        lines.append("topics and services (with the example parameters and your ROS arguments):")
+        width = max(len(name) for _, name, _ in endpoints)
+        lines += [f"  {kind:<11s} {name:<{width}s}  {kind_type}"
+                  for kind, name, kind_type in endpoints]
+        lines.append("")
+    lines += [
+        "Parameters, remaps and the namespace go after --ros-args, as for every ROS 2 node:",
+        f"  {program} --ros-args --params-file my_robot.yaml -p wheel_radius:=0.033 "
+        "-r __ns:=/robot1",
+        "Every parameter, its default and meaning: config/diffdrive_odom.yaml (installed in",
+        f"share/diffdrive_odom/config) and the '{program}' section of the package's README.md.",
+    ]
+    return "\n".join(lines)
+
+
+def _type_name(cls: Any, kind: str) -> str:
+    return f"{cls.__module__.split('.')[0]}/{kind}/{cls.__name__}"
+
+
+def _endpoints(
+    node_factory: Callable[[], Node], argv: Sequence[str]
+) -> list[tuple[str, str, str]]:
+    """(direction, name, type) of what the node creates; empty if it cannot be built.
+
+    Uses the default context and shuts it down again: ``--help`` ends the process.
+    """
+    ros = ["--ros-args", "--log-level", "fatal", "--params-file", str(_EXAMPLE_PARAMS)]
+    try:
+        rclpy.init(args=[_program(), *ros, *_ros_args(argv)])
+    except Exception:
+        return []
+    try:
+        node = node_factory()
+    except Exception:  # a user's -p that cannot work: the usage text still helps
+        rclpy.try_shutdown()
+        return []
+    try:
+        ours = [("subscribes", s.topic_name, _type_name(s.msg_type, "msg"))
+                for s in node.subscriptions]
+        ours += [("publishes", p.topic_name, _type_name(p.msg_type, "msg"))
+                 for p in node.publishers]
+        ours += [("service", node.resolve_service_name(s.srv_name),
+                  _type_name(s.srv_type, "srv")) for s in node.services]
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    infrastructure = ("rcl_interfaces/", "type_description_interfaces/")
+    return [e for e in ours if not e[2].startswith(infrastructure)]
 
 
 def _program() -> str:

@@ -14,9 +14,10 @@ switchable, all random draws from one seeded ``numpy.random.Generator``:
 - encoders that count whole ticks (``ticks_per_revolution``) in a fixed-width
   counter that wraps (``counter_bits``), starting from any count;
 - wheel slip: the ground arc of each side differs from the arc its wheel rolled by
-  Gaussian noise whose variance grows in proportion to the distance rolled (seed 003
-  section 2.3 adds unit Gaussian noise to the wheel speeds; scaling it with distance
-  makes it independent of the step size and zero at rest). Encoders see the wheel,
+  Gaussian noise whose variance grows in proportion to the distance rolled (Carroll
+  and Jha, "Differential Drive Kinematics", section 2.3, add unit Gaussian noise to
+  the wheel speeds; scaling it with distance makes it independent of the step size
+  and zero at rest). Encoders see the wheel,
   the pose follows the ground, so slip is invisible to odometry, as on a real robot;
 - a command timeout: no command for ``command_timeout`` seconds -> the wheels are
   commanded to stop (what a real motor driver's watchdog does).
@@ -304,7 +305,7 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
               "First-order motor response [s]; 0 = wheels follow commands at once."),
     ParamSpec("slip_stddev", "double", 0.0,
               "Wheel slip [m]: std of one side's ground-arc error after 1 m rolled "
-              "(variance grows with distance, seed 003 sec. 2.3)."),
+              "(variance grows with distance; Carroll and Jha, sec. 2.3)."),
     ParamSpec("random_seed", "integer", 0,
               "Seed of the slip noise (same seed, same run).", read_only=True),
     ParamSpec("command_timeout", "double", 0.5,

@@ -10,6 +10,7 @@ import csv
 import itertools
 import math
 import random
+from decimal import Decimal
 from pathlib import Path
 from typing import Any
 
@@ -170,13 +171,34 @@ def test_csv_header_is_the_documented_one_and_values_round_trip(tmp_path: Path) 
     assert all(f"``{c}``" in (bagio.__doc__ or "") for c in bagio.CSV_COLUMNS)
     ns, x, y, yaw, v, w, status = rows[0]
     back = got[1]
-    assert int(back[0]) == ns and float(back[1]) == ns * 1e-9
+    assert int(back[0]) == ns and back[1] == "1600000000.050000001"
     assert [float(c) for c in back[2:7]] == [x, y, yaw, v, w] and back[7] == status
+
+
+def test_csv_stamps_round_trip_exactly(tmp_path: Path) -> None:
+    """1600000000.100000001 s: a float in seconds cannot hold it (0.24 us spacing there)."""
+    ns = 1_600_000_000 * 10**9 + 100_000_001
+    assert float(ns * 1e-9) != Decimal("1600000000.100000001")  # why floats will not do
+    path = tmp_path / "o.csv"
+    with bagio.CsvWriter(path) as out:
+        out.row(ns, 0.0, 0.0, 0.0, 0.0, 0.0, "updated")
+    with open(path, newline="", encoding="utf-8") as f:
+        row = dict(zip(bagio.CSV_COLUMNS, list(csv.reader(f))[1], strict=True))
+    assert int(row["stamp_ns"]) == ns
+    assert row["time"] == "1600000000.100000001"
+    assert Decimal(row["time"]) * 10**9 == ns
 
 
 def test_unusable_bags_raise_one_clear_error(tmp_path: Path) -> None:
     with pytest.raises(bagio.BagError, match="no such bag"):
         bagio.open_bag(tmp_path / "missing")
+    (tmp_path / "empty_dir").mkdir()
+    (tmp_path / "notes.txt").write_text("not a bag\n")
+    (tmp_path / "fake.bag").write_text("not a bag either\n")
+    for name in ("empty_dir", "notes.txt", "fake.bag"):
+        with (pytest.raises(bagio.BagError, match=f"{name}: not a readable bag"),
+              bagio.open_bag(tmp_path / name)):
+            pass
     with pytest.raises(bagio.BagError, match=r"/ground_truth/pose"):
         list(bagio.read_joint_states(RUN04, "/wheels"))
     with bagio.open_bag(RUN04) as reader, pytest.raises(bagio.BagError, match="has type"):

@@ -223,3 +223,71 @@ def test_reference_types_and_the_cli(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert cli(["eval", str(bag), "--odom", "/odometry", "--ground-truth", "/tf"]) == 2
     assert cli(["eval", str(bag), "--odom", "/nothing"]) == 2
     assert "not in the bag" in capsys.readouterr().err
+
+
+def test_eval_on_a_bag_like_the_demo_s_needs_no_topic_flags(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The demo and sim_node write /ground_truth/odom; eval's defaults must find it."""
+    from diffdrive_odom.demo import BAG_TOPICS
+
+    assert "/ground_truth/odom" in BAG_TOPICS and "/odom" in BAG_TOPICS
+    ref = _square(n_side=40)
+    bag = tmp_path / "bag"
+    msgs = bagio.OdomMessages(bagio.typestore(), "odom", "base_link")
+    cov = [0.0] * 36
+    with bagio.BagWriter(bag) as w:
+        for topic in ("/odom", "/ground_truth/odom"):
+            w.add_topic(topic, bagio.ODOMETRY)
+        w.add_topic("/tf", bagio.TF_MESSAGE)
+        for ns, x, y, yaw in zip(ref.stamp_ns, ref.x, ref.y, ref.yaw, strict=True):
+            args = (int(ns), float(x), float(y), float(yaw))
+            w.write("/odom", int(ns), msgs.odometry(*args, 0.0, 0.0, cov, cov))
+            w.write("/ground_truth/odom", int(ns), msgs.odometry(
+                int(ns), float(x) + 0.1, float(y), float(yaw), 0.0, 0.0, cov, cov))
+            w.write("/tf", int(ns), msgs.tf(*args))
+    out = tmp_path / "m.json"
+    assert cli(["eval", str(bag), "--json", str(out)]) == 0
+    assert "using /ground_truth/odom" in capsys.readouterr().err
+    assert json.loads(out.read_text())["ate_rmse_m"] == pytest.approx(0.1, abs=1e-12)
+    # Odometry on /tf with one child frame: that frame, and eval says so.
+    assert cli(["eval", str(bag), "--odom", "/tf", "--json", str(out)]) == 0
+    assert "child frame 'base_link'" in capsys.readouterr().err
+    assert json.loads(out.read_text())["ate_rmse_m"] == pytest.approx(0.1, abs=1e-12)
+
+
+def test_eval_names_the_flag_that_picks_a_tf_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag = tmp_path / "ref"
+    _write_reference_bag(bag, _square(n_side=40))  # /tf has frames 'other' and 'robot'
+    assert cli(["eval", str(bag), "--odom", "/tf", "--ground-truth", "/pose"]) == 2
+    err = capsys.readouterr().err
+    assert "--odom-child-frame" in err and "'other', 'robot'" in err
+    assert cli(["eval", str(bag), "--odom", "/tf", "--odom-child-frame", "robot",
+                "--ground-truth", "/pose"]) == 0
+    assert cli(["eval", str(bag), "--odom", "/pose", "--ground-truth", "/tf"]) == 2
+    err = capsys.readouterr().err
+    assert "--child-frame" in err and "--odom-child-frame" not in err
+
+
+def test_eval_refuses_unusable_paths_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag = tmp_path / "ref"
+    _write_reference_bag(bag, _square(n_side=40))
+    text = tmp_path / "notes.txt"
+    text.write_text("not a bag\n")
+    ok = ["eval", str(bag), "--odom", "/odometry", "--ground-truth", "/pose"]
+    cases = {
+        str(text): ["eval", str(text)],
+        "--plot": [*ok, "--plot", str(tmp_path / "missing_dir" / "p.png")],
+        "--json": [*ok, "--json", str(tmp_path)],
+        "no ground-truth topic": ["eval", str(bag), "--odom", "/odometry"],
+    }
+    for name, argv in cases.items():
+        assert cli(argv) == 2, name
+        captured = capsys.readouterr()
+        lines = captured.err.strip().splitlines()
+        assert len(lines) == 1 and name in lines[0], lines
+        assert captured.out == "", name

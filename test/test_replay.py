@@ -156,9 +156,11 @@ def test_keep_input_copies_ros1_topics_as_cdr_and_refuses_a_topic_clash(
 ) -> None:
     params = write_params(tmp_path / "p.yaml", TB3_PARAMS)
     # The bag's /odom is Gazebo's ground truth: the output topic must not clash with it.
+    before = set(tmp_path.iterdir())
     assert cli(["replay", str(TB3), "--params-file", str(params), "-o",
-                str(tmp_path / "clash"), "--keep-input"]) == 2
+                str(tmp_path / "clash"), "--keep-input", "--csv", str(tmp_path / "c.csv")]) == 2
     assert "--odom-topic" in capsys.readouterr().err
+    assert set(tmp_path.iterdir()) == before  # a failed replay leaves nothing behind
     out = tmp_path / "out"
     assert cli(["replay", str(TB3), "--params-file", str(params), "-o", str(out),
                 "--keep-input", "--odom-topic", "/wheel/odom", "--storage", "sqlite3"]) == 0
@@ -312,11 +314,12 @@ def test_replay_eval_in_one_go_equals_eval_on_the_output(tmp_path: Path) -> None
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_progress_bar_on_request(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+def test_progress_line_on_request(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     params = write_params(tmp_path / "p.yaml", TB3_PARAMS)
-    assert cli(["replay", str(TB3), "--params-file", str(params), "--progress"]) == 0
+    assert cli(["replay", str(TB3), "--params-file", str(params), "--progress",
+                "--csv", str(tmp_path / "o.csv")]) == 0
     captured = capfd.readouterr()
-    assert "2.74k/2.74k" in captured.err  # tqdm's bar, total from the bag index
+    assert "2.74k/2.74k readings (100 %)" in captured.err  # total from the bag index
     assert "2741 readings" in captured.out
 
 
@@ -383,3 +386,62 @@ def test_wrong_joint_names_exit_2_naming_both_lists_and_write_nothing(
     for name in ("left_wheel_joint", "right_wheel_joint", "wheel_left", "wheel_right"):
         assert name in err[0], err[0]
     assert not out.exists() and not table.exists()
+
+
+def test_a_replay_with_nothing_to_do_says_so_before_working(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    params = write_params(tmp_path / "p.yaml", TB3_PARAMS)
+    assert cli(["replay", str(TB3), "--params-file", str(params)]) == 2
+    captured = capsys.readouterr()
+    assert "nothing to do" in captured.err and captured.out == ""  # no replay ran
+
+
+def test_unusable_outputs_and_inputs_are_one_line_before_any_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    params = write_params(tmp_path / "p.yaml", TB3_PARAMS)
+    base = ["replay", str(TB3), "--params-file", str(params)]
+    (tmp_path / "a_dir").mkdir()
+    not_a_bag = tmp_path / "notes.txt"
+    not_a_bag.write_text("not a bag\n")
+    cases = {
+        "--csv": [*base, "--csv", str(tmp_path / "no" / "such" / "dir.csv")],
+        "-o": [*base, "-o", str(tmp_path / "a_dir")],
+        "--plot": [*base, "--csv", str(tmp_path / "o.csv"), "--eval", "/odom",
+                   "--plot", str(tmp_path / "a_dir")],
+        "not a readable bag": ["replay", str(not_a_bag), "--params-file", str(params),
+                               "--csv", str(tmp_path / "o.csv")],
+        "--params-file": [*base[:2], "--params-file", str(tmp_path / "nope.yaml"), "--csv",
+                          str(tmp_path / "o.csv")],
+    }
+    for name, argv in cases.items():
+        assert cli(argv) == 2, name
+        captured = capsys.readouterr()
+        lines = captured.err.strip().splitlines()
+        assert len(lines) == 1 and name in lines[0], (name, captured.err)
+        assert captured.out == "", name
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_dir", "notes.txt", "p.yaml"]
+
+
+def test_replay_eval_finds_a_ground_truth_topic_by_its_name(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A bag whose ground truth is on /ground_truth/odom, as sim_node and the demo write."""
+    src = DATA / "optiodom" / RUNS[1]
+    bag = tmp_path / "sim_like"
+    with bagio.open_bag(src) as reader, bagio.BagWriter(bag) as writer:
+        for conn in reader.connections:
+            name = "/ground_truth/odom" if conn.topic == "/ground_truth/pose" else conn.topic
+            writer.add_topic(name, conn.msgtype)
+        for conn, log_ns, raw in reader.messages():
+            name = "/ground_truth/odom" if conn.topic == "/ground_truth/pose" else conn.topic
+            writer.write_cdr(name, log_ns, bytes(raw))
+    params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+    figures = tmp_path / "m.json"
+    assert cli(["replay", str(bag), "--params-file", str(params), "--eval",
+                "--json", str(figures)]) == 0
+    assert "using /ground_truth/odom" in capsys.readouterr().err
+    # run-04 with nominal geometry ends 0.1075 m from motion capture (README figure)
+    assert json.loads(figures.read_text())["final_position_error_m"] == pytest.approx(
+        0.1075, abs=5e-4)
