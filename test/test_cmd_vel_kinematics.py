@@ -1,7 +1,7 @@
 """Inverse kinematics checked against independent forward kinematics.
 
 FK is the odometry estimator's own (``kinematics.body_increment``) and, for the
-control point, seed 001's Jacobian J (eq. 22) written out from the text; neither is
+control point, Kumar's Jacobian J ("Kinematics of Wheeled Robots", eq. 22) written out from the text; neither is
 the code under test. Expected values are the commands themselves (round trips).
 """
 
@@ -58,8 +58,8 @@ def test_wheel_signs_make_joint_rates_roll_forward(geometry: Geometry, v: float,
     assert right * geometry.right_wheel_sign > 0
 
 
-def seed001_jacobian(r: float, d: float, offset: float, theta: float) -> np.ndarray:
-    """Seed 001 eq. 22, with its columns for (left, right) in REP-103 order.
+def kumar_jacobian(r: float, d: float, offset: float, theta: float) -> np.ndarray:
+    """Kumar, "Kinematics of Wheeled Robots", eq. 22, with its columns for (left, right) in REP-103 order.
 
     The seed writes theta_dot = -r/d q1 + r/d q2, i.e. its first column is the wheel
     whose faster turning makes the robot turn clockwise: our *left* wheel.
@@ -89,8 +89,8 @@ def test_control_point_velocity_recomputed_from_wheels_equals_command(
     scale = abs(vx) + abs(vy) / abs(offset) + 1.0
     assert close(v2, vx, scale)
     assert close(offset * w2, vy, scale)
-    # World frame, with the seed's Jacobian: J q_dot = R(theta) (vx, vy).
-    xi = seed001_jacobian(r, d, offset, theta) @ np.array([left, right])
+    # World frame, with Kumar's Jacobian: J q_dot = R(theta) (vx, vy).
+    xi = kumar_jacobian(r, d, offset, theta) @ np.array([left, right])
     c, s = math.cos(theta), math.sin(theta)
     expected = np.array([c * vx - s * vy, s * vx + c * vy])
     assert np.allclose(xi, expected, atol=1e-9 * scale)

@@ -105,7 +105,7 @@ def test_one_percent_larger_right_wheel_drifts_as_the_kinematics_predict(
         heading_gap, predicted_heading)
 
     # Position, from the route: each commanded (v, w) becomes the true robot's
-    # (v', w') (seed 003 eq. 1 with the wheel rates of the nominal inverse kinematics);
+    # (v', w') (ELEC6530 homework eq. 1 with the wheel rates of the nominal inverse kinematics);
     # both routes integrated in closed form. Coarse: on a busy machine the executed
     # turns differ from the script by a step or two (about 1-2 degrees each).
     def true_twist(v: float, w: float) -> tuple[float, float]:

@@ -103,7 +103,7 @@ def test_several_wheels_per_side_are_averaged() -> None:
 
 
 def test_different_wheel_radii_follow_seed_003() -> None:
-    # Seed 003 eq. 1: v = (r_R w_R + r_L w_L) / 2, w = (r_R w_R - r_L w_L) / d.
+    # ELEC6530 homework eq. 1: v = (r_R w_R + r_L w_L) / 2, w = (r_R w_R - r_L w_L) / d.
     geometry = Geometry(0.1, 0.4, left_wheel_radius_multiplier=0.9,
                         right_wheel_radius_multiplier=1.2, wheel_separation_multiplier=1.1)
     r_left, r_right, d = 0.09, 0.12, 0.44

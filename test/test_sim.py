@@ -33,7 +33,7 @@ def test_equal_rates_drive_straight() -> None:
 
 @pytest.mark.parametrize("step_ns", [1_000_000, 20_000_000, 700_000_000])
 def test_unequal_radii_drive_the_textbook_circle(step_ns: int) -> None:
-    # Seed 003 eq. 1 with r_L != r_R, then x = R sin(wt), y = R (1 - cos wt).
+    # ELEC6530 homework eq. 1 with r_L != r_R, then x = R sin(wt), y = R (1 - cos wt).
     r_left, r_right, b = 0.05, 0.052, 0.3
     g = Geometry(0.05, b, right_wheel_radius_multiplier=r_right / 0.05)
     w_left, w_right = 3.0, 5.0
