@@ -1,8 +1,9 @@
 """Inverse kinematics checked against independent forward kinematics.
 
 FK is the odometry estimator's own (``kinematics.body_increment``) and, for the
-control point, Kumar's Jacobian J ("Kinematics of Wheeled Robots", eq. 22) written out from the text; neither is
-the code under test. Expected values are the commands themselves (round trips).
+control point, Kumar's Jacobian J ("Kinematics of Wheeled Robots", eq. 22) written
+out from the text; neither is the code under test. Expected values are the commands
+themselves (round trips).
 """
 
 from __future__ import annotations
@@ -59,9 +60,9 @@ def test_wheel_signs_make_joint_rates_roll_forward(geometry: Geometry, v: float,
 
 
 def kumar_jacobian(r: float, d: float, offset: float, theta: float) -> np.ndarray:
-    """Kumar, "Kinematics of Wheeled Robots", eq. 22, with its columns for (left, right) in REP-103 order.
+    """Kumar, "Kinematics of Wheeled Robots", eq. 22; columns (left, right) in REP-103 order.
 
-    The seed writes theta_dot = -r/d q1 + r/d q2, i.e. its first column is the wheel
+    The paper writes theta_dot = -r/d q1 + r/d q2, i.e. its first column is the wheel
     whose faster turning makes the robot turn clockwise: our *left* wheel.
     """
     c, s = math.cos(theta), math.sin(theta)

@@ -1,4 +1,4 @@
-"""The CIR step (Furlan, Marzorati, Sorrenti) against closed forms derived by hand, never from the code.
+"""The CIR step (Furlan, Marzorati, Sorrenti) against closed forms derived by hand.
 
 Expected values come from circle geometry: constant wheel rates give a constant
 curvature, so the exact path is a line or a circle whose radius, period and end
@@ -130,8 +130,8 @@ def test_unit_robot_left_1_right_2_for_1s(steps: int) -> None:
 
 
 def test_each_wheel_arc_is_its_distance_to_the_cir_times_the_angle() -> None:
-    # Furlan, Marzorati, Sorrenti section II: s_right = d * angle with d the right wheel's distance to the
-    # CIR; s_left = (d + b) * angle (the left wheel is b further from it).
+    # Furlan, Marzorati, Sorrenti section II: s_right = d * angle with d the right
+    # wheel's distance to the CIR; s_left = (d + b) * angle (the left wheel is b further from it).
     geometry = Geometry(0.2, 0.6)
     ds, dtheta = body_increment(geometry, 0.3, 0.9)
     s_left, s_right = 0.2 * 0.3, 0.2 * 0.9
@@ -200,8 +200,9 @@ def homogeneous(x: float, y: float, theta: float) -> Matrix:
 
 @pytest.mark.parametrize(("s_left", "s_right"), [(0.2, 0.45), (0.5, 0.1), (-0.3, 0.25)])
 def test_three_primitive_transforms_compose_to_the_step(s_left: float, s_right: float) -> None:
-    # Furlan, Marzorati, Sorrenti section II-V, REP-103 signs: angle = (s_right - s_left) / b; the CIR is
-    # on the wheel axle at distance d = s_right / angle from the right wheel (y = -b/2).
+    # Furlan, Marzorati, Sorrenti sections II-V, REP-103 signs: angle = (s_right -
+    # s_left) / b; the CIR is on the wheel axle at distance d = s_right / angle from the
+    # right wheel (y = -b/2).
     b = 0.4
     angle = (s_right - s_left) / b
     cir_y = -b / 2 + s_right / angle

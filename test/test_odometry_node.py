@@ -52,7 +52,7 @@ def listen(node: Node, odom_topic: str) -> Sink:
 
 
 def arc_closed_form(s_left: float, s_right: float, b: float) -> tuple[float, float, float]:
-    """Pose after rolling arcs s_left, s_right at constant ratio (Furlan, Marzorati, Sorrenti; R sin, R(1-cos))."""
+    """Pose after arcs s_left, s_right at constant ratio: R sin, R (1 - cos) (Furlan et al.)."""
     theta = (s_right - s_left) / b
     ds = 0.5 * (s_left + s_right)
     if theta == 0.0:
