@@ -49,6 +49,7 @@ from diffdrive_odom import bagio, evaluate, ros_common, routes
 from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.odometry import quaternion_to_yaw
 from diffdrive_odom.params import (
+    EXAMPLE_PARAMS_FILE,
     OdometrySettings,
     ParameterError,
     ParamValue,
@@ -59,7 +60,7 @@ from diffdrive_odom.pipeline import ReadingPipeline
 from diffdrive_odom.routes import Route
 from diffdrive_odom.sim import SimSettings, sim_settings
 
-DEFAULT_PARAMS = Path(__file__).resolve().parent / "data" / "demo_params.yaml"
+DEFAULT_PARAMS = EXAMPLE_PARAMS_FILE
 PROGRAM = "diffdrive-odom demo"
 # Bag topic -> message type; what the other tools (eval, replay, play) read.
 BAG_TOPICS: dict[str, str] = {

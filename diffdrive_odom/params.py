@@ -25,6 +25,10 @@ from diffdrive_odom.odometry import EstimatorConfig
 
 ParamValue = Any
 
+# Ships with the package: the example robot (the demo's), valid for every node, so the
+# demo runs and `--help` can build a node without a file of the user's.
+EXAMPLE_PARAMS_FILE = Path(__file__).resolve().parent / "data" / "demo_params.yaml"
+
 
 def _as_float(name: str, value: ParamValue) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):

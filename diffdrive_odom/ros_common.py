@@ -36,6 +36,7 @@ from rclpy.qos import (
 from diffdrive_odom.diagnostics import Report
 from diffdrive_odom.odometry import stamp_to_ns as stamp_to_ns  # re-exported
 from diffdrive_odom.params import (
+    EXAMPLE_PARAMS_FILE,
     ParameterError,
     ParamSpec,
     ParamValue,
@@ -263,11 +264,6 @@ def _check_command_line(argv: Sequence[str]) -> str | None:
             f"-p NAME:=VALUE` (see `{program} --help`)")
 
 
-# Ships with the package (the demo's file): valid values for every node, so --help can
-# build the node and list the topics it really creates.
-_EXAMPLE_PARAMS = Path(__file__).resolve().parent / "data" / "demo_params.yaml"
-
-
 def usage(node_factory: Callable[[], Node], argv: Sequence[str] = ()) -> str:
     """``--help`` text: what the node does, its topics and services, where parameters go.
 
@@ -313,7 +309,7 @@ def _endpoints(
 
     Uses the default context and shuts it down again: ``--help`` ends the process.
     """
-    ros = ["--ros-args", "--log-level", "fatal", "--params-file", str(_EXAMPLE_PARAMS)]
+    ros = ["--ros-args", "--log-level", "fatal", "--params-file", str(EXAMPLE_PARAMS_FILE)]
     try:
         rclpy.init(args=[_program(), *ros, *_ros_args(argv)])
     except Exception:
