@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import cProfile
 import json
+import math
 import os
 import pstats
 import select
@@ -92,10 +93,12 @@ def _wait(cond: Callable[[], bool], timeout: float) -> bool:
 
 
 def role_pub(topic: str, rate: float, count: int, base_ns: int) -> int:
-    """Waits for the system's subscription, then for ``go`` on stdin, then publishes.
+    """Waits for the system's subscription; on ``warm`` publishes at 20 Hz until ``go``
+    (DDS matching finishes on both sides), then publishes ``count`` at ``rate``.
 
     Joint positions are speed x (stamp - base), one base for the whole run, so the
-    node sees one steady motion across trials (never a jump it would re-anchor on).
+    node sees one steady motion across trials and warm-up (never a jump it would
+    re-anchor on).
     """
     rclpy.init()
     node = Node("bench_pub")
@@ -104,59 +107,68 @@ def role_pub(topic: str, rate: float, count: int, base_ns: int) -> int:
         print("no subscriber", flush=True)
         return 1
     print("ready", flush=True)
-    sys.stdin.readline()
     msg = JointState()
     msg.name = ["left_wheel_joint", "right_wheel_joint"]
-    period = 1e9 / rate
-    t0 = time.monotonic_ns()
-    for k in range(count):
-        due = t0 + k * period
-        while (now := time.monotonic_ns()) < due:
-            if due - now > 200_000:
-                time.sleep((due - now - 100_000) / 1e9)
+
+    def send() -> int:
         ns = time.time_ns()
         msg.header.stamp = ros_common.ns_to_stamp(ns, msg.header.stamp)
         t = (ns - base_ns) / 1e9
         msg.position = [WHEEL_SPEEDS[0] * t, WHEEL_SPEEDS[1] * t]
         pub.publish(msg)
+        return ns
+
+    sys.stdin.readline()  # "warm"
+    while not select.select([sys.stdin], [], [], 0.05)[0]:
+        send()
+    sys.stdin.readline()  # "go"
+    period = 1e9 / rate
+    t0 = time.monotonic_ns()
+    start_ns = 0
+    for k in range(count):
+        due = t0 + k * period
+        while (now := time.monotonic_ns()) < due:
+            if due - now > 200_000:
+                time.sleep((due - now - 100_000) / 1e9)
+        ns = send()
+        start_ns = start_ns or ns
     elapsed = (time.monotonic_ns() - t0) / 1e9
-    print(json.dumps({"sent": count, "elapsed": elapsed}), flush=True)
+    print(json.dumps({"sent": count, "elapsed": elapsed, "start_ns": start_ns}), flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0
 
 
-def role_sub(topic: str, count: int) -> int:
-    """Counts Odometry and keeps stamp-to-receive latencies; prints one JSON line."""
+def role_sub(topic: str) -> int:
+    """Prints ``warm`` at the first Odometry, then, once messages stop for a while,
+    one JSON line of every message's stamp and stamp-to-receive latency."""
     rclpy.init()
     executor, _ = ros_common.make_executor("events")
     node = Node("bench_sub")
+    stamps: list[int] = []
     latencies: list[int] = []
     last = [0.0]
 
     def on_odom(msg: Odometry) -> None:
-        latencies.append(time.time_ns() - ros_common.stamp_to_ns(msg.header.stamp))
+        stamp = ros_common.stamp_to_ns(msg.header.stamp)
+        latencies.append(time.time_ns() - stamp)
+        stamps.append(stamp)
         last[0] = time.monotonic()
+        if len(stamps) == 1:
+            print("warm", flush=True)
 
     sub = node.create_subscription(Odometry, topic, on_odom, ros_common.RELIABLE_OUT_QOS)
     executor.add_node(node)
     if not _wait(lambda: sub.get_publisher_count() > 0, 30.0):
-        print(json.dumps({"error": "no publisher"}), flush=True)
+        print("no publisher", flush=True)
         return 1
-    time.sleep(0.3)  # let the reliable writer match us too
     print("ready", flush=True)
-    deadline = time.monotonic() + 60.0
-    while len(latencies) < count and time.monotonic() < deadline:
+    deadline = time.monotonic() + 120.0
+    while time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
-        if latencies and time.monotonic() - last[0] > IDLE_END_S:
+        if stamps and time.monotonic() - last[0] > IDLE_END_S:
             break
-    lat = sorted(latencies)
-    n = len(lat)
-    print(json.dumps({
-        "received": n,
-        "p50_ms": lat[n // 2] / 1e6 if n else float("nan"),
-        "p99_ms": lat[min(n - 1, int(0.99 * n))] / 1e6 if n else float("nan"),
-    }), flush=True)
+    print(json.dumps({"stamps": stamps, "latencies": latencies}), flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0
@@ -223,9 +235,13 @@ def _me(*args: str) -> list[str]:
 
 
 def trial(system: System, rate: int, seconds: float, base_ns: int) -> Trial:
-    """One publisher -> system -> subscriber run; CPU of the system over the run."""
+    """One publisher -> system -> subscriber run; CPU of the system over the run.
+
+    Warm-up messages flow until the subscriber has heard one, so DDS matching is done
+    before the measured messages (stamped from ``start_ns`` on) are sent.
+    """
     count = max(1, round(rate * seconds))
-    sub = _child(_me("--role", "sub", "--topic", system.out_topic, "--count", str(count)))
+    sub = _child(_me("--role", "sub", "--topic", system.out_topic))
     pub = _child(_me("--role", "pub", "--topic", system.in_topic, "--rate", str(rate),
                      "--count", str(count), "--base-ns", str(base_ns)))
     try:
@@ -233,19 +249,32 @@ def trial(system: System, rate: int, seconds: float, base_ns: int) -> Trial:
             answer = _line(proc, 60.0)
             if answer != "ready":
                 raise RuntimeError(f"{system.label}: {role} said {answer!r}")
+        _say(pub, "warm")
+        if (answer := _line(sub, 60.0)) != "warm":
+            raise RuntimeError(f"{system.label}: subscriber said {answer!r}")
+        time.sleep(0.3)
         cpu0 = cpu_seconds(system.pid)
-        assert pub.stdin is not None
-        pub.stdin.write("go\n")
-        pub.stdin.flush()
+        _say(pub, "go")
         sent = json.loads(_line(pub, 60.0 + 2 * seconds))
         got = json.loads(_line(sub, 60.0))
         cpu1 = cpu_seconds(system.pid)
     finally:
         _stop(pub)
         _stop(sub)
+    lat = sorted(ms for stamp, ms in zip(got["stamps"], got["latencies"], strict=True)
+                 if stamp >= sent["start_ns"])
+    n = len(lat)
     achieved = (sent["sent"] - 1) / sent["elapsed"] if sent["elapsed"] > 0 else float(rate)
-    return Trial(rate, sent["sent"], achieved, got["received"],
-                 got["p50_ms"], got["p99_ms"], (cpu1 - cpu0) / sent["sent"] * 1e6)
+    return Trial(rate, sent["sent"], achieved, n,
+                 lat[n // 2] / 1e6 if n else math.nan,
+                 lat[min(n - 1, int(0.99 * n))] / 1e6 if n else math.nan,
+                 (cpu1 - cpu0) / sent["sent"] * 1e6)
+
+
+def _say(proc: subprocess.Popen[str], word: str) -> None:
+    assert proc.stdin is not None
+    proc.stdin.write(word + "\n")
+    proc.stdin.flush()
 
 
 @contextmanager
@@ -360,8 +389,10 @@ def profile(kind: str, rate: int, seconds: float, top: int) -> None:
         t = out[0]
         print(f"profile: {t.sent} messages at {rate} Hz, {t.received} received, "
               f"{t.cpu_us_per_msg:.0f} us CPU/msg (this process, profiler included)")
+    # Wall time: rclpy's wait() is mostly idle blocking, not CPU.
     stats = pstats.Stats(prof)
     stats.sort_stats("tottime").print_stats(top)
+    stats.sort_stats("cumulative").print_stats(r"diffdrive_odom|executors\.py", top)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -383,7 +414,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.role == "pub":
         return role_pub(args.topic, args.rate, args.count, args.base_ns)
     if args.role == "sub":
-        return role_sub(args.topic, args.count)
+        return role_sub(args.topic)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rates = (tuple(int(r) for r in args.rates.split(",")) if args.rates
              else (100,) if args.quick else RATES)
