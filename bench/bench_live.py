@@ -15,7 +15,7 @@ in turn at every rate (interleaved, so machine noise hits all of them alike):
 
 each with rclpy's SingleThreadedExecutor (the default) and the EventsExecutor
 (``DIFFDRIVE_ODOM_EXECUTOR=events``), both built by ros_common.make_executor.
-Rates rise until every system lost messages. CPU per message is the user + system
+Rates rise until every system lost over 1 % of them. CPU per message is the user + system
 time of the system's process (/proc/<pid>/stat) while a trial ran, over messages
 sent. ``--profile`` runs the node in this process under cProfile at 1 kHz instead and
 prints where its time goes.
@@ -198,6 +198,10 @@ class Trial:
     def lossless(self) -> bool:
         return self.received == self.sent
 
+    @property
+    def saturated(self) -> bool:
+        return self.received < 0.99 * self.sent
+
 
 def cpu_seconds(pid: int) -> float:
     """utime + stime of a process (fields 14 and 15 of /proc/<pid>/stat)."""
@@ -313,8 +317,9 @@ def run_bench(rates: tuple[int, ...], seconds: float, kinds: tuple[str, ...]) ->
             order = live[i % len(live):] + live[:i % len(live)]
             for s in order:
                 results[s.label].append(trial(s, rate, seconds, base_ns))
-            # A system stays in while it is loss-free; once it lost, it is done.
-            live = [s for s in live if results[s.label][-1].lossless]
+            # A system climbs until it loses over 1 %: on a loaded machine a stray drop
+            # at a low rate says nothing about its capacity.
+            live = [s for s in live if not results[s.label][-1].saturated]
     print_table(results, seconds)
 
 
@@ -330,16 +335,11 @@ def print_table(results: dict[str, list[Trial]], seconds: float) -> None:
             print(f"{label:14s} {t.rate:7d} {t.achieved_hz:8.0f} {lost:6d} {t.p50_ms:7.2f}"
                   f" {t.p99_ms:7.2f} {t.cpu_us_per_msg:10.0f}")
     print()
-    print(f"{'system':14s} {'loss-free up to Hz':>18s}")
-    best: dict[str, int] = {}
+    print(f"{'system':14s} {'highest loss-free Hz':>20s} {'first > 1 % lost Hz':>20s}")
     for label, trials in results.items():
-        ok = 0
-        for t in trials:
-            if not t.lossless:
-                break
-            ok = t.rate
-        best[label] = ok
-        print(f"{label:14s} {ok:18d}")
+        ok = max((t.rate for t in trials if t.lossless), default=0)
+        worst = next((str(t.rate) for t in trials if t.saturated), "-")
+        print(f"{label:14s} {ok:20d} {worst:>20s}")
     print()
     print("Ratios node / relay at each rate both ran (same executor):")
     print(f"{'executor':9s} {'rate Hz':>7s} {'p50':>6s} {'p99':>6s} {'CPU/msg':>8s}")

@@ -38,7 +38,7 @@ def test_live_bench_prints_its_table() -> None:
     out = run_bench("bench_live.py", 120)
     for system in ("node single", "relay single", "node events", "relay events"):
         assert re.search(rf"^{system}\s+100\s+\d+\s+0\s", out, re.M), out  # 100 Hz, 0 lost
-    assert "loss-free up to Hz" in out and "Ratios node / relay" in out
+    assert "highest loss-free Hz" in out and "Ratios node / relay" in out
 
 
 def test_bad_executor_choice_stops_the_node_with_one_line() -> None:
