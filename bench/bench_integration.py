@@ -2,14 +2,16 @@
 
 Accuracy: a constant-curvature drive has a closed form, so the error of each
 integrator is measured against it over the same encoder steps:
-- Euler (seed 000 eq. 27: heading of the previous pose),
-- midpoint / RK2 (seed 003 eq. 4; diff_drive_controller's fallback below 1e-6 rad),
+- Euler (Caltech ME/CS 133 notes eq. 27: heading of the previous pose),
+- midpoint / RK2 (ELEC6530 homework eq. 4; diff_drive_controller's fallback below
+  1e-6 rad),
 - diff_drive_controller's "exact" form ``r (sin h1 - sin h0)`` with its 1e-6 switch
   (re-derived here from its published math for comparison only),
 - this package's CIR chord (integration.compose).
 Cost: the node's per-reading update, and whole-bag vectorised integration.
 
 Run: .venv/bin/python bench/bench_integration.py
+(bench/bench_accuracy.py compares the steps on fast-turning routes at encoder rates.)
 """
 
 from __future__ import annotations
@@ -54,8 +56,8 @@ def cir(p: tuple[float, float, float], ds: float, dth: float) -> tuple[float, fl
 
 
 METHODS: dict[str, Step] = {
-    "Euler (seed 000)": euler,
-    "RK2 (seed 003)": rk2,
+    "Euler (ME/CS 133)": euler,
+    "RK2 (ELEC6530)": rk2,
     "ddc exact+switch": ddc_exact,
     "CIR chord (ours)": cir,
 }

@@ -23,7 +23,8 @@ from diagnostic_msgs.msg import (
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (
@@ -181,14 +182,14 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     node: Node | None = None
     try:
         try:
+            executor, spin = make_executor()
             node = node_factory()
         except ParameterError as err:
             print(f"[{_program()}] {err}", file=sys.stderr)
             return 2
-        executor = SingleThreadedExecutor()
         executor.add_node(node)
         try:
-            executor.spin()
+            spin()
         except RuntimeError:
             # rclpy can raise from a half-torn-down wait set when SIGINT lands mid-take;
             # after shutdown that is the end of the run, not a fault to report.
@@ -331,6 +332,32 @@ def _endpoints(
         rclpy.try_shutdown()
     infrastructure = ("rcl_interfaces/", "type_description_interfaces/")
     return [e for e in ours if not e[2].startswith(infrastructure)]
+
+
+EXECUTOR_ENV = "DIFFDRIVE_ODOM_EXECUTOR"
+
+
+def make_executor(kind: str | None = None) -> tuple[Executor, Callable[[], None]]:
+    """The executor and its spin loop: ``single`` (default) or ``events`` (opt-in).
+
+    ``kind`` defaults to ``$DIFFDRIVE_ODOM_EXECUTOR``. rclpy's EventsExecutor costs
+    less CPU per message, but its ``spin()`` is broken in the PyPI wheels (busy loop,
+    delivers nothing), so it is driven by ``spin_once`` until shutdown.
+    """
+    kind = os.environ.get(EXECUTOR_ENV, "single") if kind is None else kind
+    if kind == "single":
+        single = SingleThreadedExecutor()
+        return single, single.spin
+    if kind == "events":
+        events = EventsExecutor()
+
+        def spin() -> None:
+            while rclpy.ok():
+                events.spin_once(timeout_sec=0.1)
+
+        return events, spin
+    raise ParameterError(EXECUTOR_ENV, f"environment variable must be 'single' or 'events', "
+                         f"got {kind!r}")
 
 
 def _program() -> str:

@@ -1,0 +1,51 @@
+"""The benchmarks still run: each new bench with ``--quick`` exits 0 and prints its table.
+
+Figures are not checked (they depend on the machine); the accuracy bench's own
+assertion (arc composition equals the single-arc closed form) is, since it exits
+non-zero if that fails.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+
+from rosutil import ROOT, node_process
+
+
+def run_bench(name: str, timeout: float) -> str:
+    proc = subprocess.run([sys.executable, str(ROOT / "bench" / name), "--quick"],
+                          capture_output=True, text=True, timeout=timeout, cwd=ROOT,
+                          env=dict(os.environ))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return proc.stdout
+
+
+def test_accuracy_bench_prints_its_table() -> None:
+    out = run_bench("bench_accuracy.py", 60)
+    assert "Eul/ours" in out and "mid/ours" in out
+    for route in ("fast turn", "figure eight", "spin + forward"):
+        assert route in out
+    # Four routes x the two quick rates, each row with eight figures after the rate.
+    route = r"^(?:fast turn|figure eight|spin \+ forward)"
+    rows = re.findall(route + r".*?\s(?:10|20)((?:\s+>?\S+){8})$", out, re.M)
+    assert len(rows) == 4 * 2, out
+
+
+def test_live_bench_prints_its_table() -> None:
+    out = run_bench("bench_live.py", 120)
+    for system in ("node single", "relay single", "node events", "relay events"):
+        assert re.search(rf"^{system}\s+100\s+\d+\s+0\s", out, re.M), out  # 100 Hz, 0 lost
+    assert "highest loss-free Hz" in out and "Ratios node / relay" in out
+
+
+def test_bad_executor_choice_stops_the_node_with_one_line() -> None:
+    with node_process("odometry_node",
+                      ["--ros-args", "-p", "wheel_radius:=0.05", "-p", "wheel_separation:=0.3"],
+                      env={"DIFFDRIVE_ODOM_EXECUTOR": "fast"}) as proc:
+        code = proc.wait(timeout=20)
+        out = proc.stdout.read() if proc.stdout else ""
+    lines = [ln for ln in out.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and "DIFFDRIVE_ODOM_EXECUTOR" in lines[0], out
