@@ -52,17 +52,18 @@ def test_rate_drops_staleness_and_recovery() -> None:
     with diagnosed("odometry_node", GEOMETRY) as peer:
         pub = peer.node.create_publisher(JointState, "joint_states", 10)
         assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0, 15.0)
-        k = stream(peer, pub, 0, 10)
-        # While readings flow at 50 Hz: OK, integrating, the rate measured as such.
-        end = time.monotonic() + 6.0
-        ok = None
-        while ok is None and time.monotonic() < end:
-            k = stream(peer, pub, k, 10)
-            ok = next((s for s in peer.statuses[peer.cursor:]
-                       if s.level == OK and s.message == "integrating"), None)
-        assert ok is not None, [s.message for s in peer.statuses]
-        assert 25.0 < float(ok.values["reading rate [Hz]"]) < 75.0
-        assert_finite(ok)
+        # While readings flow: OK, integrating, at the rate they are really sent (the
+        # sender's own rate is measured too: a loaded machine sends slower than asked).
+        t0 = time.monotonic()
+        k = stream(peer, pub, 0, 150)
+        sent_hz = 150 / (time.monotonic() - t0)
+        settled = [s for s in peer.statuses if s.received > t0 + 1.5]
+        assert settled and all(s.level == OK and s.message == "integrating" for s in settled), (
+            [s.message for s in peer.statuses])
+        rates = sorted(float(s.values["reading rate [Hz]"]) for s in settled)
+        assert 0.5 * sent_hz < rates[len(rates) // 2] < 1.5 * sent_hz, (rates, sent_hz)
+        for s in settled:
+            assert_finite(s)
         peer.cursor = len(peer.statuses)
         # Two readings without the configured joints: WARN naming the reason and count.
         for _ in range(2):
