@@ -143,7 +143,9 @@ def publish_line(node: Node, executor: Any, y: float) -> None:
 def test_path_error_decays_at_the_rate_k_p_predicts(tmp_path: Path) -> None:
     """Robot at the origin heading +x, line y = -0.3 given on the path topic."""
     k_p, offset = 1.0, 0.3
-    params = write_params(tmp_path, {"follower.k_p": k_p, "follower.path_type": "none"})
+    # omega starts at k_p e1 / l = 3 rad/s: above the default bound, so lift it.
+    params = write_params(tmp_path, {"follower.k_p": k_p, "follower.path_type": "none",
+                                     "follower.max_angular_velocity": 5.0})
     with closed_loop(params) as (node, executor, truth):
         publish_line(node, executor, -offset)
         spin_sim(executor, truth, 5.0)
