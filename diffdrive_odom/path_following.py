@@ -29,7 +29,7 @@ import numpy.typing as npt
 from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.integration import Pose2D, wrap_angle
 from diffdrive_odom.kinematics import Geometry, body_increment
-from diffdrive_odom.routes import Route, waypoints
+from diffdrive_odom.routes import ORIGIN, Route, waypoints
 
 Point = tuple[float, float]
 Matrix2 = npt.NDArray[np.float64]
@@ -275,7 +275,7 @@ def polyline(points: Sequence[Point], corner_radius: float) -> Path:
     return Path(tuple(prims))
 
 
-def route_points(route: Route, start: Pose2D = Pose2D()) -> list[Point]:
+def route_points(route: Route, start: Pose2D = ORIGIN) -> list[Point]:
     """The corners of a scripted route (:mod:`diffdrive_odom.routes`: squares, UMBmark).
 
     Turns in place and pauses add no corner, so consecutive equal points are merged.
@@ -432,8 +432,11 @@ class PathFollower:
         return min(max(total, 0.0), self.path.length)
 
     def step(self, pose: Pose2D, speed: float, dt: float) -> Command:
-        """The twist for ``pose``; ``speed`` is the measured forward speed, ``dt`` [s] since
-        the previous step (0 = do not integrate)."""
+        """Return the twist for ``pose``.
+
+        ``speed`` is the measured forward speed, ``dt`` [s] the time since the previous
+        step (0 = do not integrate).
+        """
         g = self.gains
         p = control_point(pose, g.look_ahead)
         progress = self._advance(p)

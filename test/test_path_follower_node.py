@@ -198,7 +198,7 @@ def square_distance(x: np.ndarray, y: np.ndarray, side: float) -> np.ndarray:
     dy = np.maximum(np.maximum(-y, y - side), 0.0)
     outside = np.hypot(dx, dy)
     inside = np.minimum(np.minimum(x, side - x), np.minimum(y, side - y))
-    return np.where((dx > 0) | (dy > 0), outside, inside)
+    return np.asarray(np.where((dx > 0) | (dy > 0), outside, inside), dtype=float)
 
 
 def test_square_is_followed_with_the_error_peaking_at_the_corners(tmp_path: Path) -> None:

@@ -111,7 +111,7 @@ def test_route_points_are_the_square_corners() -> None:
 @given(st.floats(-math.pi, math.pi), st.floats(-math.pi, math.pi),
        st.floats(0.01, 1.0) | st.floats(-1.0, -0.01), st.floats(0.01, 0.5),
        st.floats(0.05, 1.0), st.floats(0.5, 1.5), st.floats(0.5, 1.5))
-def test_eq_28_is_non_singular_for_l_non_zero(theta: float, normal: float, l: float,
+def test_eq_28_is_non_singular_for_l_non_zero(theta: float, normal: float, look: float,
                                               r: float, b: float, ml: float,
                                               mr: float) -> None:
     """det = -l (Gamma . n) r_l r_r / b, n = (-sin theta, cos theta): zero only at l = 0
@@ -119,8 +119,8 @@ def test_eq_28_is_non_singular_for_l_non_zero(theta: float, normal: float, l: fl
     geometry = Geometry(r, b, ml, mr)
     grad = (math.cos(normal), math.sin(normal))
     along = -grad[0] * math.sin(theta) + grad[1] * math.cos(theta)
-    a = law_matrix(geometry, l, theta, grad)
-    det = -l * along * (r * ml) * (r * mr) / b
+    a = law_matrix(geometry, look, theta, grad)
+    det = -look * along * (r * ml) * (r * mr) / b
     assert np.linalg.det(a) == pytest.approx(det, rel=1e-9, abs=1e-15)
     assume(abs(along) > 1e-3)
     assert abs(np.linalg.det(a)) > 0.0
