@@ -38,6 +38,7 @@ setup(
             "odometry_node = diffdrive_odom.odometry_node:main",
             "cmd_vel_node = diffdrive_odom.cmd_vel_node:main",
             "sim_node = diffdrive_odom.sim_node:main",
+            "path_follower_node = diffdrive_odom.path_follower_node:main",
             "diffdrive-odom = diffdrive_odom.cli:main",
         ],
     },

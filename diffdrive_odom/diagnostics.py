@@ -290,3 +290,69 @@ def cmd_vel_report(now: CommandHealth, before: CommandHealth | None = None) -> R
         *_counts("dropped", now.dropped, dropped),
     ]
     return Report(level, message, tuple(values))
+
+
+# --- path_follower_node --------------------------------------------------------------
+
+
+class FollowerState(Enum):
+    """What the path follower is doing: the values are what the report shows."""
+
+    NO_PATH = "no path"
+    WAITING = "waiting for odometry"
+    FOLLOWING = "following"
+    DONE = "done"
+
+
+@dataclass(frozen=True)
+class FollowerHealth:
+    """A snapshot of the path follower; counters are cumulative since the start.
+
+    ``dropped`` counts refused input by reason ("non_finite_odom", "bad_path",
+    "path_frame"); ``near_singular`` and ``limited`` the control steps where the law
+    had to be bounded (heading across the path, omega clipped).
+    """
+
+    state: FollowerState
+    odom_age_s: float | None
+    cross_track_error_m: float
+    progress_m: float
+    path_length_m: float
+    speed_error_mps: float
+    dropped: Mapping[str, int]
+    near_singular: int
+    limited: int
+    stale_after_s: float = 0.5
+
+
+def follower_report(now: FollowerHealth, before: FollowerHealth | None = None) -> Report:
+    """The path follower's health; ``before`` is the previous report's snapshot."""
+    problems: list[tuple[Level, str]] = []
+    age = now.odom_age_s
+    if now.state is FollowerState.FOLLOWING and age is not None and age >= now.stale_after_s:
+        problems.append((Level.WARN, f"no odometry for {_finite(age):.2f} s while following"))
+    dropped = _since(now.dropped, before.dropped if before else None)
+    if any(dropped.values()):
+        problems.append((Level.WARN, f"dropped {sum(dropped.values())} messages "
+                                     f"({_by_reason(dropped)})"))
+    singular = now.near_singular - (before.near_singular if before else 0)
+    if singular:
+        problems.append((Level.WARN, f"{singular} steps heading across the path "
+                                     "(law bounded)"))
+    ok = now.state.value
+    if now.state is FollowerState.FOLLOWING:
+        ok += f": cross-track {_finite(now.cross_track_error_m):+.3f} m"
+    level, message = _verdict(problems, ok)
+    length = now.path_length_m
+    values = [
+        ("state", now.state.value),
+        ("odometry age [s]", _seconds(None if age is None else _finite(age))),
+        ("cross-track error [m]", f"{_finite(now.cross_track_error_m):.4f}"),
+        ("progress [m]", f"{_finite(now.progress_m):.3f}"),
+        ("path length [m]", "endless" if math.isinf(length) else f"{_finite(length):.3f}"),
+        ("speed error [m/s]", f"{_finite(now.speed_error_mps):.4f}"),
+        ("steps near singular (total)", str(now.near_singular)),
+        ("steps omega limited (total)", str(now.limited)),
+        *_counts("dropped", now.dropped, dropped),
+    ]
+    return Report(level, message, tuple(values))

@@ -466,9 +466,10 @@ def known_names() -> frozenset[str]:
     knows it (the cmd_vel node must not warn about the odometry node's names).
     """
     from diffdrive_odom.cmd_vel_settings import CMD_VEL_PARAMS  # imports this module
+    from diffdrive_odom.follower_settings import FOLLOWER_PARAMS
     from diffdrive_odom.sim import SIM_PARAMS
 
-    tables = GEOMETRY_PARAMS + ODOMETRY_PARAMS + CMD_VEL_PARAMS + SIM_PARAMS
+    tables = GEOMETRY_PARAMS + ODOMETRY_PARAMS + CMD_VEL_PARAMS + SIM_PARAMS + FOLLOWER_PARAMS
     return frozenset(s.name for s in tables) | frozenset(_RCLPY_NAMES)
 
 

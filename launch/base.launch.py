@@ -2,7 +2,9 @@
 
 ``odometry_node`` (through ``odometry.launch.py``, which takes the same arguments) and
 ``cmd_vel_node``, all from one params file; with ``use_sim:=true`` also ``sim_node``, a
-simulated base in place of the hardware driver. The simulation moves with the params
+simulated base in place of the hardware driver; with ``use_follower:=true`` also
+``path_follower_node`` (odom in, cmd_vel out, path from the params file's
+``follower.*`` or the ``path`` topic). The simulation moves with the params
 file's geometry (its ``true_*`` parameters are left at 0 = nominal), a 50 ms motor lag
 and a 0.5 s command timeout, publishing at 50 Hz. It publishes ``/clock`` only with
 ``use_sim_time:=true``; it never follows ``/clock`` itself, since it is the clock.
@@ -29,7 +31,7 @@ SIM_PARAMETERS = {
 
 
 def generate_launch_description() -> LaunchDescription:
-    """The arguments, odometry.launch.py, cmd_vel_node and the optional sim_node."""
+    """The arguments, odometry.launch.py, cmd_vel_node, the optional sim_node and follower."""
     namespace = LaunchConfiguration("namespace")
     params_file = LaunchConfiguration("params_file")
     sim_time = LaunchConfiguration("use_sim_time")
@@ -50,6 +52,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument(
             "use_sim", default_value="false",
             description="Also start sim_node, a simulated base, instead of the hardware"),
+        DeclareLaunchArgument(
+            "use_follower", default_value="false",
+            description="Also start path_follower_node (Kumar's law: odom in, cmd_vel out)"),
         DeclareLaunchArgument(
             "joint_states_topic", default_value="joint_states",
             description="sensor_msgs/JointState encoder readings (relative = in the namespace)"),
@@ -83,6 +88,17 @@ def generate_launch_description() -> LaunchDescription:
                 **SIM_PARAMETERS, "publish_clock": use_sim_time, "use_sim_time": False}],
             remappings=[
                 ("joint_states", LaunchConfiguration("joint_states_topic")), wheel_commands],
+            output="screen",
+        ),
+        Node(
+            package=PACKAGE,
+            executable="path_follower_node",
+            name="path_follower_node",
+            namespace=namespace,
+            condition=IfCondition(LaunchConfiguration("use_follower")),
+            parameters=[params_file, {"use_sim_time": use_sim_time}],
+            remappings=[("odom", LaunchConfiguration("odom_topic")),
+                        ("cmd_vel", LaunchConfiguration("cmd_vel_topic"))],
             output="screen",
         ),
     ])

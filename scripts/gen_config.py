@@ -16,6 +16,7 @@ from __future__ import annotations
 import sys
 
 from diffdrive_odom.cmd_vel_settings import CMD_VEL_OWN_PARAMS
+from diffdrive_odom.follower_settings import FOLLOWER_OWN_PARAMS
 from diffdrive_odom.params import GEOMETRY_PARAMS, ODOMETRY_PARAMS, ParamSpec, yaml_text
 
 # Values for the example robot instead of the defaults (the OptiOdom robot whose
@@ -26,6 +27,8 @@ GROUPS: tuple[tuple[str, tuple[ParamSpec, ...]], ...] = (
     ("geometry and joints: odometry_node and cmd_vel_node", GEOMETRY_PARAMS),
     ("odometry_node", ODOMETRY_PARAMS),
     ("cmd_vel_node", CMD_VEL_OWN_PARAMS),
+    ("path_follower_node (geometry and enable_stamped_cmd_vel: shared rows above)",
+     FOLLOWER_OWN_PARAMS),
 )
 
 

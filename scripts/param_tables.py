@@ -19,6 +19,7 @@ TABLES = {
     "odometry": ("diffdrive_odom.params", "ODOMETRY_PARAMS"),
     "cmd_vel": ("diffdrive_odom.cmd_vel_settings", "CMD_VEL_PARAMS"),
     "sim": ("diffdrive_odom.sim", "SIM_PARAMS"),
+    "follower": ("diffdrive_odom.follower_settings", "FOLLOWER_PARAMS"),
 }
 
 
@@ -42,6 +43,8 @@ def rendered(name: str) -> str | None:
     except (ImportError, AttributeError):
         return None
     skip = GEOMETRY_PARAMS if name != "geometry" else ()
+    if name == "follower":  # the cmd_vel node's row, listed in its table
+        skip += tuple(s for s in specs if s.name == "enable_stamped_cmd_vel")
     return table(tuple(specs), skip)
 
 

@@ -41,7 +41,7 @@ PACKAGE = "diffdrive_odom"
 REQUIRED_ARGUMENTS = {"params_file", "namespace", "use_sim_time"}
 # What each file starts itself, and which launch files it includes.
 EXECUTABLES = {"odometry.launch.py": {"odometry_node"},
-               "base.launch.py": {"cmd_vel_node", "sim_node"}}
+               "base.launch.py": {"cmd_vel_node", "sim_node", "path_follower_node"}}
 INCLUDES = {"odometry.launch.py": set[str](), "base.launch.py": {"launch/odometry.launch.py"}}
 NAMESPACE = "robot1"
 MISSING_LAUNCH_ROS = (

@@ -212,8 +212,9 @@ def cmd_vel_params() -> tuple[ParamSpec, ...] | None:
 
 def all_package_params() -> tuple[ParamSpec, ...]:
     from diffdrive_odom.cmd_vel_settings import CMD_VEL_OWN_PARAMS
+    from diffdrive_odom.follower_settings import FOLLOWER_OWN_PARAMS
 
-    return GEOMETRY_PARAMS + ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS
+    return GEOMETRY_PARAMS + ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS + FOLLOWER_OWN_PARAMS
 
 
 def test_config_file_gives_the_odometry_node_every_parameter() -> None:
@@ -241,11 +242,19 @@ def test_config_file_applies_under_any_name_and_namespace(node: str, namespace: 
 
 
 def test_no_two_nodes_share_a_name_with_different_meanings() -> None:
-    """One /** section feeds both nodes: only the geometry rows may be shared."""
+    """One /** section feeds every node: only the geometry rows may be shared (and the
+    follower's enable_stamped_cmd_vel, the cmd_vel node's own row: same topic, same type)."""
     from diffdrive_odom.cmd_vel_settings import CMD_VEL_OWN_PARAMS
+    from diffdrive_odom.follower_settings import FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS
 
     assert not set(names(ODOMETRY_PARAMS)) & set(names(CMD_VEL_OWN_PARAMS))
     assert "wheel_command_rate" in names(CMD_VEL_OWN_PARAMS)
+    own = set(names(FOLLOWER_OWN_PARAMS))
+    assert all(n.startswith("follower.") for n in own)
+    assert not own & set(names(GEOMETRY_PARAMS + ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS))
+    by_name = {s.name: s for s in GEOMETRY_PARAMS + CMD_VEL_OWN_PARAMS}
+    for spec in FOLLOWER_PARAMS:  # a shared row is the very same spec
+        assert spec.name in own or by_name[spec.name] == spec, spec.name
 
 
 def test_node_section_overrides_the_wildcard(tmp_path: Path) -> None:
