@@ -43,7 +43,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="with --umbmark: the squares' side [m] (required)")
     ap.add_argument("--cw-end", default=None, metavar="X,Y",
                     help="with --umbmark: measured end position of the CW square [m], start "
-                    "frame (x forward, y left) (default: from the ground-truth topic)")
+                    "frame (x forward, y left); --cw-end=-0.1,0.2 when X is negative "
+                    "(default: from the ground-truth topic)")
     ap.add_argument("--ccw-end", default=None, metavar="X,Y",
                     help="with --umbmark: the same for the CCW square")
     ap.add_argument("--params-file", action=_RosParam, dest="ros_params", metavar="FILE",

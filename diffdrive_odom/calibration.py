@@ -511,7 +511,7 @@ def _end_error(run: Run, geometry: Geometry, truth_end: EndPoint) -> EndPoint:
 
 def umbmark(
     cw: Run, ccw: Run, cw_end: EndPoint, ccw_end: EndPoint, side: float,
-    nominal: Geometry, tolerance: float = 1e-12, max_passes: int = 100,
+    nominal: Geometry, tolerance: float = 1e-9, max_passes: int = 200,
 ) -> Umbmark:
     """UMBmark from one square each way: ``*_end`` is where the robot really stopped.
 
@@ -566,4 +566,4 @@ def reference_end(run: Run, reference: Trajectory) -> EndPoint:
     x, y, yaw = (np.interp(tq, tr, a) for a in (reference.x, reference.y, reference.yaw))
     c, s = math.cos(yaw[0]), math.sin(yaw[0])
     dx, dy = x[1] - x[0], y[1] - y[0]
-    return c * dx + s * dy, -s * dx + c * dy
+    return float(c * dx + s * dy), float(-s * dx + c * dy)
