@@ -40,18 +40,21 @@ def _parser() -> argparse.ArgumentParser:
                     help="UMBmark from a clockwise and a counter-clockwise square "
                     "(default: least squares on the BAGs)")
     ap.add_argument("--side", type=float, default=None, metavar="M",
-                    help="with --umbmark: the squares' side [m] (required)")
+                    help="with --umbmark: the squares' side [m] (no default: required there)")
     ap.add_argument("--cw-end", default=None, metavar="X,Y",
                     help="with --umbmark: measured end position of the CW square [m], start "
                     "frame (x forward, y left); --cw-end=-0.1,0.2 when X is negative "
                     "(default: from the ground-truth topic)")
     ap.add_argument("--ccw-end", default=None, metavar="X,Y",
-                    help="with --umbmark: the same for the CCW square")
+                    help="with --umbmark: the same for the CCW square (default: from the "
+                    "ground-truth topic)")
     ap.add_argument("--params-file", action=_RosParam, dest="ros_params", metavar="FILE",
                     help="the node's ROS 2 params YAML: nominal geometry, joint names, "
-                    "encoders (repeatable, later files win; this or -p is required)")
+                    "encoders (repeatable, later files win; default: none, but this or -p "
+                    "must give wheel_radius and wheel_separation)")
     ap.add_argument("-p", "--param", action=_RosParam, dest="ros_params",
-                    metavar="NAME:=VALUE", help="parameter override, as the node's -p")
+                    metavar="NAME:=VALUE",
+                    help="parameter override, as the node's -p (repeatable; default: none)")
     ap.add_argument("--node-name", default=NODE_NAME,
                     help="node name the params are resolved for")
     ap.add_argument("--namespace", default="/", help="node namespace for params resolution")

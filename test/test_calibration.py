@@ -247,7 +247,8 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
     from_topic = yaml.safe_load(_block(capsys.readouterr().out))
     cw, ccw = _optiodom_runs()
     assert cw.reference is not None and ccw.reference is not None
-    ends = [calibration.reference_end(r, r.reference) for r in (cw, ccw)]
+    ends = [calibration.reference_end(cw, cw.reference),
+            calibration.reference_end(ccw, ccw.reference)]
     typed = [f"{x!r},{y!r}" for x, y in ends]
     assert cli(["calibrate", "--umbmark", *bags, "--side", "1.7", *NOMINAL_ARGS,
                 f"--cw-end={typed[0]}", f"--ccw-end={typed[1]}"]) == 0
