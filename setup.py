@@ -25,7 +25,7 @@ setup(
     install_requires=["setuptools", "numpy"],
     extras_require={
         "test": ["pytest", "hypothesis"],
-        "tools": ["rosbags", "matplotlib"],
+        "tools": ["rosbags", "matplotlib", "scipy"],
     },
     zip_safe=True,
     maintainer="diffdrive_odom maintainers",

@@ -32,7 +32,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from diffdrive_odom import bagio, odometry, replay  # noqa: E402
+from diffdrive_odom import bagio, batch, odometry, replay  # noqa: E402
 from diffdrive_odom.params import OdometrySettings, odometry_settings  # noqa: E402
 
 DATA = ROOT / "test" / "data"
@@ -103,14 +103,14 @@ def bench_bag(name: str, bag: Path, settings: OdometrySettings, tmp: Path) -> No
         lambda: _replay_to_bag(bag, settings, tmp / f"{name}_out"), repeat=2)))
     step = _best(lambda: replay.replay_readings(readings, settings))
     rows.append(("step-by-step (in memory)", step))
-    rows.append(("vectorised (in memory)", _best(lambda: replay.integrate_steps(
-        replay.wheel_steps(readings, settings), settings.geometry))))
-    steps = replay.wheel_steps(readings, settings)
-    integrate = _best(lambda: replay.integrate_steps(steps, settings.geometry), repeat=20)
+    rows.append(("vectorised (in memory)", _best(lambda: batch.integrate_steps(
+        batch.wheel_steps(readings, settings), settings.geometry))))
+    steps = batch.wheel_steps(readings, settings)
+    integrate = _best(lambda: batch.integrate_steps(steps, settings.geometry), repeat=20)
     rows.append(("integrate only (numpy)", integrate))
     # Agreement of the two paths (the test asserts < 1e-9 m).
     end_step = replay.replay_readings(readings, settings).final_pose
-    end_vec = replay.final_pose(steps, settings.geometry)
+    end_vec = batch.final_pose(steps, settings.geometry)
     gap = float(np.hypot(end_step.x - end_vec.x, end_step.y - end_vec.y))
     print(f"\n{name}: {n} readings ({bag.name})")
     print(f"  {'path':28s} {'readings/s':>14s} {'vs decode':>10s} {'vs step':>9s}")

@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "play": ("diffdrive_odom.play", "publish a bag's messages over DDS with /clock (no rosbag2)"),
     "replay": ("diffdrive_odom.replay", "run the estimator over a bag offline; write bag/CSV"),
     "eval": ("diffdrive_odom.evaluate", "compare odometry with ground truth in a bag"),
+    "calibrate": ("diffdrive_odom.calibrate", "fit wheel radii and separation; UMBmark"),
 }
 
 

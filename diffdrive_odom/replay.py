@@ -11,11 +11,12 @@ Two ways through a bag:
 
 - streaming (:func:`replay_readings`): one reading at a time, constant memory, used
   by the CLI;
-- vectorised (:func:`wheel_steps` then :func:`integrate_steps`): the bag decoded once
-  into geometry-free wheel increments, then integrated for any geometry with numpy
-  (``kinematics.body_increment`` on arrays, ``integration.integrate_batch``). The
-  estimator itself decides which readings become steps, so both ways agree on what
-  is dropped; calibration re-runs only the cheap second half in its fitting loop.
+- vectorised (:func:`~diffdrive_odom.batch.wheel_steps` then
+  :func:`~diffdrive_odom.batch.integrate_steps`, in the pure :mod:`diffdrive_odom.batch`):
+  the bag decoded once into geometry-free wheel increments, then integrated for any
+  geometry with numpy. The estimator itself decides which readings become steps, so
+  both ways agree on what is dropped; calibration re-runs only the cheap second half
+  in its fitting loop.
 """
 
 from __future__ import annotations
@@ -38,8 +39,7 @@ from rosbags.interfaces import Connection
 
 from diffdrive_odom import bagio, evaluate
 from diffdrive_odom.cli import HelpFormatter
-from diffdrive_odom.integration import Pose2D, integrate_batch, wrap_angle
-from diffdrive_odom.kinematics import Geometry, body_increment
+from diffdrive_odom.integration import Pose2D
 from diffdrive_odom.odometry import Reason, Status, covariance_matrix
 from diffdrive_odom.params import (
     OdometrySettings,
@@ -156,83 +156,6 @@ def replay_readings(
     stats.final_pose = est.pose
     stats.final_stamp_ns = est.stamp_ns
     return stats
-
-
-# --- vectorised path -------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class WheelSteps:
-    """A bag's accepted steps, geometry-free: joint angle increments per side.
-
-    ``segment`` numbers the runs between restarts (a stamp jump back starts the pose
-    over at the origin); ``segments`` counts them, so a restart with no step after it
-    is still known.
-    """
-
-    stamp_ns: IntArray  # stamp of the reading that ends each step
-    dt: FloatArray
-    d_left: FloatArray
-    d_right: FloatArray
-    segment: IntArray
-    segments: int
-
-    def __len__(self) -> int:
-        return len(self.dt)
-
-
-def wheel_steps(
-    readings: Iterable[bagio.JointReading], settings: OdometrySettings
-) -> WheelSteps:
-    """Decode a bag once into the steps the estimator integrates (as the pipeline decides)."""
-    pipe = ReadingPipeline(settings)
-    est = pipe.estimator
-    stamps, dts, lefts, rights, segs = array("q"), array("d"), array("d"), array("d"), array("q")
-    segments = 0
-    for r in readings:
-        status = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity).verdict.status
-        if status is Status.UPDATED:
-            inc = est.last_increment
-            assert inc is not None  # set by every UPDATED step
-            stamps.append(r.stamp_ns)
-            dts.append(inc.dt)
-            lefts.append(inc.d_left)
-            rights.append(inc.d_right)
-            segs.append(segments - 1)
-        elif status is Status.TIME_RESET or (status is Status.REFERENCE and segments == 0):
-            segments += 1
-    return WheelSteps(
-        np.frombuffer(stamps, dtype=np.int64).copy(),
-        np.frombuffer(dts, dtype=np.float64).copy(),
-        np.frombuffer(lefts, dtype=np.float64).copy(),
-        np.frombuffer(rights, dtype=np.float64).copy(),
-        np.frombuffer(segs, dtype=np.int64).copy(),
-        segments,
-    )
-
-
-def integrate_steps(
-    steps: WheelSteps, geometry: Geometry
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Pose after every step for ``geometry``: ``x, y, theta`` (theta continuous per segment)."""
-    ds, dtheta = body_increment(geometry, steps.d_left, steps.d_right)
-    if steps.segments <= 1:
-        return integrate_batch(ds, dtheta)
-    x, y, th = (np.empty(len(steps)) for _ in range(3))
-    bounds = np.flatnonzero(np.diff(steps.segment)) + 1
-    for lo, hi in zip(
-        np.concatenate(([0], bounds)), np.concatenate((bounds, [len(steps)])), strict=True
-    ):
-        x[lo:hi], y[lo:hi], th[lo:hi] = integrate_batch(ds[lo:hi], dtheta[lo:hi])
-    return x, y, th
-
-
-def final_pose(steps: WheelSteps, geometry: Geometry) -> Pose2D:
-    """Where the vectorised path ends (the origin if the last segment has no step)."""
-    if len(steps) == 0 or steps.segment[-1] != steps.segments - 1:
-        return Pose2D()
-    x, y, th = integrate_steps(steps, geometry)
-    return Pose2D(float(x[-1]), float(y[-1]), wrap_angle(float(th[-1])))
 
 
 # --- CLI -------------------------------------------------------------------------------

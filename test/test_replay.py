@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from diffdrive_odom import bagio, replay
+from diffdrive_odom import bagio, batch, replay
 from diffdrive_odom.cli import main as cli
 from diffdrive_odom.kinematics import Geometry
 from diffdrive_odom.odometry import quaternion_to_yaw
@@ -106,8 +106,8 @@ def test_optiodom_replay_matches_firmware_and_first_principles(tmp_path: Path, r
 def test_vectorised_path_equals_the_step_by_step_estimator(tmp_path: Path, run: str) -> None:
     bag = DATA / "optiodom" / run
     settings = _settings(tmp_path, OPTIODOM_PARAMS)
-    steps = replay.wheel_steps(bagio.read_joint_states(bag), settings)
-    x, y, th = replay.integrate_steps(steps, settings.geometry)
+    steps = batch.wheel_steps(bagio.read_joint_states(bag), settings)
+    x, y, th = batch.integrate_steps(steps, settings.geometry)
     stepwise = [p for p in _published(bag, settings) if p.status.value == "updated"]
     readings = 1385 if run.endswith("04") else 1388  # metadata.yaml
     assert len(stepwise) == len(steps) == readings - 1  # every step after the reference
@@ -117,7 +117,7 @@ def test_vectorised_path_equals_the_step_by_step_estimator(tmp_path: Path, run: 
     assert np.array_equal(steps.stamp_ns, [p.stamp_ns for p in stepwise])
     assert np.max(np.hypot(x - sx, y - sy)) < 1e-9
     assert np.max(np.abs(np.remainder(th - sth + np.pi, 2 * np.pi) - np.pi)) < 1e-9
-    end = replay.final_pose(steps, settings.geometry)
+    end = batch.final_pose(steps, settings.geometry)
     assert math.hypot(end.x - sx[-1], end.y - sy[-1]) < 1e-9
     # The geometry-free steps serve any geometry (calibration's fitting loop): the same
     # steps with other multipliers equal a fresh estimator run with those multipliers.
@@ -125,7 +125,7 @@ def test_vectorised_path_equals_the_step_by_step_estimator(tmp_path: Path, run: 
                          wheel_separation_multiplier=0.99)
     s2 = dataclasses.replace(settings, geometry=g2)
     final2 = replay.replay_readings(bagio.read_joint_states(bag), s2).final_pose
-    end2 = replay.final_pose(steps, g2)
+    end2 = batch.final_pose(steps, g2)
     assert math.hypot(end2.x - final2.x, end2.y - final2.y) < 1e-9
 
 
@@ -251,7 +251,7 @@ def test_a_looped_bag_restarts_both_paths_at_the_origin(tmp_path: Path) -> None:
     poses: list[replay.Published] = []
     stats = replay.replay_readings(readings, settings, poses.append)
     assert stats.statuses["time_reset"] == 1
-    steps = replay.wheel_steps(readings, settings)
+    steps = batch.wheel_steps(readings, settings)
     assert steps.segments == 2 and len(steps) == 2 * (n - 1)
     # Closed form: constant ds, dtheta per step -> arc of radius ds/dtheta.
     ds, dth = r * 0.15, r * 0.1 / b
@@ -259,7 +259,7 @@ def test_a_looped_bag_restarts_both_paths_at_the_origin(tmp_path: Path) -> None:
     x_end, y_end = ds / dth * math.sin(k * dth), ds / dth * (1 - math.cos(k * dth))
     end = stats.final_pose
     assert math.hypot(end.x - x_end, end.y - y_end) < 1e-12
-    vec = replay.final_pose(steps, settings.geometry)
+    vec = batch.final_pose(steps, settings.geometry)
     assert math.hypot(vec.x - x_end, vec.y - y_end) < 1e-12
     restart = next(i for i, p in enumerate(poses) if p.status.value == "time_reset")
     assert (poses[restart].pose.x, poses[restart].pose.y) == (0.0, 0.0)
@@ -359,9 +359,9 @@ def test_a_driver_restart_after_a_pause_keeps_the_pose_in_replay(tmp_path: Path)
     assert stats.pipeline.gap_reanchors == 1 and stats.reasons["gap"] == 1
     assert math.isclose(stats.final_pose.x, r * 25.0, abs_tol=1e-12)
     assert stats.final_pose.y == 0.0
-    steps = replay.wheel_steps(bagio.read_joint_states(bag), settings)
+    steps = batch.wheel_steps(bagio.read_joint_states(bag), settings)
     assert steps.segments == 1 and len(steps) == 50 + 25
-    assert math.isclose(replay.final_pose(steps, settings.geometry).x, r * 25.0, abs_tol=1e-12)
+    assert math.isclose(batch.final_pose(steps, settings.geometry).x, r * 25.0, abs_tol=1e-12)
     out = tmp_path / "out"
     params = write_params(tmp_path / "q.yaml", {"wheel_radius": r, "wheel_separation": 0.25})
     assert cli(["replay", str(bag), "--params-file", str(params), "-o", str(out)]) == 0
