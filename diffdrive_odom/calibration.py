@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy import optimize  # type: ignore[import-untyped]
+from scipy import optimize
 
 from diffdrive_odom.batch import WheelSteps, final_pose, integrate_steps
 from diffdrive_odom.integration import Pose2D, compose, compose_jacobians
