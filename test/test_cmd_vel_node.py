@@ -8,8 +8,8 @@ closed-form inverse kinematics left = (v - w b/2) / r, right = (v + w b/2) / r.
 from __future__ import annotations
 
 import itertools
-import random
 import math
+import random
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -396,9 +396,9 @@ def random_part(rng: random.Random) -> float:
     if kind < 0.35:
         return rng.uniform(-2.0, 2.0)
     if kind < 0.55:
-        return sign * 10.0 ** rng.uniform(4.0, 308.0)  # huge but finite
+        return sign * math.pow(10.0, rng.uniform(4.0, 308.0))  # huge but finite
     if kind < 0.65:
-        return sign * 10.0 ** rng.uniform(1.0, 4.0)
+        return sign * math.pow(10.0, rng.uniform(1.0, 4.0))
     if kind < 0.75:
         return sign * rng.choice((5e-324, 2.2e-308, 1e-300, 1e-12))  # denormal / tiny
     if kind < 0.8:
