@@ -313,10 +313,10 @@ class TwistLimiter:
         return LimitedCommand(v, w, left, right, scale, limited)
 
     def settled(self, linear: float, angular: float) -> tuple[float, float]:
-        """The joint rates a held twist leads to once acceleration and jerk had their way.
+        """The joint rates a held twist is limited to: velocity bounds, wheel saturation.
 
-        Only the velocity bounds and the wheel saturation decide where the output ends
-        up; the other limits shape the way there. Overflow shows as inf/NaN (no raise).
+        Acceleration and jerk only shape the way there, so this is the target a command
+        is judged by (the cmd_vel plausibility check). Overflow shows as inf/NaN.
         """
         v = _clamp(linear, *self.linear.limits.velocity_bounds)
         w = _clamp(angular, *self.angular.limits.velocity_bounds)

@@ -59,6 +59,10 @@ def test_defaults_refuse_to_guess_the_geometry() -> None:
         ("linear.x.min_velocity", 0.2),
         ("angular.z.max_jerk", -1.0),
         ("max_wheel_velocity", -3.0),
+        ("max_wheel_velocity", 2e4),  # beyond max_plausible_wheel_velocity: never reached
+        ("max_plausible_wheel_velocity", 0.0),
+        ("max_plausible_wheel_velocity", math.inf),
+        ("max_plausible_wheel_velocity", math.nan),
         ("wheel_command_rate", 0.0),
         ("cmd_vel_timeout", -0.1),
         ("control_point_offset", math.inf),
