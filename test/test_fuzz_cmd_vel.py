@@ -53,8 +53,10 @@ class Robot:
     rate: float
 
 
-def _maybe(draw: Any, value: st.SearchStrategy[float]) -> float:
-    return draw(st.one_of(st.just(NAN), value))
+def _maybe(draw: Any, low: float, high: float, scale: float = 1.0) -> float:
+    """NaN (no limit) or a value in [low, high] * scale."""
+    value: float = draw(st.one_of(st.just(NAN), st.floats(low, high)))
+    return value * scale
 
 
 @st.composite
@@ -85,17 +87,16 @@ def robots(draw: Any) -> Robot:
         "wheel_command_rate": draw(st.floats(5.0, 200.0)),
         "control_point_offset": draw(st.one_of(st.just(0.0), st.floats(0.05, 1.0),
                                                st.floats(-1.0, -0.05))),
-        "max_wheel_velocity": _maybe(draw, st.floats(0.01, 1.0).map(lambda f: f * plausible)),
+        "max_wheel_velocity": _maybe(draw, 0.01, 1.0, plausible),
     }
     caps = []
     for axis, scale in (("linear.x", speed), ("angular.z", turn)):
         p = {
-            "max_velocity": _maybe(draw, st.floats(0.01, 1.0).map(lambda f, s=scale: f * s)),
-            "min_velocity": _maybe(draw, st.floats(-1.0, -0.01).map(lambda f, s=scale: f * s)),
-            "max_acceleration": _maybe(draw, st.floats(2.0, 50.0).map(lambda f, s=scale: f * s)),
-            "max_deceleration": _maybe(draw, st.floats(-50.0, -2.0)
-                                       .map(lambda f, s=scale: f * s)),
-            "max_jerk": _maybe(draw, st.floats(20.0, 500.0).map(lambda f, s=scale: f * s)),
+            "max_velocity": _maybe(draw, 0.01, 1.0, scale),
+            "min_velocity": _maybe(draw, -1.0, -0.01, scale),
+            "max_acceleration": _maybe(draw, 2.0, 50.0, scale),
+            "max_deceleration": _maybe(draw, -50.0, -2.0, scale),
+            "max_jerk": _maybe(draw, 20.0, 500.0, scale),
         }
         params.update({f"{axis}.{name}": value for name, value in p.items()})
         high = p["max_velocity"] if not math.isnan(p["max_velocity"]) else scale
