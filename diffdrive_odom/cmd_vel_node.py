@@ -1,16 +1,15 @@
 """``cmd_vel_node``: velocity commands -> wheel velocity commands, limited and watched.
 
-Thin rclpy shell around :mod:`diffdrive_odom.limits` and
-:mod:`diffdrive_odom.kinematics`: it declares parameters, converts messages and
-runs one steady timer. Wheel commands go out at ``wheel_command_rate`` whatever
+Thin rclpy shell around :class:`diffdrive_odom.cmd_vel_pipeline.CommandPipeline`
+(validation, watchdog, limits, inverse kinematics, plausibility bound): it declares
+parameters, converts messages, logs the pipeline's refusals (one throttle per reason)
+and runs one steady timer. Wheel commands go out at ``wheel_command_rate`` whatever
 happens on ``cmd_vel`` (drivers use them as a heartbeat); without a valid command for
 ``cmd_vel_timeout`` seconds they are zeros, never the last command repeated forever.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from typing import Any, cast
 
 from geometry_msgs.msg import Twist, TwistStamped
@@ -23,10 +22,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from diffdrive_odom import ros_common
+from diffdrive_odom.cmd_vel_pipeline import CommandPipeline, Tick
 from diffdrive_odom.cmd_vel_settings import (
     CMD_VEL_PARAMS,
     JOINT_STATE,
-    TICKS_PER_SECOND,
     CmdVelSettings,
     cmd_vel_settings,
 )
@@ -38,14 +37,9 @@ from diffdrive_odom.diagnostics import (
     Reporter,
     cmd_vel_report,
 )
-from diffdrive_odom.kinematics import point_velocity_to_twist
-from diffdrive_odom.limits import LIMIT_REASONS, LimitedCommand, TwistLimiter, Watchdog
 
 NODE_NAME = "cmd_vel_node"
 DIAGNOSTIC_TASK = "cmd_vel"  # status "cmd_vel_node: cmd_vel" on /diagnostics
-# Why a command is refused (the /diagnostics "dropped" counters).
-DROP_REASONS = ("non_finite", "stale_stamp")
-# Each warning below is throttled on its own (rclpy keys the throttle by call site).
 THROTTLE_S = ros_common.WARN_THROTTLE_S
 
 # Best effort matches reliable and best-effort publishers alike (teleop, Nav2,
@@ -58,37 +52,24 @@ CMD_IN_QOS: QoSProfile = cast(Any, QoSProfile)(
 )
 
 
-@dataclass(frozen=True)
-class Command:
-    """The parts of a Twist the kinematics use."""
-
-    linear_x: float
-    linear_y: float
-    angular_z: float
-
-
 class CmdVelNode(Node):
     """Turns cmd_vel into wheel velocity commands at a steady rate."""
 
     # Diagnostics state (see _init_diagnostics).
     _accepted_ns: int | None  # steady time of the last valid command
     _last_moving: bool  # it asked for motion
-    _limited: dict[str, int]
-    _counted_limits: set[str]  # limits already counted for the held command
-    _dropped: dict[str, int]
     _command_rate: RateMeter
     _output_rate: RateMeter
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._log: Any = cast(Any, self).get_logger()  # rclpy's get_logger is untyped
+        self._throttle = ros_common.KeyedThrottle(self._log)
         values = ros_common.declare(self, CMD_VEL_PARAMS)
         s = cmd_vel_settings(values)
         self._settings = s
-        self._limiter = TwistLimiter(s.limits, s.geometry)
-        self._watchdog: Watchdog[Command] = Watchdog(s.cmd_vel_timeout)
+        self._pipeline = CommandPipeline(s)
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._last_tick_ns: int | None = None
         self._moving = False  # a command is being followed (for the timeout log)
         self._received = False
         self._zero_stamp_warned = False
@@ -134,8 +115,7 @@ class CmdVelNode(Node):
         """Install accepted runtime changes; the motion state carries on (no jump)."""
         old = self._settings
         self._settings = s
-        self._limiter.configure(s.limits, s.geometry)
-        self._watchdog.timeout_ns = round(s.cmd_vel_timeout * 1e9)
+        self._pipeline.configure(s)
         if s.wheel_command_rate != old.wheel_command_rate:
             self.destroy_timer(self._timer)
             self._timer = self._make_timer(s.wheel_command_rate)
@@ -162,86 +142,49 @@ class CmdVelNode(Node):
     def _accept(self, twist: Twist, stamp_ns: int | None) -> None:
         self._received = True
         lin, ang = twist.linear, twist.angular
-        parts = (lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
-        if not all(math.isfinite(p) for p in parts):
-            self._dropped["non_finite"] += 1
-            self._log.warning(
-                f"cmd_vel with NaN/inf ignored: linear=({lin.x}, {lin.y}, {lin.z}) "
-                f"angular=({ang.x}, {ang.y}, {ang.z})", throttle_duration_sec=THROTTLE_S)
-            return
-        ros_now = self.get_clock().now().nanoseconds
-        if stamp_ns is not None and self._watchdog.is_stale(stamp_ns, ros_now):
-            self._dropped["stale_stamp"] += 1
-            self._log.warning(
-                f"stale cmd_vel ignored: stamped {(ros_now - stamp_ns) * 1e-9:.3f} s ago, "
-                f"cmd_vel_timeout is {self._settings.cmd_vel_timeout:g} s",
-                throttle_duration_sec=THROTTLE_S)
-            return
         now_ns = self._steady.now().nanoseconds
-        self._watchdog.accept(Command(lin.x, lin.y, ang.z), now_ns, stamp_ns)
+        refusal = self._pipeline.accept((lin.x, lin.y, lin.z), (ang.x, ang.y, ang.z), now_ns,
+                                        self.get_clock().now().nanoseconds, stamp_ns)
+        if refusal is not None:
+            self._throttle.warning(refusal.reason, refusal.text)
+            return
         self._accepted_ns = now_ns
         self._command_rate.add(now_ns * 1e-9)
-        self._last_moving = any(p != 0.0 for p in parts)
-        self._counted_limits = set()
+        self._last_moving = any(p != 0.0 for p in (lin.x, lin.y, lin.z, ang.x, ang.y, ang.z))
 
     # --- output -----------------------------------------------------------------
 
     def _on_tick(self) -> None:
         now = self._steady.now().nanoseconds
-        period = 1.0 / self._settings.wheel_command_rate
-        last, self._last_tick_ns = self._last_tick_ns, now
-        # Measured period, capped: after a stall the limits must not allow a leap.
-        dt = period if last is None else min((now - last) * 1e-9, 2.0 * period)
-        command = self._watchdog.current(now, self.get_clock().now().nanoseconds)
-        if command is None:
+        tick = self._pipeline.tick(now, self.get_clock().now().nanoseconds)
+        if tick.refused is not None:
+            self._throttle.warning(tick.refused.reason, tick.refused.text)
+        elif not tick.commanding:
             if self._moving:
                 self._log.info(
                     f"no valid cmd_vel for {self._settings.cmd_vel_timeout:g} s: stopping")
-            self._moving = False
-            linear, angular = 0.0, 0.0
             if not self._received:
                 self._check_input_type(now)
-        else:
-            self._moving = True
-            linear, angular = self._body_twist(command)
-        out = self._limiter.step(linear, angular, dt)
-        if command is not None:
-            self._count_limits(out)
-        self._publish(out)
+        self._moving = tick.commanding
+        self._publish(tick)
         self._output_rate.add(now * 1e-9)
 
-    def _body_twist(self, c: Command) -> tuple[float, float]:
-        offset = self._settings.control_point_offset
-        if offset != 0.0:
-            return point_velocity_to_twist(offset, c.linear_x, c.linear_y)
-        return c.linear_x, c.angular_z
-
-    def _publish(self, out: LimitedCommand) -> None:
+    def _publish(self, tick: Tick) -> None:
         s = self._settings
-        left, right = out.left, out.right
-        if not (math.isfinite(left) and math.isfinite(right)):  # cannot happen; never NaN
-            self._log.warning("non-finite wheel command replaced by zeros",
-                              throttle_duration_sec=THROTTLE_S)
-            left = right = 0.0
-            self._limiter.reset()
-        if s.wheel_command_format == TICKS_PER_SECOND:
-            k = s.ticks_per_revolution / (2.0 * math.pi)
-            left, right = left * k, right * k
-        rates = [left] * len(s.left_wheel_names) + [right] * len(s.right_wheel_names)
         stamp = self.get_clock().now().to_msg()
         if s.wheel_command_format == JOINT_STATE:
             js = JointState()
             js.header.stamp = stamp
             js.name = list(s.wheel_names)
-            js.velocity = rates
+            js.velocity = list(tick.rates)
             self._wheel_pub.publish(js)
         else:
-            self._wheel_pub.publish(Float64MultiArray(data=rates))
+            self._wheel_pub.publish(Float64MultiArray(data=list(tick.rates)))
         if s.publish_limited_velocity and self._limited_pub is not None:
             ts = TwistStamped()
             ts.header.stamp = stamp
-            ts.twist.linear.x = out.linear
-            ts.twist.angular.z = out.angular
+            ts.twist.linear.x = tick.linear
+            ts.twist.angular.z = tick.angular
             self._limited_pub.publish(ts)
 
     # --- diagnostics --------------------------------------------------------------
@@ -250,21 +193,11 @@ class CmdVelNode(Node):
         start = self._steady.now().nanoseconds * 1e-9
         self._accepted_ns = None
         self._last_moving = False
-        self._limited = dict.fromkeys(LIMIT_REASONS, 0)
-        self._counted_limits = set()
-        self._dropped = dict.fromkeys(DROP_REASONS, 0)
         self._command_rate = RateMeter(start)
         self._output_rate = RateMeter(start)
         self._reporter = Reporter(cmd_vel_report)
         self._diagnostics = ros_common.DiagnosticsPublisher(
             self, DIAGNOSTIC_TASK, self._diagnose)
-
-    def _count_limits(self, out: LimitedCommand) -> None:
-        """Count each command once per limit that changed how it is followed."""
-        for reason in out.limited:
-            if reason not in self._counted_limits:
-                self._counted_limits.add(reason)
-                self._limited[reason] += 1
 
     def _diagnose(self) -> Report:
         now_ns = self._steady.now().nanoseconds
@@ -280,8 +213,8 @@ class CmdVelNode(Node):
             command_age_s=None if self._accepted_ns is None
             else (now_ns - self._accepted_ns) * 1e-9,
             last_command_moving=self._last_moving,
-            limited=dict(self._limited),
-            dropped=dict(self._dropped),
+            limited=dict(self._pipeline.limited),
+            dropped=dict(self._pipeline.dropped),
             command_rate_hz=self._command_rate.rate(now_ns * 1e-9),
             output_rate_hz=self._output_rate.rate(now_ns * 1e-9),
             expected_output_hz=s.wheel_command_rate,

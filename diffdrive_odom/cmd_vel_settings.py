@@ -30,6 +30,9 @@ JOINT_STATE = "joint_state"
 TICKS_PER_SECOND = "ticks_per_second"
 WHEEL_COMMAND_FORMATS: tuple[str, ...] = (FLOAT64_ARRAY, JOINT_STATE, TICKS_PER_SECOND)
 
+# [rad/s] ~95 000 rpm: no wheel turns this fast, so a command beyond it is nonsense.
+DEFAULT_PLAUSIBLE_WHEEL_VELOCITY = 1e4
+
 # Odometry-only geometry rows the cmd_vel node has no use for.
 _NOT_USED = ("encoder_counter_bits",)
 
@@ -97,6 +100,11 @@ CMD_VEL_OWN_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("max_wheel_velocity", "double", math.nan,
               "Fastest joint rate [rad/s]; faster commands scale both wheels alike "
               "(keeps curvature); .nan or 0 = no limit."),
+    ParamSpec("max_plausible_wheel_velocity", "double", DEFAULT_PLAUSIBLE_WHEEL_VELOCITY,
+              "Sanity bound [rad/s], > 0: a command whose wheel targets (after control point, "
+              "inverse kinematics and limits) are beyond it or not finite is refused with a "
+              "warning and counted as dropped 'implausible', never forwarded; the default is "
+              "beyond any robot. Not a limit: see max_wheel_velocity."),
     *(spec for axis in _AXES for spec in _limit_specs(*axis)),
 )
 
@@ -120,6 +128,19 @@ class CmdVelSettings:
     publish_limited_velocity: bool
     control_point_offset: float
     limits: CommandLimits
+    max_plausible_wheel_velocity: float
+
+    @property
+    def output_per_rad_s(self) -> float:
+        """wheel_commands units per rad/s: 1, or counts per radian for ticks_per_second."""
+        if self.wheel_command_format == TICKS_PER_SECOND:
+            return self.ticks_per_revolution / (2.0 * math.pi)
+        return 1.0
+
+    @property
+    def output_unit(self) -> str:
+        """The unit of wheel_commands, for messages."""
+        return "counts/s" if self.wheel_command_format == TICKS_PER_SECOND else "rad/s"
 
     @property
     def wheel_names(self) -> tuple[str, ...]:
@@ -171,6 +192,15 @@ def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
         limits = CommandLimits(linear, angular, v["max_wheel_velocity"])
     except LimitError as err:
         raise ParameterError(err.field, err.reason) from err
+    plausible = v["max_plausible_wheel_velocity"]
+    if not (math.isfinite(plausible) and plausible > 0.0):
+        raise ParameterError("max_plausible_wheel_velocity",
+                             f"must be finite and > 0 [rad/s], got {plausible!r}")
+    if limits.max_wheel_velocity > plausible:
+        raise ParameterError("max_wheel_velocity",
+                             f"must not exceed max_plausible_wheel_velocity ({plausible:g} "
+                             f"rad/s): commands beyond that are refused, not saturated; "
+                             f"got {limits.max_wheel_velocity!r}")
     return CmdVelSettings(
         geometry=geometry,
         left_wheel_names=wheels.left_wheel_names,
@@ -183,4 +213,5 @@ def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
         publish_limited_velocity=v["publish_limited_velocity"],
         control_point_offset=offset,
         limits=limits,
+        max_plausible_wheel_velocity=plausible,
     )

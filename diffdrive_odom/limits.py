@@ -301,12 +301,9 @@ class TwistLimiter:
 
     def step(self, linear: float, angular: float, dt: float) -> LimitedCommand:
         """Limit the twist (v [m/s], w [rad/s]) ``dt`` seconds after the previous step."""
-        v = self.linear.limit(linear, dt)
-        w = self.angular.limit(angular, dt)
-        left, right = wheel_rates(self.geometry, v, w)
-        left, right, scale = scale_to_wheel_limit(left, right, self.limits.max_wheel_velocity)
+        v, w, left, right, scale = self._wheels(self.linear.limit(linear, dt),
+                                                self.angular.limit(angular, dt))
         if scale != 1.0:
-            v, w = v * scale, w * scale  # the IK is linear: the twist these wheels give
             self.linear.correct(v)
             self.angular.correct(w)
         acted = {*self.linear.limited_by, *self.angular.limited_by}
@@ -314,6 +311,25 @@ class TwistLimiter:
             acted.add("wheel_saturation")
         limited = tuple(r for r in LIMIT_REASONS if r in acted)
         return LimitedCommand(v, w, left, right, scale, limited)
+
+    def settled(self, linear: float, angular: float) -> tuple[float, float]:
+        """The joint rates a held twist is limited to: velocity bounds, wheel saturation.
+
+        Acceleration and jerk only shape the way there, so this is the target a command
+        is judged by (the cmd_vel plausibility check). Overflow shows as inf/NaN.
+        """
+        v = _clamp(linear, *self.linear.limits.velocity_bounds)
+        w = _clamp(angular, *self.angular.limits.velocity_bounds)
+        _, _, left, right, _ = self._wheels(v, w)
+        return left, right
+
+    def _wheels(self, v: float, w: float) -> tuple[float, float, float, float, float]:
+        """IK then curvature-keeping saturation: (v, w, left, right, scale) as commanded."""
+        left, right = wheel_rates(self.geometry, v, w)
+        left, right, scale = scale_to_wheel_limit(left, right, self.limits.max_wheel_velocity)
+        if scale != 1.0:
+            v, w = v * scale, w * scale  # the IK is linear: the twist these wheels give
+        return v, w, left, right, scale
 
 
 @dataclass(frozen=True)

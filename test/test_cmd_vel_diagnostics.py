@@ -104,7 +104,7 @@ def test_commanding_limited_then_timed_out() -> None:
             assert_finite(s)
 
 
-def test_nan_twist_is_counted_as_dropped() -> None:
+def test_nan_and_implausible_twists_are_counted_as_dropped() -> None:
     with diagnosed([]) as peer:
         pub = peer.node.create_publisher(Twist, "cmd_vel", 10)
         assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0, 15.0)
@@ -114,11 +114,18 @@ def test_nan_twist_is_counted_as_dropped() -> None:
         assert s.message.startswith("dropped ") and "non_finite" in s.message
         assert s.values["state"] == "never commanded"  # a NaN is not a command
         assert s.values["dropped: stale_stamp"] == "0"
+        assert s.values["dropped: implausible"] == "0"
         assert_finite(s)
         # No new drop: back to OK, the total kept.
         total = s.values["dropped (total)"]
         calm = peer.wait_for(lambda s: s.values["dropped since last report"] == "0", 5.0)
         assert calm.level == 0 and calm.values["dropped (total)"] == total
+        # 1e300 m/s = 1e301 rad/s at r = 0.1 m: finite, but beyond any wheel.
+        publish_for(peer, pub, twist(1e300), 0.5)
+        s = peer.wait_for(lambda s: int(s.values["dropped: implausible"]) > 0, 10.0)
+        assert s.level == 1 and "implausible" in s.message
+        assert s.values["state"] == "never commanded"
+        assert_finite(s)
 
 
 def test_namespace_is_in_the_name_and_the_topic_stays_absolute() -> None:

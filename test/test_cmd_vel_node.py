@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import random
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -58,6 +59,10 @@ def test_defaults_refuse_to_guess_the_geometry() -> None:
         ("linear.x.min_velocity", 0.2),
         ("angular.z.max_jerk", -1.0),
         ("max_wheel_velocity", -3.0),
+        ("max_wheel_velocity", 2e4),  # beyond max_plausible_wheel_velocity: never reached
+        ("max_plausible_wheel_velocity", 0.0),
+        ("max_plausible_wheel_velocity", math.inf),
+        ("max_plausible_wheel_velocity", math.nan),
         ("wheel_command_rate", 0.0),
         ("cmd_vel_timeout", -0.1),
         ("control_point_offset", math.inf),
@@ -379,3 +384,87 @@ def test_bad_parameters_stop_the_node_with_their_name() -> None:
         "wheel_radius": ["-p", f"wheel_separation:={B}"],
     }
     assert_refuses_to_start("cmd_vel_node", cases)
+
+
+# --- nonsense never reaches the driver ----------------------------------------------------
+
+PLAUSIBLE = 1e4  # max_plausible_wheel_velocity's default [rad/s]
+TICKS_PER_REV = 4096.0
+OFFSET = 0.1
+
+
+def random_part(rng: random.Random) -> float:
+    """One Twist component: mostly ordinary, often absurd, sometimes not a number."""
+    kind = rng.random()
+    sign = rng.choice((-1.0, 1.0))
+    if kind < 0.35:
+        return rng.uniform(-2.0, 2.0)
+    if kind < 0.55:
+        return sign * math.pow(10.0, rng.uniform(4.0, 308.0))  # huge but finite
+    if kind < 0.65:
+        return sign * math.pow(10.0, rng.uniform(1.0, 4.0))
+    if kind < 0.75:
+        return sign * rng.choice((5e-324, 2.2e-308, 1e-300, 1e-12))  # denormal / tiny
+    if kind < 0.8:
+        return sign * math.inf
+    if kind < 0.85:
+        return math.nan
+    return 0.0
+
+
+# (format, extra arguments, output units per rad/s, wheels per side, the reproduced case)
+FUZZ_NODES = [
+    ("float64_array", ["-p", f"control_point_offset:={OFFSET}",
+                       "-p", "left_wheel_names:=['fl','rl']",
+                       "-p", "right_wheel_names:=['fr','rr']"], 1.0, 2,
+     twist(0.0, 0.0, vy=1e308)),  # w = vy / l overflowed in the timer and killed the node
+    ("ticks_per_second", ["-p", f"ticks_per_revolution:={TICKS_PER_REV}",
+                          "-p", "linear.x.max_acceleration:=50.0"],
+     TICKS_PER_REV / (2 * math.pi), 1, twist(1e306, 0.0)),  # [inf, inf] after scaling
+    ("joint_state", [], 1.0, 1, twist(1e300, 0.0)),  # forwarded as 3e306 rad/s
+]
+
+
+@pytest.mark.parametrize(("fmt", "extra", "k", "per_side", "reproduced"), FUZZ_NODES,
+                         ids=[n[0] for n in FUZZ_NODES])
+def test_fuzzed_twists_never_reach_the_driver_and_a_normal_command_follows(
+        fmt: str, extra: list[str], k: float, per_side: int, reproduced: Twist) -> None:
+    args = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}",
+            "-p", f"wheel_command_format:={fmt}", *extra]
+    msg_type = JointState if fmt == "joint_state" else Float64MultiArray
+
+    def values(m: Any) -> list[float]:
+        return list(m.velocity if fmt == "joint_state" else m.data)
+
+    with cmd_vel_node(args) as (proc, node, ex):
+        sink = Sink()
+        node.create_subscription(msg_type, "/wheel_commands", sink.add, 1000)
+        pub = node.create_publisher(Twist, "/cmd_vel", 10)
+        wait_connected(ex, pub, sink, proc)
+        drive(ex, pub, lambda: reproduced, 0.3)
+        rng = random.Random(9)
+        for _ in range(400):
+            msg = Twist()
+            msg.linear.x, msg.linear.y, msg.linear.z = (random_part(rng) for _ in range(3))
+            msg.angular.x, msg.angular.y, msg.angular.z = (random_part(rng) for _ in range(3))
+            pub.publish(msg)
+            spin_for(ex, 0.004)
+        drive(ex, pub, lambda: reproduced, 0.3)
+        assert proc.poll() is None, "node died: " + output(proc)
+
+        v, w = 0.5, 1.0
+        left, right = (v - w * B / 2) / R * k, (v + w * B / 2) / R * k
+        expected = [left] * per_side + [right] * per_side
+        normal = twist(v, 0.0, vy=w * OFFSET) if "control_point_offset" in str(extra) \
+            else twist(v, w)
+        assert spin_until(ex, lambda: (pub.publish(normal), values(sink.msgs[-1][1]))[1]
+                          == pytest.approx(expected), 10.0), values(sink.msgs[-1][1])
+        assert proc.poll() is None, "node died: " + output(proc)
+    bound = PLAUSIBLE * k
+    outputs = [values(m) for _, m in sink.msgs]
+    bad = [x for out in outputs for x in out if not (math.isfinite(x) and abs(x) <= bound)]
+    print(f"{fmt}: {len(outputs)} wheel commands, largest "
+          f"{max(abs(x) for out in outputs for x in out if math.isfinite(x)):.6g}, "
+          f"bound {bound:.6g}")
+    assert not bad, bad[:5]
+    assert "implausible cmd_vel refused" in output(proc)

@@ -254,6 +254,28 @@ def test_twist_limiter_output_is_the_twist_of_its_wheels() -> None:
     assert max(abs(out.left), abs(out.right)) <= 5.0 + 1e-12
 
 
+def test_settled_is_where_the_limited_steps_end_up() -> None:
+    # v capped at 1 m/s, w at 2 rad/s: wheels (1 -+ 2 * 0.2) / 0.1 = 6 and 14 rad/s;
+    # acceleration and jerk only delay getting there.
+    geometry = Geometry(wheel_radius=0.1, wheel_separation=0.4)
+    limits = CommandLimits(AxisLimits(max_velocity=1.0, max_acceleration=3.0),
+                           AxisLimits(max_velocity=2.0, max_jerk=50.0), max_wheel_velocity=20.0)
+    tl = TwistLimiter(limits, geometry)
+    assert tl.settled(5.0, 9.0) == pytest.approx((6.0, 14.0))
+    for _ in range(300):
+        out = tl.step(5.0, 9.0, DT)
+    assert (out.left, out.right) == pytest.approx((6.0, 14.0))
+    # With a 10 rad/s wheel limit both scale by 10 / 14 (the curvature kept).
+    saturated = TwistLimiter(CommandLimits(AxisLimits(max_velocity=1.0),
+                                           AxisLimits(max_velocity=2.0), 10.0), geometry)
+    out = saturated.step(5.0, 9.0, DT)
+    assert saturated.settled(5.0, 9.0) == pytest.approx((6.0 * 10 / 14, 10.0))
+    assert (out.left, out.right) == pytest.approx((6.0 * 10 / 14, 10.0))
+    # Overflow is reported, not raised: the caller refuses such a command.
+    assert not all(math.isfinite(x) for x in TwistLimiter(
+        CommandLimits(max_wheel_velocity=10.0), geometry).settled(1e308, 0.0))
+
+
 def test_watchdog_expires_by_arrival_and_by_stamp() -> None:
     wd: Watchdog[str] = Watchdog(0.5)
     assert wd.current(0, 0) is None
