@@ -234,7 +234,7 @@ class CommandHealth:
 
     ``limited`` counts the commands whose following was changed by each limit (a
     command counts once per limit); ``dropped`` the commands refused, by reason
-    ("non_finite", "stale_stamp"). ``last_command_moving`` says whether the last
+    ("non_finite", "stale_stamp", "implausible"). ``last_command_moving`` says whether the last
     accepted command asked for motion: a watchdog stop then means the sender went
     silent mid-motion.
     """
