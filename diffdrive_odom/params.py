@@ -139,9 +139,9 @@ ODOMETRY_PARAMS: tuple[ParamSpec, ...] = (
               "propagated: covariance from wheel noise through each step (grows with "
               "distance); static: the two diagonals below, as diff_drive_controller."),
     ParamSpec("wheel_noise_k_left", "double", DEFAULT_K,
-              "Left wheel-travel noise [m]: variance k |arc| per step (propagated model)."),
+              "Left wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated)."),
     ParamSpec("wheel_noise_k_right", "double", DEFAULT_K,
-              "Right wheel-travel noise [m]: variance k |arc| per step (propagated model)."),
+              "Right wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated)."),
     ParamSpec("pose_covariance_diagonal", "double_array",
               [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 0.01],
               "Diagonal of the pose covariance (x, y, z, roll, pitch, yaw); "
