@@ -181,10 +181,11 @@ def twist_message_covariance(t: Matrix) -> list[float]:
     return _message_layout(t, (0, 5))
 
 
+_PLANAR = [UNOBSERVED_VARIANCE if i in (14, 21, 28) else 0.0 for i in range(36)]
+
+
 def _message_layout(m: Matrix, rows: tuple[int, ...]) -> list[float]:
-    cov = [0.0] * 36
-    for i in (2, 3, 4):  # z, roll, pitch (or their rates): nothing known
-        cov[7 * i] = UNOBSERVED_VARIANCE
+    cov = _PLANAR.copy()  # z, roll, pitch (or their rates): nothing known
     for a, ra in enumerate(rows):
         for b, rb in enumerate(rows):
             cov[6 * ra + rb] = float(m[a][b])
