@@ -272,3 +272,21 @@ def test_static_model_publishes_the_diagonals_propagated_the_model(tmp_path: Pat
     assert pipe.covariances()[0] == pose
     pipe.reset()
     assert pipe.covariances()[0][0] == 0.0
+
+
+def test_runtime_changes_of_the_model_carry_the_covariance_on() -> None:
+    """A new k applies from the next step; static -> propagated starts from zero there."""
+    pipe = ReadingPipeline(odometry_settings({**BASE, "wheel_noise_k_left": 1e-5,
+                                              "wheel_noise_k_right": 1e-5}))
+    pipe.feed(1, JOINTS, [0.0, 0.0])
+    pipe.feed(1 + STEP_NS, JOINTS, [1.0, 1.0])
+    pipe.reconfigure(odometry_settings({**BASE, "wheel_noise_k_left": 5e-5,
+                                        "wheel_noise_k_right": 5e-5}))
+    pipe.feed(1 + 2 * STEP_NS, JOINTS, [2.0, 2.0])
+    assert pipe.covariances()[0][0] == pytest.approx((1e-5 + 5e-5) * R / 2, rel=1e-12)
+    pipe.reconfigure(odometry_settings({**BASE, "covariance_model": "static"}))
+    assert pipe.estimator.uncertainty is None
+    assert pipe.covariances()[0][0] == 0.001  # pose_covariance_diagonal default
+    pipe.reconfigure(odometry_settings(BASE))
+    pipe.feed(1 + 3 * STEP_NS, JOINTS, [3.0, 3.0])
+    assert pipe.covariances()[0][0] == pytest.approx(1e-5 * R / 2, rel=1e-12)
