@@ -25,6 +25,9 @@ CSV columns (one row per published odometry, see :data:`CSV_COLUMNS`):
 ``linear``      forward speed along base x [m/s] (rolling mean as the node)
 ``angular``     yaw rate [rad/s] (rolling mean as the node)
 ``status``      estimator verdict: reference / updated / time_reset
+``var_x``,      diagonal of the published pose covariance: variance of x, y
+``var_y``,      [m^2] and yaw [rad^2] (the full 6x6 matrix is in the output bag)
+``var_yaw``
 ==============  =============================================================
 """
 
@@ -57,7 +60,8 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 STORAGES = ("mcap", "sqlite3")
-CSV_COLUMNS = ("stamp_ns", "time", "x", "y", "yaw", "linear", "angular", "status")
+CSV_COLUMNS = ("stamp_ns", "time", "x", "y", "yaw", "linear", "angular", "status",
+               "var_x", "var_y", "var_yaw")
 # Readings displaced further than this many messages from stamp order still come out,
 # in arrival order (the estimator then drops the late one, as the node would).
 REORDER_WINDOW = 64
@@ -434,16 +438,21 @@ class CsvWriter:
             self._file.close()
 
     def row(
-        self, ns: int, x: float, y: float, yaw: float, linear: float, angular: float, status: str
+        self, ns: int, x: float, y: float, yaw: float, linear: float, angular: float, status: str,
+        pose_covariance: Sequence[float] = (),
     ) -> None:
         """One published pose; floats by ``repr`` so reading back is lossless.
 
         The stamp is an integer, so it is written as integers too: a float in seconds
         has only ~0.2 us resolution at today's epoch (``1600000000.1000001``).
+        ``pose_covariance`` is the message's 6x6 row-major matrix; its x, y and yaw
+        variances fill the last three columns (left empty without one).
         """
+        variances = ([repr(float(pose_covariance[i])) for i in (0, 7, 35)]
+                     if pose_covariance else ["", "", ""])
         self._csv.writerow(
             (ns, seconds_text(ns), repr(x), repr(y), repr(yaw), repr(linear), repr(angular),
-             status)
+             status, *variances)
         )
 
 

@@ -42,6 +42,7 @@ from diffdrive_odom.encoders import (
 from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.integration import Pose2D, compose
 from diffdrive_odom.kinematics import Geometry, body_increment
+from diffdrive_odom.uncertainty import NoiseModel, PoseUncertainty
 
 
 class Status(enum.Enum):
@@ -140,6 +141,7 @@ class OdometryEstimator:
         geometry: Geometry,
         encoders: EncoderConfig,
         config: EstimatorConfig | None = None,
+        noise: NoiseModel | None = None,
     ) -> None:
         self.encoders = encoders
         self.config = config or EstimatorConfig()
@@ -154,6 +156,10 @@ class OdometryEstimator:
         self._reference: WheelReading | None = None
         self._linear_mean = _RollingMean(self.config.velocity_rolling_window_size)
         self._angular_mean = _RollingMean(self.config.velocity_rolling_window_size)
+        # Pose / twist covariance propagated through each step; None = not modelled
+        # (covariance_model static: the caller publishes fixed diagonals).
+        self.uncertainty: PoseUncertainty | None = None
+        self.set_noise(noise)
 
     @property
     def stamp_ns(self) -> int | None:
@@ -169,16 +175,35 @@ class OdometryEstimator:
         """Swap geometry at runtime (a parameter change); the pose carries on from here."""
         self.geometry = geometry
 
+    def set_noise(self, noise: NoiseModel | None) -> None:
+        """Swap the noise model (None = no covariance propagation); the covariance carries on."""
+        if noise is None:
+            self.uncertainty = None
+            return
+        if self.uncertainty is not None:
+            self.uncertainty.model = noise
+            return
+        self.uncertainty = PoseUncertainty(
+            noise,
+            self.encoders.ticks_per_revolution,
+            len(self.encoders.left_wheel_names),
+            self.config.velocity_rolling_window_size,
+        )
+
     def reset(self) -> None:
         """Pose and twist to zero; the last reading stays the reference, so no jump follows."""
         self.pose = Pose2D()
         self.last_step = None
         self._forget_twist()
+        if self.uncertainty is not None:
+            self.uncertainty.reset()
 
     def _forget_twist(self) -> None:
         self.linear = self.angular = 0.0
         self._linear_mean.clear()
         self._angular_mean.clear()
+        if self.uncertainty is not None:
+            self.uncertainty.forget_twist()
 
     def restart(self) -> None:
         """Forget everything, including the reference reading."""
@@ -242,6 +267,9 @@ class OdometryEstimator:
 
     def _integrate(self, inc: WheelIncrement) -> None:
         ds, dtheta = body_increment(self.geometry, inc.d_left, inc.d_right)
+        if self.uncertainty is not None:
+            self.uncertainty.propagate(
+                self.pose, self.geometry, ds, dtheta, inc.d_left, inc.d_right, inc.dt)
         self.pose = compose(self.pose, ds, dtheta)
         self.last_step = Step(inc.dt, ds, dtheta)
         self.last_increment = inc

@@ -32,7 +32,6 @@ from diffdrive_odom.diagnostics import (
 from diffdrive_odom.odometry import (
     Reason,
     Status,
-    covariance_matrix,
     yaw_to_quaternion,
 )
 from diffdrive_odom.params import (
@@ -57,8 +56,6 @@ class OdometryNode(Node):
         settings = self._build(values)
         self._settings = settings
         self._pipeline = ReadingPipeline(settings)
-        self._pose_cov = covariance_matrix(settings.pose_covariance_diagonal)
-        self._twist_cov = covariance_matrix(settings.twist_covariance_diagonal)
         self._throttle = ros_common.KeyedThrottle(self.get_logger())
         self._guard = ros_common.ParameterGuard(self, values, self._build, self._apply)
 
@@ -92,8 +89,6 @@ class OdometryNode(Node):
     def _apply(self, settings: OdometrySettings) -> None:
         """Install accepted runtime changes; the pose carries on without a jump."""
         self._settings = settings
-        self._pose_cov = covariance_matrix(settings.pose_covariance_diagonal)
-        self._twist_cov = covariance_matrix(settings.twist_covariance_diagonal)
         self._pipeline.reconfigure(settings)
         self.get_logger().info("parameters updated")
 
@@ -154,7 +149,8 @@ class OdometryNode(Node):
     def _publish(self, stamp: Any) -> None:
         est = self._pipeline.estimator
         pose, s = est.pose, self._settings
-        values = (pose.x, pose.y, pose.theta, est.linear, est.angular)
+        pose_cov, twist_cov = self._pipeline.covariances()
+        values = (pose.x, pose.y, pose.theta, est.linear, est.angular, *pose_cov, *twist_cov)
         if not all(math.isfinite(v) for v in values):  # cannot happen; never publish NaN
             self._throttle.warning("non_finite_output", "non-finite odometry suppressed")
             return
@@ -166,10 +162,10 @@ class OdometryNode(Node):
         p = odom.pose.pose
         p.position.x, p.position.y = pose.x, pose.y
         p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = qx, qy, qz, qw
-        odom.pose.covariance = self._pose_cov
+        odom.pose.covariance = pose_cov
         odom.twist.twist.linear.x = est.linear
         odom.twist.twist.angular.z = est.angular
-        odom.twist.covariance = self._twist_cov
+        odom.twist.covariance = twist_cov
         self._odom_pub.publish(odom)
         if s.enable_odom_tf:
             tf = TransformStamped()

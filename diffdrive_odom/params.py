@@ -22,6 +22,7 @@ from diffdrive_odom.errors import ParameterError as ParameterError  # re-exporte
 from diffdrive_odom.errors import as_parameter_error
 from diffdrive_odom.kinematics import Geometry
 from diffdrive_odom.odometry import EstimatorConfig
+from diffdrive_odom.uncertainty import DEFAULT_K, NoiseModel
 
 ParamValue = Any
 
@@ -134,12 +135,21 @@ ODOMETRY_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("enable_odom_tf", "bool", True, "Publish odom -> base_link on /tf."),
     ParamSpec("publish_rate", "double", 0.0,
               "Max odometry publish rate [Hz]; 0 = publish every reading."),
+    ParamSpec("covariance_model", "string", "propagated",
+              "propagated: covariance from wheel noise through each step (grows with "
+              "distance); static: the two diagonals below, as diff_drive_controller."),
+    ParamSpec("wheel_noise_k_left", "double", DEFAULT_K,
+              "Left wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated)."),
+    ParamSpec("wheel_noise_k_right", "double", DEFAULT_K,
+              "Right wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated)."),
     ParamSpec("pose_covariance_diagonal", "double_array",
               [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 0.01],
-              "Diagonal of the pose covariance (x, y, z, roll, pitch, yaw)."),
+              "Diagonal of the pose covariance (x, y, z, roll, pitch, yaw); "
+              "covariance_model static only."),
     ParamSpec("twist_covariance_diagonal", "double_array",
               [0.001, 1.0e-6, 1.0e6, 1.0e6, 1.0e6, 0.01],
-              "Diagonal of the twist covariance (vx, vy, vz, wx, wy, wz)."),
+              "Diagonal of the twist covariance (vx, vy, vz, wx, wy, wz); "
+              "covariance_model static only."),
     ParamSpec("velocity_rolling_window_size", "integer", 1,
               "Readings in the rolling mean of the twist (never applied to the pose)."),
     ParamSpec("max_wheel_speed", "double", 200.0,
@@ -198,6 +208,20 @@ def build_estimator_config(v: Mapping[str, Any]) -> EstimatorConfig:
         )
 
 
+COVARIANCE_MODELS = ("propagated", "static")
+
+
+def build_noise_model(v: Mapping[str, Any]) -> NoiseModel | None:
+    """The wheel noise model, or None for ``covariance_model: static``."""
+    model = v["covariance_model"]
+    if model not in COVARIANCE_MODELS:
+        raise ParameterError(
+            "covariance_model", f"must be one of {', '.join(COVARIANCE_MODELS)}, got {model!r}")
+    with as_parameter_error():
+        noise = NoiseModel(v["wheel_noise_k_left"], v["wheel_noise_k_right"])
+    return noise if model == "propagated" else None
+
+
 @dataclass(frozen=True)
 class OdometrySettings:
     """All validated settings of the odometry node / replay tool."""
@@ -211,6 +235,7 @@ class OdometrySettings:
     publish_rate: float
     pose_covariance_diagonal: tuple[float, ...]
     twist_covariance_diagonal: tuple[float, ...]
+    noise: NoiseModel | None  # None: covariance_model static (the diagonals above)
 
 
 def _covariance(name: str, diag: tuple[float, ...]) -> tuple[float, ...]:
@@ -256,6 +281,7 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
             "pose_covariance_diagonal", v["pose_covariance_diagonal"]),
         twist_covariance_diagonal=_covariance(
             "twist_covariance_diagonal", v["twist_covariance_diagonal"]),
+        noise=build_noise_model(v),
     )
 
 

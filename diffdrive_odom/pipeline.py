@@ -20,8 +20,10 @@ from diffdrive_odom.odometry import (
     Reason,
     Status,
     Verdict,
+    covariance_matrix,
 )
 from diffdrive_odom.params import OdometrySettings
+from diffdrive_odom.uncertainty import pose_message_covariance, twist_message_covariance
 
 ZERO_STAMP = Verdict(
     Status.DROPPED, Reason.ZERO_STAMP,
@@ -89,8 +91,9 @@ class ReadingPipeline:
     def __init__(self, settings: OdometrySettings) -> None:
         self._settings = settings
         self._estimator = OdometryEstimator(
-            settings.geometry, settings.encoders, settings.estimator
+            settings.geometry, settings.encoders, settings.estimator, settings.noise
         )
+        self._static = _static_covariances(settings)
         self._gate = PublishGate(settings.publish_rate)
         self._readings = 0
         self._published = 0
@@ -158,6 +161,19 @@ class ReadingPipeline:
             self._published += 1
         return Outcome(verdict, publish, note)
 
+    def covariances(self) -> tuple[list[float], list[float]]:
+        """Pose and twist covariance (6x6 row-major) of the current estimate.
+
+        ``covariance_model`` propagated: the estimator's propagated model; static: the
+        configured diagonals. The node and replay both publish exactly this.
+        """
+        est = self._estimator
+        unc = est.uncertainty
+        if unc is None:
+            return self._static
+        return (pose_message_covariance(unc.pose_covariance(est.pose, est.geometry)),
+                twist_message_covariance(unc.twist_covariance()))
+
     def reset(self) -> None:
         """Pose and twist to the origin; the next reading is published whatever the rate."""
         self._estimator.reset()
@@ -171,12 +187,21 @@ class ReadingPipeline:
         """
         old = self._settings
         self._settings = settings
+        self._static = _static_covariances(settings)
         self._gate.rate = settings.publish_rate
         if settings.encoders != old.encoders or settings.estimator != old.estimator:
-            pose = self._estimator.pose
+            before = self._estimator
             self._estimator = OdometryEstimator(
-                settings.geometry, settings.encoders, settings.estimator
+                settings.geometry, settings.encoders, settings.estimator, settings.noise
             )
-            self._estimator.pose = pose
+            self._estimator.pose = before.pose
+            if before.uncertainty is not None and self._estimator.uncertainty is not None:
+                self._estimator.uncertainty.covariance = before.uncertainty.covariance
         else:
             self._estimator.set_geometry(settings.geometry)
+            self._estimator.set_noise(settings.noise)
+
+
+def _static_covariances(settings: OdometrySettings) -> tuple[list[float], list[float]]:
+    return (covariance_matrix(settings.pose_covariance_diagonal),
+            covariance_matrix(settings.twist_covariance_diagonal))

@@ -40,7 +40,7 @@ from rosbags.interfaces import Connection
 from diffdrive_odom import bagio, evaluate
 from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.integration import Pose2D
-from diffdrive_odom.odometry import Reason, Status, covariance_matrix
+from diffdrive_odom.odometry import Reason, Status
 from diffdrive_odom.params import (
     OdometrySettings,
     ParameterError,
@@ -93,6 +93,8 @@ class Published:
     linear: float
     angular: float
     status: Status
+    pose_covariance: Sequence[float]  # 6x6 row-major, as the node publishes it
+    twist_covariance: Sequence[float]
 
 
 @dataclass
@@ -149,7 +151,7 @@ def replay_readings(
             stats.examples.setdefault(verdict.code, verdict.reason)
         if outcome.publish and sink is not None:
             sink(Published(r.stamp_ns, r.log_ns, est.pose, est.linear, est.angular,
-                           verdict.status))
+                           verdict.status, *pipe.covariances()))
     stats.seconds = time.perf_counter() - start
     stats.pipeline = pipe.stats
     stats.readings, stats.published = stats.pipeline.readings, stats.pipeline.published
@@ -410,19 +412,19 @@ def _sink(
     args: argparse.Namespace,
 ) -> Callable[[Published], None]:
     msgs = bagio.OdomMessages(bagio.typestore(), settings.odom_frame_id, settings.base_frame_id)
-    pose_cov = covariance_matrix(settings.pose_covariance_diagonal)
-    twist_cov = covariance_matrix(settings.twist_covariance_diagonal)
     tf = settings.enable_odom_tf
 
     def sink(p: Published) -> None:
         x, y, yaw = p.pose.x, p.pose.y, p.pose.theta
         if writer is not None:
             writer.write(args.odom_topic, p.log_ns, msgs.odometry(
-                p.stamp_ns, x, y, yaw, p.linear, p.angular, pose_cov, twist_cov))
+                p.stamp_ns, x, y, yaw, p.linear, p.angular, p.pose_covariance,
+                p.twist_covariance))
             if tf:
                 writer.write(args.tf_topic, p.log_ns, msgs.tf(p.stamp_ns, x, y, yaw))
         if csv_out is not None:
-            csv_out.row(p.stamp_ns, x, y, yaw, p.linear, p.angular, p.status.value)
+            csv_out.row(p.stamp_ns, x, y, yaw, p.linear, p.angular, p.status.value,
+                        p.pose_covariance)
         if traj is not None:
             traj.add(p)
 

@@ -38,7 +38,10 @@ def report_lines(out: str) -> tuple[list[str], list[str]]:
 
 
 def test_odometry_node_takes_the_controllers_file() -> None:
-    with node_process("odometry_node", ARGS) as proc, ros_test_node() as (node, ex):
+    # The file's covariance diagonals are published as diff_drive_controller does with
+    # covariance_model static (the propagated default computes them instead).
+    args = [*ARGS, "-p", "covariance_model:=static"]
+    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
         got = node_parameters(node, ex, FQN, [
             "wheel_radius", "wheel_separation", "left_wheel_radius_multiplier",
             "right_wheel_radius_multiplier", "wheel_separation_multiplier", "publish_rate",

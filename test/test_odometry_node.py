@@ -6,11 +6,14 @@ runs) and talks to it from a private-Context peer node.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter as ParameterMsg
@@ -22,6 +25,9 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
+from diffdrive_odom.cli import main as cli
+
+from bagutil import mcap_messages, write_params
 from rosutil import ROOT, assert_refuses_to_start, node_process, ros_test_node, spin_for, spin_until
 
 T0_NS = 1_700_000_000 * 10**9  # an arbitrary, realistic epoch for stamps
@@ -318,8 +324,10 @@ def _output_after_stop(proc: Any) -> str:
 
 def test_publish_rate_throttles_by_stamp_and_tf_can_be_disabled() -> None:
     """10 Hz out of 50 Hz readings: every fifth stamp, decided by the stamps themselves."""
+    pose_diag = [0.002, 0.003, 1e6, 1e6, 1e6, 0.04]
     args = ["--ros-args", "-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4",
-            "-p", "publish_rate:=10.0", "-p", "enable_odom_tf:=false"]
+            "-p", "publish_rate:=10.0", "-p", "enable_odom_tf:=false",
+            "-p", "covariance_model:=static", "-p", f"pose_covariance_diagonal:={pose_diag}"]
     with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
         sink = listen(node, "/odom")
         pub = node.create_publisher(JointState, "/joint_states", 10)
@@ -333,3 +341,81 @@ def test_publish_rate_throttles_by_stamp_and_tf_can_be_disabled() -> None:
     final = max(sink.odom, key=lambda o: _ns(o.header.stamp))
     assert math.isclose(final.pose.pose.position.x, 0.1 * 0.1 * 50, abs_tol=1e-9)
     assert not any(t.child_frame_id == "base_link" for m in sink.tf for t in m.transforms)
+    # covariance_model static: the configured diagonals, as diff_drive_controller does.
+    expected_pose = [0.0] * 36
+    for i, d in enumerate(pose_diag):
+        expected_pose[7 * i] = d
+    default_twist = [0.001, 1e-6, 1e6, 1e6, 1e6, 0.01]  # twist_covariance_diagonal default
+    expected_twist = [0.0] * 36
+    for i, d in enumerate(default_twist):
+        expected_twist[7 * i] = d
+    assert all(list(o.pose.covariance) == expected_pose for o in sink.odom)
+    assert all(list(o.twist.covariance) == expected_twist for o in sink.odom)
+
+
+def _joint_bag(path: Path, stamps_ns: list[int], positions: list[list[float]]) -> None:
+    """The readings sent to the node, as a JointState MCAP (rosbags' own message classes)."""
+    from diffdrive_odom import bagio
+
+    with bagio.BagWriter(path) as writer:
+        writer.add_topic("/joint_states", bagio.JOINT_STATE)
+        types: Any = writer.typestore.types
+        for ns, position in zip(stamps_ns, positions, strict=True):
+            msg = types[bagio.JOINT_STATE](
+                header=types["std_msgs/msg/Header"](
+                    stamp=types["builtin_interfaces/msg/Time"](sec=ns // 10**9,
+                                                               nanosec=ns % 10**9),
+                    frame_id=""),
+                name=["left_wheel_joint", "right_wheel_joint"],
+                position=np.array(position, dtype=np.float64),
+                velocity=np.zeros(0), effort=np.zeros(0))
+            writer.write("/joint_states", ns, msg)
+
+
+def test_propagated_covariance_grows_along_a_drive_and_replay_writes_the_same(
+    tmp_path: Path,
+) -> None:
+    """Straight line, both wheels with noise k: var(x) = k s / 2 and var(yaw) = 2 k s / b^2.
+
+    The closed form is derived in test_uncertainty (Chong and Kleeman's wheel-travel
+    model linearised about a straight path); here it is what comes over DDS, and
+    ``diffdrive-odom replay`` of the same readings writes the same matrices.
+    """
+    r, b, k = 0.05, 0.3, 2e-5
+    params = write_params(tmp_path / "p.yaml", {
+        "wheel_radius": r, "wheel_separation": b,
+        "wheel_noise_k_left": k, "wheel_noise_k_right": k})
+    per_step, steps = 0.4, 40  # 2 cm per reading, 0.8 m
+    with node_process("odometry_node", ["--ros-args", "--params-file", str(params)]) as proc, \
+            ros_test_node() as (node, ex):
+        sink = listen(node, "/odom")
+        pub = node.create_publisher(JointState, "/joint_states", 10)
+        wait_ready(ex, pub, sink, proc)
+        last = T0_NS + _drive_straight(pub, ex, sink, 0, steps, per_step) * STEP_NS
+        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
+    live = {_ns(o.header.stamp): o for o in sink.odom}
+    assert len(live) == steps + 1
+    var_x = []
+    for ns in sorted(live):
+        o = live[ns]
+        s = o.pose.pose.position.x  # distance driven
+        c = list(o.pose.covariance)
+        assert math.isclose(c[0], k * s / 2, rel_tol=1e-9, abs_tol=1e-18)
+        assert math.isclose(c[35], 2 * k * s / b**2, rel_tol=1e-9, abs_tol=1e-18)
+        assert [c[14], c[21], c[28]] == [1e6, 1e6, 1e6]  # z, roll, pitch: unobserved
+        var_x.append(c[0])
+    assert var_x[0] == 0.0 and all(v > u for u, v in itertools.pairwise(var_x))
+    final = live[last]
+    dt, h = STEP_NS * 1e-9, r * per_step
+    assert math.isclose(final.twist.covariance[0], 2 * k * h / 4 / dt**2, rel_tol=1e-9)
+    assert math.isclose(final.twist.covariance[35], 2 * k * h / b**2 / dt**2, rel_tol=1e-9)
+
+    bag, out = tmp_path / "in", tmp_path / "out"
+    _joint_bag(bag, [T0_NS + i * STEP_NS for i in range(steps + 1)],
+               [[i * per_step, i * per_step] for i in range(steps + 1)])
+    assert cli(["replay", str(bag), "--params-file", str(params), "-o", str(out)]) == 0
+    replayed = {_ns(m.header.stamp): m for _, _, m in mcap_messages(out, ["/odom"])}
+    assert sorted(replayed) == sorted(live)
+    for ns, m in replayed.items():
+        assert list(m.pose.covariance) == list(live[ns].pose.covariance)
+        assert list(m.twist.covariance) == list(live[ns].twist.covariance)

@@ -100,6 +100,10 @@ def test_optiodom_replay_matches_firmware_and_first_principles(tmp_path: Path, r
     assert int(rows[-1]["stamp_ns"]) == readings[-1].stamp_ns
     assert float(rows[-1]["x"]) == p.position.x and float(rows[-1]["y"]) == p.position.y
     assert rows[0]["status"] == "reference" and rows[1]["status"] == "updated"
+    # ... and the diagonal of the bag's propagated pose covariance, which grows as it drives.
+    c = list(last.pose.covariance)
+    assert [float(rows[-1][k]) for k in ("var_x", "var_y", "var_yaw")] == [c[0], c[7], c[35]]
+    assert float(rows[0]["var_yaw"]) == 0.0 < c[35]
 
 
 @pytest.mark.parametrize("run", RUNS)

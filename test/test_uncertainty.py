@@ -1,0 +1,292 @@
+"""Propagated covariance: closed forms, properties, and consistency by Monte Carlo.
+
+The wheel-travel noise model is Chong and Kleeman's ("Accurate odometry and error
+modelling for a mobile robot", ICRA 1997): each wheel's ground arc over a step is off
+by zero-mean noise of variance ``k |arc|``. Expected values come from that definition
+(closed forms derived in the docstrings) or from simulating it (the simulated base's
+wheel slip has exactly this variance with ``slip_stddev = sqrt(k)``), never from the
+code under test.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from diffdrive_odom.encoders import EncoderConfig
+from diffdrive_odom.errors import ParameterError
+from diffdrive_odom.kinematics import Geometry, wheel_rates
+from diffdrive_odom.odometry import OdometryEstimator, covariance_matrix
+from diffdrive_odom.params import odometry_settings
+from diffdrive_odom.pipeline import ReadingPipeline
+from diffdrive_odom.sim import DiffDriveSim, SimConfig
+from diffdrive_odom.uncertainty import (
+    UNOBSERVED_VARIANCE,
+    NoiseModel,
+    pose_message_covariance,
+    twist_message_covariance,
+)
+
+R, B = 0.05, 0.3
+GEOMETRY = Geometry(R, B)
+NAMES = ["l", "r"]
+ENCODERS = EncoderConfig(("l",), ("r",))
+STEP_NS = 50_000_000  # 20 Hz
+
+
+def _estimator(k_left: float, k_right: float, encoders: EncoderConfig = ENCODERS,
+               geometry: Geometry = GEOMETRY) -> OdometryEstimator:
+    return OdometryEstimator(geometry, encoders, noise=NoiseModel(k_left, k_right))
+
+
+def _p3(est: OdometryEstimator) -> np.ndarray:
+    assert est.uncertainty is not None
+    return np.array(est.uncertainty.pose_covariance(est.pose, est.geometry))
+
+
+# --- closed forms ---------------------------------------------------------------------
+
+
+def test_straight_line_closed_form() -> None:
+    """N equal steps of length h along x (s = N h), both wheels with noise k.
+
+    Linearised about the straight path, a step's errors are ``w_s = (e_l + e_r) / 2``
+    along the path and ``w_t = (e_r - e_l) / b`` in heading, with
+    ``var(e) = k h``: ``var(w_s) = k h / 2``, ``var(w_t) = 2 k h / b^2``, independent.
+    x only sees the along-path errors: ``var(x) = N k h / 2 = k s / 2``. Heading is
+    their sum: ``var(theta) = 2 k s / b^2``. The chord of step i points at the mid-step
+    heading, so ``dy_i = h (theta_{i-1} + w_t,i / 2)`` and the coefficient of
+    ``w_t,j`` in y is ``h (N - j + 1/2)``; summing its square over j:
+    ``var(y) = h^2 var(w_t) (N^3 / 3 - N / 12) = (2 k / b^2)(s^3 / 3 - s h^2 / 12)``,
+    ``cov(y, theta) = h var(w_t) N^2 / 2 = k s^2 / b^2``, ``cov(x, .) = 0``.
+    """
+    k, rad, n = 4e-5, 0.6, 80
+    est = _estimator(k, k)
+    est.update(1, NAMES, [0.0, 0.0])
+    h = R * rad
+    last_var_x = -1.0
+    for i in range(1, n + 1):
+        est.update(1 + i * STEP_NS, NAMES, [i * rad, i * rad])
+        p = _p3(est)
+        s = i * h
+        assert p[0, 0] == pytest.approx(k * s / 2, rel=1e-12)
+        assert p[0, 0] > last_var_x  # grows with distance
+        last_var_x = p[0, 0]
+    s = n * h
+    assert p[2, 2] == pytest.approx(2 * k * s / B**2, rel=1e-12)
+    assert p[1, 1] == pytest.approx(2 * k / B**2 * (s**3 / 3 - s * h**2 / 12), rel=1e-9)
+    assert p[1, 2] == pytest.approx(k * s**2 / B**2, rel=1e-9)
+    assert abs(p[0, 1]) < 1e-15 and abs(p[0, 2]) < 1e-15
+    # Different noise per side: var(x) = (k_l + k_r) s / 4, var(theta) = (k_l + k_r) s / b^2.
+    est = _estimator(1e-5, 7e-5)
+    est.update(1, NAMES, [0.0, 0.0])
+    est.update(1 + STEP_NS, NAMES, [rad, rad])
+    p = _p3(est)
+    assert p[0, 0] == pytest.approx(8e-5 * h / 4, rel=1e-12)
+    assert p[2, 2] == pytest.approx(8e-5 * h / B**2, rel=1e-12)
+
+
+def test_twist_covariance_from_the_same_model_and_dt() -> None:
+    """v = (s_l + s_r) / 2 dt, w = (s_r - s_l) / b dt with var(s) = k |s|, per step."""
+    kl, kr, dl, dr = 2e-5, 5e-5, 0.3, -0.5  # joint increments [rad]
+    dt = STEP_NS * 1e-9
+    est = _estimator(kl, kr)
+    est.update(1, NAMES, [0.0, 0.0])
+    est.update(1 + STEP_NS, NAMES, [dl, dr])
+    assert est.uncertainty is not None
+    t = np.array(est.uncertainty.twist_covariance())
+    vl, vr = kl * abs(R * dl), kr * abs(R * dr)
+    assert t[0, 0] == pytest.approx((vl + vr) / 4 / dt**2, rel=1e-12)
+    assert t[1, 1] == pytest.approx((vl + vr) / B**2 / dt**2, rel=1e-12)
+    assert t[0, 1] == pytest.approx((vr - vl) / (2 * B) / dt**2, rel=1e-12)
+
+
+def test_quantization_is_a_floor_not_a_per_step_variance() -> None:
+    """Standing still, the pose covariance is the two readings' quantization, at any rate.
+
+    One tick is ``2 pi / tpr`` rad; a reading is off by a uniform error of variance
+    ``tick^2 / 12`` per wheel; the pose depends on the reference and the current
+    reading only (the increments telescope): ``var(theta) = 2 * 2 (r tick)^2 / 12 / b^2``.
+    """
+    tpr = 1000.0
+    encoders = EncoderConfig(("l",), ("r",), ticks_per_revolution=tpr)
+    expected = 4 * (R * 2 * math.pi / tpr) ** 2 / 12 / B**2
+    for rate_steps in (10, 1000):  # 10 and 1000 readings of the same standstill
+        est = _estimator(1e-4, 1e-4, encoders)
+        for i in range(rate_steps + 1):
+            est.update(1 + i * 1_000_000, NAMES, [5.0, 7.0])
+        assert _p3(est)[2, 2] == pytest.approx(expected, rel=1e-12)
+
+
+def test_message_layout_is_planar() -> None:
+    p = ((1.0, 0.1, 0.2), (0.1, 2.0, 0.3), (0.2, 0.3, 3.0))
+    m = np.array(pose_message_covariance(p)).reshape(6, 6)
+    np.testing.assert_array_equal(m[np.ix_([0, 1, 5], [0, 1, 5])], np.array(p))
+    assert [m[i, i] for i in (2, 3, 4)] == [UNOBSERVED_VARIANCE] * 3
+    assert (m == m.T).all() and np.count_nonzero(m) == 9 + 3
+    t = np.array(twist_message_covariance(((4.0, 0.5), (0.5, 6.0)))).reshape(6, 6)
+    assert (t[0, 0], t[0, 5], t[5, 0], t[5, 5]) == (4.0, 0.5, 0.5, 6.0)
+    assert t[1, 1] == 0.0 and [t[i, i] for i in (2, 3, 4)] == [UNOBSERVED_VARIANCE] * 3
+
+
+# --- properties -----------------------------------------------------------------------
+
+
+steps_strategy = st.lists(
+    st.tuples(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0), st.integers(1, 200)),
+    min_size=1, max_size=60)
+
+
+@settings(derandomize=True, max_examples=150, deadline=None)
+@given(steps=steps_strategy, k_left=st.floats(0.0, 1e-2), k_right=st.floats(0.0, 1e-2),
+       tpr=st.sampled_from([0.0, 64.0, 2796.8]))
+def test_covariance_stays_a_covariance_and_reset_restores_the_start(
+    steps: list[tuple[float, float, int]], k_left: float, k_right: float, tpr: float
+) -> None:
+    encoders = EncoderConfig(("l",), ("r",), ticks_per_revolution=tpr)
+    est = _estimator(k_left, k_right, encoders)
+    assert est.uncertainty is not None
+    start = est.uncertainty.covariance
+    t, left, right = 1, 0.0, 0.0
+    est.update(t, NAMES, [left, right])
+    for d_left, d_right, ms in steps:
+        t += ms * 1_000_000
+        left, right = left + d_left, right + d_right
+        est.update(t, NAMES, [left, right])
+        for m in (_p3(est), np.array(est.uncertainty.twist_covariance())):
+            assert np.isfinite(m).all()
+            assert (m == m.T).all()
+            scale = max(1.0, float(np.abs(m).max()))
+            assert np.linalg.eigvalsh(m).min() >= -1e-12 * scale
+    est.reset()
+    assert est.uncertainty.covariance == start
+    assert est.uncertainty.twist_covariance() == ((0.0, 0.0), (0.0, 0.0))
+
+
+# --- consistency: NEES over a Monte Carlo of the simulated base -------------------------
+
+
+def _chi2_quantile(p: float, dof: int) -> float:
+    """Wilson-Hilferty: (X / nu)^(1/3) is close to normal, mean 1 - 2/(9 nu), var 2/(9 nu).
+
+    Within 1e-4 relative of the exact quantile for the hundreds of degrees of freedom
+    used here (scipy is not a dependency of the package).
+    """
+    z = {0.025: -1.959963984540054, 0.975: 1.959963984540054}[p]
+    c = 2.0 / (9.0 * dof)
+    return dof * (1.0 - c + z * math.sqrt(c)) ** 3
+
+
+def _route() -> list[tuple[float, float, float]]:
+    """(seconds, m/s, rad/s): straight, left arc, spin, right arc, straight."""
+    return [(2.0, 0.4, 0.0), (2.0, 0.3, 0.8), (1.0, 0.0, -1.5), (2.0, 0.3, -0.6),
+            (1.5, 0.4, 0.0)]
+
+
+def _final_nees(k_true: float, k_model: float, runs: int) -> np.ndarray:
+    nees = np.empty(runs)
+    for run in range(runs):
+        sim = DiffDriveSim(SimConfig(GEOMETRY, slip_stddev=math.sqrt(k_true),
+                                     command_timeout=0.0, seed=run))
+        est = _estimator(k_model, k_model)
+        t = STEP_NS
+        est.update(t, NAMES, list(sim.joint_angles))
+        for seconds, v, w in _route():
+            sim.command(list(wheel_rates(GEOMETRY, v, w)))
+            for _ in range(round(seconds * 1e9 / STEP_NS)):
+                sim.advance(STEP_NS)
+                t += STEP_NS
+                est.update(t, NAMES, list(sim.joint_angles))
+        truth, pose = sim.pose, est.pose
+        e = np.array([pose.x - truth.x, pose.y - truth.y,
+                      math.remainder(pose.theta - truth.theta, 2 * math.pi)])
+        nees[run] = e @ np.linalg.solve(_p3(est), e)
+    return nees
+
+
+RUNS = 250
+K_TRUE = 1e-4  # m: 1 cm per metre rolled (1 sigma), heading sigma ~0.16 rad at the end
+
+
+def test_nees_of_the_final_pose_is_inside_the_95_percent_bounds() -> None:
+    """Consistent: N * mean NEES ~ chi2(3N), inside its two-sided 95 % interval."""
+    nees = _final_nees(K_TRUE, K_TRUE, RUNS)
+    low, high = _chi2_quantile(0.025, 3 * RUNS), _chi2_quantile(0.975, 3 * RUNS)
+    print(f"NEES over {RUNS} runs: mean {nees.mean():.3f} (3 expected), bounds "
+          f"[{low / RUNS:.3f}, {high / RUNS:.3f}]")
+    assert low <= nees.sum() <= high, nees.mean()
+
+
+def test_nees_fails_when_the_model_k_is_ten_times_too_small() -> None:
+    """The same test can fail: with k / 10 the covariance is overconfident."""
+    runs = 60
+    nees = _final_nees(K_TRUE, K_TRUE / 10, runs)
+    assert nees.sum() > _chi2_quantile(0.975, 3 * runs), nees.mean()
+
+
+# --- parameters and the pipeline --------------------------------------------------------
+
+
+BASE = {"wheel_radius": R, "wheel_separation": B}
+
+
+@pytest.mark.parametrize(("name", "value"), [
+    ("covariance_model", "dynamic"),
+    ("wheel_noise_k_left", -1e-5),
+    ("wheel_noise_k_right", float("nan")),
+    ("wheel_noise_k_left", float("inf")),
+])
+def test_bad_noise_parameters_name_themselves(name: str, value: object) -> None:
+    with pytest.raises(ParameterError) as err:
+        odometry_settings({**BASE, name: value})
+    assert err.value.name == name
+
+
+JOINTS = ["left_wheel_joint", "right_wheel_joint"]
+
+
+def test_static_model_publishes_the_diagonals_propagated_the_model(tmp_path: Path) -> None:
+    pose_diag, twist_diag = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0], [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    static = ReadingPipeline(odometry_settings({
+        **BASE, "covariance_model": "static", "pose_covariance_diagonal": pose_diag,
+        "twist_covariance_diagonal": twist_diag}))
+    assert static.settings.noise is None and static.estimator.uncertainty is None
+    static.feed(1, JOINTS, [0.0, 0.0])
+    static.feed(1 + STEP_NS, JOINTS, [1.0, 1.0])
+    assert static.covariances() == (covariance_matrix(pose_diag), covariance_matrix(twist_diag))
+
+    pipe = ReadingPipeline(odometry_settings({**BASE, "wheel_noise_k_left": 3e-5,
+                                              "wheel_noise_k_right": 3e-5}))
+    pipe.feed(1, JOINTS, [0.0, 0.0])
+    pipe.feed(1 + STEP_NS, JOINTS, [1.0, 1.0])
+    pose, _ = pipe.covariances()
+    assert pose[0] == pytest.approx(3e-5 * R / 2, rel=1e-12)
+    # A runtime change of the encoder settings keeps the covariance, as it keeps the pose.
+    pipe.reconfigure(odometry_settings({**BASE, "wheel_noise_k_left": 3e-5,
+                                        "wheel_noise_k_right": 3e-5, "max_wheel_speed": 50.0}))
+    assert pipe.covariances()[0] == pose
+    pipe.reset()
+    assert pipe.covariances()[0][0] == 0.0
+
+
+def test_runtime_changes_of_the_model_carry_the_covariance_on() -> None:
+    """A new k applies from the next step; static -> propagated starts from zero there."""
+    pipe = ReadingPipeline(odometry_settings({**BASE, "wheel_noise_k_left": 1e-5,
+                                              "wheel_noise_k_right": 1e-5}))
+    pipe.feed(1, JOINTS, [0.0, 0.0])
+    pipe.feed(1 + STEP_NS, JOINTS, [1.0, 1.0])
+    pipe.reconfigure(odometry_settings({**BASE, "wheel_noise_k_left": 5e-5,
+                                        "wheel_noise_k_right": 5e-5}))
+    pipe.feed(1 + 2 * STEP_NS, JOINTS, [2.0, 2.0])
+    assert pipe.covariances()[0][0] == pytest.approx((1e-5 + 5e-5) * R / 2, rel=1e-12)
+    pipe.reconfigure(odometry_settings({**BASE, "covariance_model": "static"}))
+    assert pipe.estimator.uncertainty is None
+    assert pipe.covariances()[0][0] == 0.001  # pose_covariance_diagonal default
+    pipe.reconfigure(odometry_settings(BASE))
+    pipe.feed(1 + 3 * STEP_NS, JOINTS, [3.0, 3.0])
+    assert pipe.covariances()[0][0] == pytest.approx(1e-5 * R / 2, rel=1e-12)
