@@ -51,9 +51,10 @@ import numpy.typing as npt
 from scipy import optimize
 
 from diffdrive_odom.batch import WheelSteps, final_pose, integrate_steps
-from diffdrive_odom.integration import Pose2D, compose, compose_jacobians
-from diffdrive_odom.kinematics import Geometry, wheel_arcs
+from diffdrive_odom.integration import Pose2D, compose
+from diffdrive_odom.kinematics import Geometry, body_increment, wheel_arcs
 from diffdrive_odom.metrics import Metrics, Trajectory, evaluate
+from diffdrive_odom.uncertainty import NoiseModel, PoseUncertainty
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -359,28 +360,25 @@ def _unit_noise(w: _Windows, geometry: Geometry, heading_length: float
                 ) -> tuple[FloatArray, FloatArray]:
     """Per window, the residual covariance for k_left = 1 and for k_right = 1: (w, 3, 3) each.
 
-    Unit wheel-travel variance ``|s|`` per step and side, mapped to ``(ds, dtheta)``
-    and propagated through the step's Jacobians from the window's first pose.
+    The covariance is linear in each k, so the node's own propagation
+    (:class:`~diffdrive_odom.uncertainty.PoseUncertainty`) with a unit k on one side
+    and none on the other gives each side's share, from the window's first pose.
     """
     steps = w.run.steps
-    s_left, s_right = wheel_arcs(geometry, steps.d_left, steps.d_right)
-    b = geometry.separation
-    g_left = np.array([0.5, -1.0 / b])  # d(ds, dtheta) / d s_left
-    g_right = np.array([0.5, 1.0 / b])
     scale = np.diag([1.0, 1.0, heading_length])
     out_l, out_r = np.zeros((len(w.start), 3, 3)), np.zeros((len(w.start), 3, 3))
     for k, (a, e) in enumerate(zip(w.index[w.start], w.index[w.end], strict=True)):
         pose = Pose2D()
-        p_l, p_r = np.zeros((3, 3)), np.zeros((3, 3))
+        unit_l = PoseUncertainty(NoiseModel(k_left=1.0, k_right=0.0))
+        unit_r = PoseUncertainty(NoiseModel(k_left=0.0, k_right=1.0))
         for i in range(a + 1, e + 1):
-            sl, sr = float(s_left[i]), float(s_right[i])
-            ds, dth = 0.5 * (sl + sr), (sr - sl) / b
-            f_pose, f_step = (np.array(m) for m in compose_jacobians(pose, ds, dth))
-            col_l, col_r = f_step @ g_left, f_step @ g_right
-            p_l = f_pose @ p_l @ f_pose.T + np.outer(col_l, col_l) * abs(sl)
-            p_r = f_pose @ p_r @ f_pose.T + np.outer(col_r, col_r) * abs(sr)
+            d_l, d_r, dt = float(steps.d_left[i]), float(steps.d_right[i]), float(steps.dt[i])
+            ds, dth = body_increment(geometry, d_l, d_r)
+            for unit in (unit_l, unit_r):
+                unit.propagate(pose, geometry, ds, dth, d_l, d_r, dt)
             pose = compose(pose, ds, dth)
-        out_l[k], out_r[k] = scale @ p_l @ scale, scale @ p_r @ scale
+        out_l[k] = scale @ np.array(unit_l.covariance) @ scale
+        out_r[k] = scale @ np.array(unit_r.covariance) @ scale
     return out_l, out_r
 
 
