@@ -167,6 +167,9 @@ class WheelIncrement:
     dt: float
     d_left: float
     d_right: float
+    # Largest change of any one wheel (rad; NaN if one is not finite): two wheels of a
+    # side that disagree wildly can still average to a plausible number.
+    peak: float = 0.0
 
 
 class JointLookup:
@@ -276,4 +279,5 @@ def increment(
             for a, b in zip(previous.values, current.values, strict=True)
         ]
     n = len(config.left_wheel_names)
-    return WheelIncrement(dt, side_mean(deltas[:n]), side_mean(deltas[n:]))
+    peak = max(abs(d) for d in deltas) if all(math.isfinite(d) for d in deltas) else math.nan
+    return WheelIncrement(dt, side_mean(deltas[:n]), side_mean(deltas[n:]), peak)

@@ -339,14 +339,13 @@ class OdometryEstimator:
         or, whatever the settings (``max_wheel_speed: .inf`` included), a wheel rolling
         more than ``MAX_STEP_ARC`` metres, or a value that is not a finite number.
         """
-        d_max = max(abs(inc.d_left), abs(inc.d_right))
-        if not d_max <= self.config.max_wheel_speed * inc.dt:  # NaN fails too
-            return (f"wheel moved {d_max:.4g} rad in {inc.dt:.4g} s, over max_wheel_speed "
-                    f"{self.config.max_wheel_speed:g} rad/s")
-        s_left, s_right = wheel_arcs(self.geometry, inc.d_left, inc.d_right)
-        arc = max(abs(s_left), abs(s_right))
-        if not arc <= MAX_STEP_ARC:
-            return f"a wheel rolled {arc:.4g} m in one step, over {MAX_STEP_ARC:g} m"
+        moved = (abs(inc.d_left), abs(inc.d_right), abs(inc.peak))
+        if not all(d <= self.config.max_wheel_speed * inc.dt for d in moved):  # NaN fails
+            return (f"wheel moved {_largest(moved):.4g} rad in {inc.dt:.4g} s, over "
+                    f"max_wheel_speed {self.config.max_wheel_speed:g} rad/s")
+        arcs = [abs(a) for a in wheel_arcs(self.geometry, inc.d_left, inc.d_right)]
+        if not all(a <= MAX_STEP_ARC for a in arcs):
+            return f"a wheel rolled {_largest(arcs):.4g} m in one step, over {MAX_STEP_ARC:g} m"
         return ""
 
     def _integrate(self, inc: WheelIncrement, rate: WheelIncrement) -> bool:
@@ -369,6 +368,11 @@ class OdometryEstimator:
         self.linear = self._linear_mean.push(linear)
         self.angular = self._angular_mean.push(angular)
         return True
+
+
+def _largest(values: Sequence[float]) -> float:
+    """The largest of ``values``, NaN if any is (``max`` would depend on the order)."""
+    return math.nan if any(math.isnan(v) for v in values) else max(values)
 
 
 def yaw_to_quaternion(theta: float) -> tuple[float, float, float, float]:
