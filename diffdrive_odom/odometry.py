@@ -5,17 +5,27 @@ reading flows one way: decode (encoders) -> increment -> kinematics -> CIR step
 (integration). Every reading gets a verdict (:class:`Status`) so the caller can log
 or count without the estimator knowing about ROS logging.
 
-Rules that make it safe to feed anything:
+Rules that make it safe to feed anything (no exception escapes, no state is ever
+non-finite):
 - the first reading (and the first after a reset or a re-anchor) is the reference:
   it is never integrated as motion, whatever its value;
-- a reading that cannot be used (bad arrays, NaN, same or slightly older stamp) is
-  dropped and the reference kept;
-- a step faster than ``max_wheel_speed`` is dropped and the reading becomes the new
-  reference, so one glitch costs one step instead of freezing;
-- a reading more than ``max_reading_gap`` after the last usable one becomes the new
-  reference: over a long pause (a driver restart that zeroes its counters) the
-  difference of two readings says nothing about the motion, even when it is slow
-  enough to pass the speed check;
+- a reading that cannot be used (bad arrays, NaN, a count outside the counter's range,
+  same or slightly older stamp) is dropped and the reference kept. After older stamps
+  (reordering, a driver's clock stepping back less than ``time_jump_threshold``) the
+  next newer reading still integrates from the reference, so no motion is lost; the
+  step's interval is rebuilt from the older stamps and the twist comes from the last
+  of them, so it does not spike;
+- an implausible step is skipped and the reading becomes the new reference, so one
+  glitch costs one step instead of freezing. Implausible is defined once
+  (:meth:`OdometryEstimator._implausible`): a wheel faster than ``max_wheel_speed``
+  over the step (whose interval the gap rule bounds), a wheel rolling more than
+  :data:`MAX_STEP_ARC` whatever the settings, or a step that is not finite;
+- a reading more than ``max_reading_gap`` after the last usable one is held: if the
+  next reading continues from it (within ``max_reading_gap`` after it), the pause was
+  real and it becomes the new reference (over a driver restart that zeroes its
+  counters the difference of two readings says nothing about the motion); if the next
+  is back near the old timeline, it was a lone outlier and is dropped
+  (``future_stamp``), so a bogus stamp neither licenses travel nor fakes a bag loop;
 - a stamp far in the past (a bag played in a loop) starts over at the origin.
 """
 
@@ -108,8 +118,9 @@ class EstimatorConfig:
     max_wheel_speed: float = 200.0  # rad/s of a joint; faster steps are implausible
     velocity_rolling_window_size: int = 1
     time_jump_threshold: float = 1.0  # s; a stamp further back than this restarts
-    # s; a reading this long after the last usable one is a new reference (inf = off).
-    # 1 s: a 5 Hz driver (0.2 s) keeps integrating, a restart pause does not.
+    # s; a reading this long after the last usable one is held, then a new reference
+    # or an outlier (inf = off). 1 s: a 5 Hz driver (0.2 s) keeps integrating, a
+    # restart pause does not.
     max_reading_gap: float = 1.0
 
     def __post_init__(self) -> None:
