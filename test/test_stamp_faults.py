@@ -10,12 +10,13 @@ motion, no twist spike, no NaN.
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 from sensor_msgs.msg import JointState
 from test_faults import R, odometry_node, reading
 from test_odometry_node import STEP_NS, T0_NS, _ns, listen, send_first, wait_ready
 
-from rosutil import ros_test_node, spin_for, spin_until
+from rosutil import ros_test_node, spin_for
 
 RAD_PER_STEP = 0.1  # 5 rad/s at 50 Hz
 BACK_NS = 300_000_000
@@ -59,7 +60,7 @@ def test_far_future_and_stepped_back_stamps_keep_pose_and_twist() -> None:
     assert not out.matching("restarted at the origin"), out.text()
     assert len(outlier) == 1, out.text()
     xs = [o.pose.pose.position.x for o in odom]
-    assert all(b >= a for a, b in zip(xs, xs[1:], strict=False)), "went backwards"
+    assert all(b >= a for a, b in pairwise(xs)), "went backwards"
     final = [o for o in odom if _ns(o.header.stamp) == T0_NS + last * STEP_NS - BACK_NS][-1]
     assert math.isclose(final.pose.pose.position.x, R * RAD_PER_STEP * last, abs_tol=1e-9)
     assert final.pose.pose.position.y == 0.0
