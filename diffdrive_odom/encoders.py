@@ -38,6 +38,9 @@ class Reason(enum.StrEnum):
     TOO_FAST = "too_fast"  # step over max_wheel_speed: skipped, re-anchored
     GAP = "gap"  # more than max_reading_gap since the last usable reading: re-anchored
     TIME_RESET = "time_reset"  # stamp far back: restarted at the origin
+    OUT_OF_RANGE = "out_of_range"  # a count outside the configured counter's range
+    HELD = "held"  # stamp over max_reading_gap ahead: held until the next reading decides
+    FUTURE_STAMP = "future_stamp"  # a lone reading stamped far ahead: dropped as an outlier
     INPUT_SWITCH = "input_switch"  # switched between position and velocity input
 
 
@@ -112,11 +115,40 @@ class EncoderConfig:
 
 
 def unwrap_difference(delta: float, counter_bits: int) -> float:
-    """Shortest signed difference of a counter that wraps at ``2**counter_bits``."""
-    if counter_bits <= 0:
+    """Shortest signed difference of a counter that wraps at ``2**counter_bits``.
+
+    A non-finite difference is passed through (the caller rejects it) rather than
+    raising in ``floor``.
+    """
+    if counter_bits <= 0 or not math.isfinite(delta):
         return delta
     span = float(2**counter_bits)
     return delta - span * math.floor(delta / span + 0.5)
+
+
+def in_counter_range(value: float, counter_bits: int) -> bool:
+    """True if ``value`` can be a count of a ``counter_bits`` counter, signed or unsigned.
+
+    ``[-2**(bits-1), 2**bits)`` covers both; anything outside is not a reading of that
+    counter (and a huge value would unwrap to a meaningless step), so it is dropped.
+    """
+    if counter_bits <= 0:
+        return True
+    return -float(2 ** (counter_bits - 1)) <= value < float(2**counter_bits)
+
+
+def side_mean(values: Sequence[float]) -> float:
+    """Mean of one side's wheel increments; NaN when it cannot be a finite number.
+
+    Huge finite increments overflow in the sum (``fsum`` raises) and opposite infinite
+    ones have no sum at all: either way the step is unusable, and NaN says so without
+    an exception escaping into the node.
+    """
+    try:
+        mean = math.fsum(values) / len(values)
+    except (OverflowError, ValueError):
+        return math.nan
+    return mean if math.isfinite(mean) else math.nan
 
 
 @dataclass(frozen=True)
@@ -135,6 +167,9 @@ class WheelIncrement:
     dt: float
     d_left: float
     d_right: float
+    # Largest change of any one wheel (rad; NaN if one is not finite): two wheels of a
+    # side that disagree wildly can still average to a plausible number.
+    peak: float = 0.0
 
 
 class JointLookup:
@@ -185,12 +220,14 @@ def decode(
     names: Sequence[str],
     position: Sequence[float],
     velocity: Sequence[float],
+    counter_bits: int = 0,
 ) -> WheelReading | Rejection:
     """Pick the wheels' values out of a JointState's arrays; a reason if unusable.
 
     Positions are preferred. Velocities are used when ``position`` is empty or holds
     NaN for every wheel (ros2_control's joint_state_broadcaster reports a missing
-    position interface as NaN).
+    position interface as NaN). With a wrapping counter (``counter_bits`` > 0) a
+    position outside the counter's range is refused.
     """
     idx = lookup.indices(names)
     if idx is None:
@@ -203,6 +240,12 @@ def decode(
     if len(position) > 0:
         values = tuple(float(position[i]) for i in idx)
         if all(math.isfinite(v) for v in values):
+            if not all(in_counter_range(v, counter_bits) for v in values):
+                return Rejection(
+                    Reason.OUT_OF_RANGE,
+                    f"a wheel count is outside the range of a {counter_bits}-bit counter "
+                    "(encoder_counter_bits)",
+                )
             return WheelReading(stamp_ns, values, False)
         if not (len(velocity) > 0 and all(math.isnan(v) for v in values)):
             return Rejection(Reason.NON_FINITE, "a wheel position is NaN or infinite")
@@ -220,7 +263,8 @@ def increment(
     """Per-side mean joint angle change (rad) between two decoded readings.
 
     Positions: difference, unwrapped, scaled. Velocities: trapezoidal rule over the
-    stamp interval (exact for a constant acceleration between readings).
+    stamp interval (exact for a constant acceleration between readings). A side whose
+    mean is not a finite number comes back as NaN (see :func:`side_mean`).
     """
     dt = (current.stamp_ns - previous.stamp_ns) * 1e-9
     scale = config.radians_per_unit
@@ -235,4 +279,5 @@ def increment(
             for a, b in zip(previous.values, current.values, strict=True)
         ]
     n = len(config.left_wheel_names)
-    return WheelIncrement(dt, math.fsum(deltas[:n]) / n, math.fsum(deltas[n:]) / n)
+    peak = max(abs(d) for d in deltas) if all(math.isfinite(d) for d in deltas) else math.nan
+    return WheelIncrement(dt, side_mean(deltas[:n]), side_mean(deltas[n:]), peak)

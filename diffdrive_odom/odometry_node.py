@@ -30,7 +30,6 @@ from diffdrive_odom.diagnostics import (
     odometry_report,
 )
 from diffdrive_odom.odometry import (
-    Reason,
     Status,
     yaw_to_quaternion,
 )
@@ -140,11 +139,9 @@ class OdometryNode(Node):
             self._throttle.info("input_mode", outcome.note)
         if verdict.status is Status.TIME_RESET:
             self.get_logger().warning(verdict.reason)
-        elif verdict.status in (Status.DROPPED, Status.REANCHORED) or verdict.code is Reason.GAP:
-            what = "dropped" if verdict.status is Status.DROPPED else "re-anchored"
-            self._throttle.warning(
-                verdict.code, f"joint_states reading {what} [{verdict.code}]: {verdict.reason}"
-            )
+        elif verdict.warning:
+            self._throttle.warning(verdict.code, f"joint_states reading {verdict.warning} "
+                                   f"[{verdict.code}]: {verdict.reason}")
 
     def _publish(self, stamp: Any) -> None:
         est = self._pipeline.estimator

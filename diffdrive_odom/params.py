@@ -153,12 +153,14 @@ ODOMETRY_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("velocity_rolling_window_size", "integer", 1,
               "Readings in the rolling mean of the twist (never applied to the pose)."),
     ParamSpec("max_wheel_speed", "double", 200.0,
-              "Fastest plausible joint speed [rad/s]; faster steps are skipped."),
+              "Fastest plausible joint speed [rad/s]; faster steps are skipped "
+              "(.inf = no speed check; a wheel rolling over 1 km in one step still is)."),
     ParamSpec("time_jump_threshold", "double", 1.0,
               "A stamp this far [s] behind the last restarts odometry (bag loop)."),
     ParamSpec("max_reading_gap", "double", 1.0,
-              "A reading this long [s] after the last usable one is a new reference, "
-              "no motion integrated (driver restart); .inf = off."),
+              "A reading this long [s] after the last usable one is held; if the next "
+              "continues from it, it is the new reference, no motion integrated (driver "
+              "restart), else it is dropped (future_stamp); .inf = off."),
 )
 
 

@@ -46,8 +46,12 @@ class PipelineStats:
     - ``readings``: readings offered, usable or not.
     - ``published``: poses that passed the publish gate.
     - ``dropped``: readings dropped, by reason code (``zero_stamp``, ``missing_joint``,
-      ``bad_array``, ``non_finite``, ``no_data``, ``stale_stamp``); only codes seen.
-    - ``reanchors``: steps faster than ``max_wheel_speed``, skipped (code ``too_fast``).
+      ``bad_array``, ``non_finite``, ``no_data``, ``out_of_range``, ``stale_stamp``,
+      ``future_stamp``); only codes seen. A reading stamped over ``max_reading_gap``
+      ahead is held (not published, not counted) until the next reading shows whether
+      it was a pause (then a ``gap`` re-anchor) or a lone outlier (``future_stamp``).
+    - ``reanchors``: implausible steps (faster than ``max_wheel_speed``, a wheel rolling
+      over ``odometry.MAX_STEP_ARC``, or not finite), skipped (code ``too_fast``).
     - ``gap_reanchors``: readings more than ``max_reading_gap`` after the last usable
       one, taken as the new reference (code ``gap``).
     - ``time_resets``: restarts at the origin after a stamp jumped back (``time_reset``).
@@ -142,8 +146,10 @@ class ReadingPipeline:
             if stamp_ns > 0 else ZERO_STAMP
         )
         status = verdict.status
-        if status is Status.DROPPED:
-            self._dropped[verdict.code] = self._dropped.get(verdict.code, 0) + 1
+        dropped = verdict.dropped_code
+        if dropped is not None:
+            self._dropped[dropped] = self._dropped.get(dropped, 0) + 1
+        if status in (Status.DROPPED, Status.HELD):
             return Outcome(verdict, False)
         self._last_usable_ns = stamp_ns
         if status is Status.REANCHORED:

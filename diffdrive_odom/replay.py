@@ -146,7 +146,7 @@ def replay_readings(
         outcome = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity)
         verdict = outcome.verdict
         stats.statuses[verdict.status.value] += 1
-        if verdict.status is not Status.UPDATED and verdict.code is not Reason.FIRST:
+        if verdict.code not in (Reason.UPDATED, Reason.FIRST):
             stats.reasons[verdict.code] += 1
             stats.examples.setdefault(verdict.code, verdict.reason)
         if outcome.publish and sink is not None:

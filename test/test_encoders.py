@@ -12,7 +12,9 @@ from diffdrive_odom.encoders import (
     JointLookup,
     WheelReading,
     decode,
+    in_counter_range,
     increment,
+    side_mean,
     unwrap_difference,
 )
 
@@ -178,3 +180,46 @@ def test_velocity_in_counts_per_second_is_scaled() -> None:
     inc = increment(config, previous, current)
     assert inc.d_left == pytest.approx(2 * math.pi, rel=1e-15)  # 1000 counts = 1 turn
     assert inc.d_right == pytest.approx(4 * math.pi, rel=1e-15)
+
+
+# ------------------------------------------------------ values that cannot be steps
+
+
+@pytest.mark.parametrize("values", [[1.7e308, 1.7e308], [math.inf, -math.inf],
+                                    [math.nan, 1.0], [math.inf, 1.0]])
+def test_a_side_mean_that_is_no_finite_number_is_nan(values: list[float]) -> None:
+    assert math.isnan(side_mean(values))
+
+
+def test_a_side_mean_of_large_finite_values_is_exact() -> None:
+    assert side_mean([1e308, -1e308, 3.0]) == 1.0  # fsum: no cancellation error
+
+
+def test_unwrap_passes_non_finite_differences_through() -> None:
+    assert unwrap_difference(math.inf, 16) == math.inf
+    assert math.isnan(unwrap_difference(math.nan, 16))
+
+
+@pytest.mark.parametrize(("value", "bits", "inside"),
+                         [(-32768.0, 16, True), (-32768.5, 16, False), (65535.0, 16, True),
+                          (65536.0, 16, False), (1.7e308, 64, False), (1.7e308, 0, True),
+                          (-(2.0**63), 64, True), (2.0**64, 64, False)])
+def test_counter_range_covers_signed_and_unsigned(value: float, bits: int, inside: bool) -> None:
+    assert in_counter_range(value, bits) is inside
+
+
+def test_decode_refuses_a_count_outside_the_counter() -> None:
+    lookup = JointLookup(ONE)
+    got = decode(lookup, 1, [LEFT, RIGHT], [70000.0, 0.0], [], counter_bits=16)
+    assert not isinstance(got, WheelReading) and got.code == "out_of_range"
+    assert isinstance(decode(lookup, 1, [LEFT, RIGHT], [70000.0, 0.0], []), WheelReading)
+
+
+def test_a_wheel_far_off_its_side_shows_in_the_peak() -> None:
+    a = WheelReading(0, (0.0, 0.0, 0.0, 0.0), False)
+    b = WheelReading(10**8, (-5.0, 5.0, 1.0, 1.0), False)
+    inc = increment(TWO, a, b)
+    assert (inc.d_left, inc.d_right, inc.peak) == (0.0, 1.0, 5.0)
+    huge = WheelReading(10**8, (1.7e308, -1.7e308, 0.0, 0.0), False)
+    assert math.isnan(increment(TWO, WheelReading(0, (-1.7e308, 1.7e308, 0.0, 0.0), False),
+                                huge).peak)

@@ -211,8 +211,9 @@ BAD_READINGS: list[tuple[str, float, list[str], list[float], list[float]]] = [
     ("no data", 0.03, NAMES, [], []),
     ("missing wheel", 0.03, [LEFT], [0.15], []),
     ("repeated stamp", 0.02, NAMES, [0.15, 0.25], []),
-    ("slightly older stamp", 0.019, NAMES, [0.15, 0.25], []),
-    ("older, under the jump threshold", 0.02 - 0.999, NAMES, [0.15, 0.25], []),
+    # Older readings carry the positions of their stamps (5 and 15 rad/s, as the good ones).
+    ("slightly older stamp", 0.019, NAMES, [0.095, 0.285], []),
+    ("older, under the jump threshold", 0.02 - 0.999, NAMES, [-4.895, -14.685], []),
 ]
 
 
@@ -222,7 +223,7 @@ def test_unusable_reading_is_dropped_without_touching_state(
     what: str, t: float, names: list[str], position: list[float], velocity: list[float]
 ) -> None:
     good = [(0.0, 0.0, 0.0), (0.02, 0.1, 0.3)]
-    after = (0.04, 0.2, 0.5)
+    after = (0.04, 0.2, 0.6)  # 5 and 15 rad/s throughout
     est, clean = make(), make()
     feed_positions(est, good)
     feed_positions(clean, good)
@@ -235,7 +236,9 @@ def test_unusable_reading_is_dropped_without_touching_state(
     feed_positions(est, [after])
     feed_positions(clean, [after])
     assert est.pose == clean.pose
-    assert (est.linear, est.angular) == (clean.linear, clean.angular)
+    # An older reading is a true sample of the motion: the twist may come from it.
+    assert est.linear == pytest.approx(clean.linear, rel=1e-12)
+    assert est.angular == pytest.approx(clean.angular, rel=1e-12)
 
 
 @pytest.mark.parametrize(("threshold", "back", "restarts"),
@@ -361,12 +364,18 @@ def test_driver_restart_after_a_pause_is_a_new_reference() -> None:
     feed_positions(est, [(0.1 * k, 2.0 * k, 2.0 * k) for k in range(11)])  # 20 rad, 1 s
     assert_pose(est.pose, Pose2D(0.1 * 20.0, 0.0, 0.0))
     verdict = est.update(ns(5.0), NAMES, [0.0, 0.0])
-    assert verdict.status == Status.REFERENCE and verdict.code == Reason.GAP
-    assert "4.000 s" in verdict.reason and "max_reading_gap" in verdict.reason
-    assert verdict.has_new_pose  # published: the pose as the pause left it
+    # Far ahead: a pause or a lone outlier? Held until the next reading tells.
+    assert verdict.status == Status.HELD and verdict.code == Reason.HELD
+    assert not verdict.has_new_pose and verdict.dropped_code is None
     assert_pose(est.pose, Pose2D(2.0, 0.0, 0.0))
-    assert (est.linear, est.angular) == (0.0, 0.0)  # motion over the gap is unknown
-    feed_positions(est, [(5.0 + 0.1 * k, 1.0 * k, 1.0 * k) for k in range(1, 6)])
+    verdict = est.update(ns(5.1), NAMES, [1.0, 1.0])  # continues from it: a real pause
+    assert verdict.status == Status.UPDATED and verdict.code == Reason.GAP
+    assert "4.000 s" in verdict.reason and "max_reading_gap" in verdict.reason
+    assert verdict.warning == "re-anchored"
+    # The pose as the pause left it plus the 1 rad after; twist from that step only.
+    assert_pose(est.pose, Pose2D(0.1 * 21.0, 0.0, 0.0))
+    assert est.linear == pytest.approx(0.1 * 1.0 / 0.1, rel=1e-12)
+    feed_positions(est, [(5.0 + 0.1 * k, 1.0 * k, 1.0 * k) for k in range(2, 6)])
     assert_pose(est.pose, Pose2D(0.1 * 25.0, 0.0, 0.0))
 
 
@@ -386,6 +395,7 @@ def test_max_reading_gap_bounds_the_integrated_interval(
     feed_positions(est, [(0.0, 0.0, 0.0)])
     verdict = est.update(ns(pause), NAMES, [0.5, 0.5])
     assert (verdict.status == Status.UPDATED) is integrated, verdict
+    assert (verdict.status == Status.HELD) is not integrated, verdict
     assert_pose(est.pose, Pose2D(0.05 if integrated else 0.0, 0.0, 0.0))
 
 
@@ -419,3 +429,179 @@ def test_missing_joint_reason_names_what_was_expected_and_what_came() -> None:
     assert verdict.code == Reason.MISSING_JOINT
     for name in (LEFT, RIGHT, "wheel_l", "wheel_r"):
         assert repr(name) in verdict.reason, verdict.reason
+
+
+# ------------------------------------------------- never crash, never lie (issue 9)
+
+TWO_L, TWO_R = ("fl", "rl"), ("fr", "rr")
+TWO = EncoderConfig(TWO_L, TWO_R)
+FOUR = [*TWO_L, *TWO_R]
+HUGE = 1.7e308
+
+
+def finite_state(est: OdometryEstimator) -> bool:
+    step = est.last_step
+    values = [est.pose.x, est.pose.y, est.pose.theta, est.linear, est.angular]
+    if step is not None:
+        values += [step.dt, step.ds, step.dtheta]
+    return all(math.isfinite(v) for v in values)
+
+
+@pytest.mark.parametrize("bad", [[(HUGE,) * 4], [(-HUGE, -HUGE, HUGE, HUGE)],
+                                 [(-HUGE, HUGE, 0.0, 0.0), (HUGE, -HUGE, 0.0, 0.0)]],
+                         ids=["all huge", "opposite sides", "-inf + inf within a side"])
+def test_huge_positions_on_two_wheels_per_side_are_skipped(
+    bad: list[tuple[float, ...]]
+) -> None:
+    """Overflow in the side mean (and -inf + inf) used to kill the node."""
+    est = make(encoders=TWO)
+    assert est.update(ns(0.0), FOUR, [0.0] * 4).status == Status.REFERENCE
+    t = 0.0
+    for values in bad:
+        t += 0.02
+        verdict = est.update(ns(t), FOUR, list(values))
+        assert verdict.status == Status.REANCHORED and verdict.code == Reason.TOO_FAST
+        assert est.pose == Pose2D() and finite_state(est)
+    # Back to sane counts: one skipped step (from the glitch), then tracked exactly.
+    assert est.update(ns(t + 0.02), FOUR, [1.0] * 4).status == Status.REANCHORED
+    assert est.update(ns(t + 0.04), FOUR, [1.5] * 4).status == Status.UPDATED
+    assert_pose(est.pose, Pose2D(0.1 * 0.5, 0.0, 0.0))
+
+
+def test_wheels_of_a_side_that_disagree_wildly_are_not_averaged_into_a_step() -> None:
+    est = make(encoders=TWO)
+    est.update(ns(0.0), FOUR, [0.0] * 4)
+    verdict = est.update(ns(0.02), FOUR, [-1e6, 1e6, 0.0, 0.0])  # side mean 0: plausible
+    assert verdict.status == Status.REANCHORED and "max_wheel_speed" in verdict.reason
+
+
+COUNTER = EncoderConfig((LEFT,), (RIGHT,), ticks_per_revolution=4096.0, counter_bits=16)
+TICK = 2 * math.pi / 4096
+
+
+@pytest.mark.parametrize("count", [-HUGE, HUGE, 1e300, 65536.0, -32769.0])
+def test_count_outside_the_counter_range_is_dropped(count: float) -> None:
+    """-1.7e308 then 1.7e308 killed the node (floor(inf)); 1e300 unwrapped to a zero step."""
+    est = make(encoders=COUNTER)
+    feed_positions(est, [(0.0, 65000.0, 100.0), (0.02, 65100.0, 200.0)])
+    before = est.pose
+    verdict = est.update(ns(0.04), NAMES, [count, 300.0])
+    assert verdict.status == Status.DROPPED and verdict.code == Reason.OUT_OF_RANGE
+    assert "encoder_counter_bits" in verdict.reason
+    assert est.pose == before
+    # The real motion after it is not lost: 65100 + 600 wraps to 164.
+    assert est.update(ns(0.06), NAMES, [164.0, 800.0]).status == Status.UPDATED
+    assert_pose(est.pose, Pose2D(0.1 * 700 * TICK, 0.0, 0.0))
+
+
+def test_counter_range_limits_are_signed_or_unsigned() -> None:
+    est = make(encoders=COUNTER)
+    for k, count in enumerate([-32768.0, 65535.0, 0.0]):
+        assert est.update(ns(0.02 * k), NAMES, [count, 0.0]).code != Reason.OUT_OF_RANGE
+
+
+@pytest.mark.parametrize("jump", [HUGE, 1e200, 1e20, -1e20])
+def test_absurd_step_with_no_speed_check_never_makes_the_pose_non_finite(jump: float) -> None:
+    """``max_wheel_speed: .inf``: sinc(inf) killed the node, or the pose became NaN."""
+    est = make(config=EstimatorConfig(max_wheel_speed=math.inf))
+    feed_positions(est, [(0.0, 0.0, 0.0), (0.02, 0.1, 0.1)])
+    before = est.pose
+    verdict = est.update(ns(0.04), NAMES, [0.1 + jump, 0.1])
+    assert verdict.status == Status.REANCHORED and verdict.code == Reason.TOO_FAST
+    assert "m in one step" in verdict.reason and verdict.warning == "re-anchored"
+    assert est.pose == before and finite_state(est)
+    # Published and tracked again after the glitch.
+    est.update(ns(0.06), NAMES, [0.2, 0.2])  # from the glitch value: skipped too
+    assert est.update(ns(0.08), NAMES, [0.3, 0.4]).has_new_pose
+    assert finite_state(est)
+
+
+def test_a_large_but_physical_step_passes_with_no_speed_check() -> None:
+    est = make(config=EstimatorConfig(max_wheel_speed=math.inf))
+    feed_positions(est, [(0.0, 0.0, 0.0), (0.5, 9000.0, 9000.0)])  # 900 m in one step
+    assert_pose(est.pose, Pose2D(900.0, 0.0, 0.0), 1e-9)
+
+
+def test_a_step_whose_integration_overflows_is_never_committed() -> None:
+    # A (valid, absurd) 1e-307 m axle: 100 m of wheel difference turns by inf rad.
+    est = make(Geometry(0.1, 1e-307), config=EstimatorConfig(max_wheel_speed=math.inf))
+    feed_positions(est, [(0.0, 0.0, 0.0), (0.02, 1e-300, 0.0)])
+    before = est.pose
+    verdict = est.update(ns(0.04), NAMES, [1e3, 0.0])
+    assert verdict.status == Status.REANCHORED and "not a finite number" in verdict.reason
+    assert est.pose == before and finite_state(est)
+
+
+def test_a_lone_reading_far_in_the_future_is_an_outlier() -> None:
+    """+100 s made the next normal reading look like a bag loop (restart at the origin)."""
+    est = make()
+    feed_positions(est, [(0.02 * k, 0.1 * k, 0.1 * k) for k in range(11)])
+    verdict = est.update(ns(0.2 + 100.0), NAMES, [1.1, 1.1])
+    assert verdict.status == Status.HELD and not verdict.has_new_pose
+    assert not verdict.warning
+    verdict = est.update(ns(0.22), NAMES, [1.1, 1.1])
+    assert verdict.status == Status.UPDATED and verdict.code == Reason.FUTURE_STAMP
+    assert verdict.dropped_code == Reason.FUTURE_STAMP and verdict.warning == "dropped"
+    assert "100.000 s" in verdict.reason
+    assert_pose(est.pose, Pose2D(0.1 * 1.1, 0.0, 0.0))
+    assert est.linear == pytest.approx(0.1 * 5.0, rel=1e-9)  # 0.1 rad per 20 ms
+    feed_positions(est, [(0.02 * k, 0.1 * k, 0.1 * k) for k in range(12, 21)])
+    assert_pose(est.pose, Pose2D(0.1 * 2.0, 0.0, 0.0))
+
+
+def test_a_bogus_hour_ahead_never_licenses_kilometres() -> None:
+    """+1 h with +1e5 rad passed the speed check (the allowed travel grew with dt)."""
+    est = make()
+    feed_positions(est, [(0.0, 0.0, 0.0), (0.02, 0.1, 0.1)])
+    assert est.update(ns(0.02 + 3600.0), NAMES, [1e5, 1e5]).status == Status.HELD
+    assert est.update(ns(0.04), NAMES, [0.2, 0.2]).code == Reason.FUTURE_STAMP
+    assert_pose(est.pose, Pose2D(0.1 * 0.2, 0.0, 0.0))
+
+
+def test_two_far_readings_in_a_row_the_second_one_decides() -> None:
+    est = make()
+    feed_positions(est, [(0.0, 0.0, 0.0)])
+    assert est.update(ns(100.0), NAMES, [5.0, 5.0]).status == Status.HELD
+    verdict = est.update(ns(4.0), NAMES, [0.0, 0.0])  # a real 4 s pause, still far ahead
+    assert verdict.status == Status.HELD and verdict.dropped_code == Reason.FUTURE_STAMP
+    verdict = est.update(ns(4.02), NAMES, [0.1, 0.1])  # continues from the 4 s one
+    assert verdict.code == Reason.GAP and "4.000 s" in verdict.reason
+    assert_pose(est.pose, Pose2D(0.01, 0.0, 0.0))
+
+
+def test_a_bag_loop_after_a_held_reading_still_restarts() -> None:
+    est = make()
+    feed_positions(est, [(10.0, 0.0, 0.0), (10.02, 0.1, 0.1)])
+    assert est.update(ns(200.0), NAMES, [5.0, 5.0]).status == Status.HELD
+    assert est.update(ns(0.0), NAMES, [0.0, 0.0]).status == Status.TIME_RESET
+    assert est.update(ns(0.02), NAMES, [0.1, 0.1]).status == Status.UPDATED
+    assert_pose(est.pose, Pose2D(0.01, 0.0, 0.0))
+
+
+@pytest.mark.parametrize(("left_speed", "right_speed"), [(5.0, 5.0), (4.0, 6.0), (150.0, 190.0)])
+def test_stamps_stepping_back_lose_no_motion_and_spike_no_twist(
+    left_speed: float, right_speed: float
+) -> None:
+    """The issue's numbers: 50 Hz, at 1 s the driver's clock steps back 0.3 s, 0.5 s more.
+
+    Constant wheel speeds: the path is one circle, so pose and twist have a closed form
+    at every true time. On main the first step after the stale readings covered 0.32 s
+    of motion in 0.02 s of stamps: a 16x twist spike, or (fast wheels) a skipped step.
+    """
+    est = make()
+    period, back = 0.02, 0.3
+    arc_rate = 0.1 * (left_speed + right_speed) / 2  # m/s
+    turn_rate = 0.1 * (right_speed - left_speed) / 0.4  # rad/s
+    stale = 0
+    for k in range(76):  # true times 0 .. 1.5 s
+        t = period * k
+        stamp = t if t <= 1.0 + 1e-9 else t - back
+        verdict = est.update(ns(stamp), NAMES, [left_speed * t, right_speed * t])
+        assert verdict.status in (Status.REFERENCE, Status.UPDATED, Status.DROPPED), verdict
+        stale += verdict.status == Status.DROPPED
+        if verdict.status == Status.UPDATED:
+            assert_pose(est.pose, arc_pose(arc_rate * t, turn_rate * t), 1e-9)
+            assert est.linear == pytest.approx(arc_rate, rel=1e-9)
+            assert est.angular == pytest.approx(turn_rate, rel=1e-9, abs=1e-12)
+    assert stale == 15  # the readings stamped 0.72 .. 1.00 s
+    assert_pose(est.pose, arc_pose(arc_rate * 1.5, turn_rate * 1.5), 1e-9)

@@ -55,22 +55,27 @@ def test_counters_count_each_rule_once(tmp_path: Path) -> None:
         (0, NAMES, [0.1, 0.1]),  # zero_stamp
         (T0 + 5 * STEP, NAMES, [50.0, 50.0]),  # too_fast: re-anchored
         (T0 + 6 * STEP, NAMES, [50.2, 50.2]),  # updated, published (120 ms after T0)
-        (T0 + 6 * STEP + 3 * 10**9, NAMES, [0.0, 0.0]),  # gap: new reference, published
+        (T0 + 6 * STEP + 100 * 10**9, NAMES, [60.0, 60.0]),  # 100 s ahead: held
+        (T0 + 7 * STEP, NAMES, [50.4, 50.4]),  # back on time: the held one was an outlier
+        (T0 + 7 * STEP + 3 * 10**9, NAMES, [0.0, 0.0]),  # 3 s ahead: held
+        (T0 + 8 * STEP + 3 * 10**9, NAMES, [0.1, 0.1]),  # continued: gap, published
         (T0 + 10**9, NAMES, [0.0, 0.0]),  # 5 s back: time reset, published
     ]
     outcomes = [pipe.feed(*f) for f in feeds]
     assert [o.publish for o in outcomes] == [True, False, False, False, False, False, False,
-                                             False, True, True, True]
+                                             False, True, False, False, False, True, True]
     s = pipe.stats
     assert s.readings == len(feeds) and s.published == 4
     assert s.dropped == {"missing_joint": 1, "bad_array": 1, "non_finite": 1,
-                         "stale_stamp": 1, "zero_stamp": 1}
-    assert s.dropped_total == 5
+                         "stale_stamp": 1, "zero_stamp": 1, "future_stamp": 1}
+    assert s.dropped_total == 6
     assert (s.reanchors, s.gap_reanchors, s.time_resets) == (1, 1, 1)
     assert s.last_usable_stamp_ns == T0 + 10**9
     assert not s.velocity_fallback
-    assert outcomes[9].verdict.code is Reason.GAP
-    assert "max_reading_gap" in outcomes[9].verdict.reason
+    assert outcomes[9].verdict.status is Status.HELD
+    assert outcomes[10].verdict.code is Reason.FUTURE_STAMP
+    assert outcomes[12].verdict.code is Reason.GAP
+    assert "max_reading_gap" in outcomes[12].verdict.reason
 
 
 def test_the_snapshot_is_read_only_and_does_not_move(tmp_path: Path) -> None:
