@@ -51,7 +51,7 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
     ax1.plot([tx], [ty], "s", color="black", ms=7, label="end: where it really is")
     ax1.plot([ox], [oy], "s", color="tab:red", ms=7, label="end: where odometry says it is")
     ax1.annotate(f"drift at the end: {math.hypot(ox - tx, oy - ty):.2f} m",
-                 xy=(0.5 * (ox + tx), 0.5 * (oy + ty)), xytext=(40, 40),
+                 xy=(0.5 * (ox + tx), 0.5 * (oy + ty)), xytext=(60, 60),
                  textcoords="offset points", color="tab:red", fontsize=10,
                  fontweight="bold", arrowprops={"arrowstyle": "-", "color": "tab:red"},
                  bbox={"boxstyle": "round", "facecolor": "white", "alpha": 0.8,
@@ -63,13 +63,16 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
     ax1.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), fontsize=8.5, ncol=1)
     ax1.set_title(title)
 
+    top = 0.0
     for key, (color, style, label) in STYLES.items():
         if key not in odometry:
             continue
         m = match(odometry[key], truth)
         err = np.hypot(*(m.est[:, :2] - m.ref[:, :2]).T)
+        top = max(top, float(err.max()))
         ax2.plot(path_length(m.ref[:, :2]), err, style, color=color, lw=1.5,
                  label=label.split(" (")[0] if key == NOMINAL else label)
+    ax2.set_ylim(0.0, 2.2 * top if top > 0.0 else 1.0)  # room above for legend and text
     ax2.set_xlabel("distance driven [m]")
     ax2.set_ylabel("position error of odometry [m]")
     ax2.set_title("odometry drift: distance between belief and truth")
