@@ -19,7 +19,8 @@ PROGRAM = "diffdrive-odom"
 PACKAGE = "diffdrive_odom"
 
 COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("diffdrive_odom.demo", "closed-loop demo: sim + cmd_vel + odometry, table, plot, bag"),
+    "demo": ("diffdrive_odom.demo.cli",
+             "closed-loop demo: follower + cmd_vel + sim + odometry; calibrates; table, plot, bag"),
     "play": ("diffdrive_odom.play", "publish a bag's messages over DDS with /clock (no rosbag2)"),
     "replay": ("diffdrive_odom.replay", "run the estimator over a bag offline; write bag/CSV"),
     "eval": ("diffdrive_odom.evaluate", "compare odometry with ground truth in a bag"),

@@ -1,8 +1,16 @@
 """The closed loop end to end: ``diffdrive-odom demo`` as a user runs it.
 
-sim_node, cmd_vel_node and odometry_node run as separate processes over DDS; the
-expected figures come from the encoder's resolution and from the kinematics of the
-mis-calibration integrated in closed form along the route, never from a previous run.
+path_follower_node, cmd_vel_node, sim_node and odometry_node run as separate
+processes over DDS and drive UMBmark (``--short``: 1 m squares, CW then CCW) on the
+odometry. The expected figures come from the encoder's resolution, from the
+kinematics of the mis-calibration and from the wheel rotations counted in the bag,
+never from a previous run.
+
+Closed loop instead of the old scripted open-loop route: the commands now depend on
+the odometry, so the route's closed-form end pose no longer predicts where the truth
+ends. What stays exact: the heading gap (0.01 s_R / b, with s_R the right wheel's
+nominal travel, here the followed path's length since the two squares' turns cancel)
+and the end poses recomputed from the counted ticks.
 """
 
 from __future__ import annotations
@@ -14,29 +22,35 @@ import re
 import signal
 import subprocess
 import time
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
-from diffdrive_odom import bagio, evaluate, routes
+from diffdrive_odom import bagio, evaluate
 from diffdrive_odom.demo import BAG_TOPICS, DEFAULT_PARAMS
+from diffdrive_odom.path_following import polyline
 
 from rosutil import executable
 
 # The demo robot's nominal geometry and encoder, read from the shipped params file.
-SHARED = yaml.safe_load(DEFAULT_PARAMS.read_text())["/**"]["ros__parameters"]
+DOC = yaml.safe_load(DEFAULT_PARAMS.read_text())
+SHARED = DOC["/**"]["ros__parameters"]
+TRUE = DOC["sim_node"]["ros__parameters"]
 R, B, TPR = SHARED["wheel_radius"], SHARED["wheel_separation"], SHARED["ticks_per_revolution"]
-LINEAR, ANGULAR = 0.4, 0.8  # the demo's default speeds (--short: a 1 m square CCW)
+CORNER = 0.25  # the follower's default fillet radius [m]
 EXACT = ["--sim-param", "slip_stddev:=0.0"]
+NODES = 4
 
 
 def run_demo(tmp: Path, *extra: str, timeout: float = 90.0) -> tuple[
         subprocess.CompletedProcess[str], dict[str, Any]]:
     proc = subprocess.run(
         [executable("diffdrive-odom"), "demo", "--short", "--output", str(tmp),
-         "--real-time-factor", "4", *extra],
+         "--real-time-factor", "4", "--domain-id", os.environ.get("ROS_DOMAIN_ID", "0"),
+         *extra],
         capture_output=True, text=True, timeout=timeout)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return proc, json.loads((tmp / "results.json").read_text())
@@ -47,7 +61,7 @@ def pids(stdout: str) -> list[int]:
 
 
 def assert_gone(process_ids: list[int]) -> None:
-    assert len(process_ids) == 3
+    assert len(process_ids) == NODES
     for pid in process_ids:
         try:
             os.kill(pid, 0)
@@ -68,6 +82,32 @@ def resolution_bounds(distance: float) -> tuple[float, float]:
     return 2 * tick_arc + distance * heading, heading
 
 
+def commanded_length(res: dict[str, Any]) -> float:
+    """Length of the paths the follower was sent, filleted as it fillets them."""
+    return sum(polyline([tuple(p) for p in sq["points"]], CORNER).length
+               for sq in res["squares"])
+
+
+def tick_steps(bag: Path) -> np.ndarray[Any, Any]:
+    """Wheel angle steps [rad] from the counted ticks (16-bit counters unwrapped by hand)."""
+    readings = list(bagio.read_joint_states(bag))
+    counts = np.array([r.position for r in readings], dtype=float)
+    steps = np.diff(counts, axis=0)
+    steps -= 2**16 * np.round(steps / 2**16)
+    angles: np.ndarray[Any, Any] = steps * (2 * math.pi / TPR)
+    return angles
+
+
+def integrate(steps: np.ndarray[Any, Any], left: float, right: float,
+              sep: float) -> tuple[float, float, float]:
+    """Each step an arc (the textbook R = ds / dtheta form) with the given geometry."""
+    x = y = th = 0.0
+    for d_left, d_right in steps:
+        s_left, s_right = left * d_left, right * d_right
+        x, y, th = textbook_arc(x, y, th, 0.5 * (s_left + s_right), (s_right - s_left) / sep)
+    return x, y, th
+
+
 def test_true_geometry_equals_nominal_odometry_matches_truth_to_encoder_resolution(
         tmp_path: Path) -> None:
     proc, res = run_demo(
@@ -75,10 +115,12 @@ def test_true_geometry_equals_nominal_odometry_matches_truth_to_encoder_resoluti
         "--sim-param", f"true_left_wheel_radius:={R}",
         "--sim-param", f"true_right_wheel_radius:={R}",
         "--sim-param", f"true_wheel_separation:={B}")
-    assert 3.5 < res["distance_m"] < 4.5  # it drove the 1 m square
+    # It drove both 1 m squares: the followed paths' length, to a few centimetres.
+    assert abs(res["distance_m"] - commanded_length(res)) < 0.1, res["distance_m"]
     position, heading = resolution_bounds(res["distance_m"])
-    assert res["odometry"]["final_position_error_m"] <= position, res
-    assert abs(res["odometry"]["final_heading_error_rad"]) <= heading, res
+    nominal = res["rows"]["nominal"]
+    assert nominal["final_position_error_m"] <= position, res
+    assert abs(nominal["final_heading_error_rad"]) <= heading, res
     assert_gone(pids(proc.stdout))
 
 
@@ -90,64 +132,34 @@ def test_one_percent_larger_right_wheel_drifts_as_the_kinematics_predict(
         "--sim-param", f"true_left_wheel_radius:={R}",
         "--sim-param", f"true_right_wheel_radius:={r_right}",
         "--sim-param", f"true_wheel_separation:={B}")
-    truth_final, odom_final = res["truth_final_pose"], res["odometry"]["final_pose"]
+    truth_final, odom_final = res["truth_final_pose"], res["rows"]["nominal"]["final_pose"]
 
     # Heading: the truth turns by (1.01 s_R - s_L) / b where odometry computes
     # (s_R - s_L) / b, so the gap is 0.01 * s_R / b with s_R = D + (b/2) * Theta, the
-    # right wheel's nominal arc over the whole route (D = 4 m, Theta = 2 pi CCW).
-    route = routes.square(1.0, LINEAR, ANGULAR)
-    right_arc = route.distance + 0.5 * B * 2 * math.pi
-    predicted_heading = 0.01 * right_arc / B  # truth - odometry, about 0.165 rad
+    # right wheel's nominal travel. The follower drives the paths on the odometry, so
+    # D is their length and Theta = -2 pi + 2 pi = 0 (CW then CCW).
+    predicted_heading = 0.01 * commanded_length(res) / B  # truth - odometry, ~0.24 rad
     heading_gap = math.remainder(truth_final[2] - odom_final[2], 2 * math.pi)
-    # (10 %: the executed distance may differ from the script by a few centimetres;
-    # the exact check from the counted wheel rotations follows below.)
+    # (10 %: the robot overshoots each path's end by a few centimetres.)
     assert abs(heading_gap - predicted_heading) < 0.1 * predicted_heading, (
         heading_gap, predicted_heading)
 
-    # Position, from the route: each commanded (v, w) becomes the true robot's
-    # (v', w') (ELEC6530 homework eq. 1 with the wheel rates of the nominal inverse kinematics);
-    # both routes integrated in closed form. Coarse: on a busy machine the executed
-    # turns differ from the script by a step or two (about 1-2 degrees each).
-    def true_twist(v: float, w: float) -> tuple[float, float]:
-        w_left, w_right = (v - w * B / 2) / R, (v + w * B / 2) / R
-        return 0.5 * (R * w_left + r_right * w_right), (r_right * w_right - R * w_left) / B
-
-    truth = routes.pose_after(route, twist_map=true_twist)
-    believed = routes.pose_after(route)
-    predicted = (truth.x - believed.x, truth.y - believed.y)
-    measured = (truth_final[0] - odom_final[0], truth_final[1] - odom_final[1])
-    size = math.hypot(*predicted)
-    assert size > 0.1  # a drift worth predicting
-    assert math.dist(measured, predicted) < 0.01 + 0.35 * size, (measured, predicted)
-
-    # Position, exactly: the wheel rotations the encoders really counted (16-bit
-    # counters unwrapped by hand), each step an arc with the nominal arcs (what
-    # odometry should say) and with the right arc 1 % longer (where the robot went).
-    readings = list(bagio.read_joint_states(tmp_path / "bag"))
-    counts = np.array([r.position for r in readings], dtype=float)
-    steps = np.diff(counts, axis=0)
-    steps -= 2**16 * np.round(steps / 2**16)
-    tick = 2 * math.pi / TPR
-
-    def integrate(right_scale: float) -> tuple[float, float, float]:
-        x = y = th = 0.0
-        for d_left, d_right in steps * tick:
-            s_left, s_right = R * d_left, right_scale * R * d_right
-            ds, dth = 0.5 * (s_left + s_right), (s_right - s_left) / B
-            x, y, th = textbook_arc(x, y, th, ds, dth)
-        return x, y, th
-
-    nominal, real = integrate(1.0), integrate(1.01)
+    # Exactly: the wheel rotations the encoders really counted, each step an arc with
+    # the nominal arcs (what odometry should say) and with the right arc 1 % longer
+    # (where the robot went).
+    steps = tick_steps(tmp_path / "bag")
+    nominal, real = integrate(steps, R, R, B), integrate(steps, R, r_right, B)
     position, heading = resolution_bounds(res["distance_m"])
     assert math.dist(odom_final[:2], nominal[:2]) <= position
     assert abs(math.remainder(odom_final[2] - nominal[2], 2 * math.pi)) <= heading
     assert math.dist(truth_final[:2], real[:2]) <= position
     assert abs(math.remainder(truth_final[2] - real[2], 2 * math.pi)) <= heading
 
-    # The same readings through the estimator with the true geometry: back to the
-    # encoder's resolution.
-    assert res["calibrated"]["final_position_error_m"] <= position
-    assert abs(res["calibrated"]["final_heading_error_rad"]) <= heading
+    # Both calibrations find the larger right wheel (UMBmark: its ratio to the left).
+    fit, umb = res["rows"]["fit"], res["rows"]["umbmark"]
+    assert abs(fit["right_radius"] / r_right - 1) < 1e-3, fit
+    assert abs(fit["left_radius"] / R - 1) < 1e-3, fit
+    assert abs(umb["right_radius"] / umb["left_radius"] / 1.01 - 1) < 1e-3, umb
 
 
 def textbook_arc(x: float, y: float, th: float, ds: float, dth: float) -> tuple[
@@ -160,11 +172,39 @@ def textbook_arc(x: float, y: float, th: float, ds: float, dth: float) -> tuple[
             y - radius * (math.cos(th + dth) - math.cos(th)), th + dth)
 
 
-def test_demo_end_to_end_writes_a_plot_and_a_bag_that_reads_back(tmp_path: Path) -> None:
-    proc, res = run_demo(tmp_path)
+def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(
+        tmp_path: Path) -> None:
+    """The shipped robot (r_right +0.2 %, b +1 %), no slip: both calibrations recover it."""
+    proc, res = run_demo(tmp_path, *EXACT)
     out = proc.stdout
-    assert "odometry_node (nominal geometry)" in out and "perfectly calibrated" in out
+    for label in ("nominal", "fit to ground truth", "UMBmark end poses", "true geometry"):
+        assert label in out
     assert_gone(pids(out))
+    rows = res["rows"]
+
+    # The calibrated odometry ends far closer to the truth than the nominal one
+    # (about 500x here, for the fit and for UMBmark; asserted: 20x).
+    nominal = rows["nominal"]["final_position_error_m"]
+    assert nominal > 0.02, rows
+    for key in ("fit", "umbmark", "true"):
+        assert rows[key]["final_position_error_m"] < nominal / 20, (key, rows)
+        assert abs(rows[key]["final_heading_error_rad"]) < abs(
+            rows["nominal"]["final_heading_error_rad"]) / 10, (key, rows)
+    # The fit finds the sim's true geometry to 0.1 % (no slip: only encoder ticks).
+    true = {"left_radius": TRUE["true_left_wheel_radius"],
+            "right_radius": TRUE["true_right_wheel_radius"],
+            "separation": TRUE["true_wheel_separation"]}
+    for name, value in true.items():
+        assert abs(rows["fit"][name] / value - 1) < 1e-3, (name, rows["fit"])
+        assert math.isclose(rows["true"][name], value, rel_tol=1e-12)
+    # UMBmark keeps the nominal mean radius (a closed square cannot see the scale), so
+    # it finds the ratios: right/left wheel and separation/mean radius.
+    umb = rows["umbmark"]
+    assert math.isclose(0.5 * (umb["left_radius"] + umb["right_radius"]), R, rel_tol=1e-9)
+    assert abs(umb["right_radius"] / umb["left_radius"]
+               / (true["right_radius"] / true["left_radius"]) - 1) < 1e-3, umb
+    mean_true = 0.5 * (true["left_radius"] + true["right_radius"])
+    assert abs(umb["separation"] / R / (true["separation"] / mean_true) - 1) < 2e-3, umb
 
     png = tmp_path / "trajectory.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -186,10 +226,25 @@ def test_demo_end_to_end_writes_a_plot_and_a_bag_that_reads_back(tmp_path: Path)
     tf = evaluate.read_trajectory(bag, "/tf", child_frame="base_link")
     assert len(odom) > 100 and len(truth) > 100 and abs(len(tf) - len(odom)) <= 5
     # What the bag says is what the demo reported.
-    assert [odom.x[-1], odom.y[-1]] == res["odometry"]["final_pose"][:2]
+    assert [odom.x[-1], odom.y[-1]] == rows["nominal"]["final_pose"][:2]
     metrics = evaluate.evaluate(odom, truth)
-    assert abs(metrics.final_position_error_m
-               - res["odometry"]["final_position_error_m"]) < 1e-12
+    assert abs(metrics.final_position_error_m - nominal) < 1e-12
+
+    # The follower: on its odometry the robot stays on the sent path up to the
+    # fillets (a 90 degree fillet of r cuts the corner by r (sqrt 2 - 1) = 10 cm) and
+    # a few centimetres of tracking; the truth strays further only by the drift.
+    drift = float(np.max(np.hypot(*(evaluate.match(odom, truth).est[:, :2]
+                                    - evaluate.match(odom, truth).ref[:, :2]).T)))
+    cut = CORNER * (math.sqrt(2) - 1)
+    for sq in res["squares"]:
+        pts = np.array(sq["points"])
+        for traj, slack in ((odom, 0.0), (truth, drift)):
+            inside = (traj.stamp_ns >= sq["start_ns"]) & (traj.stamp_ns <= sq["end_ns"])
+            xy = np.column_stack((traj.x[inside], traj.y[inside]))
+            off = np.min([np.hypot(*(xy - p).T) for p in dense(pts)], axis=0)
+            assert off.max() < cut + 0.05 + slack, (off.max(), drift)
+    assert res["follower"]["max_cross_track_error_odometry_m"] < 0.1
+
     # And the project's eval tool reads it with no topic flags (its defaults find the
     # demo's ground truth and say which topic they took).
     ev = subprocess.run([executable("diffdrive-odom"), "eval", str(bag)],
@@ -199,9 +254,19 @@ def test_demo_end_to_end_writes_a_plot_and_a_bag_that_reads_back(tmp_path: Path)
     assert "final position error" in ev.stdout
 
 
+def dense(points: np.ndarray[Any, Any], step: float = 0.005) -> np.ndarray[Any, Any]:
+    """Points every ``step`` metres along the polyline (its sharp corners included)."""
+    out = [points[0]]
+    for a, b in pairwise(points):
+        n = max(1, int(np.ceil(np.hypot(*(b - a)) / step)))
+        out.extend(a + (b - a) * k / n for k in range(1, n + 1))
+    return np.array(out, dtype=float)
+
+
 def test_ctrl_c_stops_every_node(tmp_path: Path) -> None:
     proc = subprocess.Popen(
-        [executable("diffdrive-odom"), "demo", "--output", str(tmp_path), "--no-plot"],
+        [executable("diffdrive-odom"), "demo", "--output", str(tmp_path), "--no-plot",
+         "--domain-id", os.environ.get("ROS_DOMAIN_ID", "0")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None

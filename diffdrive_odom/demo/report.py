@@ -1,0 +1,260 @@
+"""What the demo measured, calibrated and prints: pure (numpy, scipy; no rclpy, no bag).
+
+The recorder (:mod:`.loop`) hands over what it heard; here the run is calibrated with
+the package's own calibration (:mod:`diffdrive_odom.calibration`: the whole-trajectory
+fit against the sim's ground truth, and Borenstein and Feng's UMBmark from the two
+squares' end poses), each geometry is re-integrated through the batch path
+(:mod:`diffdrive_odom.batch`, the estimator's own step) and compared with the truth.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from itertools import pairwise
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from diffdrive_odom import batch, calibration
+from diffdrive_odom.calibration import CalibrationError, Run
+from diffdrive_odom.kinematics import Geometry
+from diffdrive_odom.metrics import Trajectory, evaluate
+from diffdrive_odom.params import OdometrySettings
+from diffdrive_odom.path_following import Point
+from diffdrive_odom.pipeline import ReadingPipeline
+
+from .settings import DemoError
+
+# Table rows, in the order printed; the keys of ``results.json``'s "rows".
+NOMINAL, FIT, UMBMARK, TRUE = "nominal", "fit", "umbmark", "true"
+LABELS = {
+    NOMINAL: "nominal (odometry_node as run)",
+    FIT: "calibrated: fit to ground truth",
+    UMBMARK: "calibrated: UMBmark end poses",
+    TRUE: "true geometry (the sim's)",
+}
+
+
+class JointSample(NamedTuple):
+    """One recorded JointState, as the batch path reads it (``batch.Reading``)."""
+
+    stamp_ns: int
+    names: tuple[str, ...]
+    position: tuple[float, ...]
+    velocity: tuple[float, ...]
+
+
+@dataclass
+class PoseSeries:
+    """Poses by stamp as received (odometry or ground truth)."""
+
+    stamp_ns: list[int] = field(default_factory=list)
+    x: list[float] = field(default_factory=list)
+    y: list[float] = field(default_factory=list)
+    yaw: list[float] = field(default_factory=list)
+
+    def add(self, stamp_ns: int, x: float, y: float, yaw: float) -> None:
+        """Append one pose."""
+        self.stamp_ns.append(stamp_ns)
+        self.x.append(x)
+        self.y.append(y)
+        self.yaw.append(yaw)
+
+    def trajectory(self) -> Trajectory:
+        """As the metrics module's trajectory (sorted, unwrapped)."""
+        return Trajectory.from_arrays(self.stamp_ns, self.x, self.y, self.yaw)
+
+
+@dataclass(frozen=True)
+class Square:
+    """One square as driven: its direction, the corners sent, and its span [ns, sim time]."""
+
+    clockwise: bool
+    points: tuple[Point, ...]
+    start_ns: int
+    end_ns: int
+
+
+@dataclass(frozen=True)
+class Recording:
+    """Everything the demo heard that the evaluation needs."""
+
+    joint_states: tuple[JointSample, ...]
+    odom: Trajectory
+    truth: Trajectory
+    squares: tuple[Square, ...]
+    cross_track_odom_m: float  # largest |e1| the follower reported (on odometry)
+
+
+@dataclass(frozen=True)
+class Row:
+    """One geometry's odometry against the ground truth at the end of the run."""
+
+    geometry: tuple[float, float, float]  # left radius, right radius, separation [m]
+    position_m: float
+    heading_rad: float
+    final_pose: tuple[float, float, float]
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        left, right, sep = self.geometry
+        return {"left_radius": left, "right_radius": right, "separation": sep,
+                "final_position_error_m": self.position_m,
+                "final_heading_error_rad": self.heading_rad,
+                "final_pose": list(self.final_pose)}
+
+
+@dataclass(frozen=True)
+class DemoResult:
+    """What the demo measured; ``as_dict`` is written to ``results.json``."""
+
+    route: str
+    side_m: float
+    distance_m: float
+    sim_seconds: float
+    wall_seconds: float
+    truth_final_pose: tuple[float, float, float]
+    rows: dict[str, Row]  # NOMINAL, FIT, TRUE and, with both squares, UMBMARK
+    cross_track_odom_m: float
+    cross_track_truth_m: float
+    squares: tuple[Square, ...]
+    messages: dict[str, int]
+    bag: str | None
+    plot: str | None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {
+            "route": self.route, "side_m": self.side_m, "distance_m": self.distance_m,
+            "sim_seconds": self.sim_seconds, "wall_seconds": self.wall_seconds,
+            "truth_final_pose": list(self.truth_final_pose),
+            "rows": {k: r.as_dict() for k, r in self.rows.items()},
+            "follower": {"max_cross_track_error_odometry_m": self.cross_track_odom_m,
+                         "max_distance_truth_to_path_m": self.cross_track_truth_m},
+            "squares": [{"clockwise": s.clockwise, "points": [list(p) for p in s.points],
+                         "start_ns": s.start_ns, "end_ns": s.end_ns} for s in self.squares],
+            "messages": self.messages, "bag": self.bag, "plot": self.plot,
+        }
+
+    def table(self) -> str:
+        """The table the demo prints: each geometry's values and its error at the end."""
+        true = self.rows[TRUE].geometry
+
+        def value(v: float, t: float) -> str:
+            return f"{v:.5f} ({100.0 * (v / t - 1.0):+.2f}%)"
+
+        kinds = "CW then CCW" if len(self.squares) == 2 else (
+            "CW" if self.squares[0].clockwise else "CCW")
+        lines = [
+            f"{self.route} ({self.side_m:g} m squares, {kinds}), path_follower_node on the "
+            f"odometry: {self.distance_m:.2f} m driven in {self.sim_seconds:.0f} s of "
+            f"simulated time ({self.wall_seconds:.0f} s wall)",
+            f"follower: cross-track error <= {100 * self.cross_track_odom_m:.1f} cm on the "
+            f"odometry; ground truth within {100 * self.cross_track_truth_m:.1f} cm of the "
+            "commanded path",
+            "",
+            f"{'geometry':<32} {'r_left [m]':>17} {'r_right [m]':>17} {'b [m]':>17} "
+            f"{'final position error':>21} {'heading error':>14}",
+        ]
+        for key in (NOMINAL, FIT, UMBMARK, TRUE):
+            row = self.rows.get(key)
+            if row is None:
+                continue
+            left, right, sep = row.geometry
+            share = 100.0 * row.position_m / self.distance_m if self.distance_m > 0 else math.nan
+            lines.append(
+                f"{LABELS[key]:<32} {value(left, true[0]):>17} {value(right, true[1]):>17} "
+                f"{value(sep, true[2]):>17} {row.position_m:>9.4f} m ({share:5.2f} %) "
+                f"{math.degrees(row.heading_rad):>10.3f} deg")
+        lines.append("(percentages: against the sim's true geometry; UMBmark keeps the "
+                     "nominal mean wheel radius, a closed square cannot see the scale)")
+        if self.plot or self.bag:
+            lines.append("")
+        if self.plot:
+            lines.append(f"plot: {self.plot}")
+        if self.bag:
+            lines.append(f"bag:  {self.bag}  (try: diffdrive-odom eval {self.bag})")
+        return "\n".join(lines)
+
+
+# --- calibration and evaluation -----------------------------------------------------
+
+
+def _row(geometry: Geometry, est: Trajectory, truth: Trajectory) -> Row:
+    m = evaluate(est, truth)
+    return Row((geometry.left_radius, geometry.right_radius, geometry.separation),
+               m.final_position_error_m, m.final_heading_error_rad,
+               (float(est.x[-1]), float(est.y[-1]), float(est.yaw[-1])))
+
+
+def _run(name: str, readings: Sequence[JointSample], odo: OdometrySettings,
+         truth: Trajectory, span: tuple[int, int] | None = None) -> Run:
+    """The readings (inside ``span``) decoded once into the estimator's wheel steps."""
+    chosen = [r for r in readings
+              if span is None or span[0] <= r.stamp_ns <= span[1]]
+    return Run(name, batch.wheel_steps(chosen, odo), truth)
+
+
+def distance_to_polyline(xy: np.ndarray[Any, Any], points: Sequence[Point]) -> np.ndarray[
+        Any, Any]:
+    """Each point's distance to the nearest segment of the polyline through ``points``."""
+    best = np.full(len(xy), np.inf)
+    for a, b in pairwise(points):
+        ab = np.subtract(b, a)
+        t = np.clip(((xy - a) @ ab) / float(ab @ ab), 0.0, 1.0)
+        best = np.minimum(best, np.hypot(*(xy - (a + t[:, None] * ab)).T))
+    return best
+
+
+def calibrate_rows(rec: Recording, odo: OdometrySettings, true: Geometry,
+                   side: float) -> tuple[dict[str, Row], dict[str, Trajectory]]:
+    """Calibrate from the run: each geometry's row and its re-integrated trajectory.
+
+    The nominal row is the node's own published odometry; the others re-integrate
+    the whole run's wheel steps with their geometry.
+    """
+    if len(rec.odom) < 2 or len(rec.truth) < 2 or len(rec.joint_states) < 3:
+        raise DemoError("too little data to evaluate")
+    nominal = odo.geometry
+    readings = sorted(rec.joint_states, key=lambda r: r.stamp_ns)
+    whole = _run("demo", readings, odo, rec.truth)
+    try:
+        fitted = calibration.fit([whole], nominal, fit_mount=False).geometry
+        found = {FIT: fitted}
+        cw = [s for s in rec.squares if s.clockwise]
+        ccw = [s for s in rec.squares if not s.clockwise]
+        if cw and ccw:
+            # Inside the truth's span: UMBmark needs the true pose at both ends.
+            t0, t1 = int(rec.truth.stamp_ns[0]), int(rec.truth.stamp_ns[-1])
+            runs = [_run(name, readings, odo, rec.truth,
+                         (max(s.start_ns, t0), min(s.end_ns, t1)))
+                    for name, s in (("cw", cw[0]), ("ccw", ccw[0]))]
+            ends = [calibration.reference_end(r, rec.truth) for r in runs]
+            found[UMBMARK] = calibration.umbmark(runs[0], runs[1], ends[0], ends[1], side,
+                                                 nominal).geometry
+    except CalibrationError as err:
+        raise DemoError(f"calibration failed: {err}") from err
+    found[TRUE] = calibration.with_values(nominal, true.left_radius, true.right_radius,
+                                          true.separation)
+    paths = {NOMINAL: rec.odom}
+    paths.update({k: calibration.trajectory(whole, g) for k, g in found.items()})
+    rows = {k: _row(nominal if k == NOMINAL else found[k], t, rec.truth)
+            for k, t in paths.items()}
+    return rows, paths
+
+
+def replay_calibrated(odo: OdometrySettings, joint_states: Sequence[Any]) -> PoseSeries:
+    """The node's publishing path (gating and all) over recorded readings, for ``odo``.
+
+    What odometry_node itself would have published with other settings; the demo's
+    rows use the batch path (every step), this keeps the node's publish decisions.
+    """
+    pipe = ReadingPipeline(odo)
+    out = PoseSeries()
+    for stamp_ns, names, position, velocity in sorted(joint_states, key=lambda j: j[0]):
+        if pipe.feed(stamp_ns, names, position, velocity).publish:
+            p = pipe.estimator.pose
+            out.add(stamp_ns, p.x, p.y, p.theta)
+    return out

@@ -1,0 +1,40 @@
+"""The demo's resources are released when a constructor fails (real rclpy, real processes)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from diffdrive_odom.demo.loop import Children, Recorder
+from diffdrive_odom.demo.settings import DemoError
+
+DOMAIN = int(os.environ.get("ROS_DOMAIN_ID", "0"))
+
+
+def test_a_recorder_that_fails_half_way_shuts_its_context_and_bag(tmp_path: Path) -> None:
+    bag = tmp_path / "bag"
+    rec = Recorder(DOMAIN, bag, topics={"/odom": "nav_msgs/msg/Odometry",
+                                        "/x": "no_such_msgs/msg/Nope"})
+    with pytest.raises(ModuleNotFoundError):
+        rec.__enter__()
+    assert not rec.context.ok()  # rclpy.init was undone
+    assert (bag / "metadata.yaml").exists()  # the writer was closed (rosbag2 writes it then)
+
+
+def test_a_recorder_used_as_a_context_manager_shuts_down(tmp_path: Path) -> None:
+    with Recorder(DOMAIN, None) as rec:
+        assert rec.context.ok()
+        rec.spin_once(0.01)
+    assert not rec.context.ok()
+
+
+def test_a_child_that_cannot_start_leaves_no_child_behind(tmp_path: Path) -> None:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN))
+    with pytest.raises(DemoError, match="no_such_node"), Children(env, tmp_path) as children:
+        first = children.start("sim_node", [])
+        children.start("no_such_node", [])
+    assert first.proc.poll() is not None  # stopped by the with block
+    with pytest.raises(ProcessLookupError):
+        os.kill(first.proc.pid, 0)
