@@ -115,8 +115,11 @@ def test_true_geometry_equals_nominal_odometry_matches_truth_to_encoder_resoluti
         "--sim-param", f"true_left_wheel_radius:={R}",
         "--sim-param", f"true_right_wheel_radius:={R}",
         "--sim-param", f"true_wheel_separation:={B}")
-    # It drove both 1 m squares: the followed paths' length, to a few centimetres.
-    assert abs(res["distance_m"] - commanded_length(res)) < 0.1, res["distance_m"]
+    # It drove both 1 m squares: the followed paths' length, to 5 % (the axle cuts the
+    # corners that the control point P follows, by an amount that depends on the loop's
+    # latency, so on the machine's load; one square would be 50 % short).
+    assert abs(res["distance_m"] - commanded_length(res)) < 0.05 * commanded_length(res), (
+        res["distance_m"])
     position, heading = resolution_bounds(res["distance_m"])
     nominal = res["rows"]["nominal"]
     assert nominal["final_position_error_m"] <= position, res
