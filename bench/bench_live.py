@@ -53,7 +53,7 @@ WHEEL_SPEEDS = (4.0, 6.0)  # rad/s of the published joints: well under max_wheel
 IDLE_END_S = 0.5  # the subscriber stops this long after the last message
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 RATES = (100, 250, 500, 1000, 2000, 3000)
-KINDS = ("single", "events")
+KINDS = ros_common.EXECUTOR_KINDS
 
 
 # --- the three roles (child processes) -----------------------------------------------
@@ -74,7 +74,7 @@ def role_relay(in_topic: str, out_topic: str, kind: str) -> int:
     node.create_subscription(JointState, in_topic, relay, ros_common.SENSOR_IN_QOS)
     executor.add_node(node)
     try:
-        spin()
+        spin(lambda: False)
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
         pass
     finally:
