@@ -13,8 +13,8 @@ in turn at every rate (interleaved, so machine noise hits all of them alike):
   the same header and no math, on the node's QoS (ros_common.SENSOR_IN_QOS /
   RELIABLE_OUT_QOS),
 
-each with rclpy's SingleThreadedExecutor (the default) and the EventsExecutor
-(``DIFFDRIVE_ODOM_EXECUTOR=events``), both built by ros_common.make_executor.
+each with rclpy's EventsExecutor (the default) and the SingleThreadedExecutor
+(``DIFFDRIVE_ODOM_EXECUTOR=single``), both built by ros_common.make_executor.
 Rates rise until every system lost over 1 % of them. CPU per message is the user + system
 time of the system's process (/proc/<pid>/stat) while a trial ran, over messages
 sent. ``--profile`` runs the node in this process under cProfile at 1 kHz instead and

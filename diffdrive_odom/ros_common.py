@@ -376,21 +376,24 @@ EXECUTOR_ENV = "DIFFDRIVE_ODOM_EXECUTOR"
 Spin = Callable[[Callable[[], bool]], None]
 
 
-EXECUTOR_KINDS = ("single", "events")
+EXECUTOR_KINDS = ("events", "single")  # the default first
 
 
 def make_executor(
     kind: str | None = None, context: Context | None = None
 ) -> tuple[Executor, Spin]:
-    """The executor and its spin loop: ``single`` (default) or ``events`` (opt-in).
+    """The executor and its spin loop: ``events`` (default) or ``single``.
 
     ``kind`` defaults to ``$DIFFDRIVE_ODOM_EXECUTOR``. rclpy's EventsExecutor costs
-    less CPU per message, but its ``spin()`` is broken in the PyPI wheels (busy loop,
-    delivers nothing). Both are driven by ``spin_once`` with a bounded wait until
-    shutdown of ``context`` (rclpy's default one if None) or until ``stop()`` is true
-    (see :class:`_StopSignals` for why bounded).
+    about half the CPU per message of the SingleThreadedExecutor, whose Python code
+    rebuilds the wait set for every message (bench/bench_live.py measures both); the
+    single one stays selectable as the conservative fallback. The EventsExecutor's
+    ``spin()`` is broken in the PyPI wheels (busy loop, delivers nothing): both are
+    driven by ``spin_once`` with a bounded wait until shutdown of ``context``
+    (rclpy's default one if None) or until ``stop()`` is true (see
+    :class:`_StopSignals` for why bounded).
     """
-    kind = os.environ.get(EXECUTOR_ENV, "single") if kind is None else kind
+    kind = os.environ.get(EXECUTOR_ENV, "events") if kind is None else kind
     executor: Executor
     if kind == "single":
         executor = SingleThreadedExecutor(context=context)
@@ -499,19 +502,30 @@ class KeyedThrottle:
 
     def warning(self, key: str, text: str) -> bool:
         """Log ``text`` as a warning unless ``key`` was logged within the period."""
-        return self._log(key, text, self._logger.warning)
+        line = self._admit(key, text)
+        if line is not None:
+            self._logger.warning(line)  # its own call site: see _admit
+        return line is not None
 
     def info(self, key: str, text: str) -> bool:
         """Log ``text`` as info unless ``key`` was logged within the period."""
-        return self._log(key, text, self._logger.info)
+        line = self._admit(key, text)
+        if line is not None:
+            self._logger.info(line)
+        return line is not None
 
-    def _log(self, key: str, text: str, emit: Callable[[str], Any]) -> bool:
+    def _admit(self, key: str, text: str) -> str | None:
+        """The line to log now, or None if held back.
+
+        The caller logs it: rclpy's logger refuses a call site that logs at two
+        severities ("Logger severity cannot be changed between calls", a ValueError
+        that would end the node), so info and warning lines never share one.
+        """
         now = self._clock()
         last = self._last.get(key)
         if last is not None and now - last < self._period:
             self._held[key] = self._held.get(key, 0) + 1
-            return False
+            return None
         self._last[key] = now
         held = self._held.pop(key, 0)
-        emit(f"{text} ({held} more like this since the last report)" if held else text)
-        return True
+        return f"{text} ({held} more like this since the last report)" if held else text
