@@ -13,8 +13,8 @@ in turn at every rate (interleaved, so machine noise hits all of them alike):
   the same header and no math, on the node's QoS (ros_common.SENSOR_IN_QOS /
   RELIABLE_OUT_QOS),
 
-each with rclpy's SingleThreadedExecutor (the default) and the EventsExecutor
-(``DIFFDRIVE_ODOM_EXECUTOR=events``), both built by ros_common.make_executor.
+each with rclpy's EventsExecutor (the default) and the SingleThreadedExecutor
+(``DIFFDRIVE_ODOM_EXECUTOR=single``), both built by ros_common.make_executor.
 Rates rise until every system lost over 1 % of them. CPU per message is the user + system
 time of the system's process (/proc/<pid>/stat) while a trial ran, over messages
 sent. ``--profile`` runs the node in this process under cProfile at 1 kHz instead and
@@ -53,7 +53,7 @@ WHEEL_SPEEDS = (4.0, 6.0)  # rad/s of the published joints: well under max_wheel
 IDLE_END_S = 0.5  # the subscriber stops this long after the last message
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 RATES = (100, 250, 500, 1000, 2000, 3000)
-KINDS = ("single", "events")
+KINDS = ros_common.EXECUTOR_KINDS
 
 
 # --- the three roles (child processes) -----------------------------------------------
@@ -74,7 +74,7 @@ def role_relay(in_topic: str, out_topic: str, kind: str) -> int:
     node.create_subscription(JointState, in_topic, relay, ros_common.SENSOR_IN_QOS)
     executor.add_node(node)
     try:
-        spin()
+        spin(lambda: False)
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
         pass
     finally:

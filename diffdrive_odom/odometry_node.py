@@ -55,6 +55,10 @@ class OdometryNode(Node):
         settings = self._build(values)
         self._settings = settings
         self._pipeline = ReadingPipeline(settings)
+        self._odom = Odometry()
+        self._tf = TransformStamped()
+        self._tf_msg = TFMessage(transforms=[self._tf])
+        self._build_messages(settings)
         self._throttle = ros_common.KeyedThrottle(self.get_logger())
         self._guard = ros_common.ParameterGuard(self, values, self._build, self._apply)
 
@@ -88,6 +92,7 @@ class OdometryNode(Node):
     def _apply(self, settings: OdometrySettings) -> None:
         """Install accepted runtime changes; the pose carries on without a jump."""
         self._settings = settings
+        self._build_messages(settings)
         self._pipeline.reconfigure(settings)
         self.get_logger().info("parameters updated")
 
@@ -143,35 +148,69 @@ class OdometryNode(Node):
             self._throttle.warning(verdict.code, f"joint_states reading {verdict.warning} "
                                    f"[{verdict.code}]: {verdict.reason}")
 
+    def _build_messages(self, settings: OdometrySettings) -> None:
+        """Fill what stays the same from message to message (frames, covariance) once.
+
+        Each reading then only updates the stamp, pose and twist fields of the same
+        message objects: building an Odometry, TransformStamped and TFMessage per reading,
+        and converting 2 x 36 covariance floats to arrays, cost more than the estimator.
+        """
+        self._odom.header.frame_id = settings.odom_frame_id
+        self._odom.child_frame_id = settings.base_frame_id
+        self._tf.header.frame_id = settings.odom_frame_id
+        self._tf.child_frame_id = settings.base_frame_id
+        self._covariance_changed = True
+
+    def _set_covariance(self, odom: Odometry) -> bool:
+        """The covariance of the published odometry (the only place that sets it).
+
+        Propagated: the pipeline's, every message. Static (the parameters' diagonals):
+        assigned only after a change, since each assignment converts 2 x 36 floats.
+        False if it is not finite (never published).
+        """
+        if self._pipeline.estimator.uncertainty is None:
+            if self._covariance_changed:
+                odom.pose.covariance, odom.twist.covariance = self._pipeline.covariances()
+                self._covariance_changed = False
+            return True
+        pose_cov, twist_cov = self._pipeline.covariances()
+        if not math.isfinite(sum(pose_cov) + sum(twist_cov)):
+            return False
+        odom.pose.covariance = pose_cov
+        odom.twist.covariance = twist_cov
+        return True
+
     def _publish(self, stamp: Any) -> None:
         est = self._pipeline.estimator
-        pose, s = est.pose, self._settings
-        pose_cov, twist_cov = self._pipeline.covariances()
-        values = (pose.x, pose.y, pose.theta, est.linear, est.angular, *pose_cov, *twist_cov)
-        if not all(math.isfinite(v) for v in values):  # cannot happen; never publish NaN
+        pose = est.pose
+        x, y, theta, linear, angular = pose.x, pose.y, pose.theta, est.linear, est.angular
+        if not math.isfinite(x + y + theta + linear + angular):  # cannot happen; never NaN
             self._throttle.warning("non_finite_output", "non-finite odometry suppressed")
             return
-        qx, qy, qz, qw = yaw_to_quaternion(pose.theta)
-        odom = Odometry()
+        _, _, qz, qw = yaw_to_quaternion(theta)  # planar: x and y stay 0
+        odom = self._odom
         odom.header.stamp = stamp
-        odom.header.frame_id = s.odom_frame_id
-        odom.child_frame_id = s.base_frame_id
         p = odom.pose.pose
-        p.position.x, p.position.y = pose.x, pose.y
-        p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = qx, qy, qz, qw
-        odom.pose.covariance = pose_cov
-        odom.twist.twist.linear.x = est.linear
-        odom.twist.twist.angular.z = est.angular
-        odom.twist.covariance = twist_cov
+        p.position.x = x
+        p.position.y = y
+        p.orientation.z = qz
+        p.orientation.w = qw
+        if not self._set_covariance(odom):  # cannot happen; never NaN
+            self._throttle.warning("non_finite_output", "non-finite covariance suppressed")
+            return
+        t = odom.twist.twist
+        t.linear.x = linear
+        t.angular.z = angular
         self._odom_pub.publish(odom)
-        if s.enable_odom_tf:
-            tf = TransformStamped()
-            tf.header = odom.header
-            tf.child_frame_id = s.base_frame_id
-            t = tf.transform
-            t.translation.x, t.translation.y = pose.x, pose.y
-            t.rotation = p.orientation
-            self._tf_pub.publish(TFMessage(transforms=[tf]))
+        if self._settings.enable_odom_tf:
+            tf = self._tf
+            tf.header.stamp = stamp
+            tr = tf.transform
+            tr.translation.x = x
+            tr.translation.y = y
+            tr.rotation.z = qz
+            tr.rotation.w = qw
+            self._tf_pub.publish(self._tf_msg)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -23,6 +24,7 @@ from diagnostic_msgs.msg import (
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
+from rclpy.context import Context
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
@@ -159,12 +161,15 @@ class ParameterGuard(Generic[T]):
 
 
 def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
-    """Init rclpy, build the node, spin until Ctrl-C; a bad start exits 2 with one line.
+    """Init rclpy, build the node, spin until SIGINT/SIGTERM; a bad start exits 2 with one line.
 
     Before rclpy sees the command line: ``--help`` prints :func:`usage` (exit 0);
     arguments outside ``--ros-args`` and a missing ``--params-file`` are named with
     the right form (exit 2), because rclpy would ignore the first and die with a
     traceback on the second; any other error of rcl's start is one line too.
+
+    A stop signal ends the process within :data:`SPIN_TIMEOUT_S` plus teardown, exit 0
+    (see :class:`_StopSignals` for why rclpy alone does not guarantee that).
     """
     argv = list(args) if args is not None else list(sys.argv)
     problem = _check_command_line(argv)
@@ -174,6 +179,7 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     if problem is not None:
         print(f"[{_program()}] {problem}", file=sys.stderr)
         return 2
+    stop = _StopSignals()  # before rclpy.init, so that rclpy's handlers chain to it
     try:
         rclpy.init(args=argv)
     except Exception as err:  # rclpy's RCLError: an unreadable params file, a bad remap
@@ -189,19 +195,49 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
             return 2
         executor.add_node(node)
         try:
-            spin()
+            spin(lambda: stop.requested)
         except RuntimeError:
-            # rclpy can raise from a half-torn-down wait set when SIGINT lands mid-take;
-            # after shutdown that is the end of the run, not a fault to report.
-            if rclpy.ok():
+            # rclpy can raise from a half-torn-down wait set when the signal lands
+            # mid-take; after shutdown that is the end of the run, not a fault to report.
+            if rclpy.ok() and not stop.requested:
                 raise
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except KeyboardInterrupt:  # a second signal while stopping
         pass
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+# Longest a spin waits before looking at the context again: the bound on how late a
+# stop signal ends the process (teardown comes on top).
+SPIN_TIMEOUT_S = 0.1
+
+
+class _StopSignals:
+    """SIGINT and SIGTERM as a stop request the spin loop sees, never an exception.
+
+    rclpy's own handlers (installed by ``rclpy.init``) trigger the executors' signal
+    guard condition and then shut the context down from another thread. A wait that
+    took the guard's trigger just before the shutdown leaves the next wait with
+    nothing to wake it, so a wait without a timeout blocks until some timer or
+    message comes: the spin loop therefore waits at most SPIN_TIMEOUT_S and checks
+    ``rclpy.ok()`` and this flag. rclpy then calls the handler found before it, which
+    for SIGINT is Python's: its KeyboardInterrupt can land anywhere, even inside the
+    teardown (exit 1, traceback); this handler replaces it. A second signal still
+    ends a stuck process at once.
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._on_signal)
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
 
 
 def _first_line(err: BaseException) -> str:
@@ -337,27 +373,44 @@ def _endpoints(
 EXECUTOR_ENV = "DIFFDRIVE_ODOM_EXECUTOR"
 
 
-def make_executor(kind: str | None = None) -> tuple[Executor, Callable[[], None]]:
-    """The executor and its spin loop: ``single`` (default) or ``events`` (opt-in).
+Spin = Callable[[Callable[[], bool]], None]
+
+
+EXECUTOR_KINDS = ("events", "single")  # the default first
+
+
+def make_executor(
+    kind: str | None = None, context: Context | None = None
+) -> tuple[Executor, Spin]:
+    """The executor and its spin loop: ``events`` (default) or ``single``.
 
     ``kind`` defaults to ``$DIFFDRIVE_ODOM_EXECUTOR``. rclpy's EventsExecutor costs
-    less CPU per message, but its ``spin()`` is broken in the PyPI wheels (busy loop,
-    delivers nothing), so it is driven by ``spin_once`` until shutdown.
+    about half the CPU per message of the SingleThreadedExecutor, whose Python code
+    rebuilds the wait set for every message (bench/bench_live.py measures both); the
+    single one stays selectable as the conservative fallback. The EventsExecutor's
+    ``spin()`` is broken in the PyPI wheels (busy loop, delivers nothing): both are
+    driven by ``spin_once`` with a bounded wait until shutdown of ``context``
+    (rclpy's default one if None) or until ``stop()`` is true (see
+    :class:`_StopSignals` for why bounded).
     """
-    kind = os.environ.get(EXECUTOR_ENV, "single") if kind is None else kind
+    kind = os.environ.get(EXECUTOR_ENV, "events") if kind is None else kind
+    executor: Executor
     if kind == "single":
-        single = SingleThreadedExecutor()
-        return single, single.spin
-    if kind == "events":
-        events = EventsExecutor()
+        executor = SingleThreadedExecutor(context=context)
+    elif kind == "events":
+        executor = EventsExecutor(context=context)
+    else:
+        raise ParameterError(EXECUTOR_ENV, f"environment variable must be 'single' or "
+                             f"'events', got {kind!r}")
 
-        def spin() -> None:
-            while rclpy.ok():
-                events.spin_once(timeout_sec=0.1)
+    def spin(stop: Callable[[], bool] = lambda: False) -> None:
+        try:
+            while rclpy.ok(context=context) and not stop():
+                executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+        except ExternalShutdownException:  # shut down during the wait: the end, not a fault
+            pass
 
-        return events, spin
-    raise ParameterError(EXECUTOR_ENV, f"environment variable must be 'single' or 'events', "
-                         f"got {kind!r}")
+    return executor, spin
 
 
 def _program() -> str:
@@ -449,19 +502,30 @@ class KeyedThrottle:
 
     def warning(self, key: str, text: str) -> bool:
         """Log ``text`` as a warning unless ``key`` was logged within the period."""
-        return self._log(key, text, self._logger.warning)
+        line = self._admit(key, text)
+        if line is not None:
+            self._logger.warning(line)  # its own call site: see _admit
+        return line is not None
 
     def info(self, key: str, text: str) -> bool:
         """Log ``text`` as info unless ``key`` was logged within the period."""
-        return self._log(key, text, self._logger.info)
+        line = self._admit(key, text)
+        if line is not None:
+            self._logger.info(line)
+        return line is not None
 
-    def _log(self, key: str, text: str, emit: Callable[[str], Any]) -> bool:
+    def _admit(self, key: str, text: str) -> str | None:
+        """The line to log now, or None if held back.
+
+        The caller logs it: rclpy's logger refuses a call site that logs at two
+        severities ("Logger severity cannot be changed between calls", a ValueError
+        that would end the node), so info and warning lines never share one.
+        """
         now = self._clock()
         last = self._last.get(key)
         if last is not None and now - last < self._period:
             self._held[key] = self._held.get(key, 0) + 1
-            return False
+            return None
         self._last[key] = now
         held = self._held.pop(key, 0)
-        emit(f"{text} ({held} more like this since the last report)" if held else text)
-        return True
+        return f"{text} ({held} more like this since the last report)" if held else text

@@ -1,0 +1,250 @@
+"""SIGTERM and SIGINT end every node within a second, even in the middle of a burst.
+
+Under systemd or docker a stop is SIGTERM, then SIGKILL after a grace period: a node
+that sits in an unbounded wait after the signal is killed at every stop. Each trial
+starts the real console script, feeds it a stream of bursts (messages back to back,
+then a short quiet spell, so that a signal lands both while callbacks run and just as
+the input stops), sends the signal at a random moment of that cycle and times the
+exit. The processes of a batch start together and share one burst generator; each
+gets its signal at its own moment.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
+from typing import Any
+
+import rclpy
+from geometry_msgs.msg import Twist
+from rclpy.context import Context
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from diffdrive_odom import ros_common
+
+from rosutil import node_process
+
+EXIT_WITHIN_S = 1.0
+PULSE = 200  # messages back to back
+QUIET_S = 0.15  # then nothing for this long
+GEOMETRY = ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4"]
+
+
+class Burst:
+    """Publishes ``make(k)`` in pulses on one topic of ``topics`` at a time (``aim``),
+    from a thread of its own, in a private Context.
+
+    Only the process about to be signalled is fed: the others of its batch stay idle,
+    so the exit time measured is the node's, not that of two cores shared with nine
+    busy neighbours.
+    """
+
+    def __init__(self, msg_type: Any, topics: list[str], make: Callable[[int], Any]) -> None:
+        self._context = Context()
+        rclpy.init(context=self._context)
+        self._node = Node("signal_burst", context=self._context)
+        self.pubs = [self._node.create_publisher(msg_type, t, ros_common.qos(100, True))
+                     for t in topics]
+        self._make = make
+        self._target = 0
+        self._stop = threading.Event()
+        self.sent = 0
+        self.cycle_s = QUIET_S  # how long one pulse and its quiet spell last, measured
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def aim(self, k: int) -> None:
+        self._target = k
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            start = time.monotonic()
+            pub = self.pubs[self._target]
+            for _ in range(PULSE):
+                pub.publish(self._make(self.sent))
+                self.sent += 1
+            self._stop.wait(QUIET_S)
+            self.cycle_s = time.monotonic() - start
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self._node.destroy_node()
+        rclpy.try_shutdown(context=self._context)
+
+
+@contextmanager
+def burst(msg_type: Any, topics: list[str], make: Callable[[int], Any]) -> Iterator[Burst]:
+    b = Burst(msg_type, topics, make)
+    try:
+        yield b
+    finally:
+        b.close()
+
+
+def joint_state(k: int) -> JointState:
+    msg = JointState()
+    ns = time.time_ns()
+    msg.header.stamp = ros_common.ns_to_stamp(ns, msg.header.stamp)
+    msg.name = ["left_wheel_joint", "right_wheel_joint"]
+    t = ns * 1e-9 % 1000.0
+    msg.position = [2.0 * t, 3.0 * t]  # a steady motion, well under max_wheel_speed
+    return msg
+
+
+def twist(k: int) -> Twist:
+    msg = Twist()
+    msg.linear.x = 0.2 * math.sin(k * 1e-3)
+    msg.angular.z = 0.3
+    return msg
+
+
+def wheel_command(k: int) -> Float64MultiArray:
+    return Float64MultiArray(data=[1.0, 1.5 + math.sin(k * 1e-3)])
+
+
+def stop_times(
+    executable: str,
+    args: Callable[[int], list[str]],
+    source: Burst,
+    signals: list[signal.Signals],
+    rng: random.Random,
+) -> list[tuple[str, int | None, float, str]]:
+    """Start one process per entry of ``signals`` (``args(i)`` its ROS arguments), all
+    at once; once all are subscribed, for each in turn: burst at it, signal it at a
+    random moment of the burst cycle, time its exit.
+
+    Returns (signal name, exit code or None if still running, seconds, output).
+    """
+    n = len(signals)
+    results: list[tuple[str, int | None, float, str]] = []
+    with ExitStack() as stack:
+        procs = [stack.enter_context(node_process(
+            executable, ["--ros-args", *args(i), "-r", f"__node:=signal_test_{i}"],
+            env={"PYTHONFAULTHANDLER": "1"})) for i in range(n)]
+        deadline = time.monotonic() + 60.0
+        while (not all(p.get_subscription_count() for p in source.pubs[:n])
+               and time.monotonic() < deadline):
+            assert all(p.poll() is None for p in procs), "a node died at start"
+            time.sleep(0.05)
+        assert all(p.get_subscription_count() for p in source.pubs[:n]), "never subscribed"
+        sent_at: dict[int, float] = {}
+        ended: dict[int, float] = {}
+        for i in range(n):
+            source.aim(i)
+            time.sleep(rng.uniform(0.05, 0.05 + source.cycle_s))
+            sent_at[i] = time.monotonic()
+            procs[i].send_signal(signals[i])
+            until = sent_at[i] + 3 * EXIT_WITHIN_S
+            while procs[i].poll() is None and time.monotonic() < until:
+                time.sleep(0.002)
+            if procs[i].poll() is not None:
+                ended[i] = time.monotonic()
+        for i, p in enumerate(procs):
+            code = p.poll()
+            if code is None:
+                p.send_signal(signal.SIGABRT)  # faulthandler prints where it is stuck
+                try:
+                    p.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+            out = p.stdout.read() if p.stdout else ""
+            took = ended.get(i, math.inf) - sent_at[i]
+            results.append((signals[i].name, code, took, out))
+    return results
+
+
+def assert_all_stopped(results: list[tuple[str, int | None, float, str]]) -> None:
+    late = [(sig, code, round(took, 3)) for sig, code, took, _ in results
+            if code != 0 or took > EXIT_WITHIN_S]
+    bad_out = [out for *_, out in results if "Traceback" in out]
+    first = max(((took, out) for sig, code, took, out in results
+                 if code != 0 or took > EXIT_WITHIN_S), default=(0.0, ""))[1]
+    assert not late, f"{len(late)} of {len(results)} did not exit 0 within " \
+                     f"{EXIT_WITHIN_S} s: {late}; first one's output:\n{first[-3000:]}"
+    assert not bad_out, bad_out[0]
+
+
+def test_spin_loop_ends_on_a_shutdown_that_wakes_no_wait() -> None:
+    """The race behind a hang: rclpy's signal thread triggers the signal guard, then shuts
+    the context down without waking any executor. A wait that took the trigger while
+    the context was still up leaves the next one blocked, with no timeout, until a
+    message or timer comes. Here, the second half of that alone: the context is shut
+    down as rclpy's signal thread does it (no on_shutdown callbacks, no wake-up) under a
+    node with nothing to wake the wait; each executor's spin loop must still end.
+    """
+    for kind in ros_common.EXECUTOR_KINDS:
+        context = Context()
+        rclpy.init(context=context)
+        executor, spin = ros_common.make_executor(kind, context=context)
+        node = Node("quiet_node", context=context)
+        executor.add_node(node)
+        worker = threading.Thread(target=spin, args=(lambda: False,), daemon=True)
+        worker.start()
+        time.sleep(0.3)  # the loop is in its wait by now
+        with context.handle:
+            context.handle.shutdown()
+        worker.join(timeout=EXIT_WITHIN_S)
+        assert not worker.is_alive(), f"{kind}: spin loop still waiting after the shutdown"
+        executor.shutdown()
+        node.destroy_node()
+
+
+def signal_mix(terms: int, ints: int, rng: random.Random) -> list[signal.Signals]:
+    sigs = [signal.SIGTERM] * terms + [signal.SIGINT] * ints
+    rng.shuffle(sigs)
+    return sigs
+
+
+def test_odometry_node_stops_within_a_second_of_sigterm_or_sigint_during_a_burst() -> None:
+    """50 SIGTERM and 50 SIGINT trials, ten processes started at a time."""
+    rng = random.Random(20261201)
+    topics = [f"/signal_test/joint_states_{i}" for i in range(10)]
+
+    def args(i: int) -> list[str]:
+        return [*GEOMETRY, "-r", f"joint_states:={topics[i]}",
+                "-r", f"odom:=/signal_test/odom_{i}", "-p", "enable_odom_tf:=false"]
+
+    results = []
+    with burst(JointState, topics, joint_state) as source:
+        for _ in range(10):
+            results += stop_times("odometry_node", args, source, signal_mix(5, 5, rng), rng)
+        assert source.sent > 0
+    assert sorted(sig for sig, *_ in results) == ["SIGINT"] * 50 + ["SIGTERM"] * 50
+    assert_all_stopped(results)
+
+
+def test_cmd_vel_node_stops_within_a_second_during_a_burst() -> None:
+    rng = random.Random(7)
+    topics = [f"/signal_test/cmd_vel_{i}" for i in range(6)]
+
+    def args(i: int) -> list[str]:
+        return [*GEOMETRY, "-r", f"cmd_vel:={topics[i]}",
+                "-r", f"wheel_commands:=/signal_test/wheels_{i}"]
+
+    with burst(Twist, topics, twist) as source:
+        results = stop_times("cmd_vel_node", args, source, signal_mix(3, 3, rng), rng)
+    assert_all_stopped(results)
+
+
+def test_sim_node_stops_within_a_second_during_a_burst() -> None:
+    rng = random.Random(11)
+    topics = [f"/signal_test/wheel_commands_{i}" for i in range(6)]
+
+    def args(i: int) -> list[str]:
+        return ["-r", f"wheel_commands:={topics[i]}",
+                "-r", f"joint_states:=/signal_test/sim_joints_{i}",
+                "-r", f"ground_truth/odom:=/signal_test/truth_{i}"]
+
+    with burst(Float64MultiArray, topics, wheel_command) as source:
+        results = stop_times("sim_node", args, source, signal_mix(3, 3, rng), rng)
+    assert_all_stopped(results)
