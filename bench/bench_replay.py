@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from diffdrive_odom import bagio, batch, odometry, replay  # noqa: E402
-from diffdrive_odom.params import OdometrySettings, odometry_settings  # noqa: E402
+from diffdrive_odom.odometry_settings import OdometrySettings, odometry_settings  # noqa: E402
 
 DATA = ROOT / "test" / "data"
 

@@ -20,7 +20,8 @@ from diffdrive_odom import bagio, batch, calibration, evaluate
 from diffdrive_odom.calibration import CalibrationError, Fit, Run, Umbmark
 from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.params import OdometrySettings, ParameterError, yaml_text
+from diffdrive_odom.odometry_settings import OdometrySettings
+from diffdrive_odom.params import ParameterError, yaml_text
 from diffdrive_odom.replay import NODE_NAME, _RosParam, load_settings
 
 PREFIX = "[calibrate]"

@@ -48,17 +48,16 @@ from tf2_msgs.msg import TFMessage
 from diffdrive_odom import bagio, evaluate, ros_common, routes
 from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.odometry import quaternion_to_yaw
+from diffdrive_odom.odometry_settings import OdometrySettings, odometry_settings
 from diffdrive_odom.params import (
     EXAMPLE_PARAMS_FILE,
-    OdometrySettings,
     ParameterError,
     ParamValue,
     load_params_file,
-    odometry_settings,
 )
 from diffdrive_odom.pipeline import ReadingPipeline
 from diffdrive_odom.routes import Route
-from diffdrive_odom.sim import SimSettings, sim_settings
+from diffdrive_odom.sim_settings import SimSettings, sim_settings
 
 DEFAULT_PARAMS = EXAMPLE_PARAMS_FILE
 PROGRAM = "diffdrive-odom demo"

@@ -33,13 +33,8 @@ from diffdrive_odom.odometry import (
     Status,
     yaw_to_quaternion,
 )
-from diffdrive_odom.params import (
-    GEOMETRY_PARAMS,
-    ODOMETRY_PARAMS,
-    OdometrySettings,
-    ParamValue,
-    odometry_settings,
-)
+from diffdrive_odom.odometry_settings import ODOMETRY_PARAMS, OdometrySettings, odometry_settings
+from diffdrive_odom.params import ParamValue
 from diffdrive_odom.pipeline import Outcome, ReadingPipeline
 
 NODE_NAME = "odometry_node"
@@ -51,7 +46,7 @@ class OdometryNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = ros_common.declare(self, GEOMETRY_PARAMS + ODOMETRY_PARAMS)
+        values = ros_common.declare(self, ODOMETRY_PARAMS)
         settings = self._build(values)
         self._settings = settings
         self._pipeline = ReadingPipeline(settings)

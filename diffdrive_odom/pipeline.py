@@ -22,7 +22,7 @@ from diffdrive_odom.odometry import (
     Verdict,
     covariance_matrix,
 )
-from diffdrive_odom.params import OdometrySettings
+from diffdrive_odom.odometry_settings import OdometrySettings
 from diffdrive_odom.uncertainty import pose_message_covariance, twist_message_covariance
 
 ZERO_STAMP = Verdict(

@@ -103,8 +103,9 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     import rclpy
     from rclpy.duration import Duration
     from rclpy.executors import ExternalShutdownException
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rosgraph_msgs.msg import Clock
+
+    from diffdrive_odom import ros_common
 
     conns: list[Connection] = [
         c for c in reader.connections if args.topics is None or c.topic in args.topics
@@ -128,13 +129,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
                 continue
             name = remap.get(conn.topic, conn.topic)
             if name not in by_name:
-                latched = name == "/tf_static"
-                qos = QoSProfile(
-                    depth=100,
-                    reliability=ReliabilityPolicy.RELIABLE,
-                    durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
-                                else DurabilityPolicy.VOLATILE),
-                )
+                qos = ros_common.qos(100, reliable=True, latched=name == "/tf_static")
                 by_name[name] = _Topic(name, node.create_publisher(cls, name, qos))
             topics[id(conn)] = by_name[name]
         if not topics:

@@ -1,7 +1,7 @@
 """``diffdrive-odom replay``: run the node's estimator over a bag offline, as fast as the disk.
 
 One code path with the node: the same parameter file (``params.resolve_parameters`` +
-``params.odometry_settings``, so a bad value is refused with the same one line), the
+``odometry_settings``, so a bad value is refused with the same one line), the
 same :class:`~diffdrive_odom.pipeline.ReadingPipeline` (estimator, zero stamps
 dropped, gap rule, ``publish_rate``), frames with the tf prefix. The
 output is what the node would have published, written as a rosbag2 (``odom`` and
@@ -41,11 +41,10 @@ from diffdrive_odom import bagio, evaluate
 from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.integration import Pose2D
 from diffdrive_odom.odometry import Reason, Status
+from diffdrive_odom.odometry_settings import OdometrySettings, odometry_settings
 from diffdrive_odom.params import (
-    OdometrySettings,
     ParameterError,
     ParamSource,
-    odometry_settings,
     resolve_parameters,
     unknown_parameters_report,
 )

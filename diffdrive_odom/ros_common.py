@@ -46,13 +46,17 @@ from diffdrive_odom.params import (
 
 T = TypeVar("T")
 
-def qos(depth: int, reliable: bool) -> QoSProfile:
-    """Keep-last, volatile QoS: the only knobs our topics differ in are depth and reliability."""
+def qos(depth: int, reliable: bool, latched: bool = False) -> QoSProfile:
+    """Keep-last QoS: our topics differ only in depth, reliability and (``/tf_static``) latching.
+
+    ``latched`` is transient-local durability: a late subscriber still gets the last
+    messages, as ``/tf_static`` requires; every other topic is volatile.
+    """
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
         depth=depth,
         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.VOLATILE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
     )
 
 

@@ -15,10 +15,10 @@ from pathlib import Path
 from diffdrive_odom.params import ParamSpec, yaml_text
 
 TABLES = {
-    "geometry": ("diffdrive_odom.params", "GEOMETRY_PARAMS"),
-    "odometry": ("diffdrive_odom.params", "ODOMETRY_PARAMS"),
+    "geometry": ("diffdrive_odom.geometry_settings", "GEOMETRY_PARAMS"),
+    "odometry": ("diffdrive_odom.odometry_settings", "ODOMETRY_PARAMS"),
     "cmd_vel": ("diffdrive_odom.cmd_vel_settings", "CMD_VEL_PARAMS"),
-    "sim": ("diffdrive_odom.sim", "SIM_PARAMS"),
+    "sim": ("diffdrive_odom.sim_settings", "SIM_PARAMS"),
     "follower": ("diffdrive_odom.follower_settings", "FOLLOWER_PARAMS"),
 }
 
@@ -35,7 +35,7 @@ def table(specs: tuple[ParamSpec, ...], skip: tuple[ParamSpec, ...] = ()) -> str
 
 def rendered(name: str) -> str | None:
     """The markdown table for one entry of TABLES (None if its module is absent)."""
-    from diffdrive_odom.params import GEOMETRY_PARAMS
+    from diffdrive_odom.geometry_settings import GEOMETRY_PARAMS
 
     module, attr = TABLES[name]
     try:

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from diffdrive_odom import batch, calibration, params, routes
+from diffdrive_odom import batch, calibration, odometry_settings, params, routes
 from diffdrive_odom.calibration import Run
 from diffdrive_odom.cli import main as cli
 from diffdrive_odom.kinematics import Geometry, wheel_rates
@@ -30,7 +30,7 @@ NOMINAL = Geometry(0.05, 0.30)
 # Radii off by +1.2 % and -0.7 %, separation off by +3.5 %.
 TRUE = Geometry(0.05, 0.30, left_wheel_radius_multiplier=1.012,
                 right_wheel_radius_multiplier=0.993, wheel_separation_multiplier=1.035)
-SETTINGS = params.odometry_settings({"wheel_radius": 0.05, "wheel_separation": 0.30})
+SETTINGS = odometry_settings.odometry_settings({"wheel_radius": 0.05, "wheel_separation": 0.30})
 RATE = 50.0
 SIDE = 2.0
 OPTIODOM = DATA / "optiodom"
@@ -174,7 +174,7 @@ def test_umbmark_with_noise_stays_near_the_truth() -> None:
 def _optiodom_runs() -> list[Run]:
     from diffdrive_odom import bagio, evaluate
 
-    settings = params.odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
+    settings = odometry_settings.odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
     return [Run(name, batch.wheel_steps(bagio.read_joint_states(OPTIODOM / name), settings),
                 evaluate.read_trajectory(OPTIODOM / name, "/ground_truth/pose"))
             for name in (CW_RUN, CCW_RUN)]
@@ -231,7 +231,7 @@ def test_cli_prints_a_params_block_the_node_accepts(
     path = tmp_path / "calibrated.yaml"
     path.write_text(block, encoding="utf-8")
     values = params.load_params_file(path, "odometry_node")
-    settings = params.odometry_settings(values)
+    settings = odometry_settings.odometry_settings(values)
     fit = calibration.fit(_optiodom_runs(), Geometry(0.042, 0.2))
     got = calibration.values_of(settings.geometry)
     assert np.allclose(got, fit.values, rtol=1e-6), (got, fit.values)
@@ -257,7 +257,7 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
     assert "E_d" in out and "E_b" in out
     values = from_topic["/**"]["ros__parameters"]
     assert "wheel_noise_k_left" not in values  # UMBmark has no residuals to estimate k from
-    params.odometry_settings(values)
+    odometry_settings.odometry_settings(values)
 
 
 @pytest.mark.parametrize(("args", "needle"), [

@@ -11,14 +11,17 @@ from typing import Any
 import pytest
 import yaml
 
-from diffdrive_odom.params import (
-    GEOMETRY_PARAMS,
+from diffdrive_odom.geometry_settings import GEOMETRY_PARAMS
+from diffdrive_odom.odometry_settings import (
+    ODOMETRY_OWN_PARAMS,
     ODOMETRY_PARAMS,
+    frame_prefix,
+    odometry_settings,
+)
+from diffdrive_odom.params import (
     ParameterError,
     ParamSpec,
-    frame_prefix,
     load_params_file,
-    odometry_settings,
     parse_override,
     unknown_parameters_report,
 )
@@ -214,12 +217,12 @@ def all_package_params() -> tuple[ParamSpec, ...]:
     from diffdrive_odom.cmd_vel_settings import CMD_VEL_OWN_PARAMS
     from diffdrive_odom.follower_settings import FOLLOWER_OWN_PARAMS
 
-    return GEOMETRY_PARAMS + ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS + FOLLOWER_OWN_PARAMS
+    return ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS + FOLLOWER_OWN_PARAMS
 
 
 def test_config_file_gives_the_odometry_node_every_parameter() -> None:
     values = load_params_file(CONFIG, "odometry_node")
-    assert set(names(GEOMETRY_PARAMS + ODOMETRY_PARAMS)) <= set(values)
+    assert set(names(ODOMETRY_PARAMS)) <= set(values)
     settings = odometry_settings(values)
     assert settings.geometry.wheel_radius == EXAMPLE_ROBOT["wheel_radius"]
     assert settings.geometry.wheel_separation == EXAMPLE_ROBOT["wheel_separation"]
@@ -247,11 +250,11 @@ def test_no_two_nodes_share_a_name_with_different_meanings() -> None:
     from diffdrive_odom.cmd_vel_settings import CMD_VEL_OWN_PARAMS
     from diffdrive_odom.follower_settings import FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS
 
-    assert not set(names(ODOMETRY_PARAMS)) & set(names(CMD_VEL_OWN_PARAMS))
+    assert not set(names(ODOMETRY_OWN_PARAMS)) & set(names(CMD_VEL_OWN_PARAMS))
     assert "wheel_command_rate" in names(CMD_VEL_OWN_PARAMS)
     own = set(names(FOLLOWER_OWN_PARAMS))
     assert all(n.startswith("follower.") for n in own)
-    assert not own & set(names(GEOMETRY_PARAMS + ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS))
+    assert not own & set(names(ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS))
     by_name = {s.name: s for s in GEOMETRY_PARAMS + CMD_VEL_OWN_PARAMS}
     for spec in FOLLOWER_PARAMS:  # a shared row is the very same spec
         assert spec.name in own or by_name[spec.name] == spec, spec.name

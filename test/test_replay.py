@@ -24,7 +24,7 @@ from diffdrive_odom import bagio, batch, replay
 from diffdrive_odom.cli import main as cli
 from diffdrive_odom.kinematics import Geometry
 from diffdrive_odom.odometry import quaternion_to_yaw
-from diffdrive_odom.params import OdometrySettings
+from diffdrive_odom.odometry_settings import OdometrySettings
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, mcap_messages, write_params
 from rosutil import DATA

@@ -22,7 +22,7 @@ from diffdrive_odom.encoders import EncoderConfig
 from diffdrive_odom.errors import ParameterError
 from diffdrive_odom.kinematics import Geometry, wheel_rates
 from diffdrive_odom.odometry import OdometryEstimator, covariance_matrix
-from diffdrive_odom.params import odometry_settings
+from diffdrive_odom.odometry_settings import odometry_settings
 from diffdrive_odom.pipeline import ReadingPipeline
 from diffdrive_odom.sim import DiffDriveSim, SimConfig
 from diffdrive_odom.uncertainty import (
