@@ -33,15 +33,12 @@ def table(specs: tuple[ParamSpec, ...], skip: tuple[ParamSpec, ...] = ()) -> str
     return "\n".join(rows)
 
 
-def rendered(name: str) -> str | None:
-    """The markdown table for one entry of TABLES (None if its module is absent)."""
+def rendered(name: str) -> str:
+    """The markdown table for one entry of TABLES (a missing module or table raises)."""
     from diffdrive_odom.geometry_settings import GEOMETRY_PARAMS
 
     module, attr = TABLES[name]
-    try:
-        specs = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError):
-        return None
+    specs = getattr(importlib.import_module(module), attr)
     skip = GEOMETRY_PARAMS if name != "geometry" else ()
     if name == "follower":  # the cmd_vel node's row, listed in its table
         skip += tuple(s for s in specs if s.name == "enable_stamped_cmd_vel")
@@ -57,8 +54,6 @@ def update_readme(path: Path) -> None:
     text = path.read_text(encoding="utf-8")
     for name in TABLES:
         body = rendered(name)
-        if body is None:
-            continue
         pattern = re.compile(rf"(<!-- {name} -->\n)(\|.*\|\n)+")
         text = pattern.sub(_replacement(body), text)
     path.write_text(text, encoding="utf-8")
@@ -69,8 +64,7 @@ def main(argv: list[str]) -> int:
         update_readme(Path(__file__).resolve().parent.parent / "README.md")
         return 0
     for name in argv or list(TABLES):
-        body = rendered(name)
-        print(f"<!-- {name} -->\n{body}\n" if body else f"<!-- {name}: absent -->")
+        print(f"<!-- {name} -->\n{rendered(name)}\n")
     return 0
 
 

@@ -65,6 +65,7 @@ def test_umbmark_is_a_4m_square_clockwise_then_counter_clockwise() -> None:
     assert route.rotation == pytest.approx(4 * math.pi)
     half = len(route.segments) // 2
     turns = [s.angular for s in route.segments if s.angular != 0.0]
+    assert len(turns) == 8  # four corners each way
     assert all(w < 0 for w in turns[:4]) and all(w > 0 for w in turns[4:])
     cw_end = routes.waypoints(route)[half]
     assert (cw_end.x, cw_end.y, cw_end.theta) == pytest.approx((0, 0, 0), abs=1e-12)
