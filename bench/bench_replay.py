@@ -82,10 +82,12 @@ def _replay_to_bag(bag: Path, settings: OdometrySettings, out: Path) -> None:
 
         def sink(p: replay.Published) -> None:
             x, y, yaw = p.pose.x, p.pose.y, p.pose.theta
-            w.write("/odom", p.log_ns, msgs.odometry(p.stamp_ns, x, y, yaw, p.linear,
-                                                     p.angular, cov, cov))
+            w.write("/odom", p.log_ns, msgs.odometry(
+                p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
+                pose_covariance=cov, twist_covariance=cov))
             w.write("/tf", p.log_ns, msgs.tf(p.stamp_ns, x, y, yaw))
-            table.row(p.stamp_ns, x, y, yaw, p.linear, p.angular, p.status.value)
+            table.row(p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
+                      status=p.status.value)
 
         replay.replay_readings(bagio.read_joint_states(bag), settings, sink)
 

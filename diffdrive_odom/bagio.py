@@ -319,6 +319,7 @@ class OdomMessages:
         x: float,
         y: float,
         yaw: float,
+        *,
         linear: float,
         angular: float,
         pose_covariance: Sequence[float],
@@ -438,8 +439,8 @@ class CsvWriter:
             self._file.close()
 
     def row(
-        self, ns: int, x: float, y: float, yaw: float, linear: float, angular: float, status: str,
-        pose_covariance: Sequence[float] = (),
+        self, ns: int, x: float, y: float, yaw: float, *, linear: float, angular: float,
+        status: str, pose_covariance: Sequence[float] = (),
     ) -> None:
         """One published pose; floats by ``repr`` so reading back is lossless.
 

@@ -36,7 +36,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Protocol
 
 from diffdrive_odom.encoders import (
     EncoderConfig,
@@ -399,7 +399,8 @@ class OdometryEstimator:
             return False
         if self.uncertainty is not None:
             self.uncertainty.propagate(
-                self.pose, self.geometry, ds, dtheta, inc.d_left, inc.d_right, inc.dt)
+                self.pose, self.geometry, ds=ds, dtheta=dtheta,
+                d_left=inc.d_left, d_right=inc.d_right, dt=inc.dt)
         self.pose = pose
         self.last_step = Step(inc.dt, ds, dtheta)
         self.last_increment = inc
@@ -420,12 +421,28 @@ def yaw_to_quaternion(theta: float) -> tuple[float, float, float, float]:
     return 0.0, 0.0, math.sin(half), math.cos(half)
 
 
-def quaternion_to_yaw(q: Any) -> float:
-    """Yaw of a quaternion (anything with x, y, z, w), for any roll/pitch."""
+class QuaternionLike(Protocol):
+    """A quaternion's four components: geometry_msgs/Quaternion (rclpy's or rosbags')."""
+
+    x: float
+    y: float
+    z: float
+    w: float
+
+
+class StampLike(Protocol):
+    """A builtin_interfaces/Time: whole seconds and nanoseconds (rclpy's or rosbags')."""
+
+    sec: int
+    nanosec: int
+
+
+def quaternion_to_yaw(q: QuaternionLike) -> float:
+    """Yaw of a quaternion, for any roll/pitch."""
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
-def stamp_to_ns(stamp: Any) -> int:
+def stamp_to_ns(stamp: StampLike) -> int:
     """A builtin_interfaces/Time (rclpy's or rosbags') -> integer nanoseconds, no rounding."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 

@@ -19,7 +19,6 @@ from nav_msgs.msg import Path as PathMsg
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float64
 
 from diffdrive_odom import ros_common
@@ -45,12 +44,7 @@ THROTTLE_S = ros_common.WARN_THROTTLE_S
 ODOM_IN_QOS = ros_common.qos(10, reliable=False)  # matches reliable and best-effort odometry
 PATH_IN_QOS = ros_common.qos(1, reliable=True)
 # Latched: a late subscriber (a mission script) still learns that the path is done.
-DONE_QOS: QoSProfile = cast(Any, QoSProfile)(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+DONE_QOS = ros_common.qos(1, reliable=True, latched=True)
 
 
 class PathFollowerNode(Node):

@@ -149,8 +149,9 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
                  + (", looping" if args.loop else "") + (", /clock" if clock_pub else ""))
         sent = 0
         while True:
-            sent += _play_once(reader, conns, topics, convert, clock_pub, Clock,
-                               start_ns, stop_ns, args)
+            sent += _play_once(reader, conns=conns, topics=topics, convert=convert,
+                               clock_pub=clock_pub, clock_cls=Clock, start_ns=start_ns,
+                               stop_ns=stop_ns, args=args)
             if not args.loop or not rclpy.ok():
                 break
         tail = [t.publisher for t in by_name.values()] + ([clock_pub] if clock_pub else [])
@@ -182,6 +183,7 @@ def _wait_for_subscribers(node: Any, by_name: dict[str, _Topic], wanted: Sequenc
 
 def _play_once(
     reader: Any,
+    *,
     conns: list[Connection],
     topics: dict[int, _Topic],
     convert: bagio.CdrConverter,

@@ -417,13 +417,13 @@ def _sink(
         x, y, yaw = p.pose.x, p.pose.y, p.pose.theta
         if writer is not None:
             writer.write(args.odom_topic, p.log_ns, msgs.odometry(
-                p.stamp_ns, x, y, yaw, p.linear, p.angular, p.pose_covariance,
-                p.twist_covariance))
+                p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
+                pose_covariance=p.pose_covariance, twist_covariance=p.twist_covariance))
             if tf:
                 writer.write(args.tf_topic, p.log_ns, msgs.tf(p.stamp_ns, x, y, yaw))
         if csv_out is not None:
-            csv_out.row(p.stamp_ns, x, y, yaw, p.linear, p.angular, p.status.value,
-                        p.pose_covariance)
+            csv_out.row(p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
+                        status=p.status.value, pose_covariance=p.pose_covariance)
         if traj is not None:
             traj.add(p)
 

@@ -138,7 +138,8 @@ def test_umbmark_recovers_the_ratio_and_the_separation_without_noise() -> None:
     ccw = simulate(routes.umbmark(SIDE, clockwise=False))
     assert cw.reference is not None and ccw.reference is not None
     u = calibration.umbmark(cw, ccw, calibration.reference_end(cw, cw.reference),
-                            calibration.reference_end(ccw, ccw.reference), SIDE, NOMINAL)
+                            calibration.reference_end(ccw, ccw.reference),
+                            side=SIDE, nominal=NOMINAL)
     g = u.geometry
     # UMBmark keeps the mean radius; scaling both radii by s = r_nominal / r_true_mean
     # leaves every heading unchanged when the separation is scaled by s too.
@@ -161,7 +162,8 @@ def test_umbmark_with_noise_stays_near_the_truth() -> None:
     ccw = simulate(routes.umbmark(SIDE, clockwise=False), 0.001, seed=5)
     assert cw.reference is not None and ccw.reference is not None
     u = calibration.umbmark(cw, ccw, calibration.reference_end(cw, cw.reference),
-                            calibration.reference_end(ccw, ccw.reference), SIDE, NOMINAL)
+                            calibration.reference_end(ccw, ccw.reference),
+                            side=SIDE, nominal=NOMINAL)
     s = 2 * NOMINAL.wheel_radius / (TRUE.left_radius + TRUE.right_radius)
     assert u.geometry.separation == pytest.approx(TRUE.separation * s, rel=1e-2)
     assert u.geometry.right_radius / u.geometry.left_radius == pytest.approx(
@@ -198,8 +200,8 @@ def test_optiodom_umbmark_cuts_the_final_error() -> None:
     cw, ccw = _optiodom_runs()
     assert cw.reference is not None and ccw.reference is not None
     u = calibration.umbmark(cw, ccw, calibration.reference_end(cw, cw.reference),
-                            calibration.reference_end(ccw, ccw.reference), 1.7,
-                            Geometry(0.042, 0.2))
+                            calibration.reference_end(ccw, ccw.reference), side=1.7,
+                            nominal=Geometry(0.042, 0.2))
     assert u.e_max_before == pytest.approx(0.1075, abs=1e-3)
     assert u.e_max_after < 0.4 * u.e_max_before
     assert u.geometry.separation == pytest.approx(0.2008, rel=5e-3)

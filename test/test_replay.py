@@ -282,7 +282,8 @@ def test_streaming_memory_does_not_grow_with_the_bag(tmp_path: Path) -> None:
             def sink(p: replay.Published, w: bagio.BagWriter = w,
                      msgs: bagio.OdomMessages = msgs, cov: list[float] = cov) -> None:
                 w.write("/odom", p.log_ns, msgs.odometry(
-                    p.stamp_ns, p.pose.x, p.pose.y, p.pose.theta, 0.0, 0.0, cov, cov))
+                    p.stamp_ns, p.pose.x, p.pose.y, p.pose.theta, linear=0.0, angular=0.0,
+                    pose_covariance=cov, twist_covariance=cov))
 
             stats = replay.replay_readings(bagio.read_joint_states(bag), settings, sink)
         peaks.append(tracemalloc.get_traced_memory()[1])
