@@ -54,7 +54,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.odometry import stamp_to_ns, yaw_to_quaternion
+from diffdrive_odom.conversions import stamp_to_ns, yaw_to_quaternion
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 ODOMETRY = "nav_msgs/msg/Odometry"

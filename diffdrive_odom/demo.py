@@ -47,7 +47,7 @@ from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import bagio, evaluate, ros_common, routes
 from diffdrive_odom.cli import HelpFormatter
-from diffdrive_odom.odometry import quaternion_to_yaw
+from diffdrive_odom.conversions import quaternion_to_yaw
 from diffdrive_odom.odometry_settings import OdometrySettings, odometry_settings
 from diffdrive_odom.params import (
     EXAMPLE_PARAMS_FILE,

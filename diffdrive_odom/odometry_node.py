@@ -22,6 +22,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import ros_common
+from diffdrive_odom.conversions import yaw_to_quaternion
 from diffdrive_odom.diagnostics import (
     RateMeter,
     ReadingHealth,
@@ -29,10 +30,7 @@ from diffdrive_odom.diagnostics import (
     Reporter,
     odometry_report,
 )
-from diffdrive_odom.odometry import (
-    Status,
-    yaw_to_quaternion,
-)
+from diffdrive_odom.estimator import Status
 from diffdrive_odom.odometry_settings import ODOMETRY_PARAMS, OdometrySettings, odometry_settings
 from diffdrive_odom.params import ParamValue
 from diffdrive_odom.pipeline import Outcome, ReadingPipeline

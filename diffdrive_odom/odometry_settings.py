@@ -13,9 +13,9 @@ from typing import Any
 
 from diffdrive_odom.encoders import EncoderConfig
 from diffdrive_odom.errors import as_parameter_error
+from diffdrive_odom.estimator import EstimatorConfig
 from diffdrive_odom.geometry_settings import GEOMETRY_PARAMS, build_encoders, build_geometry
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import EstimatorConfig
 from diffdrive_odom.params import ParameterError, ParamSpec, ParamValue, coerce_all
 from diffdrive_odom.uncertainty import DEFAULT_K, NoiseModel
 

@@ -22,6 +22,7 @@ from rclpy.node import Node
 from std_msgs.msg import Bool, Float64
 
 from diffdrive_odom import ros_common
+from diffdrive_odom.conversions import quaternion_to_yaw
 from diffdrive_odom.diagnostics import (
     FollowerHealth,
     FollowerState,
@@ -32,7 +33,6 @@ from diffdrive_odom.diagnostics import (
 from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.follower_settings import FOLLOWER_PARAMS, FollowerSettings, follower_settings
 from diffdrive_odom.integration import Pose2D
-from diffdrive_odom.odometry import quaternion_to_yaw
 from diffdrive_odom.path_following import Command, Path, PathFollower, polyline
 
 NODE_NAME = "path_follower_node"

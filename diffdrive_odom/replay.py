@@ -39,8 +39,8 @@ from rosbags.interfaces import Connection
 
 from diffdrive_odom import bagio, evaluate
 from diffdrive_odom.cli import HelpFormatter
+from diffdrive_odom.estimator import Reason, Status
 from diffdrive_odom.integration import Pose2D
-from diffdrive_odom.odometry import Reason, Status
 from diffdrive_odom.odometry_settings import OdometrySettings, odometry_settings
 from diffdrive_odom.params import (
     ParameterError,

@@ -34,8 +34,8 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
+from diffdrive_odom.conversions import stamp_to_ns as stamp_to_ns  # re-exported
 from diffdrive_odom.diagnostics import Report
-from diffdrive_odom.odometry import stamp_to_ns as stamp_to_ns  # re-exported
 from diffdrive_odom.params import (
     EXAMPLE_PARAMS_FILE,
     ParameterError,

@@ -21,7 +21,7 @@ from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 
 from diffdrive_odom import bagio
-from diffdrive_odom.odometry import quaternion_to_yaw
+from diffdrive_odom.conversions import quaternion_to_yaw
 
 from bagutil import mcap_messages
 from rosutil import DATA

@@ -14,9 +14,9 @@ import pytest
 
 from diffdrive_odom.encoders import EncoderConfig
 from diffdrive_odom.errors import ConfigError
+from diffdrive_odom.estimator import EstimatorConfig, OdometryEstimator, Reason, Status
 from diffdrive_odom.integration import Pose2D, wrap_angle
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import EstimatorConfig, OdometryEstimator, Reason, Status
 
 import oracle
 

@@ -18,9 +18,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from diffdrive_odom.encoders import EncoderConfig
+from diffdrive_odom.estimator import EstimatorConfig, OdometryEstimator, Status
 from diffdrive_odom.integration import Pose2D, wrap_angle
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import EstimatorConfig, OdometryEstimator, Status
 from diffdrive_odom.odometry_settings import OdometrySettings
 from diffdrive_odom.pipeline import ReadingPipeline
 from diffdrive_odom.uncertainty import NoiseModel

@@ -22,8 +22,8 @@ from rosbags.highlevel import AnyReader
 
 from diffdrive_odom import bagio, batch, replay
 from diffdrive_odom.cli import main as cli
+from diffdrive_odom.conversions import quaternion_to_yaw
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import quaternion_to_yaw
 from diffdrive_odom.odometry_settings import OdometrySettings
 
 import oracle
