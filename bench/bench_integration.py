@@ -23,9 +23,9 @@ from collections.abc import Callable
 import numpy as np
 
 from diffdrive_odom.encoders import EncoderConfig
+from diffdrive_odom.estimator import OdometryEstimator
 from diffdrive_odom.integration import Pose2D, compose, integrate_batch
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import OdometryEstimator
 
 Step = Callable[[tuple[float, float, float], float, float], tuple[float, float, float]]
 

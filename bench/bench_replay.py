@@ -32,8 +32,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from diffdrive_odom import bagio, batch, odometry, replay  # noqa: E402
-from diffdrive_odom.params import OdometrySettings, odometry_settings  # noqa: E402
+from diffdrive_odom import bagio, batch, conversions, replay  # noqa: E402
+from diffdrive_odom.odometry_settings import OdometrySettings, odometry_settings  # noqa: E402
 
 DATA = ROOT / "test" / "data"
 
@@ -75,17 +75,19 @@ def _read_only(bag: Path) -> int:
 def _replay_to_bag(bag: Path, settings: OdometrySettings, out: Path) -> None:
     shutil.rmtree(out, ignore_errors=True)
     msgs = bagio.OdomMessages(bagio.typestore(), settings.odom_frame_id, settings.base_frame_id)
-    cov = odometry.covariance_matrix(settings.pose_covariance_diagonal)
+    cov = conversions.covariance_matrix(settings.pose_covariance_diagonal)
     with bagio.BagWriter(out) as w, bagio.CsvWriter(out.with_suffix(".csv")) as table:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
 
         def sink(p: replay.Published) -> None:
             x, y, yaw = p.pose.x, p.pose.y, p.pose.theta
-            w.write("/odom", p.log_ns, msgs.odometry(p.stamp_ns, x, y, yaw, p.linear,
-                                                     p.angular, cov, cov))
+            w.write("/odom", p.log_ns, msgs.odometry(
+                p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
+                pose_covariance=cov, twist_covariance=cov))
             w.write("/tf", p.log_ns, msgs.tf(p.stamp_ns, x, y, yaw))
-            table.row(p.stamp_ns, x, y, yaw, p.linear, p.angular, p.status.value)
+            table.row(p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
+                      status=p.status.value)
 
         replay.replay_readings(bagio.read_joint_states(bag), settings, sink)
 

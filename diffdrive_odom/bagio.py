@@ -54,7 +54,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.odometry import stamp_to_ns, yaw_to_quaternion
+from diffdrive_odom.conversions import stamp_to_ns, yaw_to_quaternion
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -319,6 +319,7 @@ class OdomMessages:
         x: float,
         y: float,
         yaw: float,
+        *,
         linear: float,
         angular: float,
         pose_covariance: Sequence[float],
@@ -438,8 +439,8 @@ class CsvWriter:
             self._file.close()
 
     def row(
-        self, ns: int, x: float, y: float, yaw: float, linear: float, angular: float, status: str,
-        pose_covariance: Sequence[float] = (),
+        self, ns: int, x: float, y: float, yaw: float, *, linear: float, angular: float,
+        status: str, pose_covariance: Sequence[float] = (),
     ) -> None:
         """One published pose; floats by ``repr`` so reading back is lossless.
 

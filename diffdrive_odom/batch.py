@@ -20,10 +20,10 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
+from diffdrive_odom.estimator import Status
 from diffdrive_odom.integration import Pose2D, integrate_batch, wrap_angle
 from diffdrive_odom.kinematics import Geometry, body_increment
-from diffdrive_odom.odometry import Status
-from diffdrive_odom.params import OdometrySettings
+from diffdrive_odom.odometry_settings import OdometrySettings
 from diffdrive_odom.pipeline import ReadingPipeline
 
 FloatArray = npt.NDArray[np.float64]

@@ -20,7 +20,8 @@ from diffdrive_odom import bagio, batch, calibration, evaluate
 from diffdrive_odom.calibration import CalibrationError, Fit, Run, Umbmark
 from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.params import OdometrySettings, ParameterError, yaml_text
+from diffdrive_odom.odometry_settings import OdometrySettings
+from diffdrive_odom.params import ParameterError, yaml_text
 from diffdrive_odom.replay import NODE_NAME, _RosParam, load_settings
 
 PREFIX = "[calibrate]"
@@ -176,7 +177,8 @@ def _umbmark(args: argparse.Namespace, settings: OdometrySettings) -> int:
         assert cw.reference is not None and ccw.reference is not None
         cw_end = calibration.reference_end(cw, cw.reference)
         ccw_end = calibration.reference_end(ccw, ccw.reference)
-    result = calibration.umbmark(cw, ccw, cw_end, ccw_end, args.side, settings.geometry)
+    result = calibration.umbmark(cw, ccw, cw_end, ccw_end, side=args.side,
+                                 nominal=settings.geometry)
     text = params_block(result.geometry, None, None, f"UMBmark, side {args.side:g} m")
     if args.yaml:
         Path(args.yaml).write_text(text, encoding="utf-8")

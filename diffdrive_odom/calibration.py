@@ -375,7 +375,7 @@ def _unit_noise(w: _Windows, geometry: Geometry, heading_length: float
             d_l, d_r, dt = float(steps.d_left[i]), float(steps.d_right[i]), float(steps.dt[i])
             ds, dth = body_increment(geometry, d_l, d_r)
             for unit in (unit_l, unit_r):
-                unit.propagate(pose, geometry, ds, dth, d_l, d_r, dt)
+                unit.propagate(pose, geometry, ds=ds, dtheta=dth, d_left=d_l, d_right=d_r, dt=dt)
             pose = compose(pose, ds, dth)
         out_l[k] = scale @ np.array(unit_l.covariance) @ scale
         out_r[k] = scale @ np.array(unit_r.covariance) @ scale
@@ -508,7 +508,7 @@ def _end_error(run: Run, geometry: Geometry, truth_end: EndPoint) -> EndPoint:
 
 
 def umbmark(
-    cw: Run, ccw: Run, cw_end: EndPoint, ccw_end: EndPoint, side: float,
+    cw: Run, ccw: Run, cw_end: EndPoint, ccw_end: EndPoint, *, side: float,
     nominal: Geometry, tolerance: float = 1e-9, max_passes: int = 200,
 ) -> Umbmark:
     """UMBmark from one square each way: ``*_end`` is where the robot really stopped.

@@ -16,7 +16,6 @@ from geometry_msgs.msg import Twist, TwistStamped
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -44,12 +43,7 @@ THROTTLE_S = ros_common.WARN_THROTTLE_S
 
 # Best effort matches reliable and best-effort publishers alike (teleop, Nav2,
 # joystick drivers); only the newest command matters, so the queue is short.
-CMD_IN_QOS: QoSProfile = cast(Any, QoSProfile)(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=5,
-    reliability=ReliabilityPolicy.BEST_EFFORT,
-    durability=DurabilityPolicy.VOLATILE,
-)
+CMD_IN_QOS = ros_common.qos(5, reliable=False)
 
 
 class CmdVelNode(Node):

@@ -1,6 +1,6 @@
 """The cmd_vel node's parameters and their validation (no rclpy import).
 
-The geometry rows are the odometry node's own (``params.GEOMETRY_PARAMS``), so one
+The geometry rows are every node's (``geometry_settings.GEOMETRY_PARAMS``), so one
 YAML under ``/**`` configures both nodes and they can never disagree on the robot.
 The limits keep diff_drive_controller's dotted names and signs (see ``limits``).
 """
@@ -14,17 +14,12 @@ from typing import Any
 
 from diffdrive_odom.encoders import EncoderConfig
 from diffdrive_odom.errors import as_parameter_error
+from diffdrive_odom.geometry_settings import GEOMETRY_PARAMS, build_geometry
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.limits import AxisLimits, CommandLimits, LimitError, ddc_axis_limits
-from diffdrive_odom.params import (
-    GEOMETRY_PARAMS,
-    ParameterError,
-    ParamSpec,
-    ParamValue,
-    build_geometry,
-    coerce_all,
-)
+from diffdrive_odom.limits import AxisLimits, CommandLimits, ddc_axis_limits
+from diffdrive_odom.params import ParameterError, ParamSpec, ParamValue, coerce_all
 
+# The wheel_commands formats, here once: sim_node reads what this node writes.
 FLOAT64_ARRAY = "float64_array"
 JOINT_STATE = "joint_state"
 TICKS_PER_SECOND = "ticks_per_second"
@@ -188,10 +183,8 @@ def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
                              f"must be finite (0 = off), got {offset!r}")
     linear = _axis_limits("linear.x", v)
     angular = _axis_limits("angular.z", v)
-    try:
+    with as_parameter_error():
         limits = CommandLimits(linear, angular, v["max_wheel_velocity"])
-    except LimitError as err:
-        raise ParameterError(err.field, err.reason) from err
     plausible = v["max_plausible_wheel_velocity"]
     if not (math.isfinite(plausible) and plausible > 0.0):
         raise ParameterError("max_plausible_wheel_velocity",

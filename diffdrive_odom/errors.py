@@ -8,7 +8,7 @@ at start, or the reason of a refused ``ros2 param set``).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 
 
@@ -31,9 +31,16 @@ class ParameterError(ValueError):
 
 
 @contextmanager
-def as_parameter_error(prefix: str = "") -> Iterator[None]:
-    """Re-raise a core ConfigError as the ParameterError of parameter ``prefix + field``."""
+def as_parameter_error(
+    prefix: str = "", rename: Mapping[str, str] | None = None
+) -> Iterator[None]:
+    """Re-raise a core ConfigError as the ParameterError of parameter ``prefix + field``.
+
+    ``rename`` maps a core field whose ROS parameter has another name to that full
+    name (the one conversion, so no caller re-wraps errors by hand).
+    """
     try:
         yield
     except ConfigError as err:
-        raise ParameterError(prefix + err.field, err.reason) from err
+        name = (rename or {}).get(err.field, prefix + err.field)
+        raise ParameterError(name, err.reason) from err

@@ -20,6 +20,7 @@ import numpy as np
 
 from diffdrive_odom import bagio
 from diffdrive_odom.cli import HelpFormatter
+from diffdrive_odom.conversions import quaternion_to_yaw, stamp_to_ns
 from diffdrive_odom.metrics import (
     Matched,
     Metrics,
@@ -31,7 +32,6 @@ from diffdrive_odom.metrics import (
     path_length,
     relative_errors,
 )
-from diffdrive_odom.odometry import quaternion_to_yaw, stamp_to_ns
 
 __all__ = [
     "DEFAULT_REFERENCE", "POSE_TYPES", "Matched", "Metrics", "Trajectory", "align_best_fit",

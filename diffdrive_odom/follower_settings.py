@@ -2,7 +2,7 @@
 
 Every own name starts with ``follower.``: the package's nodes read one YAML under
 ``/**``, and a bare ``k_p`` or ``rate`` would one day mean something else to another
-node. The geometry rows are the odometry node's own (``params.GEOMETRY_PARAMS``) and
+node. The geometry rows are every node's (``geometry_settings.GEOMETRY_PARAMS``) and
 ``enable_stamped_cmd_vel`` is the cmd_vel node's row (same topic, same type), so the
 follower and the cmd_vel node can never disagree about either.
 """
@@ -17,17 +17,11 @@ from typing import Any
 
 from diffdrive_odom.cmd_vel_settings import CMD_VEL_OWN_PARAMS
 from diffdrive_odom.errors import as_parameter_error
+from diffdrive_odom.geometry_settings import GEOMETRY_PARAMS, build_geometry
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.params import (
-    GEOMETRY_PARAMS,
-    ParameterError,
-    ParamSpec,
-    ParamValue,
-    build_geometry,
-    coerce_all,
-)
+from diffdrive_odom.params import ParameterError, ParamSpec, ParamValue, coerce_all
 from diffdrive_odom.path_following import Gains, Path, Point, circle, polyline, route_points
-from diffdrive_odom.routes import RouteError, make_route
+from diffdrive_odom.routes import make_route
 from diffdrive_odom.routes import names as route_names
 
 PREFIX = "follower."
@@ -143,10 +137,8 @@ def _path(v: Mapping[str, Any]) -> Path | None:
         if name not in route_names() or name in ("circle", "figure_eight"):
             raise ParameterError(_p("route"), f"must be a cornered route (square, square_cw, "
                                               f"umbmark_cw, umbmark_ccw, umbmark), got {name!r}")
-        try:
+        with as_parameter_error(rename={"side": _p("route_size")}):
             points = route_points(make_route(name, size or None))
-        except RouteError as err:
-            raise ParameterError(_p("route_size"), err.reason) from err
     elif kind in (LINE, POLYLINE):
         file = v[_p("waypoints_file")]
         points = (read_waypoints(file) if kind == POLYLINE and file

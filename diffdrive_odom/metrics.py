@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -44,7 +43,7 @@ class Trajectory:
 
     @classmethod
     def from_arrays(
-        cls, stamp_ns: Any, x: Any, y: Any, yaw: Any
+        cls, stamp_ns: npt.ArrayLike, x: npt.ArrayLike, y: npt.ArrayLike, yaw: npt.ArrayLike
     ) -> Trajectory:
         """Sort by stamp, keep the first of repeated stamps, unwrap the heading."""
         t = np.asarray(stamp_ns, dtype=np.int64)
@@ -145,7 +144,7 @@ def match(est: Trajectory, ref: Trajectory, max_gap: float = 0.5) -> Matched:
     return Matched(t, est_xyz, ref_xyz)
 
 
-def _rot(theta: FloatArray | float) -> tuple[Any, Any]:
+def _rot(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
     return np.cos(theta), np.sin(theta)
 
 
@@ -172,7 +171,7 @@ def align_best_fit(est: FloatArray, ref: FloatArray) -> FloatArray:
     )
 
 
-def _wrap(a: Any) -> Any:
+def _wrap(a: FloatArray) -> FloatArray:
     return np.remainder(np.asarray(a) + np.pi, 2.0 * np.pi) - np.pi
 
 

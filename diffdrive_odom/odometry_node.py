@@ -22,6 +22,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import ros_common
+from diffdrive_odom.conversions import yaw_to_quaternion
 from diffdrive_odom.diagnostics import (
     RateMeter,
     ReadingHealth,
@@ -29,17 +30,9 @@ from diffdrive_odom.diagnostics import (
     Reporter,
     odometry_report,
 )
-from diffdrive_odom.odometry import (
-    Status,
-    yaw_to_quaternion,
-)
-from diffdrive_odom.params import (
-    GEOMETRY_PARAMS,
-    ODOMETRY_PARAMS,
-    OdometrySettings,
-    ParamValue,
-    odometry_settings,
-)
+from diffdrive_odom.estimator import Status
+from diffdrive_odom.odometry_settings import ODOMETRY_PARAMS, OdometrySettings, odometry_settings
+from diffdrive_odom.params import ParamValue
 from diffdrive_odom.pipeline import Outcome, ReadingPipeline
 
 NODE_NAME = "odometry_node"
@@ -51,7 +44,7 @@ class OdometryNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = ros_common.declare(self, GEOMETRY_PARAMS + ODOMETRY_PARAMS)
+        values = ros_common.declare(self, ODOMETRY_PARAMS)
         settings = self._build(values)
         self._settings = settings
         self._pipeline = ReadingPipeline(settings)

@@ -1,7 +1,11 @@
-"""Parameter specs shared by the nodes and the offline tools (no rclpy import).
+"""The parameter machinery every node's settings module builds on (no rclpy import).
 
-One table of names, defaults, types and one-line meanings serves four readers: the
-nodes (declare + validate), ``replay`` (reads the same params YAML as the node),
+Here: :class:`ParamSpec` (one row: name, type, default, one-line meaning), coercion,
+params-file and ``-p`` resolution exactly as rcl does it, the report of unknown names
+and :func:`yaml_text`. The tables themselves live with their node, one settings
+module each (``geometry_settings``: the rows every node shares; ``odometry_settings``,
+``cmd_vel_settings``, ``sim_settings``, ``follower_settings``). One table serves four
+readers: the node (declare + validate), the offline tools (same params YAML),
 ``config/diffdrive_odom.yaml`` and the README's parameter tables. Values are
 coerced here rather than by rclpy's static typing so that ``-p wheel_radius:=1``
 (an integer on the command line) works and a wrong type gets one clear line.
@@ -10,19 +14,13 @@ coerced here rather than by rclpy's static typing so that ``-p wheel_radius:=1``
 from __future__ import annotations
 
 import json
-import math
 import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from diffdrive_odom.encoders import EncoderConfig
 from diffdrive_odom.errors import ParameterError as ParameterError  # re-exported
-from diffdrive_odom.errors import as_parameter_error
-from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import EstimatorConfig
-from diffdrive_odom.uncertainty import DEFAULT_K, NoiseModel
 
 ParamValue = Any
 
@@ -99,71 +97,6 @@ class ParamSpec:
         return COERCE[self.kind](self.name, value)
 
 
-GEOMETRY_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec("wheel_radius", "double", 0.0,
-              "Nominal wheel radius [m]; must be set (> 0) for your robot."),
-    ParamSpec("wheel_separation", "double", 0.0,
-              "Distance between the wheels' contact points [m]; must be set (> 0)."),
-    ParamSpec("left_wheel_radius_multiplier", "double", 1.0,
-              "Correction factor on the left wheel radius (calibration)."),
-    ParamSpec("right_wheel_radius_multiplier", "double", 1.0,
-              "Correction factor on the right wheel radius (calibration)."),
-    ParamSpec("wheel_separation_multiplier", "double", 1.0,
-              "Correction factor on the wheel separation (calibration)."),
-    ParamSpec("left_wheel_sign", "integer", 1,
-              "1 if the left joint angle grows when the robot drives forward, else -1."),
-    ParamSpec("right_wheel_sign", "integer", 1,
-              "1 if the right joint angle grows when the robot drives forward, else -1."),
-    ParamSpec("left_wheel_names", "string_array", ["left_wheel_joint"],
-              "Joint names of the left wheels (several are averaged).", read_only=True),
-    ParamSpec("right_wheel_names", "string_array", ["right_wheel_joint"],
-              "Joint names of the right wheels (same count as left).", read_only=True),
-    ParamSpec("ticks_per_revolution", "double", 0.0,
-              "0: positions in radians; > 0: raw encoder counts per wheel turn "
-              "(non-integer allowed)."),
-    ParamSpec("encoder_counter_bits", "integer", 0,
-              "Width of a wrapping encoder counter (e.g. 16, 32); 0 = no wrap."),
-)
-
-ODOMETRY_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec("odom_frame_id", "string", "odom", "Frame of the published pose."),
-    ParamSpec("base_frame_id", "string", "base_link", "Child frame (the robot)."),
-    ParamSpec("tf_frame_prefix_enable", "bool", True,
-              "Prefix both frame ids with tf_frame_prefix (multi-robot)."),
-    ParamSpec("tf_frame_prefix", "string", "",
-              "Frame prefix; empty = the node's namespace (as diff_drive_controller)."),
-    ParamSpec("enable_odom_tf", "bool", True, "Publish odom -> base_link on /tf."),
-    ParamSpec("publish_rate", "double", 0.0,
-              "Max odometry publish rate [Hz]; 0 = publish every reading."),
-    ParamSpec("covariance_model", "string", "propagated",
-              "propagated: covariance from wheel noise through each step (grows with "
-              "distance); static: the two diagonals below, as diff_drive_controller."),
-    ParamSpec("wheel_noise_k_left", "double", DEFAULT_K,
-              "Left wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated)."),
-    ParamSpec("wheel_noise_k_right", "double", DEFAULT_K,
-              "Right wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated)."),
-    ParamSpec("pose_covariance_diagonal", "double_array",
-              [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 0.01],
-              "Diagonal of the pose covariance (x, y, z, roll, pitch, yaw); "
-              "covariance_model static only."),
-    ParamSpec("twist_covariance_diagonal", "double_array",
-              [0.001, 1.0e-6, 1.0e6, 1.0e6, 1.0e6, 0.01],
-              "Diagonal of the twist covariance (vx, vy, vz, wx, wy, wz); "
-              "covariance_model static only."),
-    ParamSpec("velocity_rolling_window_size", "integer", 1,
-              "Readings in the rolling mean of the twist (never applied to the pose)."),
-    ParamSpec("max_wheel_speed", "double", 200.0,
-              "Fastest plausible joint speed [rad/s]; faster steps are skipped "
-              "(.inf = no speed check; a wheel rolling over 1 km in one step still is)."),
-    ParamSpec("time_jump_threshold", "double", 1.0,
-              "A stamp this far [s] behind the last restarts odometry (bag loop)."),
-    ParamSpec("max_reading_gap", "double", 1.0,
-              "A reading this long [s] after the last usable one is held; if the next "
-              "continues from it, it is the new reference, no motion integrated (driver "
-              "restart), else it is dropped (future_stamp); .inf = off."),
-)
-
-
 def defaults(specs: Iterable[ParamSpec]) -> dict[str, ParamValue]:
     """``{name: default}`` for a set of specs."""
     return {s.name: s.default for s in specs}
@@ -172,119 +105,6 @@ def defaults(specs: Iterable[ParamSpec]) -> dict[str, ParamValue]:
 def coerce_all(specs: Iterable[ParamSpec], values: Mapping[str, ParamValue]) -> dict[str, Any]:
     """Every spec's value from ``values`` (default where absent), typed; ParameterError if not."""
     return {s.name: s.coerce(values.get(s.name, s.default)) for s in specs}
-
-
-def build_geometry(v: Mapping[str, Any]) -> Geometry:
-    """Geometry from coerced values; errors name the ROS parameter."""
-    with as_parameter_error():
-        return Geometry(
-            wheel_radius=v["wheel_radius"],
-            wheel_separation=v["wheel_separation"],
-            left_wheel_radius_multiplier=v["left_wheel_radius_multiplier"],
-            right_wheel_radius_multiplier=v["right_wheel_radius_multiplier"],
-            wheel_separation_multiplier=v["wheel_separation_multiplier"],
-            left_wheel_sign=v["left_wheel_sign"],
-            right_wheel_sign=v["right_wheel_sign"],
-        )
-
-
-def build_encoders(v: Mapping[str, Any]) -> EncoderConfig:
-    """Encoder config from coerced values; errors name the ROS parameter."""
-    with as_parameter_error():
-        return EncoderConfig(
-            left_wheel_names=v["left_wheel_names"],
-            right_wheel_names=v["right_wheel_names"],
-            ticks_per_revolution=v["ticks_per_revolution"],
-            counter_bits=v["encoder_counter_bits"],
-        )
-
-
-def build_estimator_config(v: Mapping[str, Any]) -> EstimatorConfig:
-    """Estimator config from coerced values; errors name the ROS parameter."""
-    with as_parameter_error():
-        return EstimatorConfig(
-            max_wheel_speed=v["max_wheel_speed"],
-            velocity_rolling_window_size=v["velocity_rolling_window_size"],
-            time_jump_threshold=v["time_jump_threshold"],
-            max_reading_gap=v["max_reading_gap"],
-        )
-
-
-COVARIANCE_MODELS = ("propagated", "static")
-
-
-def build_noise_model(v: Mapping[str, Any]) -> NoiseModel | None:
-    """The wheel noise model, or None for ``covariance_model: static``."""
-    model = v["covariance_model"]
-    if model not in COVARIANCE_MODELS:
-        raise ParameterError(
-            "covariance_model", f"must be one of {', '.join(COVARIANCE_MODELS)}, got {model!r}")
-    with as_parameter_error():
-        noise = NoiseModel(v["wheel_noise_k_left"], v["wheel_noise_k_right"])
-    return noise if model == "propagated" else None
-
-
-@dataclass(frozen=True)
-class OdometrySettings:
-    """All validated settings of the odometry node / replay tool."""
-
-    geometry: Geometry
-    encoders: EncoderConfig
-    estimator: EstimatorConfig
-    odom_frame_id: str
-    base_frame_id: str
-    enable_odom_tf: bool
-    publish_rate: float
-    pose_covariance_diagonal: tuple[float, ...]
-    twist_covariance_diagonal: tuple[float, ...]
-    noise: NoiseModel | None  # None: covariance_model static (the diagonals above)
-
-
-def _covariance(name: str, diag: tuple[float, ...]) -> tuple[float, ...]:
-    if len(diag) != 6:
-        raise ParameterError(name, f"needs 6 values, got {len(diag)}")
-    if not all(math.isfinite(d) and d >= 0.0 for d in diag):
-        raise ParameterError(name, "values must be finite and >= 0")
-    return diag
-
-
-def frame_prefix(enable: bool, prefix: str, namespace: str) -> str:
-    """diff_drive_controller's rule: empty prefix = namespace; a '/' is appended if missing."""
-    if not enable:
-        return ""
-    p = prefix if prefix else namespace.strip("/")
-    p = p.strip("/")
-    return f"{p}/" if p else ""
-
-
-def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") -> OdometrySettings:
-    """Validate every odometry parameter; the first bad one raises ParameterError."""
-    v = coerce_all(GEOMETRY_PARAMS + ODOMETRY_PARAMS, values)
-    rate = v["publish_rate"]
-    if not (math.isfinite(rate) and rate >= 0.0):
-        raise ParameterError("publish_rate", f"must be finite and >= 0, got {rate!r}")
-    prefix = frame_prefix(v["tf_frame_prefix_enable"], v["tf_frame_prefix"], namespace)
-    for name in ("odom_frame_id", "base_frame_id"):
-        if not v[name].strip("/"):
-            raise ParameterError(name, "must not be empty")
-    odom_frame = prefix + v["odom_frame_id"].lstrip("/")
-    base_frame = prefix + v["base_frame_id"].lstrip("/")
-    if odom_frame == base_frame:
-        raise ParameterError("base_frame_id", "must differ from odom_frame_id")
-    return OdometrySettings(
-        geometry=build_geometry(v),
-        encoders=build_encoders(v),
-        estimator=build_estimator_config(v),
-        odom_frame_id=odom_frame,
-        base_frame_id=base_frame,
-        enable_odom_tf=v["enable_odom_tf"],
-        publish_rate=rate,
-        pose_covariance_diagonal=_covariance(
-            "pose_covariance_diagonal", v["pose_covariance_diagonal"]),
-        twist_covariance_diagonal=_covariance(
-            "twist_covariance_diagonal", v["twist_covariance_diagonal"]),
-        noise=build_noise_model(v),
-    )
 
 
 # ------------------------------------------------------------------ rcl's rules
@@ -493,11 +313,13 @@ def known_names() -> frozenset[str]:
     One params file feeds every node, so a name is only suspicious when no node
     knows it (the cmd_vel node must not warn about the odometry node's names).
     """
-    from diffdrive_odom.cmd_vel_settings import CMD_VEL_PARAMS  # imports this module
+    # The settings modules import this one, so their tables are imported here, late.
+    from diffdrive_odom.cmd_vel_settings import CMD_VEL_PARAMS
     from diffdrive_odom.follower_settings import FOLLOWER_PARAMS
-    from diffdrive_odom.sim import SIM_PARAMS
+    from diffdrive_odom.odometry_settings import ODOMETRY_PARAMS
+    from diffdrive_odom.sim_settings import SIM_PARAMS
 
-    tables = GEOMETRY_PARAMS + ODOMETRY_PARAMS + CMD_VEL_PARAMS + SIM_PARAMS + FOLLOWER_PARAMS
+    tables = ODOMETRY_PARAMS + CMD_VEL_PARAMS + SIM_PARAMS + FOLLOWER_PARAMS
     return frozenset(s.name for s in tables) | frozenset(_RCLPY_NAMES)
 
 

@@ -19,10 +19,10 @@ from nav_msgs.msg import Path as PathMsg
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float64
 
 from diffdrive_odom import ros_common
+from diffdrive_odom.conversions import quaternion_to_yaw
 from diffdrive_odom.diagnostics import (
     FollowerHealth,
     FollowerState,
@@ -33,7 +33,6 @@ from diffdrive_odom.diagnostics import (
 from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.follower_settings import FOLLOWER_PARAMS, FollowerSettings, follower_settings
 from diffdrive_odom.integration import Pose2D
-from diffdrive_odom.odometry import quaternion_to_yaw
 from diffdrive_odom.path_following import Command, Path, PathFollower, polyline
 
 NODE_NAME = "path_follower_node"
@@ -45,12 +44,7 @@ THROTTLE_S = ros_common.WARN_THROTTLE_S
 ODOM_IN_QOS = ros_common.qos(10, reliable=False)  # matches reliable and best-effort odometry
 PATH_IN_QOS = ros_common.qos(1, reliable=True)
 # Latched: a late subscriber (a mission script) still learns that the path is done.
-DONE_QOS: QoSProfile = cast(Any, QoSProfile)(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
+DONE_QOS = ros_common.qos(1, reliable=True, latched=True)
 
 
 class PathFollowerNode(Node):

@@ -14,15 +14,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
-from diffdrive_odom.odometry import (
-    OdometryEstimator,
-    PublishGate,
-    Reason,
-    Status,
-    Verdict,
-    covariance_matrix,
-)
-from diffdrive_odom.params import OdometrySettings
+from diffdrive_odom.conversions import covariance_matrix
+from diffdrive_odom.estimator import OdometryEstimator, Reason, Status, Verdict
+from diffdrive_odom.odometry_settings import OdometrySettings
 from diffdrive_odom.uncertainty import pose_message_covariance, twist_message_covariance
 
 ZERO_STAMP = Verdict(
@@ -51,7 +45,7 @@ class PipelineStats:
       ahead is held (not published, not counted) until the next reading shows whether
       it was a pause (then a ``gap`` re-anchor) or a lone outlier (``future_stamp``).
     - ``reanchors``: implausible steps (faster than ``max_wheel_speed``, a wheel rolling
-      over ``odometry.MAX_STEP_ARC``, or not finite), skipped (code ``too_fast``).
+      over ``estimator.MAX_STEP_ARC``, or not finite), skipped (code ``too_fast``).
     - ``gap_reanchors``: readings more than ``max_reading_gap`` after the last usable
       one, taken as the new reference (code ``gap``).
     - ``time_resets``: restarts at the origin after a stamp jumped back (``time_reset``).
@@ -87,6 +81,31 @@ class Outcome:
     verdict: Verdict
     publish: bool
     note: str = ""
+
+
+class PublishGate:
+    """The ``publish_rate`` rule shared by the node and replay.
+
+    At most one pose per period of *measurement* time (header stamps), so a bag
+    replayed at any speed, live or offline, publishes the same poses.
+    """
+
+    def __init__(self, rate: float) -> None:
+        self.rate = rate
+        self.last_ns: int | None = None
+
+    def due(self, stamp_ns: int) -> bool:
+        """Tell whether a pose stamped ``stamp_ns`` is published (and remember it if so)."""
+        last = self.last_ns
+        ok = (
+            self.rate <= 0.0
+            or last is None
+            or stamp_ns < last
+            or (stamp_ns - last) >= 1e9 / self.rate - 1e3  # 1 us slack for stamp jitter
+        )
+        if ok:
+            self.last_ns = stamp_ns
+        return ok
 
 
 class ReadingPipeline:

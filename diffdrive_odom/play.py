@@ -103,8 +103,9 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     import rclpy
     from rclpy.duration import Duration
     from rclpy.executors import ExternalShutdownException
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rosgraph_msgs.msg import Clock
+
+    from diffdrive_odom import ros_common
 
     conns: list[Connection] = [
         c for c in reader.connections if args.topics is None or c.topic in args.topics
@@ -128,13 +129,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
                 continue
             name = remap.get(conn.topic, conn.topic)
             if name not in by_name:
-                latched = name == "/tf_static"
-                qos = QoSProfile(
-                    depth=100,
-                    reliability=ReliabilityPolicy.RELIABLE,
-                    durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
-                                else DurabilityPolicy.VOLATILE),
-                )
+                qos = ros_common.qos(100, reliable=True, latched=name == "/tf_static")
                 by_name[name] = _Topic(name, node.create_publisher(cls, name, qos))
             topics[id(conn)] = by_name[name]
         if not topics:
@@ -154,8 +149,9 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
                  + (", looping" if args.loop else "") + (", /clock" if clock_pub else ""))
         sent = 0
         while True:
-            sent += _play_once(reader, conns, topics, convert, clock_pub, Clock,
-                               start_ns, stop_ns, args)
+            sent += _play_once(reader, conns=conns, topics=topics, convert=convert,
+                               clock_pub=clock_pub, clock_cls=Clock, start_ns=start_ns,
+                               stop_ns=stop_ns, args=args)
             if not args.loop or not rclpy.ok():
                 break
         tail = [t.publisher for t in by_name.values()] + ([clock_pub] if clock_pub else [])
@@ -187,6 +183,7 @@ def _wait_for_subscribers(node: Any, by_name: dict[str, _Topic], wanted: Sequenc
 
 def _play_once(
     reader: Any,
+    *,
     conns: list[Connection],
     topics: dict[int, _Topic],
     convert: bagio.CdrConverter,

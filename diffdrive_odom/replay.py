@@ -1,7 +1,7 @@
 """``diffdrive-odom replay``: run the node's estimator over a bag offline, as fast as the disk.
 
 One code path with the node: the same parameter file (``params.resolve_parameters`` +
-``params.odometry_settings``, so a bad value is refused with the same one line), the
+``odometry_settings``, so a bad value is refused with the same one line), the
 same :class:`~diffdrive_odom.pipeline.ReadingPipeline` (estimator, zero stamps
 dropped, gap rule, ``publish_rate``), frames with the tf prefix. The
 output is what the node would have published, written as a rosbag2 (``odom`` and
@@ -39,13 +39,12 @@ from rosbags.interfaces import Connection
 
 from diffdrive_odom import bagio, evaluate
 from diffdrive_odom.cli import HelpFormatter
+from diffdrive_odom.estimator import Reason, Status
 from diffdrive_odom.integration import Pose2D
-from diffdrive_odom.odometry import Reason, Status
+from diffdrive_odom.odometry_settings import OdometrySettings, odometry_settings
 from diffdrive_odom.params import (
-    OdometrySettings,
     ParameterError,
     ParamSource,
-    odometry_settings,
     resolve_parameters,
     unknown_parameters_report,
 )
@@ -418,13 +417,13 @@ def _sink(
         x, y, yaw = p.pose.x, p.pose.y, p.pose.theta
         if writer is not None:
             writer.write(args.odom_topic, p.log_ns, msgs.odometry(
-                p.stamp_ns, x, y, yaw, p.linear, p.angular, p.pose_covariance,
-                p.twist_covariance))
+                p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
+                pose_covariance=p.pose_covariance, twist_covariance=p.twist_covariance))
             if tf:
                 writer.write(args.tf_topic, p.log_ns, msgs.tf(p.stamp_ns, x, y, yaw))
         if csv_out is not None:
-            csv_out.row(p.stamp_ns, x, y, yaw, p.linear, p.angular, p.status.value,
-                        p.pose_covariance)
+            csv_out.row(p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
+                        status=p.status.value, pose_covariance=p.pose_covariance)
         if traj is not None:
             traj.add(p)
 

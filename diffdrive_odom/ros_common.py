@@ -36,8 +36,8 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
+from diffdrive_odom.conversions import stamp_to_ns as stamp_to_ns  # re-exported
 from diffdrive_odom.diagnostics import Report
-from diffdrive_odom.odometry import stamp_to_ns as stamp_to_ns  # re-exported
 from diffdrive_odom.params import (
     EXAMPLE_PARAMS_FILE,
     ParameterError,
@@ -48,13 +48,17 @@ from diffdrive_odom.params import (
 
 T = TypeVar("T")
 
-def qos(depth: int, reliable: bool) -> QoSProfile:
-    """Keep-last, volatile QoS: the only knobs our topics differ in are depth and reliability."""
+def qos(depth: int, reliable: bool, latched: bool = False) -> QoSProfile:
+    """Keep-last QoS: our topics differ only in depth, reliability and (``/tf_static``) latching.
+
+    ``latched`` is transient-local durability: a late subscriber still gets the last
+    messages, as ``/tf_static`` requires; every other topic is volatile.
+    """
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
         depth=depth,
         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.VOLATILE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
     )
 
 

@@ -7,8 +7,9 @@ joystick or a scripted ``cmd_vel`` publisher does, and what a first-order motor 
 executes exactly in distance and angle (a lag shifts a segment in time but keeps its
 integral), provided a pause lets the wheels settle before the next one.
 
-:func:`pose_after` integrates a route in closed form (arcs of circles), independently
-of the CIR step in :mod:`diffdrive_odom.integration`, so tests can compare the two.
+:func:`pose_after` is where a route ends, segment by segment, with the package's own
+CIR step (each constant-twist segment is one exact arc); tests check it against the
+textbook arcs of ``test/oracle.py``, never the other way round.
 """
 
 from __future__ import annotations

@@ -28,19 +28,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from diffdrive_odom import ros_common
+from diffdrive_odom.cmd_vel_settings import JOINT_STATE, TICKS_PER_SECOND
+from diffdrive_odom.conversions import yaw_to_quaternion
 from diffdrive_odom.encoders import EncoderConfig, JointLookup
-from diffdrive_odom.odometry import yaw_to_quaternion
 from diffdrive_odom.params import ParamValue
-from diffdrive_odom.sim import (
-    JOINT_STATE,
-    SIM_PARAMS,
-    TICKS,
-    TICKS_PER_SECOND,
-    TWO_PI,
-    DiffDriveSim,
-    SimSettings,
-    sim_settings,
-)
+from diffdrive_odom.sim import TWO_PI, DiffDriveSim
+from diffdrive_odom.sim_settings import SIM_PARAMS, TICKS, SimSettings, sim_settings
 
 NODE_NAME = "sim_node"
 MAX_STEP_NS = 1_000_000_000  # a clock jump larger than this is not simulated as motion

@@ -224,6 +224,7 @@ class PoseUncertainty:
         self,
         pose_before: Pose2D,
         geometry: Geometry,
+        *,
         ds: float,
         dtheta: float,
         d_left: float,

@@ -15,10 +15,10 @@ from pathlib import Path
 from diffdrive_odom.params import ParamSpec, yaml_text
 
 TABLES = {
-    "geometry": ("diffdrive_odom.params", "GEOMETRY_PARAMS"),
-    "odometry": ("diffdrive_odom.params", "ODOMETRY_PARAMS"),
+    "geometry": ("diffdrive_odom.geometry_settings", "GEOMETRY_PARAMS"),
+    "odometry": ("diffdrive_odom.odometry_settings", "ODOMETRY_PARAMS"),
     "cmd_vel": ("diffdrive_odom.cmd_vel_settings", "CMD_VEL_PARAMS"),
-    "sim": ("diffdrive_odom.sim", "SIM_PARAMS"),
+    "sim": ("diffdrive_odom.sim_settings", "SIM_PARAMS"),
     "follower": ("diffdrive_odom.follower_settings", "FOLLOWER_PARAMS"),
 }
 
@@ -33,15 +33,12 @@ def table(specs: tuple[ParamSpec, ...], skip: tuple[ParamSpec, ...] = ()) -> str
     return "\n".join(rows)
 
 
-def rendered(name: str) -> str | None:
-    """The markdown table for one entry of TABLES (None if its module is absent)."""
-    from diffdrive_odom.params import GEOMETRY_PARAMS
+def rendered(name: str) -> str:
+    """The markdown table for one entry of TABLES (a missing module or table raises)."""
+    from diffdrive_odom.geometry_settings import GEOMETRY_PARAMS
 
     module, attr = TABLES[name]
-    try:
-        specs = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError):
-        return None
+    specs = getattr(importlib.import_module(module), attr)
     skip = GEOMETRY_PARAMS if name != "geometry" else ()
     if name == "follower":  # the cmd_vel node's row, listed in its table
         skip += tuple(s for s in specs if s.name == "enable_stamped_cmd_vel")
@@ -57,8 +54,6 @@ def update_readme(path: Path) -> None:
     text = path.read_text(encoding="utf-8")
     for name in TABLES:
         body = rendered(name)
-        if body is None:
-            continue
         pattern = re.compile(rf"(<!-- {name} -->\n)(\|.*\|\n)+")
         text = pattern.sub(_replacement(body), text)
     path.write_text(text, encoding="utf-8")
@@ -69,8 +64,7 @@ def main(argv: list[str]) -> int:
         update_readme(Path(__file__).resolve().parent.parent / "README.md")
         return 0
     for name in argv or list(TABLES):
-        body = rendered(name)
-        print(f"<!-- {name} -->\n{body}\n" if body else f"<!-- {name}: absent -->")
+        print(f"<!-- {name} -->\n{rendered(name)}\n")
     return 0
 
 

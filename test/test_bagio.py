@@ -21,7 +21,7 @@ from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 
 from diffdrive_odom import bagio
-from diffdrive_odom.odometry import quaternion_to_yaw
+from diffdrive_odom.conversions import quaternion_to_yaw
 
 from bagutil import mcap_messages
 from rosutil import DATA
@@ -126,7 +126,9 @@ def test_odometry_and_tf_round_trip(tmp_path: Path, storage: str) -> None:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
         for ns, x, y, yaw, v, om in poses:
-            w.write("/odom", ns, build.odometry(ns, x, y, yaw, v, om, pose_cov, twist_cov))
+            w.write("/odom", ns, build.odometry(
+                ns, x, y, yaw, linear=v, angular=om, pose_covariance=pose_cov,
+                twist_covariance=twist_cov))
             w.write("/tf", ns, build.tf(ns, x, y, yaw))
     with AnyReader([bag], default_typestore=store) as reader:
         odoms = [reader.deserialize(raw, c.msgtype)
@@ -163,8 +165,8 @@ def test_csv_header_is_the_documented_one_and_values_round_trip(tmp_path: Path) 
     path = tmp_path / "o.csv"
     rows = [(1_600_000_000_050_000_001, 1 / 3, -2 / 7, math.pi, 0.1, -1e-17, "updated")]
     with bagio.CsvWriter(path) as out:
-        for r in rows:
-            out.row(*r)
+        for ns, x, y, yaw, v, w, status in rows:
+            out.row(ns, x, y, yaw, linear=v, angular=w, status=status)
     with open(path, newline="", encoding="utf-8") as f:
         got = list(csv.reader(f))
     assert tuple(got[0]) == bagio.CSV_COLUMNS
@@ -181,7 +183,7 @@ def test_csv_stamps_round_trip_exactly(tmp_path: Path) -> None:
     assert float(ns * 1e-9) != Decimal("1600000000.100000001")  # why floats will not do
     path = tmp_path / "o.csv"
     with bagio.CsvWriter(path) as out:
-        out.row(ns, 0.0, 0.0, 0.0, 0.0, 0.0, "updated")
+        out.row(ns, 0.0, 0.0, 0.0, linear=0.0, angular=0.0, status="updated")
     with open(path, newline="", encoding="utf-8") as f:
         row = dict(zip(bagio.CSV_COLUMNS, list(csv.reader(f))[1], strict=True))
     assert int(row["stamp_ns"]) == ns

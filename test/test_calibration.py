@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from diffdrive_odom import batch, calibration, params, routes
+from diffdrive_odom import batch, calibration, odometry_settings, params, routes
 from diffdrive_odom.calibration import Run
 from diffdrive_odom.cli import main as cli
 from diffdrive_odom.kinematics import Geometry, wheel_rates
@@ -30,7 +30,7 @@ NOMINAL = Geometry(0.05, 0.30)
 # Radii off by +1.2 % and -0.7 %, separation off by +3.5 %.
 TRUE = Geometry(0.05, 0.30, left_wheel_radius_multiplier=1.012,
                 right_wheel_radius_multiplier=0.993, wheel_separation_multiplier=1.035)
-SETTINGS = params.odometry_settings({"wheel_radius": 0.05, "wheel_separation": 0.30})
+SETTINGS = odometry_settings.odometry_settings({"wheel_radius": 0.05, "wheel_separation": 0.30})
 RATE = 50.0
 SIDE = 2.0
 OPTIODOM = DATA / "optiodom"
@@ -138,7 +138,8 @@ def test_umbmark_recovers_the_ratio_and_the_separation_without_noise() -> None:
     ccw = simulate(routes.umbmark(SIDE, clockwise=False))
     assert cw.reference is not None and ccw.reference is not None
     u = calibration.umbmark(cw, ccw, calibration.reference_end(cw, cw.reference),
-                            calibration.reference_end(ccw, ccw.reference), SIDE, NOMINAL)
+                            calibration.reference_end(ccw, ccw.reference),
+                            side=SIDE, nominal=NOMINAL)
     g = u.geometry
     # UMBmark keeps the mean radius; scaling both radii by s = r_nominal / r_true_mean
     # leaves every heading unchanged when the separation is scaled by s too.
@@ -161,7 +162,8 @@ def test_umbmark_with_noise_stays_near_the_truth() -> None:
     ccw = simulate(routes.umbmark(SIDE, clockwise=False), 0.001, seed=5)
     assert cw.reference is not None and ccw.reference is not None
     u = calibration.umbmark(cw, ccw, calibration.reference_end(cw, cw.reference),
-                            calibration.reference_end(ccw, ccw.reference), SIDE, NOMINAL)
+                            calibration.reference_end(ccw, ccw.reference),
+                            side=SIDE, nominal=NOMINAL)
     s = 2 * NOMINAL.wheel_radius / (TRUE.left_radius + TRUE.right_radius)
     assert u.geometry.separation == pytest.approx(TRUE.separation * s, rel=1e-2)
     assert u.geometry.right_radius / u.geometry.left_radius == pytest.approx(
@@ -174,7 +176,7 @@ def test_umbmark_with_noise_stays_near_the_truth() -> None:
 def _optiodom_runs() -> list[Run]:
     from diffdrive_odom import bagio, evaluate
 
-    settings = params.odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
+    settings = odometry_settings.odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
     return [Run(name, batch.wheel_steps(bagio.read_joint_states(OPTIODOM / name), settings),
                 evaluate.read_trajectory(OPTIODOM / name, "/ground_truth/pose"))
             for name in (CW_RUN, CCW_RUN)]
@@ -198,8 +200,8 @@ def test_optiodom_umbmark_cuts_the_final_error() -> None:
     cw, ccw = _optiodom_runs()
     assert cw.reference is not None and ccw.reference is not None
     u = calibration.umbmark(cw, ccw, calibration.reference_end(cw, cw.reference),
-                            calibration.reference_end(ccw, ccw.reference), 1.7,
-                            Geometry(0.042, 0.2))
+                            calibration.reference_end(ccw, ccw.reference), side=1.7,
+                            nominal=Geometry(0.042, 0.2))
     assert u.e_max_before == pytest.approx(0.1075, abs=1e-3)
     assert u.e_max_after < 0.4 * u.e_max_before
     assert u.geometry.separation == pytest.approx(0.2008, rel=5e-3)
@@ -231,7 +233,7 @@ def test_cli_prints_a_params_block_the_node_accepts(
     path = tmp_path / "calibrated.yaml"
     path.write_text(block, encoding="utf-8")
     values = params.load_params_file(path, "odometry_node")
-    settings = params.odometry_settings(values)
+    settings = odometry_settings.odometry_settings(values)
     fit = calibration.fit(_optiodom_runs(), Geometry(0.042, 0.2))
     got = calibration.values_of(settings.geometry)
     assert np.allclose(got, fit.values, rtol=1e-6), (got, fit.values)
@@ -257,7 +259,7 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
     assert "E_d" in out and "E_b" in out
     values = from_topic["/**"]["ros__parameters"]
     assert "wheel_noise_k_left" not in values  # UMBmark has no residuals to estimate k from
-    params.odometry_settings(values)
+    odometry_settings.odometry_settings(values)
 
 
 @pytest.mark.parametrize(("args", "needle"), [

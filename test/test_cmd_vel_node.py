@@ -216,8 +216,9 @@ def test_twist_to_float64_array_watchdog_rate_nan_and_runtime_parameters() -> No
               f"(timeout {TIMEOUT * 1e3:.0f} ms + period {PERIOD * 1e3:.0f} ms)")
         # Held until the timeout, then zeros within one period (+ slack for a loaded CPU).
         assert TIMEOUT - 0.05 <= delay <= TIMEOUT + PERIOD + 0.25, delay
-        assert all(list(m.data) == pytest.approx(expected) for ts, m in after
-                   if ts < t_last + TIMEOUT - 0.05)
+        held = [m for ts, m in after if ts < t_last + TIMEOUT - 0.05]
+        assert held, "no wheel command in the window before the timeout"
+        assert all(list(m.data) == pytest.approx(expected) for m in held)
         stopped = [m for ts, m in after if ts >= zero_at]
         assert len(stopped) >= 0.6 * RATE and all(is_zero(m.data) for m in stopped)
 
@@ -225,7 +226,9 @@ def test_twist_to_float64_array_watchdog_rate_nan_and_runtime_parameters() -> No
         t_nan = time.monotonic()
         drive(ex, pub, lambda: twist(math.nan, 1.0), 0.4)
         drive(ex, pub, lambda: twist(0.3, math.inf), 0.4)
-        assert all(is_zero(m.data) for _, m in sink.since(t_nan))
+        refused = sink.since(t_nan)
+        assert refused, "no heartbeat while NaN / inf commands came in"
+        assert all(is_zero(m.data) for _, m in refused)
 
         # Runtime parameters: refused with a reason naming them; a good one takes effect.
         client = AsyncParameterClient(node, "cmd_vel_node")
@@ -262,7 +265,9 @@ def test_twist_stamped_to_joint_state_stale_and_zero_stamps() -> None:
 
         t0 = time.monotonic()
         drive(ex, pub, lambda: stamped(0.3, 0.0, wall_ns() - 2 * 10**9), 0.8)  # 2 s old
-        assert all(is_zero(m.velocity) for _, m in sink.since(t0))
+        stale = sink.since(t0)
+        assert stale, "no heartbeat while stale commands came in"
+        assert all(is_zero(m.velocity) for _, m in stale)
 
         def latest() -> list[float]:
             return list(sink.msgs[-1][1].velocity)
@@ -362,7 +367,9 @@ def test_sim_time_stale_stamps_ignored_and_fresh_ones_followed() -> None:
         drive(ex, pub, lambda: tick(lambda: twist_stamped_none()), 0.5)  # clock only
         t0 = time.monotonic()
         drive(ex, pub, lambda: tick(lambda: stamped(0.4, 0.0, sim_now() - 2 * 10**9)), 0.8)
-        assert all(is_zero(m.data) for _, m in sink.since(t0))
+        stale = sink.since(t0)
+        assert stale, "no heartbeat while commands stale by the simulated clock came in"
+        assert all(is_zero(m.data) for _, m in stale)
         # Fresh by the simulated clock (but ~1.7e9 s old by the wall clock): followed.
         assert spin_until(ex, lambda: (pub.publish(tick(lambda: stamped(0.4, 0.0, sim_now()))),
                                        list(sink.msgs[-1][1].data))[1]

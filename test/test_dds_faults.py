@@ -22,13 +22,13 @@ from test_odometry_node import (
     T0_NS,
     Sink,
     _ns,
-    arc_closed_form,
     listen,
     send_first,
     wait_ready,
     yaw,
 )
 
+import oracle
 from diagutil import diagnosed
 from rosutil import ros_test_node, spin_for, spin_until
 
@@ -65,10 +65,7 @@ def assert_pose(o: Odometry, x: float, y: float, theta: float, tol: float = 1e-9
 def then(pose: tuple[float, float, float], s_left: float, s_right: float
          ) -> tuple[float, float, float]:
     """``pose`` followed by one constant-curvature arc of wheel arcs s_left, s_right."""
-    dx, dy, dth = arc_closed_form(s_left, s_right, B)
-    x, y, th = pose
-    c, s = math.cos(th), math.sin(th)
-    return x + c * dx - s * dy, y + s * dx + c * dy, th + dth
+    return oracle.wheel_arc(s_left, s_right, B, pose)
 
 
 def restart_run(max_reading_gap: float, pause_s: float) -> tuple[Odometry, Odometry]:
@@ -98,15 +95,15 @@ def test_driver_restart_within_max_reading_gap_integrates_the_motion_meanwhile()
     """Counters carry on after 2 s of silence, max_reading_gap 3 s: the step over the
     silence is a real, known motion and is integrated: one arc of 50 + 100 + 25 readings."""
     before, final = restart_run(3.0, 2.0)
-    assert_pose(before, *arc_closed_form(R * 0.2 * 50, R * 0.3 * 50, B))
-    assert_pose(final, *arc_closed_form(R * 0.2 * 175, R * 0.3 * 175, B))
+    assert_pose(before, *oracle.wheel_arc(R * 0.2 * 50, R * 0.3 * 50, B))
+    assert_pose(final, *oracle.wheel_arc(R * 0.2 * 175, R * 0.3 * 175, B))
 
 
 def test_driver_restart_after_max_reading_gap_skips_the_unknown_motion() -> None:
     """The same, max_reading_gap 1 s: what happened in the 2 s is not integrated; the
     pose is the arc before the silence followed by the 25 readings after it."""
     before, final = restart_run(1.0, 2.0)
-    start = arc_closed_form(R * 0.2 * 50, R * 0.3 * 50, B)
+    start = oracle.wheel_arc(R * 0.2 * 50, R * 0.3 * 50, B)
     assert_pose(before, *start)
     assert_pose(final, *then(start, R * 0.2 * 25, R * 0.3 * 25))
 
@@ -164,7 +161,7 @@ def test_burst_of_5000_readings_ends_on_the_exact_pose() -> None:
             pub.publish(last)
         final = pose_at(ex, sink, last_ns)
         assert proc.poll() is None
-    assert_pose(final, *arc_closed_form(R * rate[0] * n, R * rate[1] * n, B))
+    assert_pose(final, *oracle.wheel_arc(R * rate[0] * n, R * rate[1] * n, B))
 
 
 def test_stall_of_5_s_warns_and_recovers_without_a_jump() -> None:
@@ -197,7 +194,7 @@ def test_stall_of_5_s_warns_and_recovers_without_a_jump() -> None:
     assert stale.level == WARN and stale.message.startswith("stale"), stale.message
     assert error.message.startswith("no reading for"), error.message
     assert ok is not None, [s.message for s in peer.statuses]
-    start = arc_closed_form(R * 0.2 * 50, R * 0.3 * 50, B)
+    start = oracle.wheel_arc(R * 0.2 * 50, R * 0.3 * 50, B)
     assert_pose(before, *start)
     assert_pose(final, *then(start, R * 0.2 * done, R * 0.3 * done))
 

@@ -33,6 +33,7 @@ from diffdrive_odom import bagio, evaluate
 from diffdrive_odom.demo import BAG_TOPICS, DEFAULT_PARAMS
 from diffdrive_odom.path_following import polyline
 
+import oracle
 from rosutil import executable
 
 # The demo robot's nominal geometry and encoder, read from the shipped params file.
@@ -101,11 +102,7 @@ def tick_steps(bag: Path) -> np.ndarray[Any, Any]:
 def integrate(steps: np.ndarray[Any, Any], left: float, right: float,
               sep: float) -> tuple[float, float, float]:
     """Each step an arc (the textbook R = ds / dtheta form) with the given geometry."""
-    x = y = th = 0.0
-    for d_left, d_right in steps:
-        s_left, s_right = left * d_left, right * d_right
-        x, y, th = textbook_arc(x, y, th, 0.5 * (s_left + s_right), (s_right - s_left) / sep)
-    return x, y, th
+    return oracle.integrate_wheels(((left * d_l, right * d_r) for d_l, d_r in steps), sep)
 
 
 def test_true_geometry_equals_nominal_odometry_matches_truth_to_encoder_resolution(
@@ -163,16 +160,6 @@ def test_one_percent_larger_right_wheel_drifts_as_the_kinematics_predict(
     assert abs(fit["right_radius"] / r_right - 1) < 1e-3, fit
     assert abs(fit["left_radius"] / R - 1) < 1e-3, fit
     assert abs(umb["right_radius"] / umb["left_radius"] / 1.01 - 1) < 1e-3, umb
-
-
-def textbook_arc(x: float, y: float, th: float, ds: float, dth: float) -> tuple[
-        float, float, float]:
-    """Move along an arc of length ds turning by dth (R = ds / dth form)."""
-    if abs(dth) < 1e-12:
-        return x + ds * math.cos(th), y + ds * math.sin(th), th + dth
-    radius = ds / dth
-    return (x + radius * (math.sin(th + dth) - math.sin(th)),
-            y - radius * (math.cos(th + dth) - math.cos(th)), th + dth)
 
 
 def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(

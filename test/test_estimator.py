@@ -14,9 +14,11 @@ import pytest
 
 from diffdrive_odom.encoders import EncoderConfig
 from diffdrive_odom.errors import ConfigError
+from diffdrive_odom.estimator import EstimatorConfig, OdometryEstimator, Reason, Status
 from diffdrive_odom.integration import Pose2D, wrap_angle
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import EstimatorConfig, OdometryEstimator, Reason, Status
+
+import oracle
 
 LEFT, RIGHT = "left_wheel_joint", "right_wheel_joint"
 NAMES = [LEFT, RIGHT]
@@ -37,10 +39,7 @@ def make(geometry: Geometry = GEOMETRY, config: EstimatorConfig = DEFAULTS,
 
 def arc_pose(arc: float, heading: float) -> Pose2D:
     """Where an arc of length ``arc`` turning by ``heading`` ends, from the origin."""
-    if heading == 0.0:
-        return Pose2D(arc, 0.0, 0.0)
-    radius = arc / heading
-    return Pose2D(radius * math.sin(heading), radius * (1.0 - math.cos(heading)), heading)
+    return Pose2D(*oracle.arc(arc, heading))
 
 
 def assert_pose(got: Pose2D, expected: Pose2D, tol: float = 1e-12) -> None:
@@ -195,7 +194,7 @@ def test_non_zero_first_reading_is_only_a_reference() -> None:
     assert est.linear == 0.0 and est.angular == 0.0
     # Then left 1 rad, right 2 rad in 0.1 s: radius 1.5 m through 1 rad.
     assert est.update(ns(0.1), NAMES, [1235.5, -985.25]).status == Status.UPDATED
-    assert_pose(est.pose, Pose2D(1.5 * math.sin(1.0), 1.5 * (1 - math.cos(1.0)), 1.0))
+    assert_pose(est.pose, arc_pose(1.5, 1.0))
 
 
 # ------------------------------------------------------------ dropped readings

@@ -194,7 +194,8 @@ def _write_reference_bag(path: Path, traj: Trajectory) -> None:
         w.add_topic("/odometry", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
         for ns, x, y, yaw in zip(traj.stamp_ns, traj.x, traj.y, traj.yaw, strict=True):
-            o = odom.odometry(int(ns), float(x), float(y), float(yaw), 0.0, 0.0, cov, cov)
+            o = odom.odometry(int(ns), float(x), float(y), float(yaw),
+                              linear=0.0, angular=0.0, pose_covariance=cov, twist_covariance=cov)
             w.write("/odometry", int(ns), o)
             w.write("/pose", int(ns), t["geometry_msgs/msg/PoseStamped"](
                 header=o.header, pose=o.pose.pose))
@@ -242,9 +243,11 @@ def test_eval_on_a_bag_like_the_demo_s_needs_no_topic_flags(
         w.add_topic("/tf", bagio.TF_MESSAGE)
         for ns, x, y, yaw in zip(ref.stamp_ns, ref.x, ref.y, ref.yaw, strict=True):
             args = (int(ns), float(x), float(y), float(yaw))
-            w.write("/odom", int(ns), msgs.odometry(*args, 0.0, 0.0, cov, cov))
+            w.write("/odom", int(ns), msgs.odometry(
+                *args, linear=0.0, angular=0.0, pose_covariance=cov, twist_covariance=cov))
             w.write("/ground_truth/odom", int(ns), msgs.odometry(
-                int(ns), float(x) + 0.1, float(y), float(yaw), 0.0, 0.0, cov, cov))
+                int(ns), float(x) + 0.1, float(y), float(yaw),
+                linear=0.0, angular=0.0, pose_covariance=cov, twist_covariance=cov))
             w.write("/tf", int(ns), msgs.tf(*args))
     out = tmp_path / "m.json"
     assert cli(["eval", str(bag), "--json", str(out)]) == 0

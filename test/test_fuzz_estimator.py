@@ -18,12 +18,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from diffdrive_odom.encoders import EncoderConfig
+from diffdrive_odom.estimator import EstimatorConfig, OdometryEstimator, Status
 from diffdrive_odom.integration import Pose2D, wrap_angle
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import EstimatorConfig, OdometryEstimator, Status
-from diffdrive_odom.params import OdometrySettings
+from diffdrive_odom.odometry_settings import OdometrySettings
 from diffdrive_odom.pipeline import ReadingPipeline
 from diffdrive_odom.uncertainty import NoiseModel
+
+import oracle
 
 FUZZ = settings(derandomize=True, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -139,14 +141,8 @@ clean_drives = st.tuples(
 
 def expected_pose(start: Pose2D, arc: float, heading: float) -> Pose2D:
     """``start`` composed with a circle arc of length ``arc`` turning by ``heading``."""
-    if heading == 0.0:
-        dx, dy = arc, 0.0
-    else:
-        radius = arc / heading
-        dx, dy = radius * math.sin(heading), radius * (1.0 - math.cos(heading))
-    c, s = math.cos(start.theta), math.sin(start.theta)
-    return Pose2D(start.x + c * dx - s * dy, start.y + s * dx + c * dy,
-                  wrap_angle(start.theta + heading))
+    x, y, theta = oracle.arc(arc, heading, (start.x, start.y, start.theta))
+    return Pose2D(x, y, wrap_angle(theta))
 
 
 def finite(est: OdometryEstimator) -> bool:

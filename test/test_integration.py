@@ -24,6 +24,8 @@ from diffdrive_odom.integration import (
 )
 from diffdrive_odom.kinematics import Geometry, body_increment
 
+import oracle
+
 Matrix = npt.NDArray[np.float64]
 
 
@@ -124,8 +126,9 @@ def test_quarter_circle_lands_on_1_1(steps: int) -> None:
 def test_unit_robot_left_1_right_2_for_1s(steps: int) -> None:
     # v = (1 + 2) / 2 = 1.5 m/s, omega = (2 - 1) / 1 = 1 rad/s, radius 1.5 m.
     pose = drive(Geometry(1.0, 1.0), 1.0, 2.0, 1.0, steps)[-1]
-    assert pose.x == pytest.approx(1.5 * math.sin(1.0), abs=1e-13)
-    assert pose.y == pytest.approx(1.5 * (1.0 - math.cos(1.0)), abs=1e-13)
+    x, y, _ = oracle.arc(1.5, 1.0)
+    assert pose.x == pytest.approx(x, abs=1e-13)
+    assert pose.y == pytest.approx(y, abs=1e-13)
     assert pose.theta == pytest.approx(1.0, abs=1e-13)
 
 
@@ -302,3 +305,20 @@ def test_wrap_angle_range_and_congruence() -> None:
         assert turns == pytest.approx(round(turns), abs=1e-9 * max(1.0, abs(turns)))
         if -math.pi < x <= math.pi:
             assert wrapped == x
+
+
+@pytest.mark.parametrize("angle", [2e-4, 1e-4, 0.99e-4, 1e-6, -3e-5, 0.7, -2.5])
+def test_the_oracle_arc_is_the_series_and_the_ode(angle: float) -> None:
+    """Guards test/oracle.py: its arc is the 60-digit series, and the ODE's solution."""
+    x, y, th = oracle.arc(1.3, angle)
+    ref_x, ref_y = taylor_reference(1.3, angle)
+    assert x == pytest.approx(ref_x, rel=1e-11) and y == pytest.approx(ref_y, rel=1e-11)
+    assert th == angle
+    # x' = cos th, y' = sin th, th' = angle / s over s in [0, 1.3], by RK4 in 2000 steps.
+    n, h = 2000, 1.3 / 2000
+    px = py = 0.0
+    for i in range(n):
+        t0, tm, t1 = (angle / 1.3 * h * k for k in (i, i + 0.5, i + 1))
+        px += h / 6 * (math.cos(t0) + 4 * math.cos(tm) + math.cos(t1))
+        py += h / 6 * (math.sin(t0) + 4 * math.sin(tm) + math.sin(t1))
+    assert math.hypot(px - x, py - y) < 1e-12

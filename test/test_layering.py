@@ -57,7 +57,8 @@ def core_modules() -> list[str]:
 
 def test_the_core_imports_no_ros_and_no_rosbags() -> None:
     modules = core_modules()
-    assert {"diffdrive_odom.integration", "diffdrive_odom.odometry",
+    assert {"diffdrive_odom.integration", "diffdrive_odom.estimator",
+            "diffdrive_odom.conversions",
             "diffdrive_odom.pipeline", "diffdrive_odom.params"} <= set(modules)
     out = subprocess.run(
         [sys.executable, "-c", CHECK, json.dumps(BLOCKED), json.dumps(modules)],

@@ -27,6 +27,7 @@ from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom.cli import main as cli
 
+import oracle
 from bagutil import mcap_messages, write_params
 from rosutil import ROOT, assert_refuses_to_start, node_process, ros_test_node, spin_for, spin_until
 
@@ -55,16 +56,6 @@ def listen(node: Node, odom_topic: str) -> Sink:
     node.create_subscription(Odometry, odom_topic, sink.odom.append, 50)
     node.create_subscription(TFMessage, "/tf", sink.tf.append, 50)
     return sink
-
-
-def arc_closed_form(s_left: float, s_right: float, b: float) -> tuple[float, float, float]:
-    """Pose after arcs s_left, s_right at constant ratio: R sin, R (1 - cos) (Furlan et al.)."""
-    theta = (s_right - s_left) / b
-    ds = 0.5 * (s_left + s_right)
-    if theta == 0.0:
-        return ds, 0.0, 0.0
-    radius = ds / theta
-    return radius * math.sin(theta), radius * (1.0 - math.cos(theta)), theta
 
 
 def wait_ready(executor: Any, pub: Any, sink: Sink, proc: Any) -> None:
@@ -133,7 +124,7 @@ def test_ticks_wrap_shuffled_names_sign_flip_and_nonzero_start() -> None:
 
     s_left = r * steps * left_inc * 2 * math.pi / tpr
     s_right = r * steps * (-right_inc) * 2 * math.pi / tpr
-    ex_x, ex_y, ex_th = arc_closed_form(s_left, s_right, b)
+    ex_x, ex_y, ex_th = oracle.wheel_arc(s_left, s_right, b)  # constant ratio: one arc
     first = min(sink.odom, key=lambda o: _ns(o.header.stamp))
     assert _ns(first.header.stamp) == T0_NS
     assert first.pose.pose.position.x == 0.0 and first.pose.pose.position.y == 0.0

@@ -20,12 +20,13 @@ from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 
 from diffdrive_odom import replay
-from diffdrive_odom.params import GEOMETRY_PARAMS, ODOMETRY_PARAMS, resolve_parameters
+from diffdrive_odom.odometry_settings import ODOMETRY_PARAMS
+from diffdrive_odom.params import resolve_parameters
 
 from rosutil import ROOT, node_process, ros_test_node, spin_until
 
 CONFIG = str(ROOT / "config" / "diffdrive_odom.yaml")
-SPECS = GEOMETRY_PARAMS + ODOMETRY_PARAMS
+SPECS = ODOMETRY_PARAMS
 
 # Old style: geometry under /**, then the node's own section.
 FILE_A = """\

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 from diffdrive_odom import demo, replay
+from diffdrive_odom.estimator import Reason, Status
 from diffdrive_odom.integration import Pose2D
-from diffdrive_odom.odometry import Reason, Status
-from diffdrive_odom.params import OdometrySettings
+from diffdrive_odom.odometry_settings import OdometrySettings
 from diffdrive_odom.pipeline import VELOCITY_ON, ReadingPipeline
 from diffdrive_odom.ros_common import KeyedThrottle
 

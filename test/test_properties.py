@@ -15,9 +15,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from diffdrive_odom.encoders import EncoderConfig
+from diffdrive_odom.estimator import EstimatorConfig, OdometryEstimator, Status
 from diffdrive_odom.integration import Pose2D, wrap_angle
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import EstimatorConfig, OdometryEstimator, Status
 
 NAMES = ("left_wheel_joint", "right_wheel_joint")
 DT_NS = 10_000_000

@@ -22,10 +22,11 @@ from rosbags.highlevel import AnyReader
 
 from diffdrive_odom import bagio, batch, replay
 from diffdrive_odom.cli import main as cli
+from diffdrive_odom.conversions import quaternion_to_yaw
 from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry import quaternion_to_yaw
-from diffdrive_odom.params import OdometrySettings
+from diffdrive_odom.odometry_settings import OdometrySettings
 
+import oracle
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, mcap_messages, write_params
 from rosutil import DATA
 
@@ -49,21 +50,11 @@ def _published(bag: Path, settings: OdometrySettings) -> list[replay.Published]:
 
 def _arc_integrate(readings: list[Any], r: float, b: float, left: int, right: int
                    ) -> tuple[float, float, float]:
-    """Exact arc per step, written from the geometry (not the package's chord form)."""
-    x = y = th = 0.0
-    for prev, cur in itertools.pairwise(readings):
-        sl = r * (cur.position[left] - prev.position[left])
-        sr = r * (cur.position[right] - prev.position[right])
-        ds, dth = 0.5 * (sl + sr), (sr - sl) / b
-        if abs(dth) < 1e-12:
-            x += ds * math.cos(th)
-            y += ds * math.sin(th)
-        else:
-            rad = ds / dth
-            x += rad * (math.sin(th + dth) - math.sin(th))
-            y += -rad * (math.cos(th + dth) - math.cos(th))
-        th += dth
-    return x, y, th
+    """Exact arc per step from the wheel angles (the oracle's, not the package's form)."""
+    return oracle.integrate_wheels(
+        ((r * (cur.position[left] - prev.position[left]),
+          r * (cur.position[right] - prev.position[right]))
+         for prev, cur in itertools.pairwise(readings)), b)
 
 
 @pytest.mark.parametrize("run", RUNS)
@@ -260,7 +251,7 @@ def test_a_looped_bag_restarts_both_paths_at_the_origin(tmp_path: Path) -> None:
     # Closed form: constant ds, dtheta per step -> arc of radius ds/dtheta.
     ds, dth = r * 0.15, r * 0.1 / b
     k = n - 1
-    x_end, y_end = ds / dth * math.sin(k * dth), ds / dth * (1 - math.cos(k * dth))
+    x_end, y_end, _ = oracle.arc(k * ds, k * dth)
     end = stats.final_pose
     assert math.hypot(end.x - x_end, end.y - y_end) < 1e-12
     vec = batch.final_pose(steps, settings.geometry)
@@ -291,7 +282,8 @@ def test_streaming_memory_does_not_grow_with_the_bag(tmp_path: Path) -> None:
             def sink(p: replay.Published, w: bagio.BagWriter = w,
                      msgs: bagio.OdomMessages = msgs, cov: list[float] = cov) -> None:
                 w.write("/odom", p.log_ns, msgs.odometry(
-                    p.stamp_ns, p.pose.x, p.pose.y, p.pose.theta, 0.0, 0.0, cov, cov))
+                    p.stamp_ns, p.pose.x, p.pose.y, p.pose.theta, linear=0.0, angular=0.0,
+                    pose_covariance=cov, twist_covariance=cov))
 
             stats = replay.replay_readings(bagio.read_joint_states(bag), settings, sink)
         peaks.append(tracemalloc.get_traced_memory()[1])

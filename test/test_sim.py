@@ -12,6 +12,8 @@ from diffdrive_odom.kinematics import Geometry, wheel_rates
 from diffdrive_odom.routes import square
 from diffdrive_odom.sim import DiffDriveSim, SimConfig, SimConfigError
 
+import oracle
+
 STEP_NS = 10_000_000  # 10 ms
 
 
@@ -42,9 +44,9 @@ def test_unequal_radii_drive_the_textbook_circle(step_ns: int) -> None:
     sim = DiffDriveSim(SimConfig(g, command_timeout=0.0))
     t = 2.1
     drive(sim, [w_left, w_right], t, step_ns)
-    radius = v / w
-    assert sim.pose.x == pytest.approx(radius * math.sin(w * t), abs=1e-12)
-    assert sim.pose.y == pytest.approx(radius * (1.0 - math.cos(w * t)), abs=1e-12)
+    x, y, _ = oracle.arc(v * t, w * t)
+    assert sim.pose.x == pytest.approx(x, abs=1e-12)
+    assert sim.pose.y == pytest.approx(y, abs=1e-12)
     assert sim.pose.theta == pytest.approx(w * t, abs=1e-12)
     assert sim.twist.linear == pytest.approx(v, rel=1e-12)
     assert sim.twist.angular == pytest.approx(w, rel=1e-12)
@@ -172,9 +174,11 @@ def test_route_driven_through_the_sim_ends_where_the_closed_form_says() -> None:
         while total > 0:  # whole steps, then the remainder
             sim.advance(min(step_ns, total))
             total -= step_ns
-    assert sim.pose.x == pytest.approx(0.0, abs=1e-9)
-    assert sim.pose.y == pytest.approx(0.0, abs=1e-9)
-    assert sim.pose.theta == pytest.approx(0.0, abs=1e-9)
+    x, y, theta = oracle.route_end(route.segments)
+    assert math.hypot(x, y) < 1e-12 and abs(math.remainder(theta, 2 * math.pi)) < 1e-12
+    assert sim.pose.x == pytest.approx(x, abs=1e-9)
+    assert sim.pose.y == pytest.approx(y, abs=1e-9)
+    assert math.remainder(sim.pose.theta - theta, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
     assert sim.distance == pytest.approx(4.0, abs=1e-9)
 
 

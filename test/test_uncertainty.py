@@ -18,11 +18,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from diffdrive_odom.conversions import covariance_matrix
 from diffdrive_odom.encoders import EncoderConfig
 from diffdrive_odom.errors import ParameterError
+from diffdrive_odom.estimator import OdometryEstimator
 from diffdrive_odom.kinematics import Geometry, wheel_rates
-from diffdrive_odom.odometry import OdometryEstimator, covariance_matrix
-from diffdrive_odom.params import odometry_settings
+from diffdrive_odom.odometry_settings import odometry_settings
 from diffdrive_odom.pipeline import ReadingPipeline
 from diffdrive_odom.sim import DiffDriveSim, SimConfig
 from diffdrive_odom.uncertainty import (

@@ -47,7 +47,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64
 
 from diffdrive_odom import bagio, ros_common
-from diffdrive_odom.odometry import quaternion_to_yaw
+from diffdrive_odom.conversions import quaternion_to_yaw
 from diffdrive_odom.params import ParamValue
 from diffdrive_odom.path_follower_node import DONE_QOS
 from diffdrive_odom.path_following import Point

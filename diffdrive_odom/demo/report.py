@@ -21,7 +21,7 @@ from diffdrive_odom import batch, calibration
 from diffdrive_odom.calibration import CalibrationError, Run
 from diffdrive_odom.kinematics import Geometry
 from diffdrive_odom.metrics import Trajectory, evaluate
-from diffdrive_odom.params import OdometrySettings
+from diffdrive_odom.odometry_settings import OdometrySettings
 from diffdrive_odom.path_following import Point
 from diffdrive_odom.pipeline import ReadingPipeline
 
@@ -232,8 +232,8 @@ def calibrate_rows(rec: Recording, odo: OdometrySettings, true: Geometry,
                          (max(s.start_ns, t0), min(s.end_ns, t1)))
                     for name, s in (("cw", cw[0]), ("ccw", ccw[0]))]
             ends = [calibration.reference_end(r, rec.truth) for r in runs]
-            found[UMBMARK] = calibration.umbmark(runs[0], runs[1], ends[0], ends[1], side,
-                                                 nominal).geometry
+            found[UMBMARK] = calibration.umbmark(runs[0], runs[1], ends[0], ends[1],
+                                                 side=side, nominal=nominal).geometry
     except CalibrationError as err:
         raise DemoError(f"calibration failed: {err}") from err
     found[TRUE] = calibration.with_values(nominal, true.left_radius, true.right_radius,

@@ -15,16 +15,15 @@ import yaml
 
 from diffdrive_odom import routes
 from diffdrive_odom.follower_settings import FollowerSettings, follower_settings
+from diffdrive_odom.odometry_settings import OdometrySettings, odometry_settings
 from diffdrive_odom.params import (
     EXAMPLE_PARAMS_FILE,
-    OdometrySettings,
     ParameterError,
     ParamValue,
     load_params_file,
-    odometry_settings,
 )
 from diffdrive_odom.path_following import Point, route_points
-from diffdrive_odom.sim import SimSettings, sim_settings
+from diffdrive_odom.sim_settings import SimSettings, sim_settings
 
 DEFAULT_PARAMS = EXAMPLE_PARAMS_FILE
 PROGRAM = "diffdrive-odom demo"

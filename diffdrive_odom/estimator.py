@@ -36,7 +36,6 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 from diffdrive_odom.encoders import (
     EncoderConfig,
@@ -399,7 +398,8 @@ class OdometryEstimator:
             return False
         if self.uncertainty is not None:
             self.uncertainty.propagate(
-                self.pose, self.geometry, ds, dtheta, inc.d_left, inc.d_right, inc.dt)
+                self.pose, self.geometry, ds=ds, dtheta=dtheta,
+                d_left=inc.d_left, d_right=inc.d_right, dt=inc.dt)
         self.pose = pose
         self.last_step = Step(inc.dt, ds, dtheta)
         self.last_increment = inc
@@ -412,53 +412,3 @@ class OdometryEstimator:
 def _largest(values: Sequence[float]) -> float:
     """The largest of ``values``, NaN if any is (``max`` would depend on the order)."""
     return math.nan if any(math.isnan(v) for v in values) else max(values)
-
-
-def yaw_to_quaternion(theta: float) -> tuple[float, float, float, float]:
-    """Planar yaw -> quaternion ``(x, y, z, w)``; continuous in theta across +-pi up to sign."""
-    half = 0.5 * theta
-    return 0.0, 0.0, math.sin(half), math.cos(half)
-
-
-def quaternion_to_yaw(q: Any) -> float:
-    """Yaw of a quaternion (anything with x, y, z, w), for any roll/pitch."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-
-
-def stamp_to_ns(stamp: Any) -> int:
-    """A builtin_interfaces/Time (rclpy's or rosbags') -> integer nanoseconds, no rounding."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def covariance_matrix(diagonal: Sequence[float]) -> list[float]:
-    """6x6 row-major covariance with the given diagonal (what Odometry messages carry)."""
-    cov = [0.0] * 36
-    for i, d in enumerate(diagonal):
-        cov[7 * i] = float(d)
-    return cov
-
-
-class PublishGate:
-    """The ``publish_rate`` rule shared by the node and replay.
-
-    At most one pose per period of *measurement* time (header stamps), so a bag
-    replayed at any speed, live or offline, publishes the same poses.
-    """
-
-    def __init__(self, rate: float) -> None:
-        self.rate = rate
-        self.last_ns: int | None = None
-
-    def due(self, stamp_ns: int) -> bool:
-        """Tell whether a pose stamped ``stamp_ns`` is published (and remember it if so)."""
-        last = self.last_ns
-        ok = (
-            self.rate <= 0.0
-            or last is None
-            or stamp_ns < last
-            or (stamp_ns - last) >= 1e9 / self.rate - 1e3  # 1 us slack for stamp jitter
-        )
-        if ok:
-            self.last_ns = stamp_ns
-        return ok
-
