@@ -21,8 +21,8 @@ from diffdrive_odom.calibration import CalibrationError, Fit, Run, Umbmark
 from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.kinematics import Geometry
 from diffdrive_odom.odometry_settings import OdometrySettings
-from diffdrive_odom.params import ParameterError, yaml_text
-from diffdrive_odom.replay import NODE_NAME, _RosParam, load_settings
+from diffdrive_odom.params import yaml_text
+from diffdrive_odom.replay import add_param_arguments, settings_from_args
 
 PREFIX = "[calibrate]"
 
@@ -49,16 +49,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--ccw-end", default=None, metavar="X,Y",
                     help="with --umbmark: the same for the CCW square (default: from the "
                     "ground-truth topic)")
-    ap.add_argument("--params-file", action=_RosParam, dest="ros_params", metavar="FILE",
-                    help="the node's ROS 2 params YAML: nominal geometry, joint names, "
-                    "encoders (repeatable, later files win; default: none, but this or -p "
-                    "must give wheel_radius and wheel_separation)")
-    ap.add_argument("-p", "--param", action=_RosParam, dest="ros_params",
-                    metavar="NAME:=VALUE",
-                    help="parameter override, as the node's -p (repeatable; default: none)")
-    ap.add_argument("--node-name", default=NODE_NAME,
-                    help="node name the params are resolved for")
-    ap.add_argument("--namespace", default="/", help="node namespace for params resolution")
+    add_param_arguments(ap, required=False, file_help="the node's ROS 2 params YAML: nominal "
+                        "geometry, joint names, encoders (repeatable, later files win; default: "
+                        "none, but this or -p must give wheel_radius and wheel_separation)")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bags")
     ap.add_argument("--ground-truth", default=None, metavar="TOPIC",
                     help="reference topic, as eval reads it: PoseStamped, Odometry or /tf "
@@ -139,12 +132,9 @@ def main(argv: Sequence[str]) -> int:
     problem = _usage_problem(args)
     if problem:
         return _error(problem)
-    try:
-        settings = load_settings(args.ros_params, args.node_name, args.namespace)
-    except ParameterError as err:
-        return _error(str(err))
-    except OSError as err:
-        return _error(f"--params-file: {err}")
+    settings = settings_from_args(args)
+    if isinstance(settings, str):
+        return _error(settings)
     try:
         if args.umbmark is not None:
             return _umbmark(args, settings)

@@ -174,6 +174,33 @@ class _Trajectory:
         self.xyz.extend((p.pose.x, p.pose.y, p.pose.theta))
 
 
+def add_param_arguments(ap: argparse.ArgumentParser, required: bool, file_help: str) -> None:
+    """Add the flags every tool running the node's estimator takes its settings from.
+
+    ``--params-file`` / ``-p`` go into one ordered list (rcl's order), then
+    ``--node-name`` and ``--namespace``.
+    """
+    ap.add_argument("--params-file", required=required, action=_RosParam, dest="ros_params",
+                    metavar="FILE", help=file_help)
+    ap.add_argument("-p", "--param", action=_RosParam, dest="ros_params", metavar="NAME:=VALUE",
+                    help="parameter override, as the node's -p (repeatable; order with "
+                         "--params-file matters as in rcl; default: none)")
+    ap.add_argument("--node-name", default=NODE_NAME,
+                    help="node name the params are resolved for (-r __node:=)")
+    ap.add_argument("--namespace", default="/",
+                    help="node namespace (-r __ns:=): params resolution and frame prefix")
+
+
+def settings_from_args(args: argparse.Namespace) -> OdometrySettings | str:
+    """The settings :func:`add_param_arguments`' flags give, or the one line why not."""
+    try:
+        return load_settings(args.ros_params, args.node_name, args.namespace)
+    except ParameterError as err:
+        return str(err)
+    except OSError as err:
+        return f"--params-file: {err}"
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="diffdrive-odom replay",
@@ -182,16 +209,8 @@ def _parser() -> argparse.ArgumentParser:
         formatter_class=HelpFormatter,
     )
     ap.add_argument("bag", help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag")
-    ap.add_argument("--params-file", required=True, action=_RosParam, dest="ros_params",
-                    metavar="FILE",
-                    help="the node's ROS 2 params YAML (required; repeatable, later files win)")
-    ap.add_argument("-p", "--param", action=_RosParam, dest="ros_params", metavar="NAME:=VALUE",
-                    help="parameter override, as the node's -p (repeatable; order with "
-                         "--params-file matters as in rcl; default: none)")
-    ap.add_argument("--node-name", default=NODE_NAME,
-                    help="node name the params are resolved for (-r __node:=)")
-    ap.add_argument("--namespace", default="/",
-                    help="node namespace (-r __ns:=): params resolution and frame prefix")
+    add_param_arguments(ap, required=True, file_help="the node's ROS 2 params YAML "
+                        "(required; repeatable, later files win)")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bag")
     ap.add_argument("-o", "--output", metavar="OUT_BAG",
                     help="output rosbag2 directory, must not exist (default: none)")
@@ -246,12 +265,9 @@ def _output_problem(args: argparse.Namespace) -> str | None:
 def main(argv: Sequence[str]) -> int:
     """``diffdrive-odom replay``; exit 2 on a bad parameter, bag or output, or nothing to do."""
     args = _parser().parse_args(list(argv))
-    try:
-        settings = load_settings(args.ros_params, args.node_name, args.namespace)
-    except ParameterError as err:
-        return _error(str(err))
-    except OSError as err:
-        return _error(f"--params-file: {err}")
+    settings = settings_from_args(args)
+    if isinstance(settings, str):
+        return _error(settings)
     problem = _output_problem(args)
     if problem:
         return _error(problem)
