@@ -49,19 +49,25 @@ class Sink:
 
     odom: list[Odometry] = field(default_factory=list)
     tf: list[TFMessage] = field(default_factory=list)
+    odom_sub: Any = None
 
 
 def listen(node: Node, odom_topic: str) -> Sink:
     sink = Sink()
-    node.create_subscription(Odometry, odom_topic, sink.odom.append, 50)
+    sink.odom_sub = node.create_subscription(Odometry, odom_topic, sink.odom.append, 50)
     node.create_subscription(TFMessage, "/tf", sink.tf.append, 50)
     return sink
 
 
 def wait_ready(executor: Any, pub: Any, sink: Sink, proc: Any) -> None:
-    """Wait for discovery: our publisher matched with the node's subscription."""
+    """Wait for discovery both ways: our publisher matched with the node's subscription,
+    and the node's odom publisher with ours (a first pose published before that match is
+    lost, and the repeats of its reading are dropped as repeats, so none would follow)."""
     assert spin_until(executor, lambda: pub.get_subscription_count() > 0, 20.0), (
         "odometry_node never subscribed: " + _output(proc)
+    )
+    assert spin_until(executor, lambda: sink.odom_sub.get_publisher_count() > 0, 20.0), (
+        "odometry_node's odom never reached this test: " + _output(proc)
     )
 
 
