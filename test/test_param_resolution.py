@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import math
 import subprocess
+import time
 from pathlib import Path
 from typing import Any
 
@@ -98,8 +99,14 @@ def node_parameters(node: Node, ex: Any, fqn: str, names: list[str],
     """Values of ``names`` read from the running node ``fqn`` over GetParameters."""
     client = node.create_client(GetParameters, f"{fqn}/get_parameters")
     assert spin_until(ex, client.service_is_ready, timeout), f"{fqn} never came up"
-    future = client.call_async(GetParameters.Request(names=names))
-    assert spin_until(ex, future.done, timeout)
+    # DDS can report the service before its reply path is matched, and a request sent
+    # then is never answered: ask again (the call has no side effect) until one is.
+    deadline = time.monotonic() + timeout
+    while True:
+        future = client.call_async(GetParameters.Request(names=names))
+        if spin_until(ex, future.done, 2.0) or time.monotonic() > deadline:
+            break
+    assert future.done(), f"{fqn} never answered get_parameters"
     result = future.result()
     assert result is not None
     return {n: parameter_value_to_python(v) for n, v in zip(names, result.values, strict=True)}
