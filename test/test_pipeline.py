@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from diffdrive_odom import demo, replay
+from diffdrive_odom import bagio, batch, replay
 from diffdrive_odom.estimator import Reason, Status
 from diffdrive_odom.integration import Pose2D
 from diffdrive_odom.odometry_settings import OdometrySettings
@@ -123,14 +123,16 @@ def test_reset_and_reconfigure_go_through_the_pipeline(tmp_path: Path) -> None:
     assert pipe.stats.readings == 5  # counters carry on across reset and reconfigure
 
 
-def test_the_demo_replays_through_the_same_rules(tmp_path: Path) -> None:
-    """The demo's calibrated replay drops unstamped readings and honours publish_rate."""
-    s = settings(tmp_path, publish_rate=10.0)
-    readings = [(T0 + k * STEP, tuple(NAMES), (0.1 * k, 0.1 * k), ()) for k in range(51)]
-    readings.append((0, tuple(NAMES), (99.0, 99.0), ()))
-    series = demo.replay_calibrated(s, readings)
-    assert series.stamp_ns == [T0 + k * 100_000_000 for k in range(11)]
-    assert math.isclose(series.x[-1], R * 5.0, abs_tol=1e-12)
+def test_the_demo_reintegrates_through_the_same_rules(tmp_path: Path) -> None:
+    """The demo's calibrated rows come from the batch path, which takes its steps from
+    the pipeline: an unstamped reading is dropped there as in the node."""
+    s = settings(tmp_path)
+    readings = [bagio.JointReading(T0 + k * STEP, 0, tuple(NAMES), (0.1 * k, 0.1 * k), ())
+                for k in range(51)]
+    readings.insert(25, bagio.JointReading(0, 0, tuple(NAMES), (99.0, 99.0), ()))
+    steps = batch.wheel_steps(readings, s)
+    assert len(steps) == 50
+    assert math.isclose(batch.final_pose(steps, s.geometry).x, R * 5.0, abs_tol=1e-12)
 
 
 def test_keyed_throttle_holds_back_per_key_only() -> None:

@@ -18,7 +18,7 @@ from typing import Any
 
 _OWNERS = {
     "BAG_TOPICS": "settings", "DEFAULT_PARAMS": "settings", "DemoError": "settings",
-    "DemoOptions": "settings", "replay_calibrated": "report", "DemoResult": "report",
+    "DemoOptions": "settings", "DemoResult": "report",
     "run": "loop", "main": "cli",
 }
 

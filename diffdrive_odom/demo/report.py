@@ -23,7 +23,6 @@ from diffdrive_odom.kinematics import Geometry
 from diffdrive_odom.metrics import Trajectory, evaluate
 from diffdrive_odom.odometry_settings import OdometrySettings
 from diffdrive_odom.path_following import Point
-from diffdrive_odom.pipeline import ReadingPipeline
 
 from .settings import DemoError
 
@@ -243,18 +242,3 @@ def calibrate_rows(rec: Recording, odo: OdometrySettings, true: Geometry,
     rows = {k: _row(nominal if k == NOMINAL else found[k], t, rec.truth)
             for k, t in paths.items()}
     return rows, paths
-
-
-def replay_calibrated(odo: OdometrySettings, joint_states: Sequence[Any]) -> PoseSeries:
-    """The node's publishing path (gating and all) over recorded readings, for ``odo``.
-
-    What odometry_node itself would have published with other settings; the demo's
-    rows use the batch path (every step), this keeps the node's publish decisions.
-    """
-    pipe = ReadingPipeline(odo)
-    out = PoseSeries()
-    for stamp_ns, names, position, velocity in sorted(joint_states, key=lambda j: j[0]):
-        if pipe.feed(stamp_ns, names, position, velocity).publish:
-            p = pipe.estimator.pose
-            out.add(stamp_ns, p.x, p.y, p.theta)
-    return out
