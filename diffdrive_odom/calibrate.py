@@ -53,12 +53,7 @@ def _parser() -> argparse.ArgumentParser:
                         "geometry, joint names, encoders (repeatable, later files win; default: "
                         "none, but this or -p must give wheel_radius and wheel_separation)")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bags")
-    ap.add_argument("--ground-truth", default=None, metavar="TOPIC",
-                    help="reference topic, as eval reads it: PoseStamped, Odometry or /tf "
-                    f"(default: {evaluate.DEFAULT_REFERENCE}, else the bag's only "
-                    "ground-truth topic)")
-    ap.add_argument("--child-frame", default=None, metavar="FRAME",
-                    help="reference child frame on /tf (default: the only one there)")
+    evaluate.add_reference_arguments(ap)
     ap.add_argument("--window", type=float, default=calibration.DEFAULT_WINDOW, metavar="M",
                     help="wheel travel per residual window [m]")
     ap.add_argument("--no-mount", action="store_true",

@@ -212,6 +212,16 @@ def report(
     print(metrics.table())
 
 
+def add_reference_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--ground-truth`` and ``--child-frame``: how eval and calibrate find the reference."""
+    ap.add_argument("--ground-truth", default=None, metavar="TOPIC",
+                    help="reference topic: PoseStamped, PoseWithCovarianceStamped, Odometry, "
+                    f"or TransformStamped on /tf (default: {DEFAULT_REFERENCE}, else the "
+                    "bag's only ground-truth topic, e.g. sim_node's /ground_truth/odom)")
+    ap.add_argument("--child-frame", default=None, metavar="FRAME",
+                    help="reference child frame on /tf (default: the only one there)")
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="diffdrive-odom eval",
@@ -223,12 +233,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="odometry topic (any pose type, or /tf)")
     ap.add_argument("--odom-child-frame", default=None, metavar="FRAME",
                     help="odometry child frame on /tf (default: the only one there)")
-    ap.add_argument("--ground-truth", default=None, metavar="TOPIC",
-                    help="reference topic: PoseStamped, PoseWithCovarianceStamped, Odometry, "
-                    f"or TransformStamped on /tf (default: {DEFAULT_REFERENCE}, else the "
-                    "bag's only ground-truth topic, e.g. sim_node's /ground_truth/odom)")
-    ap.add_argument("--child-frame", default=None, metavar="FRAME",
-                    help="reference child frame on /tf (default: the only one there)")
+    add_reference_arguments(ap)
     ap.add_argument("--reference-bag", default=None, metavar="BAG",
                     help="read the reference from this bag instead, e.g. replay's input "
                     "(default: BAG)")
