@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
+from rcl_interfaces.srv import ListParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -91,6 +92,76 @@ def spin_for(executor: SingleThreadedExecutor, seconds: float) -> None:
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.02)
+
+
+def call_service(node: Node, executor: SingleThreadedExecutor, srv_type: Any, name: str,
+                 request: Any, timeout: float = 20.0) -> Any:
+    """The answer to ``request`` on service ``name``, asked again until one comes.
+
+    DDS can report a service before its reply path is matched, and a request sent
+    then is never answered; so only for calls without side effects.
+    """
+    client = node.create_client(srv_type, name)
+    try:
+        assert spin_until(executor, client.service_is_ready, timeout), f"{name} never came up"
+        deadline = time.monotonic() + timeout
+        while True:
+            future = client.call_async(request)
+            if spin_until(executor, future.done, 2.0) or time.monotonic() > deadline:
+                break
+        assert future.done(), f"{name} never answered"
+        return future.result()
+    finally:
+        node.destroy_client(client)
+
+
+def handshake(node: Node, executor: SingleThreadedExecutor, target: str,
+              timeout: float = 20.0) -> None:
+    """Return once the node ``target`` has matched every endpoint ``node`` made so far.
+
+    Discovery is asymmetric: our subscription can see a publisher of ``target`` while
+    that publisher does not yet see us, and what it sends meanwhile is lost to us (a
+    first odom lost so, its reading's repeats are dropped as repeats: the test
+    waits forever). ``target`` answering a service client made after our other
+    endpoints proves it has matched them too: each side announces its readers, and
+    its writers, in order on one reliable discovery stream, and the client's reply
+    reader and request writer come last on theirs.
+    """
+    call_service(node, executor, ListParameters, f"{target}/list_parameters",
+                 ListParameters.Request(depth=1), timeout)
+
+
+def publisher_node(node: Node, executor: SingleThreadedExecutor, topic: str,
+                   timeout: float = 20.0) -> str:
+    """The fully qualified name of the (first) node publishing ``topic``.
+
+    The graph can list an endpoint before the name of its node has arrived (rmw
+    sends names on their own topic): wait for the name.
+    """
+    names: list[str] = []
+
+    def known() -> bool:
+        names[:] = [f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                    for i in node.get_publishers_info_by_topic(topic)
+                    if "_UNKNOWN_" not in i.node_name + i.node_namespace]
+        return bool(names)
+
+    assert spin_until(executor, known, timeout), f"no named publisher of {topic}"
+    return names[0]
+
+
+def wait_matched(node: Node, executor: SingleThreadedExecutor, pub: Any, sub: Any,
+                 timeout: float = 20.0) -> bool:
+    """Wait until a node matches ``pub`` and publishes ``sub``'s topic, both ways.
+
+    Both our views first (cheap), then :func:`handshake` with that node for its own.
+    """
+    if not (spin_until(executor, lambda: pub.get_subscription_count() > 0, timeout)
+            and spin_until(executor, lambda: sub.get_publisher_count() > 0, timeout)):
+        return False
+    handshake(node, executor, publisher_node(node, executor, sub.topic_name, timeout),
+              timeout)
+    return True
 
 
 def wait_for_subscriber(

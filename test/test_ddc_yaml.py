@@ -19,7 +19,7 @@ from std_msgs.msg import Float64MultiArray
 from test_param_resolution import node_parameters
 from tf2_msgs.msg import TFMessage
 
-from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until
+from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until, wait_matched
 
 DDC = str(DATA / "diffbot_controllers.yaml")
 ARGS = ["--ros-args", "--params-file", DDC, "-r", "__node:=diffbot_base_controller"]
@@ -60,10 +60,10 @@ def test_odometry_node_takes_the_controllers_file() -> None:
         }
         odom: list[Odometry] = []
         tf: list[TFMessage] = []
-        node.create_subscription(Odometry, "/odom", odom.append, 50)
+        odom_sub = node.create_subscription(Odometry, "/odom", odom.append, 50)
         node.create_subscription(TFMessage, "/tf", tf.append, 50)
         pub = node.create_publisher(JointState, "/joint_states", 10)
-        assert spin_until(ex, lambda: pub.get_subscription_count() > 0, 20.0)
+        assert wait_matched(node, ex, pub, odom_sub)
 
         def reading(sec: int, left: float, right: float) -> JointState:
             js = JointState(name=["wheel_l_joint", "wheel_r_joint"], position=[left, right])

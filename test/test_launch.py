@@ -33,7 +33,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from test_colcon import colcon_install
-from test_odometry_node import STEP_NS, T0_NS, listen, send_first, stamp
+from test_odometry_node import STEP_NS, T0_NS, listen, send_first, stamp, wait_ready
 
 from rosutil import ROOT, ros_test_node, spin_until
 
@@ -288,7 +288,7 @@ def check_odometry(node: Node, ex: SingleThreadedExecutor, joint_topic: str) -> 
                           ["use_sim_time", "wheel_radius"]) == [True, r]
     sink = listen(node, f"/{NAMESPACE}/odom")
     pub = node.create_publisher(JointState, f"/{NAMESPACE}/{joint_topic}", 10)
-    assert spin_until(ex, lambda: pub.get_subscription_count() > 0, 20.0)
+    wait_ready(ex, pub, sink)
 
     def reading(k: int, angle: float) -> JointState:
         msg = JointState(name=["left_wheel_joint", "right_wheel_joint"],

@@ -29,7 +29,15 @@ from diffdrive_odom.cli import main as cli
 
 import oracle
 from bagutil import mcap_messages, write_params
-from rosutil import ROOT, assert_refuses_to_start, node_process, ros_test_node, spin_for, spin_until
+from rosutil import (
+    ROOT,
+    assert_refuses_to_start,
+    node_process,
+    ros_test_node,
+    spin_for,
+    spin_until,
+    wait_matched,
+)
 
 T0_NS = 1_700_000_000 * 10**9  # an arbitrary, realistic epoch for stamps
 STEP_NS = 20_000_000  # 50 Hz
@@ -50,25 +58,25 @@ class Sink:
     odom: list[Odometry] = field(default_factory=list)
     tf: list[TFMessage] = field(default_factory=list)
     odom_sub: Any = None
+    node: Any = None
 
 
 def listen(node: Node, odom_topic: str) -> Sink:
-    sink = Sink()
+    sink = Sink(node=node)
     sink.odom_sub = node.create_subscription(Odometry, odom_topic, sink.odom.append, 50)
     node.create_subscription(TFMessage, "/tf", sink.tf.append, 50)
     return sink
 
 
-def wait_ready(executor: Any, pub: Any, sink: Sink, proc: Any) -> None:
-    """Wait for discovery both ways: our publisher matched with the node's subscription,
-    and the node's odom publisher with ours (a first pose published before that match is
-    lost, and the repeats of its reading are dropped as repeats, so none would follow)."""
-    assert spin_until(executor, lambda: pub.get_subscription_count() > 0, 20.0), (
-        "odometry_node never subscribed: " + _output(proc)
-    )
-    assert spin_until(executor, lambda: sink.odom_sub.get_publisher_count() > 0, 20.0), (
-        "odometry_node's odom never reached this test: " + _output(proc)
-    )
+def wait_ready(executor: Any, pub: Any, sink: Sink, proc: Any = None) -> None:
+    """Wait for discovery both ways between us (``pub``, ``sink``) and the node.
+
+    A first pose published before the node's odom publisher sees us is lost, and the
+    repeats of its reading are dropped as repeats, so none would follow: our side's
+    matches are not enough (see :func:`rosutil.handshake`).
+    """
+    assert wait_matched(sink.node, executor, pub, sink.odom_sub), (
+        "odometry_node and this test never matched: " + _output(proc))
 
 
 def send_first(executor: Any, pub: Any, sink: Sink, msg: JointState) -> None:
@@ -86,7 +94,7 @@ def send_first(executor: Any, pub: Any, sink: Sink, msg: JointState) -> None:
 
 
 def _output(proc: Any) -> str:
-    if proc.poll() is None:
+    if proc is None or proc.poll() is None:
         return "(still running)"
     return proc.stdout.read() if proc.stdout else ""
 

@@ -18,7 +18,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import JointState
 
-from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until
+from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until, wait_matched
 
 RUNS: dict[str, float | None] = {
     # run: distance of nominal wheel odometry from ground truth at the end [m], where an
@@ -61,9 +61,9 @@ def test_optiodom_run_through_the_node(run: str) -> None:
     args = ["--ros-args", "-p", "wheel_radius:=0.042", "-p", "wheel_separation:=0.2"]
     received: list[Odometry] = []
     with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
-        node.create_subscription(Odometry, "/odom", received.append, 100)
+        odom_sub = node.create_subscription(Odometry, "/odom", received.append, 100)
         pub = node.create_publisher(JointState, "/joint_states", 100)
-        assert spin_until(ex, lambda: pub.get_subscription_count() > 0, 20.0)
+        assert wait_matched(node, ex, pub, odom_sub)
         first_ns, first_raw = joints[0]
         for _ in range(100):  # the reference reading, until the node has it
             pub.publish(first_raw)

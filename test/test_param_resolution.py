@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import math
 import subprocess
-import time
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +23,7 @@ from diffdrive_odom import replay
 from diffdrive_odom.odometry_settings import ODOMETRY_PARAMS
 from diffdrive_odom.params import resolve_parameters
 
-from rosutil import ROOT, node_process, ros_test_node, spin_until
+from rosutil import ROOT, call_service, node_process, ros_test_node
 
 CONFIG = str(ROOT / "config" / "diffdrive_odom.yaml")
 SPECS = ODOMETRY_PARAMS
@@ -97,17 +96,8 @@ CASES: dict[str, list[str]] = {
 def node_parameters(node: Node, ex: Any, fqn: str, names: list[str],
                     timeout: float = 20.0) -> dict[str, Any]:
     """Values of ``names`` read from the running node ``fqn`` over GetParameters."""
-    client = node.create_client(GetParameters, f"{fqn}/get_parameters")
-    assert spin_until(ex, client.service_is_ready, timeout), f"{fqn} never came up"
-    # DDS can report the service before its reply path is matched, and a request sent
-    # then is never answered: ask again (the call has no side effect) until one is.
-    deadline = time.monotonic() + timeout
-    while True:
-        future = client.call_async(GetParameters.Request(names=names))
-        if spin_until(ex, future.done, 2.0) or time.monotonic() > deadline:
-            break
-    assert future.done(), f"{fqn} never answered get_parameters"
-    result = future.result()
+    result = call_service(node, ex, GetParameters, f"{fqn}/get_parameters",
+                          GetParameters.Request(names=names), timeout)
     assert result is not None
     return {n: parameter_value_to_python(v) for n, v in zip(names, result.values, strict=True)}
 
