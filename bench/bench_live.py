@@ -350,6 +350,13 @@ def print_table(results: dict[str, list[Trial]], seconds: float) -> None:
         for a, b in zip(node, relay, strict=False):
             print(f"{kind:9s} {a.rate:7d} {a.p50_ms / b.p50_ms:6.2f} {a.p99_ms / b.p99_ms:6.2f}"
                   f" {_ratio(a.cpu_us_per_msg, b.cpu_us_per_msg):>8s}")
+    node, relay = results.get("node events"), results.get("relay single")
+    if node and relay:
+        print("\nThe goal: the node on its default executor (events) / the relay on rclpy's"
+              " default (single):")
+        for a, b in zip(node, relay, strict=False):
+            print(f"  {a.rate:5d} Hz: CPU/msg {_ratio(a.cpu_us_per_msg, b.cpu_us_per_msg)}, "
+                  f"p50 {a.p50_ms / b.p50_ms:.2f}")
     if all(f"node {k}" in results for k in KINDS):
         print("\nRatios events / single executor (node):")
         for a, b in zip(results["node events"], results["node single"], strict=False):

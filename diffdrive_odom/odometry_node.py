@@ -5,6 +5,9 @@ reading path replay and the demo use): it only declares parameters, converts
 messages and logs the verdicts, one throttle per reason. Output is
 stamped with the JointState's own header stamp (the measurement time), never the
 time the message happened to be processed.
+
+Messages cross rclpy as their serialised bytes (:mod:`diffdrive_odom.cdr`): at 1 kHz,
+rclpy's conversions to and from Python objects cost more than the odometry itself.
 """
 
 from __future__ import annotations
@@ -13,15 +16,16 @@ import math
 import time
 from typing import Any
 
-from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import ros_common
+from diffdrive_odom.cdr import JointArrays, JointStateDecoder, OdometryLayout, TransformLayout
 from diffdrive_odom.conversions import yaw_to_quaternion
 from diffdrive_odom.diagnostics import (
     RateMeter,
@@ -48,9 +52,7 @@ class OdometryNode(Node):
         settings = self._build(values)
         self._settings = settings
         self._pipeline = ReadingPipeline(settings)
-        self._odom = Odometry()
-        self._tf = TransformStamped()
-        self._tf_msg = TFMessage(transforms=[self._tf])
+        self._decoder = JointStateDecoder()
         self._build_messages(settings)
         self._throttle = ros_common.KeyedThrottle(self.get_logger())
         self._guard = ros_common.ParameterGuard(self, values, self._build, self._apply)
@@ -58,7 +60,7 @@ class OdometryNode(Node):
         self._odom_pub = self.create_publisher(Odometry, "odom", ros_common.RELIABLE_OUT_QOS)
         self._tf_pub = self.create_publisher(TFMessage, "/tf", ros_common.TF_QOS)
         self._sub = self.create_subscription(
-            JointState, "joint_states", self._on_joint_state, ros_common.SENSOR_IN_QOS
+            JointState, "joint_states", self._on_joint_state, ros_common.SENSOR_IN_QOS, raw=True
         )
         self.create_service(Trigger, "~/reset_odometry", self._on_reset)
         # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
@@ -122,14 +124,37 @@ class OdometryNode(Node):
             velocity_fallback=stats.velocity_fallback,
         ))
 
-    def _on_joint_state(self, msg: JointState) -> None:
+    def _on_joint_state(self, raw: bytes) -> None:
         self._last_rx = t = time.monotonic()
         self._rate.add(t)
-        stamp_ns = ros_common.stamp_to_ns(msg.header.stamp)
+        msg = self._decode(raw)
+        if msg is None:
+            return
+        stamp_ns = msg.sec * 1_000_000_000 + msg.nanosec
         outcome = self._pipeline.feed(stamp_ns, msg.name, msg.position, msg.velocity)
         self._report(outcome)
         if outcome.publish:
-            self._publish(msg.header.stamp)
+            self._publish(msg.sec, msg.nanosec)
+
+    def _decode(self, raw: bytes) -> JointArrays | None:
+        """The reading's fields, or None (with a throttled warning) if unreadable.
+
+        rclpy's own deserialisation takes what the decoder leaves (big-endian senders).
+        """
+        try:
+            if (fields := self._decoder.decode(raw)) is not None:
+                return fields
+        except ValueError:
+            pass
+        try:
+            msg = deserialize_message(raw, JointState)
+        except Exception as exc:  # whatever rclpy raises for bytes it cannot read
+            self._throttle.warning("undecodable", f"joint_states message dropped: its "
+                                   f"{len(raw)} bytes are not a JointState ({exc})")
+            return None
+        stamp = msg.header.stamp
+        return JointArrays(stamp.sec, stamp.nanosec, tuple(msg.name), tuple(msg.position),
+                           tuple(msg.velocity))
 
     def _report(self, outcome: Outcome) -> None:
         verdict = outcome.verdict
@@ -144,36 +169,30 @@ class OdometryNode(Node):
     def _build_messages(self, settings: OdometrySettings) -> None:
         """Fill what stays the same from message to message (frames, covariance) once.
 
-        Each reading then only updates the stamp, pose and twist fields of the same
-        message objects: building an Odometry, TransformStamped and TFMessage per reading,
-        and converting 2 x 36 covariance floats to arrays, cost more than the estimator.
+        Each reading then only writes the stamp, pose and twist into the same bytes.
         """
-        self._odom.header.frame_id = settings.odom_frame_id
-        self._odom.child_frame_id = settings.base_frame_id
-        self._tf.header.frame_id = settings.odom_frame_id
-        self._tf.child_frame_id = settings.base_frame_id
+        self._odom = OdometryLayout(settings.odom_frame_id, settings.base_frame_id)
+        self._tf = TransformLayout(settings.odom_frame_id, settings.base_frame_id)
         self._covariance_changed = True
 
-    def _set_covariance(self, odom: Odometry) -> bool:
+    def _set_covariance(self) -> bool:
         """The covariance of the published odometry (the only place that sets it).
 
         Propagated: the pipeline's, every message. Static (the parameters' diagonals):
-        assigned only after a change, since each assignment converts 2 x 36 floats.
-        False if it is not finite (never published).
+        written only after a change. False if it is not finite (never published).
         """
         if self._pipeline.estimator.uncertainty is None:
             if self._covariance_changed:
-                odom.pose.covariance, odom.twist.covariance = self._pipeline.covariances()
+                self._odom.covariance(*self._pipeline.covariances())
                 self._covariance_changed = False
             return True
         pose_cov, twist_cov = self._pipeline.covariances()
         if not math.isfinite(sum(pose_cov) + sum(twist_cov)):
             return False
-        odom.pose.covariance = pose_cov
-        odom.twist.covariance = twist_cov
+        self._odom.covariance(pose_cov, twist_cov)
         return True
 
-    def _publish(self, stamp: Any) -> None:
+    def _publish(self, sec: int, nanosec: int) -> None:
         est = self._pipeline.estimator
         pose = est.pose
         x, y, theta, linear, angular = pose.x, pose.y, pose.theta, est.linear, est.angular
@@ -181,29 +200,13 @@ class OdometryNode(Node):
             self._throttle.warning("non_finite_output", "non-finite odometry suppressed")
             return
         _, _, qz, qw = yaw_to_quaternion(theta)  # planar: x and y stay 0
-        odom = self._odom
-        odom.header.stamp = stamp
-        p = odom.pose.pose
-        p.position.x = x
-        p.position.y = y
-        p.orientation.z = qz
-        p.orientation.w = qw
-        if not self._set_covariance(odom):  # cannot happen; never NaN
+        if not self._set_covariance():  # cannot happen; never NaN
             self._throttle.warning("non_finite_output", "non-finite covariance suppressed")
             return
-        t = odom.twist.twist
-        t.linear.x = linear
-        t.angular.z = angular
-        self._odom_pub.publish(odom)
+        self._odom_pub.publish(
+            self._odom.encode(sec, nanosec, x, y, qz, qw, linear, angular))
         if self._settings.enable_odom_tf:
-            tf = self._tf
-            tf.header.stamp = stamp
-            tr = tf.transform
-            tr.translation.x = x
-            tr.translation.y = y
-            tr.rotation.z = qz
-            tr.rotation.w = qw
-            self._tf_pub.publish(self._tf_msg)
+            self._tf_pub.publish(self._tf.encode(sec, nanosec, x, y, qz, qw))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -134,6 +134,33 @@ def test_two_different_bad_inputs_are_both_reported() -> None:
     assert short and nan, out.text()
 
 
+def test_bytes_that_are_no_joint_state_are_dropped_and_the_drive_goes_on() -> None:
+    """The node reads JointState bytes itself: a sender's cut-off message or a corrupt
+    count is dropped with a warning, and the next good reading moves the pose exactly."""
+    from rclpy.serialization import serialize_message
+
+    with odometry_node() as (proc, out), ros_test_node() as (node, ex):
+        sink = listen(node, "/odom")
+        pub = node.create_publisher(JointState, "/joint_states", 10)
+        wait_ready(ex, pub, sink, proc)
+        send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
+        good = serialize_message(reading(T0_NS + STEP_NS, [1.0, 1.0]))
+        pub.publish(good[: len(good) // 2])  # cut off
+        corrupt = bytearray(good)
+        corrupt[20:24] = b"\xff\xff\xff\xff"  # the name count (after an empty frame_id): 4e9
+        pub.publish(bytes(corrupt))
+        spin_for(ex, 0.05)
+        last_ns = T0_NS + 2 * STEP_NS
+        pub.publish(reading(last_ns, [1.0, 1.0]))
+        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last_ns for o in sink.odom))
+        dropped = out.wait_for("not a JointState")
+        assert proc.poll() is None
+    assert dropped, out.text()
+    final = next(o for o in sink.odom if _ns(o.header.stamp) == last_ns)
+    assert math.isclose(final.pose.pose.position.x, R * 1.0, abs_tol=1e-12)
+    assert not any(_ns(o.header.stamp) == T0_NS + STEP_NS for o in sink.odom)
+
+
 def test_silent_input_is_reported_with_the_resolved_topic() -> None:
     """Namespace and remap applied: the name in the warning is the one really subscribed."""
     with odometry_node("-r", "__ns:=/robot1", "-r", "joint_states:=wheel_states") as (proc, out):
