@@ -46,7 +46,6 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
-import numpy as np
 from rosbags.convert.converter import is_same_wireformat, migrate_bytes
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import Connection
@@ -54,7 +53,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.conversions import stamp_to_ns, yaw_to_quaternion
+from diffdrive_odom.cdr import JointStateDecoder
+from diffdrive_odom.conversions import stamp_to_ns
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -165,6 +165,29 @@ def _reading(msg: Any, log_ns: int) -> JointReading:
     )
 
 
+class _JointStates:
+    """A bag's JointState bytes -> readings.
+
+    The node's own CDR decoder for rosbag2 data (rosbags' full deserialisation is
+    several times slower); rosbags' for ROS 1 bags and whatever that decoder leaves.
+    """
+
+    def __init__(self, reader: AnyReader) -> None:
+        self._reader = reader
+        self._decoder = JointStateDecoder() if reader.is2 else None
+
+    def __call__(self, raw: bytes, msgtype: str, log_ns: int) -> JointReading:
+        if self._decoder is not None:
+            try:
+                got = self._decoder.decode(raw)
+            except ValueError:
+                got = None
+            if got is not None:
+                return JointReading(got.sec * 1_000_000_000 + got.nanosec, log_ns, got.name,
+                                    got.position, got.velocity)
+        return _reading(self._reader.deserialize(raw, msgtype), log_ns)
+
+
 Passthrough = Callable[[Connection, int, bytes], None]
 
 
@@ -188,6 +211,7 @@ def iter_joint_states(
     joints = connections_for(reader, topic, (JOINT_STATE,))
     conns = reader.connections if passthrough is not None else joints
     joint_ids = {id(c) for c in joints}
+    decode = _JointStates(reader)
     heap: list[tuple[int, int, JointReading]] = []
     order = itertools.count()
     newest: int | None = None
@@ -196,7 +220,7 @@ def iter_joint_states(
             passthrough(conn, log_ns, raw)
             if id(conn) not in joint_ids:
                 continue
-        reading = _reading(reader.deserialize(raw, conn.msgtype), log_ns)
+        reading = decode(raw, conn.msgtype, log_ns)
         if newest is not None and reading.stamp_ns < newest - jump_back_ns:
             while heap:
                 yield heapq.heappop(heap)[2]
@@ -290,73 +314,6 @@ class CdrConverter:
 
 
 # --- writing ---------------------------------------------------------------------------
-
-
-class OdomMessages:
-    """Builds nav_msgs/Odometry and tf2_msgs/TFMessage with rosbags' message classes."""
-
-    def __init__(self, store: Typestore, odom_frame: str, base_frame: str) -> None:
-        t = store.types
-        self._t = t
-        self.odom_frame = odom_frame
-        self.base_frame = base_frame
-
-    def _header(self, ns: int) -> Any:
-        t = self._t
-        sec, nanosec = divmod(int(ns), 1_000_000_000)
-        return t["std_msgs/msg/Header"](
-            stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
-            frame_id=self.odom_frame,
-        )
-
-    def _quaternion(self, yaw: float) -> Any:
-        x, y, z, w = yaw_to_quaternion(yaw)
-        return self._t["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)
-
-    def odometry(
-        self,
-        ns: int,
-        x: float,
-        y: float,
-        yaw: float,
-        *,
-        linear: float,
-        angular: float,
-        pose_covariance: Sequence[float],
-        twist_covariance: Sequence[float],
-    ) -> Any:
-        """Build an Odometry as the node publishes it (header stamp = measurement time)."""
-        t = self._t
-        vec = t["geometry_msgs/msg/Vector3"]
-        pose = t["geometry_msgs/msg/Pose"](
-            position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
-            orientation=self._quaternion(yaw),
-        )
-        twist = t["geometry_msgs/msg/Twist"](
-            linear=vec(x=linear, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=angular)
-        )
-        return t[ODOMETRY](
-            header=self._header(ns),
-            child_frame_id=self.base_frame,
-            pose=t["geometry_msgs/msg/PoseWithCovariance"](
-                pose=pose, covariance=np.asarray(pose_covariance, dtype=np.float64)
-            ),
-            twist=t["geometry_msgs/msg/TwistWithCovariance"](
-                twist=twist, covariance=np.asarray(twist_covariance, dtype=np.float64)
-            ),
-        )
-
-    def tf(self, ns: int, x: float, y: float, yaw: float) -> Any:
-        """Build a TFMessage with the single odom -> base transform."""
-        t = self._t
-        transform = t["geometry_msgs/msg/Transform"](
-            translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0),
-            rotation=self._quaternion(yaw),
-        )
-        stamped = t["geometry_msgs/msg/TransformStamped"](
-            header=self._header(ns), child_frame_id=self.base_frame, transform=transform
-        )
-        return t[TF_MESSAGE](transforms=[stamped])
 
 
 class BagWriter:

@@ -13,7 +13,8 @@ sequence is a uint32 count and its elements. rclpy's own serialisation is the or
 the tests, on random messages. Anything else (big-endian, another encapsulation) is
 left to the caller's fallback: :meth:`JointStateDecoder.decode` returns None for it.
 
-No rclpy import: the decoder and layouts are plain data and struct calls.
+No rclpy import: the decoder and layouts are plain data and struct calls, shared by the
+node and by replay's bag output.
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ from __future__ import annotations
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
+
+from diffdrive_odom.conversions import yaw_to_quaternion
 
 CDR_LE = b"\x00\x01\x00\x00"  # encapsulation: plain CDR, little endian, no options
 _ORIGIN = 4  # alignment counts from the end of the encapsulation header
@@ -185,6 +188,13 @@ class OdometryLayout:
         _ONE.pack_into(buf, self._angular, angular)
         return bytes(buf)
 
+    def planar(self, stamp_ns: int, x: float, y: float, yaw: float, linear: float,
+               angular: float) -> bytes:
+        """The message of a planar pose and twist stamped ``stamp_ns`` (> 0)."""
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        _, _, qz, qw = yaw_to_quaternion(yaw)
+        return self.encode(sec, nanosec, x, y, qz, qw, linear, angular)
+
 
 class TransformLayout:
     """tf2_msgs/TFMessage bytes of one planar transform between fixed frames."""
@@ -207,3 +217,9 @@ class TransformLayout:
         _TWO.pack_into(buf, self._xy, x, y)
         _TWO.pack_into(buf, self._qzw, qz, qw)
         return bytes(buf)
+
+    def planar(self, stamp_ns: int, x: float, y: float, yaw: float) -> bytes:
+        """The message of a planar pose stamped ``stamp_ns`` (> 0)."""
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        _, _, qz, qw = yaw_to_quaternion(yaw)
+        return self.encode(sec, nanosec, x, y, qz, qw)

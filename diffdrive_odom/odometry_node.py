@@ -26,7 +26,6 @@ from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom import ros_common
 from diffdrive_odom.cdr import JointArrays, JointStateDecoder, OdometryLayout, TransformLayout
-from diffdrive_odom.conversions import yaw_to_quaternion
 from diffdrive_odom.diagnostics import (
     RateMeter,
     ReadingHealth,
@@ -134,7 +133,7 @@ class OdometryNode(Node):
         outcome = self._pipeline.feed(stamp_ns, msg.name, msg.position, msg.velocity)
         self._report(outcome)
         if outcome.publish:
-            self._publish(msg.sec, msg.nanosec)
+            self._publish(stamp_ns)
 
     def _decode(self, raw: bytes) -> JointArrays | None:
         """The reading's fields, or None (with a throttled warning) if unreadable.
@@ -192,21 +191,19 @@ class OdometryNode(Node):
         self._odom.covariance(pose_cov, twist_cov)
         return True
 
-    def _publish(self, sec: int, nanosec: int) -> None:
+    def _publish(self, stamp_ns: int) -> None:
         est = self._pipeline.estimator
         pose = est.pose
         x, y, theta, linear, angular = pose.x, pose.y, pose.theta, est.linear, est.angular
         if not math.isfinite(x + y + theta + linear + angular):  # cannot happen; never NaN
             self._throttle.warning("non_finite_output", "non-finite odometry suppressed")
             return
-        _, _, qz, qw = yaw_to_quaternion(theta)  # planar: x and y stay 0
         if not self._set_covariance():  # cannot happen; never NaN
             self._throttle.warning("non_finite_output", "non-finite covariance suppressed")
             return
-        self._odom_pub.publish(
-            self._odom.encode(sec, nanosec, x, y, qz, qw, linear, angular))
+        self._odom_pub.publish(self._odom.planar(stamp_ns, x, y, theta, linear, angular))
         if self._settings.enable_odom_tf:
-            self._tf_pub.publish(self._tf.encode(sec, nanosec, x, y, qz, qw))
+            self._tf_pub.publish(self._tf.planar(stamp_ns, x, y, theta))
 
 
 def main(args: list[str] | None = None) -> int:

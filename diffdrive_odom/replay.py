@@ -38,6 +38,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 
 from diffdrive_odom import bagio, evaluate
+from diffdrive_odom.cdr import OdometryLayout, TransformLayout
 from diffdrive_odom.cli import HelpFormatter
 from diffdrive_odom.estimator import Reason, Status
 from diffdrive_odom.integration import Pose2D
@@ -392,7 +393,8 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
             sys.stderr.isatty() and total >= PROGRESS_MIN_READINGS)
         if show:
             readings = _progress(readings, total)
-        sink = _sink(settings, writer, csv_out, traj if args.eval else None, args)
+        sink = output_sink(settings, writer, csv_out, traj if args.eval else None,
+                           odom_topic=args.odom_topic, tf_topic=args.tf_topic)
         stats = replay_readings(readings, settings, sink)
     return stats, traj
 
@@ -419,24 +421,32 @@ def _keep_input(
     return passthrough
 
 
-def _sink(
+def output_sink(
     settings: OdometrySettings,
     writer: bagio.BagWriter | None,
     csv_out: bagio.CsvWriter | None,
-    traj: _Trajectory | None,
-    args: argparse.Namespace,
+    traj: _Trajectory | None = None,
+    *,
+    odom_topic: str = "/odom",
+    tf_topic: str = "/tf",
 ) -> Callable[[Published], None]:
-    msgs = bagio.OdomMessages(bagio.typestore(), settings.odom_frame_id, settings.base_frame_id)
+    """Where each published pose goes: output bag, CSV table, ``--eval`` trajectory.
+
+    The bag's topics are registered by the caller.
+    """
+    # The node's own byte layouts: the bag holds what the node would have published.
+    odom = OdometryLayout(settings.odom_frame_id, settings.base_frame_id)
+    transform = TransformLayout(settings.odom_frame_id, settings.base_frame_id)
     tf = settings.enable_odom_tf
 
     def sink(p: Published) -> None:
         x, y, yaw = p.pose.x, p.pose.y, p.pose.theta
         if writer is not None:
-            writer.write(args.odom_topic, p.log_ns, msgs.odometry(
-                p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
-                pose_covariance=p.pose_covariance, twist_covariance=p.twist_covariance))
+            odom.covariance(p.pose_covariance, p.twist_covariance)
+            writer.write_cdr(odom_topic, p.log_ns,
+                             odom.planar(p.stamp_ns, x, y, yaw, p.linear, p.angular))
             if tf:
-                writer.write(args.tf_topic, p.log_ns, msgs.tf(p.stamp_ns, x, y, yaw))
+                writer.write_cdr(tf_topic, p.log_ns, transform.planar(p.stamp_ns, x, y, yaw))
         if csv_out is not None:
             csv_out.row(p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
                         status=p.status.value, pose_covariance=p.pose_covariance)

@@ -6,8 +6,13 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from rosbags.typesys.store import Typestore
+
+from diffdrive_odom.bagio import ODOMETRY, TF_MESSAGE
+from diffdrive_odom.conversions import yaw_to_quaternion
 
 OPTIODOM_PARAMS = {"wheel_radius": 0.042, "wheel_separation": 0.200}
 TB3_PARAMS = {
@@ -37,3 +42,74 @@ def write_params(path: Path, values: dict[str, Any], node: str = "odometry_node"
 
     path.write_text(yaml.safe_dump({node: {"ros__parameters": values}}), encoding="utf-8")
     return path
+
+
+class OdomMessages:
+    """Builds nav_msgs/Odometry and tf2_msgs/TFMessage with rosbags' message classes.
+
+    Test bags written this way are independent of the byte layouts the node and replay
+    use (:mod:`diffdrive_odom.cdr`).
+    """
+
+    def __init__(self, store: Typestore, odom_frame: str, base_frame: str) -> None:
+        t = store.types
+        self._t = t
+        self.odom_frame = odom_frame
+        self.base_frame = base_frame
+
+    def _header(self, ns: int) -> Any:
+        t = self._t
+        sec, nanosec = divmod(int(ns), 1_000_000_000)
+        return t["std_msgs/msg/Header"](
+            stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
+            frame_id=self.odom_frame,
+        )
+
+    def _quaternion(self, yaw: float) -> Any:
+        x, y, z, w = yaw_to_quaternion(yaw)
+        return self._t["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)
+
+    def odometry(
+        self,
+        ns: int,
+        x: float,
+        y: float,
+        yaw: float,
+        *,
+        linear: float,
+        angular: float,
+        pose_covariance: Sequence[float],
+        twist_covariance: Sequence[float],
+    ) -> Any:
+        """Build an Odometry as the node publishes it (header stamp = measurement time)."""
+        t = self._t
+        vec = t["geometry_msgs/msg/Vector3"]
+        pose = t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+            orientation=self._quaternion(yaw),
+        )
+        twist = t["geometry_msgs/msg/Twist"](
+            linear=vec(x=linear, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=angular)
+        )
+        return t[ODOMETRY](
+            header=self._header(ns),
+            child_frame_id=self.base_frame,
+            pose=t["geometry_msgs/msg/PoseWithCovariance"](
+                pose=pose, covariance=np.asarray(pose_covariance, dtype=np.float64)
+            ),
+            twist=t["geometry_msgs/msg/TwistWithCovariance"](
+                twist=twist, covariance=np.asarray(twist_covariance, dtype=np.float64)
+            ),
+        )
+
+    def tf(self, ns: int, x: float, y: float, yaw: float) -> Any:
+        """Build a TFMessage with the single odom -> base transform."""
+        t = self._t
+        transform = t["geometry_msgs/msg/Transform"](
+            translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0),
+            rotation=self._quaternion(yaw),
+        )
+        stamped = t["geometry_msgs/msg/TransformStamped"](
+            header=self._header(ns), child_frame_id=self.base_frame, transform=transform
+        )
+        return t[TF_MESSAGE](transforms=[stamped])

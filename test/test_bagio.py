@@ -21,6 +21,7 @@ from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 
 from diffdrive_odom import bagio
+from diffdrive_odom.cdr import OdometryLayout, TransformLayout
 from diffdrive_odom.conversions import quaternion_to_yaw
 
 from bagutil import mcap_messages
@@ -115,9 +116,11 @@ def test_readings_come_out_in_stamp_order_when_logged_out_of_order(
 
 @pytest.mark.parametrize("storage", bagio.STORAGES)
 def test_odometry_and_tf_round_trip(tmp_path: Path, storage: str) -> None:
+    """The node's byte layouts, as replay writes them, read back by rosbags and (MCAP)
+    by mcap-ros2-support."""
     bag = tmp_path / "odom"
     store = bagio.typestore()
-    build = bagio.OdomMessages(store, "odom", "base_link")
+    odom, transform = OdometryLayout("odom", "base_link"), TransformLayout("odom", "base_link")
     pose_cov = [float(i) for i in range(36)]
     twist_cov = [0.5 * i for i in range(36)]
     poses = [(10**9 * 1_700_000_000 + 123 + k * 50_000_000, 0.1 * k, -0.2 * k,
@@ -126,10 +129,9 @@ def test_odometry_and_tf_round_trip(tmp_path: Path, storage: str) -> None:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
         for ns, x, y, yaw, v, om in poses:
-            w.write("/odom", ns, build.odometry(
-                ns, x, y, yaw, linear=v, angular=om, pose_covariance=pose_cov,
-                twist_covariance=twist_cov))
-            w.write("/tf", ns, build.tf(ns, x, y, yaw))
+            odom.covariance(pose_cov, twist_cov)
+            w.write_cdr("/odom", ns, odom.planar(ns, x, y, yaw, v, om))
+            w.write_cdr("/tf", ns, transform.planar(ns, x, y, yaw))
     with AnyReader([bag], default_typestore=store) as reader:
         odoms = [reader.deserialize(raw, c.msgtype)
                  for c, _, raw in reader.messages() if c.topic == "/odom"]

@@ -15,7 +15,7 @@ from diffdrive_odom import bagio, evaluate
 from diffdrive_odom.cli import main as cli
 from diffdrive_odom.evaluate import Trajectory
 
-from bagutil import OPTIODOM_PARAMS, mcap_messages, write_params
+from bagutil import OPTIODOM_PARAMS, OdomMessages, mcap_messages, write_params
 from rosutil import DATA
 
 RUN04 = DATA / "optiodom" / "square_231220200029_run-04"
@@ -187,7 +187,7 @@ def test_headings_are_compared_modulo_a_turn() -> None:
 def _write_reference_bag(path: Path, traj: Trajectory) -> None:
     store = bagio.typestore()
     t = store.types
-    odom = bagio.OdomMessages(store, "world", "robot")
+    odom = OdomMessages(store, "world", "robot")
     cov = [0.0] * 36
     with bagio.BagWriter(path) as w:
         w.add_topic("/pose", "geometry_msgs/msg/PoseStamped")
@@ -235,7 +235,7 @@ def test_eval_on_a_bag_like_the_demo_s_needs_no_topic_flags(
     assert "/ground_truth/odom" in BAG_TOPICS and "/odom" in BAG_TOPICS
     ref = _square(n_side=40)
     bag = tmp_path / "bag"
-    msgs = bagio.OdomMessages(bagio.typestore(), "odom", "base_link")
+    msgs = OdomMessages(bagio.typestore(), "odom", "base_link")
     cov = [0.0] * 36
     with bagio.BagWriter(bag) as w:
         for topic in ("/odom", "/ground_truth/odom"):

@@ -276,16 +276,9 @@ def test_streaming_memory_does_not_grow_with_the_bag(tmp_path: Path) -> None:
         tracemalloc.start()
         with bagio.BagWriter(out, "sqlite3") as w:
             w.add_topic("/odom", bagio.ODOMETRY)
-            msgs = bagio.OdomMessages(w.typestore, "odom", "base_link")
-            cov = [0.0] * 36
-
-            def sink(p: replay.Published, w: bagio.BagWriter = w,
-                     msgs: bagio.OdomMessages = msgs, cov: list[float] = cov) -> None:
-                w.write("/odom", p.log_ns, msgs.odometry(
-                    p.stamp_ns, p.pose.x, p.pose.y, p.pose.theta, linear=0.0, angular=0.0,
-                    pose_covariance=cov, twist_covariance=cov))
-
-            stats = replay.replay_readings(bagio.read_joint_states(bag), settings, sink)
+            w.add_topic("/tf", bagio.TF_MESSAGE)
+            stats = replay.replay_readings(bagio.read_joint_states(bag), settings,
+                                           replay.output_sink(settings, w, None))
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
         assert stats.published == n
