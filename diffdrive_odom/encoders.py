@@ -134,7 +134,13 @@ def in_counter_range(value: float, counter_bits: int) -> bool:
     """
     if counter_bits <= 0:
         return True
-    return -float(2 ** (counter_bits - 1)) <= value < float(2**counter_bits)
+    low, high = counter_range(counter_bits)
+    return low <= value < high
+
+
+def counter_range(counter_bits: int) -> tuple[float, float]:
+    """``[low, high)``: the counts of :func:`in_counter_range` (``counter_bits`` > 0)."""
+    return -float(2 ** (counter_bits - 1)), float(2**counter_bits)
 
 
 def side_mean(values: Sequence[float]) -> float:
@@ -238,21 +244,24 @@ def decode(
     if 0 < len(velocity) < n:
         return Rejection(Reason.BAD_ARRAY, f"velocity has {len(velocity)} entries for {n} names")
     if len(position) > 0:
-        values = tuple(float(position[i]) for i in idx)
-        if all(math.isfinite(v) for v in values):
-            if not all(in_counter_range(v, counter_bits) for v in values):
-                return Rejection(
-                    Reason.OUT_OF_RANGE,
-                    f"a wheel count is outside the range of a {counter_bits}-bit counter "
-                    "(encoder_counter_bits)",
-                )
+        values = tuple([float(position[i]) for i in idx])
+        if all(map(math.isfinite, values)):
+            if counter_bits > 0:
+                low, high = counter_range(counter_bits)
+                # Finite values: the extremes in range means every value is.
+                if not (low <= min(values) and max(values) < high):
+                    return Rejection(
+                        Reason.OUT_OF_RANGE,
+                        f"a wheel count is outside the range of a {counter_bits}-bit counter "
+                        "(encoder_counter_bits)",
+                    )
             return WheelReading(stamp_ns, values, False)
-        if not (len(velocity) > 0 and all(math.isnan(v) for v in values)):
+        if not (len(velocity) > 0 and all(map(math.isnan, values))):
             return Rejection(Reason.NON_FINITE, "a wheel position is NaN or infinite")
     if len(velocity) == 0:
         return Rejection(Reason.NO_DATA, "neither position nor velocity is filled")
-    values = tuple(float(velocity[i]) for i in idx)
-    if not all(math.isfinite(v) for v in values):
+    values = tuple([float(velocity[i]) for i in idx])
+    if not all(map(math.isfinite, values)):
         return Rejection(Reason.NON_FINITE, "a wheel velocity is NaN or infinite")
     return WheelReading(stamp_ns, values, True)
 
@@ -273,11 +282,13 @@ def increment(
             0.5 * (a + b) * dt * scale
             for a, b in zip(previous.values, current.values, strict=True)
         ]
-    else:
+    elif config.counter_bits > 0:
         deltas = [
             unwrap_difference(b - a, config.counter_bits) * scale
             for a, b in zip(previous.values, current.values, strict=True)
         ]
+    else:  # no counter: nothing to unwrap
+        deltas = [(b - a) * scale for a, b in zip(previous.values, current.values, strict=True)]
     n = len(config.left_wheel_names)
-    peak = max(abs(d) for d in deltas) if all(math.isfinite(d) for d in deltas) else math.nan
+    peak = max(map(abs, deltas)) if all(map(math.isfinite, deltas)) else math.nan
     return WheelIncrement(dt, side_mean(deltas[:n]), side_mean(deltas[n:]), peak)

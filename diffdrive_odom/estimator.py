@@ -50,7 +50,7 @@ from diffdrive_odom.encoders import (
 )
 from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.integration import Pose2D, compose
-from diffdrive_odom.kinematics import Geometry, body_increment, wheel_arcs
+from diffdrive_odom.kinematics import Geometry, body_from_arcs, wheel_arcs
 from diffdrive_odom.uncertainty import NoiseModel, PoseUncertainty
 
 # m a wheel can roll between two readings, whatever the settings: more is no robot's
@@ -107,6 +107,10 @@ class Verdict:
         return ""
 
 
+# The verdict of every plain step (frozen, so one instance serves them all).
+UPDATED = Verdict(Status.UPDATED)
+
+
 class EstimatorConfigError(ConfigError):
     """An estimator setting that cannot work (names the parameter)."""
 
@@ -148,13 +152,15 @@ class _RollingMean:
     """Mean of the last ``size`` values, summed afresh so rounding never accumulates."""
 
     size: int
-    values: deque[float] = field(default_factory=deque)
+    values: deque[float] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.values = deque(maxlen=self.size)
 
     def push(self, value: float) -> float:
-        self.values.append(value)
-        if len(self.values) > self.size:
-            self.values.popleft()
-        return math.fsum(self.values) / len(self.values)
+        values = self.values
+        values.append(value)
+        return math.fsum(values) / len(values)
 
     def clear(self) -> None:
         self.values.clear()
@@ -359,42 +365,61 @@ class OdometryEstimator:
             # since ref. An upper bound for a late-delivered (truly old) reading too.
             span = (reading.stamp_ns - stale[0].stamp_ns) * 1e-9 + rate.dt
             inc = replace(inc, dt=max(inc.dt, min(span, self.config.max_reading_gap)))
-        why = self._implausible(inc) or self._implausible(rate)
-        if not why and not self._integrate(inc, rate):
+        # Each increment's arcs are computed once, for the check and the integration.
+        arcs = wheel_arcs(self.geometry, inc.d_left, inc.d_right)
+        why = self._implausible(inc, arcs)
+        rate_arcs = arcs
+        if rate is not inc:
+            rate_arcs = wheel_arcs(self.geometry, rate.d_left, rate.d_right)
+            why = why or self._implausible(rate, rate_arcs)
+        if not why and not self._integrate(inc, arcs, rate, rate_arcs):
             why = "its integration is not a finite number"
         if why:
             return Verdict(Status.REANCHORED, Reason.TOO_FAST, f"{why}; step skipped")
-        return Verdict(Status.UPDATED)
+        return UPDATED
 
-    def _implausible(self, inc: WheelIncrement) -> str:
+    def _implausible(self, inc: WheelIncrement, arcs: tuple[float, float]) -> str:
         """Why a step cannot be real wheel motion ('' if it can): the one definition.
 
         A joint faster than ``max_wheel_speed`` over the step's interval (which the gap
         rule bounds by ``max_reading_gap``, so a bogus stamp never licenses more travel),
         or, whatever the settings (``max_wheel_speed: .inf`` included), a wheel rolling
         more than ``MAX_STEP_ARC`` metres, or a value that is not a finite number.
+        ``arcs`` are the step's :func:`kinematics.wheel_arcs`.
         """
-        moved = (abs(inc.d_left), abs(inc.d_right), abs(inc.peak))
-        if not all(d <= self.config.max_wheel_speed * inc.dt for d in moved):  # NaN fails
-            return (f"wheel moved {_largest(moved):.4g} rad in {inc.dt:.4g} s, over "
-                    f"max_wheel_speed {self.config.max_wheel_speed:g} rad/s")
-        arcs = [abs(a) for a in wheel_arcs(self.geometry, inc.d_left, inc.d_right)]
-        if not all(a <= MAX_STEP_ARC for a in arcs):
-            return f"a wheel rolled {_largest(arcs):.4g} m in one step, over {MAX_STEP_ARC:g} m"
+        left, right, peak = abs(inc.d_left), abs(inc.d_right), abs(inc.peak)
+        limit = self.config.max_wheel_speed * inc.dt
+        if not (left <= limit and right <= limit and peak <= limit):  # NaN fails
+            return (f"wheel moved {_largest((left, right, peak)):.4g} rad in {inc.dt:.4g} s, "
+                    f"over max_wheel_speed {self.config.max_wheel_speed:g} rad/s")
+        s_left, s_right = abs(arcs[0]), abs(arcs[1])
+        if not (s_left <= MAX_STEP_ARC and s_right <= MAX_STEP_ARC):
+            return (f"a wheel rolled {_largest((s_left, s_right)):.4g} m in one step, "
+                    f"over {MAX_STEP_ARC:g} m")
         return ""
 
-    def _integrate(self, inc: WheelIncrement, rate: WheelIncrement) -> bool:
+    def _integrate(
+        self,
+        inc: WheelIncrement,
+        arcs: tuple[float, float],
+        rate: WheelIncrement,
+        rate_arcs: tuple[float, float],
+    ) -> bool:
         """Apply the step ``inc``, the twist from ``rate``; False if it cannot be applied.
 
-        Nothing changes when pose, twist or step would not be finite: no state is NaN.
+        ``arcs``, ``rate_arcs``: their wheel arcs. Nothing changes when pose, twist or
+        step would not be finite: no state is NaN.
         """
-        ds, dtheta = body_increment(self.geometry, inc.d_left, inc.d_right)
-        rate_ds, rate_dtheta = body_increment(self.geometry, rate.d_left, rate.d_right)
+        ds, dtheta = body_from_arcs(self.geometry, *arcs)
+        rate_ds, rate_dtheta = (
+            (ds, dtheta) if rate_arcs is arcs else body_from_arcs(self.geometry, *rate_arcs)
+        )
         linear, angular = rate_ds / rate.dt, rate_dtheta / rate.dt
-        if not all(math.isfinite(v) for v in (ds, dtheta, linear, angular)):
+        isfinite = math.isfinite
+        if not (isfinite(ds) and isfinite(dtheta) and isfinite(linear) and isfinite(angular)):
             return False
         pose = compose(self.pose, ds, dtheta)
-        if not all(math.isfinite(v) for v in (pose.x, pose.y, pose.theta)):
+        if not (isfinite(pose.x) and isfinite(pose.y) and isfinite(pose.theta)):
             return False
         if self.uncertainty is not None:
             self.uncertainty.propagate(

@@ -97,7 +97,13 @@ def body_increment(
     the forward kinematics of the "Diff Drive kinematics" notes (after Lynch and Park,
     Modern Robotics ch. 13) and of Carroll and Jha.
     """
-    s_left, s_right = wheel_arcs(geometry, d_left, d_right)
+    return body_from_arcs(geometry, *wheel_arcs(geometry, d_left, d_right))
+
+
+def body_from_arcs(
+    geometry: Geometry, s_left: FloatOrArray, s_right: FloatOrArray
+) -> tuple[FloatOrArray, FloatOrArray]:
+    """:func:`body_increment` from the wheels' arcs (m), for a caller that has them already."""
     return 0.5 * (s_left + s_right), (s_right - s_left) / geometry.separation
 
 

@@ -47,6 +47,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from itertools import islice
 
 from diffdrive_odom.errors import ConfigError
 from diffdrive_odom.integration import Pose2D, compose_jacobians
@@ -83,15 +84,22 @@ class NoiseModel:
                 raise UncertaintyConfigError(field, f"must be finite and >= 0, got {value!r}")
 
 
-def _add(a: Matrix, b: Matrix) -> Matrix:
-    return tuple(tuple(x + y for x, y in zip(ra, rb, strict=True))
-                 for ra, rb in zip(a, b, strict=True))
+def _add3(a: Matrix, b: Matrix) -> Matrix:
+    """``A + B`` for 3x3 matrices (written out, as :func:`_congruence3`)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return ((a00 + b00, a01 + b01, a02 + b02),
+            (a10 + b10, a11 + b11, a12 + b12),
+            (a20 + b20, a21 + b21, a22 + b22))
 
 
 def _times2x2(a: Matrix, b: Matrix) -> Matrix:
     """``A B`` for a 3x2 ``A`` and a 2x2 ``B``."""
+    (a00, a01), (a10, a11), (a20, a21) = a
     (b00, b01), (b10, b11) = b
-    return tuple((a0 * b00 + a1 * b10, a0 * b01 + a1 * b11) for a0, a1 in a)
+    return ((a00 * b00 + a01 * b10, a00 * b01 + a01 * b11),
+            (a10 * b00 + a11 * b10, a10 * b01 + a11 * b11),
+            (a20 * b00 + a21 * b10, a20 * b01 + a21 * b11))
 
 
 def _symmetric(m00: float, m01: float, m02: float, m11: float, m12: float,
@@ -171,24 +179,26 @@ def quantization_variance(ticks_per_revolution: float, wheels_per_side: int) -> 
     return tick * tick / 12.0 / wheels_per_side
 
 
+# z, roll, pitch (or their rates): nothing known. Message rows 0, 1, 5: x (vx), y, yaw (wz).
+_PLANAR = [UNOBSERVED_VARIANCE if i in (14, 21, 28) else 0.0 for i in range(36)]
+
+
 def pose_message_covariance(p: Matrix) -> list[float]:
     """3x3 (x, y, yaw) -> the 6x6 row-major pose covariance of an Odometry message."""
-    return _message_layout(p, (0, 1, 5))
+    (xx, xy, xt), (yx, yy, yt), (tx, ty, tt) = p
+    cov = _PLANAR.copy()
+    cov[0], cov[1], cov[5] = float(xx), float(xy), float(xt)
+    cov[6], cov[7], cov[11] = float(yx), float(yy), float(yt)
+    cov[30], cov[31], cov[35] = float(tx), float(ty), float(tt)
+    return cov
 
 
 def twist_message_covariance(t: Matrix) -> list[float]:
     """2x2 (vx, wz) -> the 6x6 row-major twist covariance (vy: 0 by the rolling constraint)."""
-    return _message_layout(t, (0, 5))
-
-
-_PLANAR = [UNOBSERVED_VARIANCE if i in (14, 21, 28) else 0.0 for i in range(36)]
-
-
-def _message_layout(m: Matrix, rows: tuple[int, ...]) -> list[float]:
-    cov = _PLANAR.copy()  # z, roll, pitch (or their rates): nothing known
-    for a, ra in enumerate(rows):
-        for b, rb in enumerate(rows):
-            cov[6 * ra + rb] = float(m[a][b])
+    (vv, vw), (wv, ww) = t
+    cov = _PLANAR.copy()
+    cov[0], cov[5] = float(vv), float(vw)
+    cov[30], cov[35] = float(wv), float(ww)
     return cov
 
 
@@ -235,7 +245,7 @@ class PoseUncertainty:
         f_pose, f_step = compose_jacobians(pose_before, ds, dtheta)
         b = self._wheel_jacobian(geometry)
         var_l, var_r = joint_variances(self.model, geometry, d_left, d_right)
-        self.covariance = _add(
+        self.covariance = _add3(
             _congruence3(f_pose, self.covariance), _wheel_noise3(_times2x2(f_step, b), var_l, var_r)
         )
         q = 2.0 * self._quantum  # the step's two readings
@@ -255,14 +265,18 @@ class PoseUncertainty:
         _, at_heading = compose_jacobians(Pose2D(0.0, 0.0, pose.theta), 0.0, 0.0)
         w = _times2x2(at_heading, self._wheel_jacobian(geometry))
         q = 2.0 * self._quantum  # the reference and the current reading
-        return _add(self.covariance, _wheel_noise3(w, q, q))
+        return _add3(self.covariance, _wheel_noise3(w, q, q))
 
     def twist_covariance(self) -> Matrix:
         """Covariance of the rolling-mean twist (vx, wz); zero before a step is integrated."""
-        n = len(self._rates)
+        rates = self._rates
+        n = len(rates)
         if n == 0:
             return ((0.0, 0.0), (0.0, 0.0))
-        total = self._rates[0]
-        for rate in list(self._rates)[1:]:
-            total = _add(total, rate)
-        return tuple(tuple(v / (n * n) for v in row) for row in total)
+        if n == 1:
+            return rates[0]  # the mean of one step is that step (``v / 1`` is ``v``)
+        (t00, t01), (t10, t11) = rates[0]
+        for (r00, r01), (r10, r11) in islice(rates, 1, None):
+            t00, t01, t10, t11 = t00 + r00, t01 + r01, t10 + r10, t11 + r11
+        nn = n * n
+        return ((t00 / nn, t01 / nn), (t10 / nn, t11 / nn))

@@ -53,3 +53,10 @@ def test_bad_executor_choice_stops_the_node_with_one_line() -> None:
         out = proc.stdout.read() if proc.stdout else ""
     lines = [ln for ln in out.splitlines() if ln.strip()]
     assert code == 2 and len(lines) == 1 and "DIFFDRIVE_ODOM_EXECUTOR" in lines[0], out
+
+
+def test_core_bench_prints_its_table() -> None:
+    out = run_bench("bench_core.py", 120)
+    for case in ("defaults", "ticks, 16-bit counter", "2 wheels per side", "static covariance"):
+        row = re.search(rf"^{case}\s+(\d+\.\d+)\s+(\d+\.\d+)\s+(-?\d+\.\d+)$", out, re.M)
+        assert row and float(row.group(1)) > 0.0 and float(row.group(2)) > 0.0, out
