@@ -282,13 +282,14 @@ def _say(proc: subprocess.Popen[str], word: str) -> None:
 
 
 @contextmanager
-def systems(kinds: tuple[str, ...]) -> Iterator[list[System]]:
+def systems(kinds: tuple[str, ...],
+            whats: tuple[str, ...] = ("node", "relay")) -> Iterator[list[System]]:
     """Start the node and the relay once per executor kind; stop them at the end."""
     prefix = f"/bench_live_{os.getpid()}"
     with ExitStack() as stack:
         started: list[System] = []
         for kind in kinds:
-            for what in ("node", "relay"):
+            for what in whats:
                 base = f"{prefix}/{what}_{kind}"
                 in_topic, out_topic = f"{base}/joint_states", f"{base}/odom"
                 if what == "node":
