@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import itertools
 import json
 import math
 import os
@@ -139,7 +140,7 @@ def role_pub(topic: str, rate: float, count: int, base_ns: int) -> int:
     return 0
 
 
-def role_sub(topic: str) -> int:
+def role_sub(topic: str, idle_end: float = IDLE_END_S, longest: float = 120.0) -> int:
     """Prints ``warm`` at the first Odometry, then, once messages stop for a while,
     one JSON line of every message's stamp and stamp-to-receive latency."""
     rclpy.init()
@@ -163,10 +164,10 @@ def role_sub(topic: str) -> int:
         print("no publisher", flush=True)
         return 1
     print("ready", flush=True)
-    deadline = time.monotonic() + 120.0
+    deadline = time.monotonic() + longest
     while time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
-        if stamps and time.monotonic() - last[0] > IDLE_END_S:
+        if stamps and time.monotonic() - last[0] > idle_end:
             break
     print(json.dumps({"stamps": stamps, "latencies": latencies}), flush=True)
     node.destroy_node()
@@ -193,6 +194,11 @@ class Trial:
     p50_ms: float
     p99_ms: float
     cpu_us_per_msg: float
+    # The longest run of lost messages (stamp gap between two received ones) and the
+    # longest pause in arrivals, with when it began (s after the first measured one).
+    max_lost_gap_ms: float = 0.0
+    max_pause_ms: float = 0.0
+    pause_at_s: float = 0.0
 
     @property
     def lossless(self) -> bool:
@@ -238,14 +244,16 @@ def _me(*args: str) -> list[str]:
     return [sys.executable, str(Path(__file__).resolve()), *args]
 
 
-def trial(system: System, rate: int, seconds: float, base_ns: int) -> Trial:
+def trial(system: System, rate: int, seconds: float, base_ns: int,
+          idle_end: float = IDLE_END_S) -> Trial:
     """One publisher -> system -> subscriber run; CPU of the system over the run.
 
     Warm-up messages flow until the subscriber has heard one, so DDS matching is done
     before the measured messages (stamped from ``start_ns`` on) are sent.
     """
     count = max(1, round(rate * seconds))
-    sub = _child(_me("--role", "sub", "--topic", system.out_topic))
+    sub = _child(_me("--role", "sub", "--topic", system.out_topic,
+                     "--idle-end", str(idle_end), "--longest", str(seconds + 60.0)))
     pub = _child(_me("--role", "pub", "--topic", system.in_topic, "--rate", str(rate),
                      "--count", str(count), "--base-ns", str(base_ns)))
     try:
@@ -265,14 +273,19 @@ def trial(system: System, rate: int, seconds: float, base_ns: int) -> Trial:
     finally:
         _stop(pub)
         _stop(sub)
-    lat = sorted(ms for stamp, ms in zip(got["stamps"], got["latencies"], strict=True)
-                 if stamp >= sent["start_ns"])
+    measured = [(stamp, ns) for stamp, ns in zip(got["stamps"], got["latencies"], strict=True)
+                if stamp >= sent["start_ns"]]
+    lat = sorted(ns for _, ns in measured)
     n = len(lat)
     achieved = (sent["sent"] - 1) / sent["elapsed"] if sent["elapsed"] > 0 else float(rate)
+    lost_gap = max((b[0] - a[0] for a, b in itertools.pairwise(measured)), default=0)
+    arrivals = [stamp + ns for stamp, ns in measured]
+    pause, at = max(((b - a, a) for a, b in itertools.pairwise(arrivals)), default=(0, 0))
     return Trial(rate, sent["sent"], achieved, n,
                  lat[n // 2] / 1e6 if n else math.nan,
                  lat[min(n - 1, int(0.99 * n))] / 1e6 if n else math.nan,
-                 (cpu1 - cpu0) / sent["sent"] * 1e6)
+                 (cpu1 - cpu0) / sent["sent"] * 1e6,
+                 lost_gap / 1e6, pause / 1e6, (at - arrivals[0]) / 1e9 if arrivals else 0.0)
 
 
 def _say(proc: subprocess.Popen[str], word: str) -> None:
@@ -412,6 +425,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, default=100.0)
     ap.add_argument("--count", type=int, default=100)
     ap.add_argument("--base-ns", type=int, default=0)
+    ap.add_argument("--idle-end", type=float, default=IDLE_END_S,
+                    help="(sub role) stop this long after the last message")
+    ap.add_argument("--longest", type=float, default=120.0,
+                    help="(sub role) stop listening after this many seconds in any case")
     ap.add_argument("--quick", action="store_true", help="100 Hz only, short trials (smoke test)")
     ap.add_argument("--rates", help="comma-separated rates in Hz")
     ap.add_argument("--seconds", type=float, help="per rate (default 3, --quick 0.5)")
@@ -422,7 +439,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.role == "pub":
         return role_pub(args.topic, args.rate, args.count, args.base_ns)
     if args.role == "sub":
-        return role_sub(args.topic)
+        return role_sub(args.topic, args.idle_end, args.longest)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rates = (tuple(int(r) for r in args.rates.split(",")) if args.rates
              else (100,) if args.quick else RATES)

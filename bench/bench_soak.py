@@ -26,6 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_live
 
+# The subscriber waits this long after the last message before it reports: long
+# enough that a stall somewhere shows as lost messages, not as the end of the run.
+IDLE_END_S = 5.0
 RSS_SLACK_MB = 2.0  # allocator noise: more growth than this between the fifths is a leak
 CPU_SLACK = 0.15  # relative; the machine's own noise
 
@@ -45,7 +48,8 @@ def soak(seconds: float, rate: int, interval: float) -> bool:
         time.sleep(2.0)
         out: list[bench_live.Trial] = []
         feeder = threading.Thread(
-            target=lambda: out.append(bench_live.trial(system, rate, seconds, time.time_ns())))
+            target=lambda: out.append(bench_live.trial(system, rate, seconds, time.time_ns(),
+                                                       idle_end=IDLE_END_S)))
         feeder.start()
         # The trial waits for discovery and warms up before it counts: start the
         # clock at the node's first busy interval.
@@ -85,6 +89,9 @@ def report(samples: list[tuple[float, float, float]], rate: int,
         print(f"\nmessages: {trial.sent} sent, {trial.sent - trial.received} lost; "
               f"p50 {trial.p50_ms:.2f} ms, p99 {trial.p99_ms:.2f} ms; "
               f"CPU {trial.cpu_us_per_msg:.0f} us/msg over the whole run")
+        print(f"longest run of lost messages: {trial.max_lost_gap_ms:.0f} ms of stamps; "
+              f"longest pause in arrivals: {trial.max_pause_ms:.0f} ms, "
+              f"{trial.pause_at_s:.0f} s in")
     print(f"RSS: {rss_first:.1f} MB in the first fifth, {rss_last:.1f} MB in the last "
           f"({rss_last - rss_first:+.1f} MB)")
     print(f"CPU: {cpu_first:.0f} us/msg in the first fifth, {cpu_last:.0f} in the last "
