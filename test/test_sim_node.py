@@ -92,7 +92,8 @@ def test_wrapping_counter_and_flipped_joint_are_undone_by_the_odometry_parameter
             ros_test_node() as (node, ex):
         sink = listen(node, ("/odom", "/odom_wrong"))
         pub = node.create_publisher(Float64MultiArray, "/wheel_commands", 10)
-        assert spin_until(ex, lambda: pub.get_subscription_count() > 0
+        # The joints heard from the start: the counters' wrap below is checked on them.
+        assert spin_until(ex, lambda: pub.get_subscription_count() > 0 and len(sink.joints) > 0
                           and len(sink.odom["/odom"]) > 0 and len(sink.odom["/odom_wrong"]) > 0,
                           25.0), output(sim) + output(odo) + output(wrong)
         # An arc: 0.2 m/s, 0.5 rad/s, for about 2 s; then the sim's timeout stops it.
