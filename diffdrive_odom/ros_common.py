@@ -389,6 +389,8 @@ def _endpoints(
         rclpy.try_shutdown()
         return []
     try:
+        if isinstance(node, LifecycleNode):  # a managed node creates its endpoints then
+            node.trigger_configure()
         ours = [("subscribes", s.topic_name, _type_name(s.msg_type, "msg"))
                 for s in node.subscriptions]
         ours += [("publishes", p.topic_name, _type_name(p.msg_type, "msg"))
