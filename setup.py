@@ -36,6 +36,7 @@ setup(
     entry_points={
         "console_scripts": [
             "odometry_node = diffdrive_odom.odometry_node:main",
+            "odometry_lifecycle_node = diffdrive_odom.odometry_lifecycle_node:main",
             "cmd_vel_node = diffdrive_odom.cmd_vel_node:main",
             "sim_node = diffdrive_odom.sim_node:main",
             "path_follower_node = diffdrive_odom.path_follower_node:main",

@@ -42,59 +42,78 @@ NODE_NAME = "odometry_node"
 NO_INPUT_WARN_S = 5.0  # s of steady time without a reading before saying so
 
 
-class OdometryNode(Node):
-    """Publishes wheel odometry computed from encoder readings."""
+class OdometryEndpoints:
+    """Everything ``odometry_node`` does, on the node it is given.
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(NODE_NAME, **kwargs)
-        values = ros_common.declare(self, ODOMETRY_PARAMS)
+    Both the plain :class:`OdometryNode` and the managed
+    :class:`~diffdrive_odom.odometry_lifecycle_node.OdometryLifecycleNode` (which builds
+    one at configure and destroys it at cleanup) use this one class, so the two never
+    differ in a rule, a topic or a QoS. On a LifecycleNode its publishers are lifecycle
+    publishers: readings are integrated whenever it exists, published only while active.
+    Raises ParameterError (before creating anything) for values that cannot work.
+    """
+
+    def __init__(self, node: Node, values: dict[str, ParamValue]) -> None:
+        self._node = node
         settings = self._build(values)
         self._settings = settings
         self._pipeline = ReadingPipeline(settings)
         self._decoder = JointStateDecoder()
         self._build_messages(settings)
-        self._throttle = ros_common.KeyedThrottle(self.get_logger())
-        self._guard = ros_common.ParameterGuard(self, values, self._build, self._apply)
+        self._throttle = ros_common.KeyedThrottle(node.get_logger())
+        self._guard = ros_common.ParameterGuard(node, values, self._build, self._apply)
 
-        self._odom_pub = self.create_publisher(Odometry, "odom", ros_common.RELIABLE_OUT_QOS)
-        self._tf_pub = self.create_publisher(TFMessage, "/tf", ros_common.TF_QOS)
-        self._sub = self.create_subscription(
+        self._odom_pub = ros_common.create_publisher(
+            node, Odometry, "odom", ros_common.RELIABLE_OUT_QOS)
+        self._tf_pub = ros_common.create_publisher(node, TFMessage, "/tf", ros_common.TF_QOS)
+        self._sub = node.create_subscription(
             JointState, "joint_states", self._on_joint_state, ros_common.SENSOR_IN_QOS, raw=True
         )
-        self.create_service(Trigger, "~/reset_odometry", self._on_reset)
+        self._reset_srv = node.create_service(Trigger, "~/reset_odometry", self._on_reset)
         # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
         # and a missing clock is one of the mistakes this warning is for.
-        self._input_timer = self.create_timer(
+        self._input_timer = node.create_timer(
             NO_INPUT_WARN_S, self._check_input, clock=Clock(clock_type=ClockType.STEADY_TIME)
         )
         self._started = time.monotonic()
         self._last_rx: float | None = None
         self._rate = RateMeter(start=self._started)
         self._reporter = Reporter(odometry_report)
-        ros_common.DiagnosticsPublisher(self, "odometry", self._diagnose)
+        self._diagnostics = ros_common.DiagnosticsPublisher(node, "odometry", self._diagnose)
         g = settings.geometry
-        self.get_logger().info(
+        node.get_logger().info(
             f"wheel odometry: r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
             f"b={g.separation:.6g} m, {settings.odom_frame_id} -> {settings.base_frame_id}, "
             f"joints {list(settings.encoders.left_wheel_names)} / "
             f"{list(settings.encoders.right_wheel_names)}"
         )
 
+    def destroy(self) -> None:
+        """Remove every endpoint, timer and parameter check from the node; the pose goes."""
+        node = self._node
+        self._guard.close()
+        self._diagnostics.destroy()
+        node.destroy_timer(self._input_timer)
+        node.destroy_service(self._reset_srv)
+        node.destroy_subscription(self._sub)
+        ros_common.destroy_publisher(node, self._tf_pub)
+        ros_common.destroy_publisher(node, self._odom_pub)
+
     def _build(self, values: dict[str, ParamValue]) -> OdometrySettings:
-        return odometry_settings(values, self.get_namespace())
+        return odometry_settings(values, self._node.get_namespace())
 
     def _apply(self, settings: OdometrySettings) -> None:
         """Install accepted runtime changes; the pose carries on without a jump."""
         self._settings = settings
         self._build_messages(settings)
         self._pipeline.reconfigure(settings)
-        self.get_logger().info("parameters updated")
+        self._node.get_logger().info("parameters updated")
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self._pipeline.reset()
         response.success = True
         response.message = "odometry reset to the origin"
-        self.get_logger().info(response.message)
+        self._node.get_logger().info(response.message)
         return response
 
     def _check_input(self) -> None:
@@ -102,9 +121,9 @@ class OdometryNode(Node):
         self._input_timer.cancel()
         if self._pipeline.stats.readings == 0:
             topic = self._sub.topic_name
-            self.get_logger().warning(
+            self._node.get_logger().warning(
                 f"no JointState received on {topic} in {NO_INPUT_WARN_S:g} s "
-                f"({self.count_publishers(topic)} publisher(s) on it): check the driver's "
+                f"({self._node.count_publishers(topic)} publisher(s) on it): check the driver's "
                 "topic, this node's namespace and remaps"
             )
 
@@ -160,7 +179,7 @@ class OdometryNode(Node):
         if outcome.note:
             self._throttle.info("input_mode", outcome.note)
         if verdict.status is Status.TIME_RESET:
-            self.get_logger().warning(verdict.reason)
+            self._node.get_logger().warning(verdict.reason)
         elif verdict.warning:
             self._throttle.warning(verdict.code, f"joint_states reading {verdict.warning} "
                                    f"[{verdict.code}]: {verdict.reason}")
@@ -204,6 +223,14 @@ class OdometryNode(Node):
         self._odom_pub.publish(self._odom.planar(stamp_ns, x, y, theta, linear, angular))
         if self._settings.enable_odom_tf:
             self._tf_pub.publish(self._tf.planar(stamp_ns, x, y, theta))
+
+
+class OdometryNode(Node):
+    """Publishes wheel odometry computed from encoder readings, from its start."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self.odometry = OdometryEndpoints(self, ros_common.declare(self, ODOMETRY_PARAMS))
 
 
 def main(args: list[str] | None = None) -> int:

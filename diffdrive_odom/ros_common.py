@@ -27,8 +27,10 @@ from rclpy.clock_type import ClockType
 from rclpy.context import Context
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
+from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -105,6 +107,26 @@ def declare(node: Node, specs: Iterable[ParamSpec]) -> dict[str, ParamValue]:
     return values
 
 
+def parameter_values(node: Node, specs: Iterable[ParamSpec]) -> dict[str, ParamValue]:
+    """The raw values of parameters already declared (a managed node reads them at configure)."""
+    return {spec.name: _param_value(node.get_parameter(spec.name)) for spec in specs}
+
+
+def create_publisher(node: Node, msg_type: Any, topic: str, qos_profile: QoSProfile) -> Publisher:
+    """A publisher; on a managed node a lifecycle one, so it publishes only while active."""
+    if isinstance(node, LifecycleNode):
+        return cast(Publisher, node.create_lifecycle_publisher(msg_type, topic, qos_profile))
+    return node.create_publisher(msg_type, topic, qos_profile)
+
+
+def destroy_publisher(node: Node, publisher: Publisher) -> None:
+    """Undo :func:`create_publisher` (a managed node also forgets the managed entity)."""
+    if isinstance(node, LifecycleNode):
+        node.destroy_lifecycle_publisher(publisher)
+    else:
+        node.destroy_publisher(publisher)
+
+
 def report_unknown_overrides(node: Node) -> None:
     """Log unknown overrides (one warning) and ignored diff_drive_controller ones (one info).
 
@@ -141,8 +163,14 @@ class ParameterGuard(Generic[T]):
         self._build = build
         self._apply = apply
         self._pending: tuple[dict[str, ParamValue], T] | None = None
+        self._node = node
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._post_set)
+
+    def close(self) -> None:
+        """Stop guarding (a managed node's cleanup: unconfigured, any value is taken)."""
+        self._node.remove_on_set_parameters_callback(self._validate)
+        self._node.remove_post_set_parameters_callback(self._post_set)
 
     def _validate(self, params: Sequence[Parameter]) -> SetParametersResult:
         candidate = dict(self._values)
@@ -361,6 +389,8 @@ def _endpoints(
         rclpy.try_shutdown()
         return []
     try:
+        if isinstance(node, LifecycleNode):  # a managed node creates its endpoints then
+            node.trigger_configure()
         ours = [("subscribes", s.topic_name, _type_name(s.msg_type, "msg"))
                 for s in node.subscriptions]
         ours += [("publishes", p.topic_name, _type_name(p.msg_type, "msg"))
@@ -463,9 +493,14 @@ class DiagnosticsPublisher:
         self._report = report
         self.name = diagnostic_status_name(node, task)
         self.hardware_id = hardware_id
-        self._pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, DIAGNOSTICS_QOS)
+        self._pub = create_publisher(node, DiagnosticArray, DIAGNOSTICS_TOPIC, DIAGNOSTICS_QOS)
         self._timer = node.create_timer(
             period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def destroy(self) -> None:
+        """Remove the publisher and its timer from the node."""
+        self._node.destroy_timer(self._timer)
+        destroy_publisher(self._node, self._pub)
 
     def publish(self) -> None:
         """Publish the current report now (the timer calls this once a period)."""
