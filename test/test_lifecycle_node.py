@@ -21,7 +21,15 @@ from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from test_odometry_node import STEP_NS, T0_NS, Sink, _ns, listen, send_first, stamp, wait_ready
+from test_odometry_node import (
+    STEP_NS,
+    T0_NS,
+    Sink,
+    _ns,
+    drive_straight,
+    listen,
+    wait_ready,
+)
 from test_signals import EXIT_WITHIN_S, burst, joint_state
 
 from rosutil import call_service, node_process, ros_test_node, spin_for, spin_until
@@ -61,21 +69,6 @@ class Manager:
     def state(self) -> str:
         return str(call_service(self._node, self._ex, GetState, f"{NAME}/get_state",
                                 GetState.Request()).current_state.label)
-
-
-def drive(pub: Any, ex: Any, sink: Sink, first_k: int, last_k: int,
-          prime: bool = False) -> None:
-    """Readings ``first_k..last_k``: both wheels at ``k * PER_STEP`` rad, stamped on k."""
-    for k in range(first_k, last_k + 1):
-        msg = JointState()
-        msg.header.stamp = stamp(T0_NS + k * STEP_NS)
-        msg.name = ["left_wheel_joint", "right_wheel_joint"]
-        msg.position = [k * PER_STEP, k * PER_STEP]
-        if k == first_k and prime:
-            send_first(ex, pub, sink, msg)
-        else:
-            pub.publish(msg)
-            spin_for(ex, 0.005)
 
 
 def step(o: Any) -> int:
@@ -135,13 +128,13 @@ def test_publishes_only_while_active_and_the_pose_never_jumps() -> None:
         wait_ready(ex, pub, sink, proc)
 
         # inactive: readings 0..20 integrated (1 m), nothing published.
-        drive(pub, ex, sink, 0, 20)
+        drive_straight(pub, ex, sink, 0, 20, PER_STEP, prime=False)
         spin_for(ex, 1.5)  # more than a diagnostics period
         assert not sink.odom and not sink.tf and not ours(diagnostics)
 
         assert manager.change(Transition.TRANSITION_ACTIVATE)
         assert manager.state() == "active"
-        drive(pub, ex, sink, 21, 40, prime=True)
+        drive_straight(pub, ex, sink, 21, 19, PER_STEP, prime=True)
         wait_for_step(ex, sink, 40)
         assert min(step(o) for o in sink.odom) == 21  # the first after activation...
         assert_closed_form(sink)  # ...already at r * 21 * PER_STEP: continuous
@@ -153,12 +146,12 @@ def test_publishes_only_while_active_and_the_pose_never_jumps() -> None:
         sink.odom.clear()
         sink.tf.clear()
         diagnostics.clear()
-        drive(pub, ex, sink, 41, 60)
+        drive_straight(pub, ex, sink, 41, 19, PER_STEP, prime=False)
         spin_for(ex, 1.5)
         assert not sink.odom and not sink.tf and not ours(diagnostics)
 
         assert manager.change(Transition.TRANSITION_ACTIVATE)
-        drive(pub, ex, sink, 61, 80, prime=True)
+        drive_straight(pub, ex, sink, 61, 19, PER_STEP, prime=True)
         wait_for_step(ex, sink, 80)
         assert min(step(o) for o in sink.odom) == 61
         assert_closed_form(sink)
@@ -174,7 +167,7 @@ def test_publishes_only_while_active_and_the_pose_never_jumps() -> None:
         wait_ready(ex, pub, sink, proc)
         sink.odom.clear()
         sink.tf.clear()
-        drive(pub, ex, sink, 100, 110, prime=True)
+        drive_straight(pub, ex, sink, 100, 10, PER_STEP, prime=True)
         wait_for_step(ex, sink, 110)
         assert_closed_form(sink, origin_k=100)
 

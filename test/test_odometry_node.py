@@ -169,8 +169,10 @@ def _ns(t: Time) -> int:
     return int(t.sec) * 10**9 + int(t.nanosec)
 
 
-def _drive_straight(pub: Any, ex: Any, sink: Sink, start_k: int, steps: int,
-                    rad_per_step: float, prime: bool = True) -> int:
+def drive_straight(pub: Any, ex: Any, sink: Sink, start_k: int, steps: int,
+                   rad_per_step: float, prime: bool = True) -> int:
+    """Readings ``start_k..start_k + steps``: both wheels at ``k * rad_per_step`` rad,
+    stamped on k; the first sent until answered when ``prime``. Returns the last k."""
     for k in range(start_k, start_k + steps + 1):
         msg = JointState()
         msg.header.stamp = stamp(T0_NS + k * STEP_NS)
@@ -194,7 +196,7 @@ def test_params_file_namespace_remap_and_reset_service() -> None:
         pub = node.create_publisher(JointState, "/robot1/wheel_states", 10)
         wait_ready(ex, pub, sink, proc)
         per_step = 0.5 / r / 50  # 0.5 m in 50 steps
-        k = _drive_straight(pub, ex, sink, 0, 50, per_step)
+        k = drive_straight(pub, ex, sink, 0, 50, per_step)
         last = T0_NS + k * STEP_NS
         assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
         before = max(sink.odom, key=lambda o: _ns(o.header.stamp))
@@ -210,7 +212,7 @@ def test_params_file_namespace_remap_and_reset_service() -> None:
         assert result is not None and result.success
 
         # Drive on from where the wheels are: no jump, 0.25 m more from the origin.
-        k2 = _drive_straight(pub, ex, sink, k + 1, 24, per_step, prime=False)
+        k2 = drive_straight(pub, ex, sink, k + 1, 24, per_step, prime=False)
         last2 = T0_NS + k2 * STEP_NS
         assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last2 for o in sink.odom), 10.0)
         after = max(sink.odom, key=lambda o: _ns(o.header.stamp))
@@ -303,7 +305,7 @@ def test_best_effort_publisher_and_sim_time_loop_reset() -> None:
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
         pub = node.create_publisher(JointState, "/joint_states", qos)
         wait_ready(ex, pub, sink, proc)
-        k = _drive_straight(pub, ex, sink, 0, 20, 0.5)  # 10 rad -> 1 m
+        k = drive_straight(pub, ex, sink, 0, 20, 0.5)  # 10 rad -> 1 m
         last = T0_NS + k * STEP_NS
         assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
         assert math.isclose(
@@ -312,7 +314,7 @@ def test_best_effort_publisher_and_sim_time_loop_reset() -> None:
         sink.odom.clear()
         # The "bag" starts again: same stamps and wheel angles as at its beginning.
         time.sleep(0.05)
-        _drive_straight(pub, ex, sink, 0, 10, 0.5)  # 0.5 m in the new run
+        drive_straight(pub, ex, sink, 0, 10, 0.5)  # 0.5 m in the new run
         last = T0_NS + 10 * STEP_NS
         assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
         final = [o for o in sink.odom if _ns(o.header.stamp) == last][-1]
@@ -337,7 +339,7 @@ def test_publish_rate_throttles_by_stamp_and_tf_can_be_disabled() -> None:
         sink = listen(node, "/odom")
         pub = node.create_publisher(JointState, "/joint_states", 10)
         wait_ready(ex, pub, sink, proc)
-        k = _drive_straight(pub, ex, sink, 0, 50, 0.1)  # 1 s of readings at 50 Hz
+        k = drive_straight(pub, ex, sink, 0, 50, 0.1)  # 1 s of readings at 50 Hz
         last = T0_NS + k * STEP_NS
         assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
         spin_for(ex, 0.3)
@@ -396,7 +398,7 @@ def test_propagated_covariance_grows_along_a_drive_and_replay_writes_the_same(
         sink = listen(node, "/odom")
         pub = node.create_publisher(JointState, "/joint_states", 10)
         wait_ready(ex, pub, sink, proc)
-        last = T0_NS + _drive_straight(pub, ex, sink, 0, steps, per_step) * STEP_NS
+        last = T0_NS + drive_straight(pub, ex, sink, 0, steps, per_step) * STEP_NS
         assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
     live = {_ns(o.header.stamp): o for o in sink.odom}
     assert len(live) == steps + 1
