@@ -35,12 +35,12 @@ setup(
     python_requires=">=3.10",
     entry_points={
         "console_scripts": [
-            "odometry_node = diffdrive_odom.odometry_node:main",
-            "odometry_lifecycle_node = diffdrive_odom.odometry_lifecycle_node:main",
-            "cmd_vel_node = diffdrive_odom.cmd_vel_node:main",
-            "sim_node = diffdrive_odom.sim_node:main",
-            "path_follower_node = diffdrive_odom.path_follower_node:main",
-            "diffdrive-odom = diffdrive_odom.cli:main",
+            "odometry_node = diffdrive_odom.ros.odometry_node:main",
+            "odometry_lifecycle_node = diffdrive_odom.ros.odometry_lifecycle_node:main",
+            "cmd_vel_node = diffdrive_odom.ros.cmd_vel_node:main",
+            "sim_node = diffdrive_odom.ros.sim_node:main",
+            "path_follower_node = diffdrive_odom.ros.path_follower_node:main",
+            "diffdrive-odom = diffdrive_odom.tools.cli:main",
         ],
     },
 )

@@ -28,9 +28,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from diffdrive_odom.odometry_settings import odometry_settings  # noqa: E402
-from diffdrive_odom.params import ParamValue  # noqa: E402
-from diffdrive_odom.pipeline import ReadingPipeline  # noqa: E402
+from diffdrive_odom.core.pipeline import ReadingPipeline  # noqa: E402
+from diffdrive_odom.settings.odometry import odometry_settings  # noqa: E402
+from diffdrive_odom.settings.params import ParamValue  # noqa: E402
 
 RATE_HZ = 1000
 LEFT_RAD_S, RIGHT_RAD_S = 10.0, 11.0  # joint speeds: a slow left turn

@@ -46,7 +46,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from diffdrive_odom import ros_common
+from diffdrive_odom.ros import common as ros_common
 
 BIN = Path(sys.executable).parent
 NODE_PARAMS = ["-p", "wheel_radius:=0.05", "-p", "wheel_separation:=0.3"]
@@ -384,7 +384,7 @@ def _ratio(a: float, b: float) -> str:
 
 def profile(kind: str, rate: int, seconds: float, top: int) -> None:
     """The node in this process under cProfile while a publisher feeds it at ``rate``."""
-    from diffdrive_odom.odometry_node import OdometryNode
+    from diffdrive_odom.ros.odometry_node import OdometryNode
 
     prefix = f"/bench_live_{os.getpid()}/profile"
     rclpy.init(args=["bench", "--ros-args", *NODE_PARAMS,

@@ -34,8 +34,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from diffdrive_odom import bagio, batch, replay  # noqa: E402
-from diffdrive_odom.odometry_settings import OdometrySettings, odometry_settings  # noqa: E402
+from diffdrive_odom.core import batch  # noqa: E402
+from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings  # noqa: E402
+from diffdrive_odom.tools import bagio, replay  # noqa: E402
 
 DATA = ROOT / "test" / "data"
 

@@ -15,23 +15,15 @@ from __future__ import annotations
 
 import sys
 
-from diffdrive_odom.cmd_vel_settings import CMD_VEL_OWN_PARAMS
-from diffdrive_odom.follower_settings import FOLLOWER_OWN_PARAMS
-from diffdrive_odom.geometry_settings import GEOMETRY_PARAMS
-from diffdrive_odom.odometry_settings import ODOMETRY_OWN_PARAMS
-from diffdrive_odom.params import ParamSpec, yaml_text
+from diffdrive_odom.settings.params import ParamSpec, yaml_text
+from diffdrive_odom.settings.registry import TABLES
 
 # Values for the example robot instead of the defaults (the OptiOdom robot whose
 # recordings are in test/data): the geometry has no usable default.
 EXAMPLE = {"wheel_radius": 0.042, "wheel_separation": 0.200}
 
-GROUPS: tuple[tuple[str, tuple[ParamSpec, ...]], ...] = (
-    ("geometry and joints: odometry_node and cmd_vel_node", GEOMETRY_PARAMS),
-    ("odometry_node", ODOMETRY_OWN_PARAMS),
-    ("cmd_vel_node", CMD_VEL_OWN_PARAMS),
-    ("path_follower_node (geometry and enable_stamped_cmd_vel: shared rows above)",
-     FOLLOWER_OWN_PARAMS),
-)
+GROUPS: tuple[tuple[str, tuple[ParamSpec, ...]], ...] = tuple(
+    (t.title, t.own) for t in TABLES if t.in_config)
 
 
 def dump(spec: ParamSpec, indent: str) -> str:

@@ -6,21 +6,14 @@ parameter appears there. Run: .venv/bin/python scripts/param_tables.py [--update
 
 from __future__ import annotations
 
-import importlib
 import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from diffdrive_odom.params import ParamSpec, yaml_text
-
-TABLES = {
-    "geometry": ("diffdrive_odom.geometry_settings", "GEOMETRY_PARAMS"),
-    "odometry": ("diffdrive_odom.odometry_settings", "ODOMETRY_PARAMS"),
-    "cmd_vel": ("diffdrive_odom.cmd_vel_settings", "CMD_VEL_PARAMS"),
-    "sim": ("diffdrive_odom.sim_settings", "SIM_PARAMS"),
-    "follower": ("diffdrive_odom.follower_settings", "FOLLOWER_PARAMS"),
-}
+from diffdrive_odom.settings.params import ParamSpec, yaml_text
+from diffdrive_odom.settings.registry import TABLES
+from diffdrive_odom.settings.registry import table as registry_table
 
 
 def table(specs: tuple[ParamSpec, ...], skip: tuple[ParamSpec, ...] = ()) -> str:
@@ -34,15 +27,8 @@ def table(specs: tuple[ParamSpec, ...], skip: tuple[ParamSpec, ...] = ()) -> str
 
 
 def rendered(name: str) -> str:
-    """The markdown table for one entry of TABLES (a missing module or table raises)."""
-    from diffdrive_odom.geometry_settings import GEOMETRY_PARAMS
-
-    module, attr = TABLES[name]
-    specs = getattr(importlib.import_module(module), attr)
-    skip = GEOMETRY_PARAMS if name != "geometry" else ()
-    if name == "follower":  # the cmd_vel node's row, listed in its table
-        skip += tuple(s for s in specs if s.name == "enable_stamped_cmd_vel")
-    return table(tuple(specs), skip)
+    """The markdown table for one registry entry (an unknown name raises)."""
+    return table(registry_table(name).own)
 
 
 def _replacement(body: str) -> Callable[[re.Match[str]], str]:
@@ -52,7 +38,7 @@ def _replacement(body: str) -> Callable[[re.Match[str]], str]:
 def update_readme(path: Path) -> None:
     """Replace each ``<!-- name -->`` table in the README with the current one."""
     text = path.read_text(encoding="utf-8")
-    for name in TABLES:
+    for name in (t.name for t in TABLES):
         body = rendered(name)
         pattern = re.compile(rf"(<!-- {name} -->\n)(\|.*\|\n)+")
         text = pattern.sub(_replacement(body), text)
@@ -63,7 +49,7 @@ def main(argv: list[str]) -> int:
     if argv[:1] == ["--update-readme"]:
         update_readme(Path(__file__).resolve().parent.parent / "README.md")
         return 0
-    for name in argv or list(TABLES):
+    for name in argv or [t.name for t in TABLES]:
         print(f"<!-- {name} -->\n{rendered(name)}\n")
     return 0
 

@@ -20,9 +20,9 @@ from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 
-from diffdrive_odom import bagio
-from diffdrive_odom.cdr import OdometryLayout, TransformLayout
-from diffdrive_odom.conversions import quaternion_to_yaw
+from diffdrive_odom.core.cdr import OdometryLayout, TransformLayout
+from diffdrive_odom.core.conversions import quaternion_to_yaw
+from diffdrive_odom.tools import bagio
 
 from bagutil import mcap_messages
 from rosutil import DATA

@@ -17,12 +17,14 @@ import numpy as np
 import pytest
 import yaml
 
-from diffdrive_odom import batch, calibration, odometry_settings, params, routes
-from diffdrive_odom.calibration import Run
-from diffdrive_odom.cli import main as cli
-from diffdrive_odom.kinematics import Geometry, wheel_rates
-from diffdrive_odom.metrics import Trajectory
-from diffdrive_odom.sim import DiffDriveSim, SimConfig
+from diffdrive_odom.core import batch, calibration, routes
+from diffdrive_odom.core.calibration import Run
+from diffdrive_odom.core.kinematics import Geometry, wheel_rates
+from diffdrive_odom.core.metrics import Trajectory
+from diffdrive_odom.core.sim import DiffDriveSim, SimConfig
+from diffdrive_odom.settings import odometry as odometry_settings
+from diffdrive_odom.settings import params
+from diffdrive_odom.tools.cli import main as cli
 
 from rosutil import DATA
 
@@ -72,8 +74,8 @@ def true_values() -> np.ndarray:
 
 
 def test_core_modules_import_no_ros_or_bag_library() -> None:
-    code = ("import sys, diffdrive_odom.batch, diffdrive_odom.metrics, "
-            "diffdrive_odom.calibration; "
+    code = ("import sys, diffdrive_odom.core.batch, diffdrive_odom.core.metrics, "
+            "diffdrive_odom.core.calibration; "
             "print([m for m in ('rclpy', 'rosbags') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
@@ -174,7 +176,7 @@ def test_umbmark_with_noise_stays_near_the_truth() -> None:
 
 
 def _optiodom_runs() -> list[Run]:
-    from diffdrive_odom import bagio, evaluate
+    from diffdrive_odom.tools import bagio, evaluate
 
     settings = odometry_settings.odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
     return [Run(name, batch.wheel_steps(bagio.read_joint_states(OPTIODOM / name), settings),

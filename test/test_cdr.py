@@ -18,8 +18,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
-from diffdrive_odom import bagio
-from diffdrive_odom.cdr import JointStateDecoder, OdometryLayout, TransformLayout
+from diffdrive_odom.core.cdr import JointStateDecoder, OdometryLayout, TransformLayout
+from diffdrive_odom.tools import bagio
 
 from rosutil import DATA
 

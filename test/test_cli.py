@@ -15,8 +15,8 @@ from xml.etree import ElementTree
 
 import pytest
 
-from diffdrive_odom import cli as cli_module
-from diffdrive_odom.cli import main as cli
+from diffdrive_odom.tools import cli as cli_module
+from diffdrive_odom.tools.cli import main as cli
 
 from rosutil import ROOT, executable
 

@@ -27,8 +27,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.cmd_vel_settings import CMD_VEL_PARAMS, cmd_vel_settings
-from diffdrive_odom.params import ParameterError, load_params_file
+from diffdrive_odom.settings.cmd_vel import CMD_VEL_PARAMS, cmd_vel_settings
+from diffdrive_odom.settings.params import ParameterError, load_params_file
 
 from rosutil import assert_refuses_to_start, node_process, ros_test_node, spin_for, spin_until
 

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 import yaml
 
+from diffdrive_odom.core.metrics import Trajectory
 from diffdrive_odom.demo import report, settings
 from diffdrive_odom.demo.report import FIT, NOMINAL, TRUE, UMBMARK, DemoResult, Row, Square
 from diffdrive_odom.demo.settings import DemoError, DemoOptions
-from diffdrive_odom.metrics import Trajectory
 
 
 def test_each_square_starts_and_ends_where_the_axle_starts() -> None:

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from diffdrive_odom.diagnostics import (
+from diffdrive_odom.core.diagnostics import (
     CommandHealth,
     CommandState,
     Level,
@@ -17,8 +17,8 @@ from diffdrive_odom.diagnostics import (
     cmd_vel_report,
     odometry_report,
 )
-from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.limits import (
+from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.limits import (
     AxisLimits,
     CommandLimits,
     TwistLimiter,

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from diffdrive_odom.encoders import (
+from diffdrive_odom.core.encoders import (
     EncoderConfig,
     EncoderConfigError,
     JointLookup,

@@ -12,11 +12,11 @@ from dataclasses import replace
 
 import pytest
 
-from diffdrive_odom.encoders import EncoderConfig
-from diffdrive_odom.errors import ConfigError
-from diffdrive_odom.estimator import EstimatorConfig, OdometryEstimator, Reason, Status
-from diffdrive_odom.integration import Pose2D, wrap_angle
-from diffdrive_odom.kinematics import Geometry
+from diffdrive_odom.core.encoders import EncoderConfig
+from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.estimator import EstimatorConfig, OdometryEstimator, Reason, Status
+from diffdrive_odom.core.integration import Pose2D, wrap_angle
+from diffdrive_odom.core.kinematics import Geometry
 
 import oracle
 

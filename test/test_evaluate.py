@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from diffdrive_odom import bagio, evaluate
-from diffdrive_odom.cli import main as cli
-from diffdrive_odom.evaluate import Trajectory
+from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.evaluate import Trajectory
 
 from bagutil import OPTIODOM_PARAMS, OdomMessages, mcap_messages, write_params
 from rosutil import DATA

@@ -17,13 +17,13 @@ from dataclasses import dataclass
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.encoders import EncoderConfig
-from diffdrive_odom.estimator import EstimatorConfig, OdometryEstimator, Status
-from diffdrive_odom.integration import Pose2D, wrap_angle
-from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.odometry_settings import OdometrySettings
-from diffdrive_odom.pipeline import ReadingPipeline
-from diffdrive_odom.uncertainty import NoiseModel
+from diffdrive_odom.core.encoders import EncoderConfig
+from diffdrive_odom.core.estimator import EstimatorConfig, OdometryEstimator, Status
+from diffdrive_odom.core.integration import Pose2D, wrap_angle
+from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.pipeline import ReadingPipeline
+from diffdrive_odom.core.uncertainty import NoiseModel
+from diffdrive_odom.settings.odometry import OdometrySettings
 
 import oracle
 

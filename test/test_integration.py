@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from diffdrive_odom.integration import (
+from diffdrive_odom.core.integration import (
     Pose2D,
     cir_increment,
     compose,
@@ -22,7 +22,7 @@ from diffdrive_odom.integration import (
     integrate_batch,
     wrap_angle,
 )
-from diffdrive_odom.kinematics import Geometry, body_increment
+from diffdrive_odom.core.kinematics import Geometry, body_increment
 
 import oracle
 

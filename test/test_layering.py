@@ -57,9 +57,9 @@ def core_modules() -> list[str]:
 
 def test_the_core_imports_no_ros_and_no_rosbags() -> None:
     modules = core_modules()
-    assert {"diffdrive_odom.integration", "diffdrive_odom.estimator",
-            "diffdrive_odom.conversions",
-            "diffdrive_odom.pipeline", "diffdrive_odom.params"} <= set(modules)
+    assert {"diffdrive_odom.core.integration", "diffdrive_odom.core.estimator",
+            "diffdrive_odom.core.conversions",
+            "diffdrive_odom.core.pipeline", "diffdrive_odom.settings.params"} <= set(modules)
     out = subprocess.run(
         [sys.executable, "-c", CHECK, json.dumps(BLOCKED), json.dumps(modules)],
         capture_output=True, text=True, timeout=120, check=True)
@@ -71,8 +71,8 @@ def test_the_check_catches_an_import() -> None:
     """The blocker really blocks: a shell module, which imports rclpy, is refused."""
     out = subprocess.run(
         [sys.executable, "-c", CHECK, json.dumps(BLOCKED),
-         json.dumps(["diffdrive_odom.ros_common"])],
+         json.dumps(["diffdrive_odom.ros.common"])],
         capture_output=True, text=True, timeout=120, check=True)
     failures = json.loads(out.stdout.strip().splitlines()[-1])
-    assert "diffdrive_odom.ros_common" in failures
-    assert "must not import" in failures["diffdrive_odom.ros_common"]
+    assert "diffdrive_odom.ros.common" in failures
+    assert "must not import" in failures["diffdrive_odom.ros.common"]

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.kinematics import Geometry, body_increment
-from diffdrive_odom.limits import (
+from diffdrive_odom.core.kinematics import Geometry, body_increment
+from diffdrive_odom.core.limits import (
     AxisLimiter,
     AxisLimits,
     CommandLimits,

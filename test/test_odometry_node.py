@@ -25,7 +25,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from diffdrive_odom.cli import main as cli
+from diffdrive_odom.tools.cli import main as cli
 
 import oracle
 from bagutil import mcap_messages, write_params
@@ -362,7 +362,7 @@ def test_publish_rate_throttles_by_stamp_and_tf_can_be_disabled() -> None:
 
 def _joint_bag(path: Path, stamps_ns: list[int], positions: list[list[float]]) -> None:
     """The readings sent to the node, as a JointState MCAP (rosbags' own message classes)."""
-    from diffdrive_odom import bagio
+    from diffdrive_odom.tools import bagio
 
     with bagio.BagWriter(path) as writer:
         writer.add_topic("/joint_states", bagio.JOINT_STATE)

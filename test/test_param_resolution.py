@@ -19,9 +19,9 @@ from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 
-from diffdrive_odom import replay
-from diffdrive_odom.odometry_settings import ODOMETRY_PARAMS
-from diffdrive_odom.params import resolve_parameters
+from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS
+from diffdrive_odom.settings.params import resolve_parameters
+from diffdrive_odom.tools import replay
 
 from rosutil import ROOT, call_service, node_process, ros_test_node
 

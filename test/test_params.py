@@ -10,22 +10,22 @@ from typing import Any
 import pytest
 import yaml
 
-from diffdrive_odom.cmd_vel_settings import CMD_VEL_OWN_PARAMS, CMD_VEL_PARAMS
-from diffdrive_odom.follower_settings import FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS
-from diffdrive_odom.geometry_settings import GEOMETRY_PARAMS
-from diffdrive_odom.odometry_settings import (
+from diffdrive_odom.settings.cmd_vel import CMD_VEL_OWN_PARAMS, CMD_VEL_PARAMS
+from diffdrive_odom.settings.follower import FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS
+from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS
+from diffdrive_odom.settings.odometry import (
     ODOMETRY_OWN_PARAMS,
     ODOMETRY_PARAMS,
     frame_prefix,
     odometry_settings,
 )
-from diffdrive_odom.params import (
+from diffdrive_odom.settings.params import (
     ParameterError,
     ParamSpec,
     load_params_file,
     parse_override,
-    unknown_parameters_report,
 )
+from diffdrive_odom.settings.registry import unknown_parameters_report
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "config" / "diffdrive_odom.yaml"

@@ -24,7 +24,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool
 
-from diffdrive_odom.params import yaml_text
+from diffdrive_odom.settings.params import yaml_text
 
 from rosutil import (
     assert_refuses_to_start,

@@ -14,12 +14,10 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.errors import ConfigError
-from diffdrive_odom.follower_settings import FOLLOWER_PARAMS, follower_settings
-from diffdrive_odom.integration import Pose2D, compose
-from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.params import ParameterError, defaults
-from diffdrive_odom.path_following import (
+from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.integration import Pose2D, compose
+from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.path_following import (
     Arc,
     Gains,
     Line,
@@ -31,7 +29,9 @@ from diffdrive_odom.path_following import (
     polyline,
     route_points,
 )
-from diffdrive_odom.routes import square
+from diffdrive_odom.core.routes import square
+from diffdrive_odom.settings.follower import FOLLOWER_PARAMS, follower_settings
+from diffdrive_odom.settings.params import ParameterError, defaults
 
 coord = st.floats(-10.0, 10.0)
 G = Geometry(0.05, 0.30)

@@ -12,12 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from diffdrive_odom import bagio, batch, replay
-from diffdrive_odom.estimator import Reason, Status
-from diffdrive_odom.integration import Pose2D
-from diffdrive_odom.odometry_settings import OdometrySettings
-from diffdrive_odom.pipeline import VELOCITY_ON, ReadingPipeline
-from diffdrive_odom.ros_common import KeyedThrottle
+from diffdrive_odom.core import batch
+from diffdrive_odom.core.estimator import Reason, Status
+from diffdrive_odom.core.integration import Pose2D
+from diffdrive_odom.core.pipeline import VELOCITY_ON, ReadingPipeline
+from diffdrive_odom.ros.common import KeyedThrottle
+from diffdrive_odom.settings.odometry import OdometrySettings
+from diffdrive_odom.tools import bagio, replay
 
 from bagutil import write_params
 

@@ -15,8 +15,8 @@ from typing import Any
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 
-from diffdrive_odom import bagio, replay
-from diffdrive_odom.cli import main as cli
+from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, write_params
 from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until

@@ -14,10 +14,10 @@ from collections.abc import Sequence
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.encoders import EncoderConfig
-from diffdrive_odom.estimator import EstimatorConfig, OdometryEstimator, Status
-from diffdrive_odom.integration import Pose2D, wrap_angle
-from diffdrive_odom.kinematics import Geometry
+from diffdrive_odom.core.encoders import EncoderConfig
+from diffdrive_odom.core.estimator import EstimatorConfig, OdometryEstimator, Status
+from diffdrive_odom.core.integration import Pose2D, wrap_angle
+from diffdrive_odom.core.kinematics import Geometry
 
 NAMES = ("left_wheel_joint", "right_wheel_joint")
 DT_NS = 10_000_000

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from diffdrive_odom import routes
-from diffdrive_odom.integration import Pose2D
-from diffdrive_odom.routes import RouteError, Segment
+from diffdrive_odom.core import routes
+from diffdrive_odom.core.integration import Pose2D
+from diffdrive_odom.core.routes import RouteError, Segment
 
 import oracle
 

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from diffdrive_odom.encoders import unwrap_difference
-from diffdrive_odom.kinematics import Geometry, wheel_rates
-from diffdrive_odom.routes import square
-from diffdrive_odom.sim import DiffDriveSim, SimConfig, SimConfigError
+from diffdrive_odom.core.encoders import unwrap_difference
+from diffdrive_odom.core.kinematics import Geometry, wheel_rates
+from diffdrive_odom.core.routes import square
+from diffdrive_odom.core.sim import DiffDriveSim, SimConfig, SimConfigError
 
 import oracle
 

@@ -18,20 +18,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.conversions import covariance_matrix
-from diffdrive_odom.encoders import EncoderConfig
-from diffdrive_odom.errors import ParameterError
-from diffdrive_odom.estimator import OdometryEstimator
-from diffdrive_odom.kinematics import Geometry, wheel_rates
-from diffdrive_odom.odometry_settings import odometry_settings
-from diffdrive_odom.pipeline import ReadingPipeline
-from diffdrive_odom.sim import DiffDriveSim, SimConfig
-from diffdrive_odom.uncertainty import (
+from diffdrive_odom.core.conversions import covariance_matrix
+from diffdrive_odom.core.encoders import EncoderConfig
+from diffdrive_odom.core.errors import ParameterError
+from diffdrive_odom.core.estimator import OdometryEstimator
+from diffdrive_odom.core.kinematics import Geometry, wheel_rates
+from diffdrive_odom.core.pipeline import ReadingPipeline
+from diffdrive_odom.core.sim import DiffDriveSim, SimConfig
+from diffdrive_odom.core.uncertainty import (
     UNOBSERVED_VARIANCE,
     NoiseModel,
     pose_message_covariance,
     twist_message_covariance,
 )
+from diffdrive_odom.settings.odometry import odometry_settings
 
 R, B = 0.05, 0.3
 GEOMETRY = Geometry(R, B)

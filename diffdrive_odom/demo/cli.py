@@ -9,8 +9,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
 
-from diffdrive_odom import routes
-from diffdrive_odom.cli import HelpFormatter
+from diffdrive_odom.core import routes
+from diffdrive_odom.tools.cli import HelpFormatter
 
 from .settings import DEFAULT_PARAMS, PROGRAM, ROUTES, DemoError, DemoOptions, parse_override
 

@@ -46,11 +46,12 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64
 
-from diffdrive_odom import bagio, ros_common
-from diffdrive_odom.conversions import quaternion_to_yaw
-from diffdrive_odom.params import ParamValue
-from diffdrive_odom.path_follower_node import DONE_QOS
-from diffdrive_odom.path_following import Point
+from diffdrive_odom.core.conversions import quaternion_to_yaw
+from diffdrive_odom.core.path_following import Point
+from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.ros.path_follower_node import DONE_QOS
+from diffdrive_odom.settings.params import ParamValue
+from diffdrive_odom.tools import bagio
 
 from . import report
 from .report import DemoResult, JointSample, PoseSeries, Recording, Square

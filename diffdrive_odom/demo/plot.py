@@ -9,8 +9,8 @@ import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from diffdrive_odom.metrics import Trajectory, match, path_length
-from diffdrive_odom.path_following import Point
+from diffdrive_odom.core.metrics import Trajectory, match, path_length
+from diffdrive_odom.core.path_following import Point
 
 from .report import FIT, NOMINAL, UMBMARK
 

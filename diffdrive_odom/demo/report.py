@@ -1,10 +1,10 @@
 """What the demo measured, calibrated and prints: pure (numpy, scipy; no rclpy, no bag).
 
 The recorder (:mod:`.loop`) hands over what it heard; here the run is calibrated with
-the package's own calibration (:mod:`diffdrive_odom.calibration`: the whole-trajectory
+the package's own calibration (:mod:`diffdrive_odom.core.calibration`: the whole-trajectory
 fit against the sim's ground truth, and Borenstein and Feng's UMBmark from the two
 squares' end poses), each geometry is re-integrated through the batch path
-(:mod:`diffdrive_odom.batch`, the estimator's own step) and compared with the truth.
+(:mod:`diffdrive_odom.core.batch`, the estimator's own step) and compared with the truth.
 """
 
 from __future__ import annotations
@@ -17,12 +17,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from diffdrive_odom import batch, calibration
-from diffdrive_odom.calibration import CalibrationError, Run
-from diffdrive_odom.kinematics import Geometry
-from diffdrive_odom.metrics import Trajectory, evaluate
-from diffdrive_odom.odometry_settings import OdometrySettings
-from diffdrive_odom.path_following import Point
+from diffdrive_odom.core import batch, calibration
+from diffdrive_odom.core.calibration import CalibrationError, Run
+from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.metrics import Trajectory, evaluate
+from diffdrive_odom.core.path_following import Point
+from diffdrive_odom.settings.odometry import OdometrySettings
 
 from .settings import DemoError
 

@@ -1,0 +1,225 @@
+"""CDR bytes of the three messages the odometry node handles per reading.
+
+Why: in the running node, turning a JointState's bytes into rclpy objects and an
+Odometry and a TFMessage back into bytes cost more Python work than the odometry
+itself. Every rclpy subscriber and publisher can hand over the serialised message
+instead; this module reads the few JointState fields the estimator needs and writes
+Odometry and TFMessage from a prepared byte layout where only the numbers change.
+
+The format is what ROS 2 publishes: a 4-byte encapsulation header, then little-endian
+plain CDR (XCDR1) with each primitive aligned to its own size, counted from the end of
+that header; a string is a uint32 length (the NUL included), the bytes and a NUL; a
+sequence is a uint32 count and its elements. rclpy's own serialisation is the oracle in
+the tests, on random messages. Anything else (big-endian, another encapsulation) is
+left to the caller's fallback: :meth:`JointStateDecoder.decode` returns None for it.
+
+No rclpy import: the decoder and layouts are plain data and struct calls, shared by the
+node and by replay's bag output.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from diffdrive_odom.core.conversions import yaw_to_quaternion
+
+CDR_LE = b"\x00\x01\x00\x00"  # encapsulation: plain CDR, little endian, no options
+_ORIGIN = 4  # alignment counts from the end of the encapsulation header
+
+_U32 = struct.Struct("<I")
+_STAMP = struct.Struct("<iI")
+_TWO = struct.Struct("<2d")
+_ONE = struct.Struct("<d")
+_COV = struct.Struct("<36d")
+
+
+def _align(offset: int, size: int) -> int:
+    rel = offset - _ORIGIN
+    return offset + (-rel % size)
+
+
+@dataclass(frozen=True)
+class JointArrays:
+    """What the estimator takes from one JointState: stamp, names and two arrays."""
+
+    sec: int
+    nanosec: int
+    name: tuple[str, ...]
+    position: tuple[float, ...]
+    velocity: tuple[float, ...]
+
+
+class JointStateDecoder:
+    """sensor_msgs/JointState bytes -> :class:`JointArrays`.
+
+    A driver sends the same joint names in every message: their bytes are compared
+    with the last message's and decoded only when they differ.
+    """
+
+    def __init__(self) -> None:
+        self._name_bytes = b""
+        self._names: tuple[str, ...] = ()
+        self._arrays: dict[int, struct.Struct] = {}
+
+    def decode(self, buf: bytes) -> JointArrays | None:
+        """The fields, or None if ``buf`` is not little-endian plain CDR.
+
+        Raises ValueError if the bytes end early or a count cannot fit them, so a
+        corrupt count can never make the decoder loop or allocate its way through it.
+        """
+        if buf[:2] != CDR_LE[:2]:
+            return None
+        try:
+            sec, nanosec = _STAMP.unpack_from(buf, _ORIGIN)
+            off = _ORIGIN + 8
+            off += 4 + _U32.unpack_from(buf, off)[0]  # header.frame_id: skipped
+            off = _align(off, 4)
+            if buf.startswith(self._name_bytes, off) and self._name_bytes:
+                names = self._names
+                off += len(self._name_bytes)
+            else:
+                start = off
+                names, off = self._strings(buf, off)
+                self._name_bytes, self._names = buf[start:off], names
+            position, off = self._doubles(buf, off)
+            velocity, off = self._doubles(buf, off)
+            self._doubles(buf, off)  # effort: checked for length, not used
+        except struct.error as exc:
+            raise ValueError(f"JointState bytes end early: {exc}") from None
+        return JointArrays(sec, nanosec, names, position, velocity)
+
+    @staticmethod
+    def _strings(buf: bytes, off: int) -> tuple[tuple[str, ...], int]:
+        (count,) = _U32.unpack_from(buf, off)
+        off += 4
+        if count * 5 > len(buf) - off:  # each string is at least a length and its NUL
+            raise ValueError(f"JointState bytes end early: {count} names announced")
+        out = []
+        for _ in range(count):
+            off = _align(off, 4)
+            (length,) = _U32.unpack_from(buf, off)
+            off += 4
+            if off + length > len(buf):
+                raise ValueError("JointState bytes end early: a name is cut off")
+            out.append(buf[off:off + max(length - 1, 0)].decode("utf-8"))
+            off += length
+        return tuple(out), off
+
+    def _doubles(self, buf: bytes, off: int) -> tuple[tuple[float, ...], int]:
+        off = _align(off, 4)
+        (count,) = _U32.unpack_from(buf, off)
+        off += 4
+        if count == 0:
+            return (), off
+        off = _align(off, 8)
+        if off + 8 * count > len(buf):
+            raise ValueError(f"JointState bytes end early: {count} values announced")
+        fmt = self._arrays.get(count)
+        if fmt is None:
+            fmt = self._arrays[count] = struct.Struct(f"<{count}d")
+        return fmt.unpack_from(buf, off), off + 8 * count
+
+
+class _Layout:
+    """A message's bytes with the offsets of the fields that change."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray(CDR_LE)
+
+    def u32(self, value: int) -> int:
+        return self.put(_U32, 4, value)
+
+    def string(self, text: str) -> None:
+        data = text.encode("utf-8") + b"\x00"
+        self.u32(len(data))
+        self.buf += data
+
+    def doubles(self, *values: float) -> int:
+        at = self._pad(8)
+        self.buf += struct.pack(f"<{len(values)}d", *values)
+        return at
+
+    def _pad(self, size: int) -> int:
+        at = _align(len(self.buf), size)
+        self.buf += bytes(at - len(self.buf))
+        return at
+
+    def put(self, fmt: struct.Struct, size: int, *values: int) -> int:
+        at = self._pad(size)
+        self.buf += fmt.pack(*values)
+        return at
+
+
+class OdometryLayout:
+    """nav_msgs/Odometry bytes for fixed frames: stamp, planar pose and twist change.
+
+    Position z, orientation x and y, linear y and z and angular x and y stay 0 (a
+    planar base); covariance is written only when given, and kept otherwise.
+    """
+
+    def __init__(self, frame_id: str, child_frame_id: str) -> None:
+        lay = _Layout()
+        self._stamp = lay.put(_STAMP, 4, 0, 0)
+        lay.string(frame_id)
+        lay.string(child_frame_id)
+        self._xy = lay.doubles(0.0, 0.0, 0.0)  # pose.position
+        self._qzw = lay.doubles(0.0, 0.0, 0.0, 1.0) + 16  # pose.orientation z, w
+        self._pose_cov = lay.doubles(*(0.0,) * 36)
+        self._linear = lay.doubles(0.0, 0.0, 0.0)  # twist.linear
+        self._angular = lay.doubles(0.0, 0.0, 0.0) + 16  # twist.angular z
+        self._twist_cov = lay.doubles(*(0.0,) * 36)
+        self._buf = lay.buf
+
+    def covariance(self, pose: Sequence[float], twist: Sequence[float]) -> None:
+        """Set both 6x6 row-major covariances for this and the following messages."""
+        _COV.pack_into(self._buf, self._pose_cov, *pose)
+        _COV.pack_into(self._buf, self._twist_cov, *twist)
+
+    def encode(self, sec: int, nanosec: int, x: float, y: float, qz: float, qw: float,
+               linear: float, angular: float) -> bytes:
+        """The message's bytes with these values."""
+        buf = self._buf
+        _STAMP.pack_into(buf, self._stamp, sec, nanosec)
+        _TWO.pack_into(buf, self._xy, x, y)
+        _TWO.pack_into(buf, self._qzw, qz, qw)
+        _ONE.pack_into(buf, self._linear, linear)
+        _ONE.pack_into(buf, self._angular, angular)
+        return bytes(buf)
+
+    def planar(self, stamp_ns: int, x: float, y: float, yaw: float, linear: float,
+               angular: float) -> bytes:
+        """The message of a planar pose and twist stamped ``stamp_ns`` (> 0)."""
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        _, _, qz, qw = yaw_to_quaternion(yaw)
+        return self.encode(sec, nanosec, x, y, qz, qw, linear, angular)
+
+
+class TransformLayout:
+    """tf2_msgs/TFMessage bytes of one planar transform between fixed frames."""
+
+    def __init__(self, frame_id: str, child_frame_id: str) -> None:
+        lay = _Layout()
+        lay.u32(1)  # one TransformStamped
+        self._stamp = lay.put(_STAMP, 4, 0, 0)
+        lay.string(frame_id)
+        lay.string(child_frame_id)
+        self._xy = lay.doubles(0.0, 0.0, 0.0)  # translation
+        self._qzw = lay.doubles(0.0, 0.0, 0.0, 1.0) + 16  # rotation z, w
+        self._buf = lay.buf
+
+    def encode(self, sec: int, nanosec: int, x: float, y: float, qz: float,
+               qw: float) -> bytes:
+        """The message's bytes with these values."""
+        buf = self._buf
+        _STAMP.pack_into(buf, self._stamp, sec, nanosec)
+        _TWO.pack_into(buf, self._xy, x, y)
+        _TWO.pack_into(buf, self._qzw, qz, qw)
+        return bytes(buf)
+
+    def planar(self, stamp_ns: int, x: float, y: float, yaw: float) -> bytes:
+        """The message of a planar pose stamped ``stamp_ns`` (> 0)."""
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        _, _, qz, qw = yaw_to_quaternion(yaw)
+        return self.encode(sec, nanosec, x, y, qz, qw)

@@ -1,0 +1,264 @@
+"""One reading's path, shared by the odometry node, ``replay`` and the demo.
+
+Every rule for one JointState reading is applied here, in this order: a zero or
+negative header stamp is dropped (output is stamped with the measurement time, so an
+unstamped reading cannot be placed); the estimator decides (decode, stale stamps,
+time reset, gap, speed check, integration); the ``publish_rate`` gate decides whether
+the pose goes out. The outcome and a set of counters come back, so the node logs,
+replay summarises and diagnostics report from the same numbers. Pure Python.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+from diffdrive_odom.core.conversions import covariance_matrix
+from diffdrive_odom.core.encoders import EncoderConfig
+from diffdrive_odom.core.estimator import (
+    EstimatorConfig,
+    OdometryEstimator,
+    Reason,
+    Status,
+    Verdict,
+)
+from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.uncertainty import (
+    NoiseModel,
+    pose_message_covariance,
+    twist_message_covariance,
+)
+
+
+@dataclass(frozen=True)
+class OdometrySettings:
+    """All validated settings of the odometry node / replay tool.
+
+    Defined in the core so the core imports nothing above it; ``settings.odometry``
+    builds it from ROS parameters.
+    """
+
+    geometry: Geometry
+    encoders: EncoderConfig
+    estimator: EstimatorConfig
+    odom_frame_id: str
+    base_frame_id: str
+    enable_odom_tf: bool
+    publish_rate: float
+    pose_covariance_diagonal: tuple[float, ...]
+    twist_covariance_diagonal: tuple[float, ...]
+    noise: NoiseModel | None  # None: covariance_model static (the diagonals above)
+
+
+ZERO_STAMP = Verdict(
+    Status.DROPPED, Reason.ZERO_STAMP,
+    "header stamp is zero (odometry is stamped with the measurement time, so the driver "
+    "must stamp its readings)",
+)
+VELOCITY_ON = (
+    "wheel positions are empty or NaN for every wheel: integrating wheel velocities instead "
+    "(ros2_control without a position state interface); odometry drifts faster this way"
+)
+VELOCITY_OFF = "wheel positions are available again: integrating positions"
+
+
+@dataclass(frozen=True)
+class PipelineStats:
+    """Counters since the pipeline was built (a snapshot; never changes once taken).
+
+    The names are stable: diagnostics publish them as they are.
+
+    - ``readings``: readings offered, usable or not.
+    - ``published``: poses that passed the publish gate.
+    - ``dropped``: readings dropped, by reason code (``zero_stamp``, ``missing_joint``,
+      ``bad_array``, ``non_finite``, ``no_data``, ``out_of_range``, ``stale_stamp``,
+      ``future_stamp``); only codes seen. A reading stamped over ``max_reading_gap``
+      ahead is held (not published, not counted) until the next reading shows whether
+      it was a pause (then a ``gap`` re-anchor) or a lone outlier (``future_stamp``).
+    - ``reanchors``: implausible steps (faster than ``max_wheel_speed``, a wheel rolling
+      over ``estimator.MAX_STEP_ARC``, or not finite), skipped (code ``too_fast``).
+    - ``gap_reanchors``: readings more than ``max_reading_gap`` after the last usable
+      one, taken as the new reference (code ``gap``).
+    - ``time_resets``: restarts at the origin after a stamp jumped back (``time_reset``).
+    - ``last_usable_stamp_ns``: stamp of the last reading the estimator accepted
+      (None before the first).
+    - ``velocity_fallback``: True while wheel motion comes from velocities because
+      positions are empty or NaN.
+    """
+
+    readings: int = 0
+    published: int = 0
+    dropped: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    reanchors: int = 0
+    gap_reanchors: int = 0
+    time_resets: int = 0
+    last_usable_stamp_ns: int | None = None
+    velocity_fallback: bool = False
+
+    @property
+    def dropped_total(self) -> int:
+        """All dropped readings, whatever the reason."""
+        return sum(self.dropped.values())
+
+
+@dataclass(frozen=True, slots=True)
+class Outcome:
+    """What happened to one reading: the verdict, whether to publish, and a one-off note.
+
+    ``note`` is set only when the input mode changes (velocity fallback on or off), so
+    a caller that logs it says so once, not per reading.
+    """
+
+    verdict: Verdict
+    publish: bool
+    note: str = ""
+
+
+class PublishGate:
+    """The ``publish_rate`` rule shared by the node and replay.
+
+    At most one pose per period of *measurement* time (header stamps), so a bag
+    replayed at any speed, live or offline, publishes the same poses.
+    """
+
+    def __init__(self, rate: float) -> None:
+        self.rate = rate
+        self.last_ns: int | None = None
+
+    def due(self, stamp_ns: int) -> bool:
+        """Tell whether a pose stamped ``stamp_ns`` is published (and remember it if so)."""
+        last = self.last_ns
+        ok = (
+            self.rate <= 0.0
+            or last is None
+            or stamp_ns < last
+            or (stamp_ns - last) >= 1e9 / self.rate - 1e3  # 1 us slack for stamp jitter
+        )
+        if ok:
+            self.last_ns = stamp_ns
+        return ok
+
+
+class ReadingPipeline:
+    """The estimator and the publish gate behind one ``feed`` call, with counters."""
+
+    def __init__(self, settings: OdometrySettings) -> None:
+        self._settings = settings
+        self._estimator = OdometryEstimator(
+            settings.geometry, settings.encoders, settings.estimator, settings.noise
+        )
+        self._static = _static_covariances(settings)
+        self._gate = PublishGate(settings.publish_rate)
+        self._readings = 0
+        self._published = 0
+        self._dropped: dict[str, int] = {}
+        self._reanchors = 0
+        self._gap_reanchors = 0
+        self._time_resets = 0
+        self._last_usable_ns: int | None = None
+        self._velocity = False
+
+    @property
+    def estimator(self) -> OdometryEstimator:
+        """The estimator (pose, twist, last step); feed readings through :meth:`feed` only."""
+        return self._estimator
+
+    @property
+    def settings(self) -> OdometrySettings:
+        """The settings in force."""
+        return self._settings
+
+    @property
+    def stats(self) -> PipelineStats:
+        """A read-only snapshot of the counters."""
+        return PipelineStats(
+            readings=self._readings,
+            published=self._published,
+            dropped=MappingProxyType(dict(self._dropped)),
+            reanchors=self._reanchors,
+            gap_reanchors=self._gap_reanchors,
+            time_resets=self._time_resets,
+            last_usable_stamp_ns=self._last_usable_ns,
+            velocity_fallback=self._velocity,
+        )
+
+    def feed(
+        self,
+        stamp_ns: int,
+        names: Sequence[str],
+        position: Sequence[float],
+        velocity: Sequence[float] = (),
+    ) -> Outcome:
+        """Apply every rule to one reading (a JointState's stamp and arrays)."""
+        self._readings += 1
+        verdict = (
+            self._estimator.update(stamp_ns, names, position, velocity)
+            if stamp_ns > 0 else ZERO_STAMP
+        )
+        status = verdict.status
+        dropped = verdict.dropped_code
+        if dropped is not None:
+            self._dropped[dropped] = self._dropped.get(dropped, 0) + 1
+        if status in (Status.DROPPED, Status.HELD):
+            return Outcome(verdict, False)
+        self._last_usable_ns = stamp_ns
+        if status is Status.REANCHORED:
+            self._reanchors += 1
+        elif status is Status.TIME_RESET:
+            self._time_resets += 1
+        elif verdict.code is Reason.GAP:
+            self._gap_reanchors += 1
+        note = ""
+        if self._estimator.from_velocity != self._velocity:
+            self._velocity = not self._velocity
+            note = VELOCITY_ON if self._velocity else VELOCITY_OFF
+        publish = verdict.has_new_pose and self._gate.due(stamp_ns)
+        if publish:
+            self._published += 1
+        return Outcome(verdict, publish, note)
+
+    def covariances(self) -> tuple[list[float], list[float]]:
+        """Pose and twist covariance (6x6 row-major) of the current estimate.
+
+        ``covariance_model`` propagated: the estimator's propagated model; static: the
+        configured diagonals. The node and replay both publish exactly this.
+        """
+        est = self._estimator
+        unc = est.uncertainty
+        if unc is None:
+            return self._static
+        return (pose_message_covariance(unc.pose_covariance(est.pose, est.geometry)),
+                twist_message_covariance(unc.twist_covariance()))
+
+    def reset(self) -> None:
+        """Pose and twist to the origin; the next reading is published whatever the rate."""
+        self._estimator.reset()
+        self._gate.last_ns = None
+
+    def reconfigure(self, settings: OdometrySettings) -> None:
+        """Install validated settings at runtime; the pose carries on without a jump.
+
+        A new encoder or estimator config changes the units of the reference reading,
+        so the pose is kept and the next reading becomes the reference. Counters go on.
+        """
+        old = self._settings
+        self._settings = settings
+        self._static = _static_covariances(settings)
+        self._gate.rate = settings.publish_rate
+        if settings.encoders != old.encoders or settings.estimator != old.estimator:
+            before = self._estimator
+            self._estimator = OdometryEstimator(
+                settings.geometry, settings.encoders, settings.estimator, settings.noise
+            )
+            self._estimator.pose = before.pose
+            if before.uncertainty is not None and self._estimator.uncertainty is not None:
+                self._estimator.uncertainty.covariance = before.uncertainty.covariance
+        else:
+            self._estimator.set_geometry(settings.geometry)
+            self._estimator.set_noise(settings.noise)
+
+
+def _static_covariances(settings: OdometrySettings) -> tuple[list[float], list[float]]:
+    return (covariance_matrix(settings.pose_covariance_diagonal),
+            covariance_matrix(settings.twist_covariance_diagonal))

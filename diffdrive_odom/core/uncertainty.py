@@ -1,0 +1,282 @@
+"""Pose and twist covariance of wheel odometry, propagated through the CIR step.
+
+Pure Python (no rclpy, no messages). The random part of odometry error is modelled
+as Chong and Kleeman do ("Accurate odometry and error modelling for a mobile robot",
+ICRA 1997): each wheel's ground travel over a step carries zero-mean noise of
+variance ``k |d|``, ``d`` the arc that wheel rolled, ``k`` [m] per side. Variance
+in proportion to distance makes the model independent of the reading rate (ten
+small steps add the same variance as one big one) and zero at rest. Systematic
+error (wrong radii, separation) is not random and is not covered: calibrate it out.
+
+Each step the 3x3 pose covariance goes through the exact CIR step's Jacobians
+(Furlan, Marzorati and Sorrenti, "2D transforms for the odometry of a differential
+kinematics mobile robot"; :func:`integration.compose_jacobians`), chained with the
+linear wheel -> body map of :func:`kinematics.body_increment`:
+
+    P <- F_pose P F_pose^T + G Q G^T,   G = F_step B,   Q = diag(var_left, var_right)
+
+with ``B`` the 2x2 Jacobian of ``(ds, dtheta)`` w.r.t. the joint angle increments.
+
+Encoder quantization (the Caltech ME/CS 133 notes, "Kinematics and Odometry for a
+Differential Drive Vehicle", list it among the four sources of drift) is *not*
+noise per step: the increments of consecutive readings telescope, so the sum of
+the wheel travels is off by the quantization of only two readings, the reference
+and the current one, however many steps lie between. It is therefore a floor added
+to the published pose covariance (``2 * tick^2 / 12`` per wheel joint, divided by
+the wheels averaged per side, mapped at the current heading), never accumulated
+into ``P``, so the covariance does not grow with the reading rate. The floor
+neglects how the reference reading's heading error swings the rest of the path
+(a lever of ``tick * r / b`` rad times the distance), which is far below the
+``k`` terms for any real encoder and any ``k`` > 0.
+
+The twist is the rolling mean of per-step rates ``ds / dt``, ``dtheta / dt``; its
+covariance comes from the same model over the same ``dt``: the wheel noise of each
+step plus the quantization of the step's two readings (here the difference of two
+readings is all there is, so both count), averaged over the window as independent
+steps (slightly pessimistic for a window > 1, exact for the default window of 1).
+
+Messages carry 6x6 row-major matrices over (x, y, z, roll, pitch, yaw) and
+(vx, vy, vz, wx, wy, wz). A planar sensor says nothing of z, roll and pitch and
+their rates: those get :data:`UNOBSERVED_VARIANCE` (large and finite, as
+robot_localization expects of a 2D sensor). Lateral velocity ``vy`` is zero by the
+rolling constraint, so the model gives it no variance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from itertools import islice
+
+from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.integration import Pose2D, compose_jacobians
+from diffdrive_odom.core.kinematics import Geometry, body_increment
+
+Matrix = tuple[tuple[float, ...], ...]
+
+UNOBSERVED_VARIANCE = 1.0e6
+# Default wheel-travel noise [m]: a side's ground arc off by 3.2 mm (1 sigma) after
+# 1 m rolled. Chosen on the OptiOdom recordings (Sousa et al.) integrated with the
+# *nominal* geometry, so it also covers the systematic error of an uncalibrated robot:
+# their final-pose NEES is then at most about 3 (the mean of chi-square with 3 degrees
+# of freedom); after calibration ~3e-6 would do. See README "Uncertainty".
+DEFAULT_K = 1.0e-5
+ZERO3: Matrix = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+
+
+class UncertaintyConfigError(ConfigError):
+    """A noise setting that cannot work (names the parameter)."""
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Wheel-travel noise per side [m]: variance ``k * |arc|`` of each step's ground arc."""
+
+    k_left: float = DEFAULT_K
+    k_right: float = DEFAULT_K
+
+    def __post_init__(self) -> None:
+        for field, value in (("wheel_noise_k_left", self.k_left),
+                             ("wheel_noise_k_right", self.k_right)):
+            if (isinstance(value, bool) or not isinstance(value, (int, float))
+                    or not math.isfinite(value) or value < 0.0):
+                raise UncertaintyConfigError(field, f"must be finite and >= 0, got {value!r}")
+
+
+def _add3(a: Matrix, b: Matrix) -> Matrix:
+    """``A + B`` for 3x3 matrices (written out, as :func:`_congruence3`)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return ((a00 + b00, a01 + b01, a02 + b02),
+            (a10 + b10, a11 + b11, a12 + b12),
+            (a20 + b20, a21 + b21, a22 + b22))
+
+
+def _times2x2(a: Matrix, b: Matrix) -> Matrix:
+    """``A B`` for a 3x2 ``A`` and a 2x2 ``B``."""
+    (a00, a01), (a10, a11), (a20, a21) = a
+    (b00, b01), (b10, b11) = b
+    return ((a00 * b00 + a01 * b10, a00 * b01 + a01 * b11),
+            (a10 * b00 + a11 * b10, a10 * b01 + a11 * b11),
+            (a20 * b00 + a21 * b10, a20 * b01 + a21 * b11))
+
+
+def _symmetric(m00: float, m01: float, m02: float, m11: float, m12: float,
+               m22: float) -> Matrix:
+    return ((m00, m01, m02), (m01, m11, m12), (m02, m12, m22))
+
+
+def _congruence3(j: Matrix, m: Matrix) -> Matrix:
+    """``J M J^T`` for 3x3 ``J`` and symmetric ``M``, symmetric by construction.
+
+    Written out: it runs once per reading, and on 3x3 matrices numpy's or a loop's
+    overhead costs several times the arithmetic.
+    """
+    (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = j
+    (m00, m01, m02), (_, m11, m12), (_, _, m22) = m
+    # rows of J M
+    a00 = j00 * m00 + j01 * m01 + j02 * m02
+    a01 = j00 * m01 + j01 * m11 + j02 * m12
+    a02 = j00 * m02 + j01 * m12 + j02 * m22
+    a10 = j10 * m00 + j11 * m01 + j12 * m02
+    a11 = j10 * m01 + j11 * m11 + j12 * m12
+    a12 = j10 * m02 + j11 * m12 + j12 * m22
+    a20 = j20 * m00 + j21 * m01 + j22 * m02
+    a21 = j20 * m01 + j21 * m11 + j22 * m12
+    a22 = j20 * m02 + j21 * m12 + j22 * m22
+    return _symmetric(
+        a00 * j00 + a01 * j01 + a02 * j02,
+        a00 * j10 + a01 * j11 + a02 * j12,
+        a00 * j20 + a01 * j21 + a02 * j22,
+        a10 * j10 + a11 * j11 + a12 * j12,
+        a10 * j20 + a11 * j21 + a12 * j22,
+        a20 * j20 + a21 * j21 + a22 * j22,
+    )
+
+
+def _wheel_noise3(g: Matrix, var_l: float, var_r: float) -> Matrix:
+    """``G diag(var_l, var_r) G^T`` for a 3x2 ``G``."""
+    (g00, g01), (g10, g11), (g20, g21) = g
+    return _symmetric(
+        g00 * g00 * var_l + g01 * g01 * var_r,
+        g00 * g10 * var_l + g01 * g11 * var_r,
+        g00 * g20 * var_l + g01 * g21 * var_r,
+        g10 * g10 * var_l + g11 * g11 * var_r,
+        g10 * g20 * var_l + g11 * g21 * var_r,
+        g20 * g20 * var_l + g21 * g21 * var_r,
+    )
+
+
+def _wheel_noise2(b: Matrix, var_l: float, var_r: float) -> Matrix:
+    """``B diag(var_l, var_r) B^T`` for a 2x2 ``B``."""
+    (b00, b01), (b10, b11) = b
+    cross = b00 * b10 * var_l + b01 * b11 * var_r
+    return ((b00 * b00 * var_l + b01 * b01 * var_r, cross),
+            (cross, b10 * b10 * var_l + b11 * b11 * var_r))
+
+
+def wheel_jacobian(geometry: Geometry) -> Matrix:
+    """``d(ds, dtheta) / d(joint increments)``: the columns of the linear map itself."""
+    left = body_increment(geometry, 1.0, 0.0)
+    right = body_increment(geometry, 0.0, 1.0)
+    return ((left[0], right[0]), (left[1], right[1]))
+
+
+def joint_variances(
+    model: NoiseModel, geometry: Geometry, d_left: float, d_right: float
+) -> tuple[float, float]:
+    """Variance [rad^2] of each joint increment: ``k |r d| / r^2 = k |d| / r``."""
+    return (model.k_left * abs(d_left) / geometry.left_radius,
+            model.k_right * abs(d_right) / geometry.right_radius)
+
+
+def quantization_variance(ticks_per_revolution: float, wheels_per_side: int) -> float:
+    """Variance [rad^2] of one reading's joint angle from counting whole ticks (0 = radians)."""
+    if ticks_per_revolution <= 0.0:
+        return 0.0
+    tick = 2.0 * math.pi / ticks_per_revolution
+    return tick * tick / 12.0 / wheels_per_side
+
+
+# z, roll, pitch (or their rates): nothing known. Message rows 0, 1, 5: x (vx), y, yaw (wz).
+_PLANAR = [UNOBSERVED_VARIANCE if i in (14, 21, 28) else 0.0 for i in range(36)]
+
+
+def pose_message_covariance(p: Matrix) -> list[float]:
+    """3x3 (x, y, yaw) -> the 6x6 row-major pose covariance of an Odometry message."""
+    (xx, xy, xt), (yx, yy, yt), (tx, ty, tt) = p
+    cov = _PLANAR.copy()
+    cov[0], cov[1], cov[5] = float(xx), float(xy), float(xt)
+    cov[6], cov[7], cov[11] = float(yx), float(yy), float(yt)
+    cov[30], cov[31], cov[35] = float(tx), float(ty), float(tt)
+    return cov
+
+
+def twist_message_covariance(t: Matrix) -> list[float]:
+    """2x2 (vx, wz) -> the 6x6 row-major twist covariance (vy: 0 by the rolling constraint)."""
+    (vv, vw), (wv, ww) = t
+    cov = _PLANAR.copy()
+    cov[0], cov[5] = float(vv), float(vw)
+    cov[30], cov[35] = float(wv), float(ww)
+    return cov
+
+
+class PoseUncertainty:
+    """The 3x3 pose covariance state of one estimator, and the twist covariance window."""
+
+    def __init__(
+        self,
+        model: NoiseModel,
+        ticks_per_revolution: float = 0.0,
+        wheels_per_side: int = 1,
+        window: int = 1,
+        start: Matrix = ZERO3,
+    ) -> None:
+        self.model = model
+        self.start = start
+        self.covariance: Matrix = start
+        self._quantum = quantization_variance(ticks_per_revolution, wheels_per_side)
+        self._rates: deque[Matrix] = deque(maxlen=window)
+        self._geometry: Geometry | None = None
+        self._b: Matrix = ()
+
+    def reset(self) -> None:
+        """Back to the start value (a reset or restart of the odometry); twist forgotten."""
+        self.covariance = self.start
+        self.forget_twist()
+
+    def forget_twist(self) -> None:
+        """Empty the twist window (the estimator forgot its rates)."""
+        self._rates.clear()
+
+    def propagate(
+        self,
+        pose_before: Pose2D,
+        geometry: Geometry,
+        *,
+        ds: float,
+        dtheta: float,
+        d_left: float,
+        d_right: float,
+        dt: float,
+    ) -> None:
+        """One CIR step from ``pose_before`` by joint increments ``d_left``, ``d_right``."""
+        f_pose, f_step = compose_jacobians(pose_before, ds, dtheta)
+        b = self._wheel_jacobian(geometry)
+        var_l, var_r = joint_variances(self.model, geometry, d_left, d_right)
+        self.covariance = _add3(
+            _congruence3(f_pose, self.covariance), _wheel_noise3(_times2x2(f_step, b), var_l, var_r)
+        )
+        q = 2.0 * self._quantum  # the step's two readings
+        scale = 1.0 / (dt * dt)
+        self._rates.append(_wheel_noise2(b, (var_l + q) * scale, (var_r + q) * scale))
+
+    def _wheel_jacobian(self, geometry: Geometry) -> Matrix:
+        """:func:`wheel_jacobian`, kept while the geometry object stays the same."""
+        if geometry is not self._geometry:
+            self._geometry, self._b = geometry, wheel_jacobian(geometry)
+        return self._b
+
+    def pose_covariance(self, pose: Pose2D, geometry: Geometry) -> Matrix:
+        """Covariance of ``pose``: the propagated state plus the quantization floor."""
+        if self._quantum == 0.0:
+            return self.covariance
+        _, at_heading = compose_jacobians(Pose2D(0.0, 0.0, pose.theta), 0.0, 0.0)
+        w = _times2x2(at_heading, self._wheel_jacobian(geometry))
+        q = 2.0 * self._quantum  # the reference and the current reading
+        return _add3(self.covariance, _wheel_noise3(w, q, q))
+
+    def twist_covariance(self) -> Matrix:
+        """Covariance of the rolling-mean twist (vx, wz); zero before a step is integrated."""
+        rates = self._rates
+        n = len(rates)
+        if n == 0:
+            return ((0.0, 0.0), (0.0, 0.0))
+        if n == 1:
+            return rates[0]  # the mean of one step is that step (``v / 1`` is ``v``)
+        (t00, t01), (t10, t11) = rates[0]
+        for (r00, r01), (r10, r11) in islice(rates, 1, None):
+            t00, t01, t10, t11 = t00 + r00, t01 + r01, t10 + r10, t11 + r11
+        nn = n * n
+        return ((t00 / nn, t01 / nn), (t10 / nn, t11 / nn))

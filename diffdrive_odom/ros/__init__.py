@@ -1,0 +1,5 @@
+"""The rclpy layer (QoS, parameter glue, executors, diagnostics) and the thin nodes.
+
+May import: ``diffdrive_odom.core``, ``diffdrive_odom.settings``, rclpy and messages;
+never the tools or the demo.
+"""

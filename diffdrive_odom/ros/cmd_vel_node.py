@@ -1,0 +1,242 @@
+"""``cmd_vel_node``: velocity commands -> wheel velocity commands, limited and watched.
+
+Thin rclpy shell around :class:`diffdrive_odom.core.cmd_vel_pipeline.CommandPipeline`
+(validation, watchdog, limits, inverse kinematics, plausibility bound): it declares
+parameters, converts messages, logs the pipeline's refusals (one throttle per reason)
+and runs one steady timer. Wheel commands go out at ``wheel_command_rate`` whatever
+happens on ``cmd_vel`` (drivers use them as a heartbeat); without a valid command for
+``cmd_vel_timeout`` seconds they are zeros, never the last command repeated forever.
+"""
+
+from __future__ import annotations
+
+from typing import Any, cast
+
+from geometry_msgs.msg import Twist, TwistStamped
+from rclpy.clock import Clock
+from rclpy.clock_type import ClockType
+from rclpy.node import Node
+from rclpy.timer import Timer
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from diffdrive_odom.core.cmd_vel_pipeline import CommandPipeline, Tick
+from diffdrive_odom.core.diagnostics import (
+    CommandHealth,
+    CommandState,
+    RateMeter,
+    Report,
+    Reporter,
+    cmd_vel_report,
+)
+from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.settings.cmd_vel import (
+    CMD_VEL_PARAMS,
+    JOINT_STATE,
+    CmdVelSettings,
+    cmd_vel_settings,
+)
+
+NODE_NAME = "cmd_vel_node"
+DIAGNOSTIC_TASK = "cmd_vel"  # status "cmd_vel_node: cmd_vel" on /diagnostics
+THROTTLE_S = ros_common.WARN_THROTTLE_S
+
+# Best effort matches reliable and best-effort publishers alike (teleop, Nav2,
+# joystick drivers); only the newest command matters, so the queue is short.
+CMD_IN_QOS = ros_common.qos(5, reliable=False)
+
+
+class CmdVelNode(Node):
+    """Turns cmd_vel into wheel velocity commands at a steady rate."""
+
+    # Diagnostics state (see _init_diagnostics).
+    _accepted_ns: int | None  # steady time of the last valid command
+    _last_moving: bool  # it asked for motion
+    _command_rate: RateMeter
+    _output_rate: RateMeter
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self._log: Any = cast(Any, self).get_logger()  # rclpy's get_logger is untyped
+        self._throttle = ros_common.KeyedThrottle(self._log)
+        values = ros_common.declare(self, CMD_VEL_PARAMS)
+        s = cmd_vel_settings(values)
+        self._settings = s
+        self._pipeline = CommandPipeline(s)
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._moving = False  # a command is being followed (for the timeout log)
+        self._received = False
+        self._zero_stamp_warned = False
+        self._type_checked_ns = 0
+        self._guard = ros_common.ParameterGuard(self, values, cmd_vel_settings, self._apply)
+        self._init_diagnostics()
+
+        if s.wheel_command_format == JOINT_STATE:
+            self._wheel_pub = self.create_publisher(
+                JointState, "wheel_commands", ros_common.RELIABLE_OUT_QOS)
+        else:
+            self._wheel_pub = self.create_publisher(
+                Float64MultiArray, "wheel_commands", ros_common.RELIABLE_OUT_QOS)
+        self._limited_pub: Any = None
+        if s.publish_limited_velocity:
+            self._make_limited_pub()
+        if s.enable_stamped_cmd_vel:
+            self._sub = self.create_subscription(
+                TwistStamped, "cmd_vel", self._on_twist_stamped, CMD_IN_QOS)
+        else:
+            self._sub = self.create_subscription(Twist, "cmd_vel", self._on_twist, CMD_IN_QOS)
+        self._timer = self._make_timer(s.wheel_command_rate)
+        g = s.geometry
+        self._log.info(
+            f"cmd_vel ({'TwistStamped' if s.enable_stamped_cmd_vel else 'Twist'}) -> "
+            f"wheel_commands ({s.wheel_command_format}) at {s.wheel_command_rate:g} Hz: "
+            f"r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
+            f"b={g.separation:.6g} m, timeout {s.cmd_vel_timeout:g} s, "
+            f"wheels {list(s.left_wheel_names)} / {list(s.right_wheel_names)}"
+        )
+
+    # --- parameters -------------------------------------------------------------
+
+    def _make_timer(self, rate: float) -> Timer:
+        # Steady clock: the heartbeat must not stop when /clock pauses (use_sim_time).
+        return self.create_timer(1.0 / rate, self._on_tick, clock=self._steady)
+
+    def _make_limited_pub(self) -> None:
+        self._limited_pub = self.create_publisher(
+            TwistStamped, "cmd_vel_out", ros_common.RELIABLE_OUT_QOS)
+
+    def _apply(self, s: CmdVelSettings) -> None:
+        """Install accepted runtime changes; the motion state carries on (no jump)."""
+        old = self._settings
+        self._settings = s
+        self._pipeline.configure(s)
+        if s.wheel_command_rate != old.wheel_command_rate:
+            self.destroy_timer(self._timer)
+            self._timer = self._make_timer(s.wheel_command_rate)
+        if s.publish_limited_velocity and self._limited_pub is None:
+            self._make_limited_pub()
+        self._log.info("parameters updated")
+
+    # --- input ------------------------------------------------------------------
+
+    def _on_twist(self, msg: Twist) -> None:
+        self._accept(msg, None)
+
+    def _on_twist_stamped(self, msg: TwistStamped) -> None:
+        stamp_ns: int | None = ros_common.stamp_to_ns(msg.header.stamp)
+        if stamp_ns == 0:
+            if not self._zero_stamp_warned:
+                self._zero_stamp_warned = True
+                self._log.warning(
+                    "cmd_vel header stamp is zero: taken as 'now' (this warning is shown "
+                    "once; stamp commands so that delayed ones can be recognised)")
+            stamp_ns = None
+        self._accept(msg.twist, stamp_ns)
+
+    def _accept(self, twist: Twist, stamp_ns: int | None) -> None:
+        self._received = True
+        lin, ang = twist.linear, twist.angular
+        now_ns = self._steady.now().nanoseconds
+        refusal = self._pipeline.accept((lin.x, lin.y, lin.z), (ang.x, ang.y, ang.z), now_ns,
+                                        self.get_clock().now().nanoseconds, stamp_ns)
+        if refusal is not None:
+            self._throttle.warning(refusal.reason, refusal.text)
+            return
+        self._accepted_ns = now_ns
+        self._command_rate.add(now_ns * 1e-9)
+        self._last_moving = any(p != 0.0 for p in (lin.x, lin.y, lin.z, ang.x, ang.y, ang.z))
+
+    # --- output -----------------------------------------------------------------
+
+    def _on_tick(self) -> None:
+        now = self._steady.now().nanoseconds
+        tick = self._pipeline.tick(now, self.get_clock().now().nanoseconds)
+        if tick.refused is not None:
+            self._throttle.warning(tick.refused.reason, tick.refused.text)
+        elif not tick.commanding:
+            if self._moving:
+                self._log.info(
+                    f"no valid cmd_vel for {self._settings.cmd_vel_timeout:g} s: stopping")
+            if not self._received:
+                self._check_input_type(now)
+        self._moving = tick.commanding
+        self._publish(tick)
+        self._output_rate.add(now * 1e-9)
+
+    def _publish(self, tick: Tick) -> None:
+        s = self._settings
+        stamp = self.get_clock().now().to_msg()
+        if s.wheel_command_format == JOINT_STATE:
+            js = JointState()
+            js.header.stamp = stamp
+            js.name = list(s.wheel_names)
+            js.velocity = list(tick.rates)
+            self._wheel_pub.publish(js)
+        else:
+            self._wheel_pub.publish(Float64MultiArray(data=list(tick.rates)))
+        if s.publish_limited_velocity and self._limited_pub is not None:
+            ts = TwistStamped()
+            ts.header.stamp = stamp
+            ts.twist.linear.x = tick.linear
+            ts.twist.angular.z = tick.angular
+            self._limited_pub.publish(ts)
+
+    # --- diagnostics --------------------------------------------------------------
+
+    def _init_diagnostics(self) -> None:
+        start = self._steady.now().nanoseconds * 1e-9
+        self._accepted_ns = None
+        self._last_moving = False
+        self._command_rate = RateMeter(start)
+        self._output_rate = RateMeter(start)
+        self._reporter = Reporter(cmd_vel_report)
+        self._diagnostics = ros_common.DiagnosticsPublisher(
+            self, DIAGNOSTIC_TASK, self._diagnose)
+
+    def _diagnose(self) -> Report:
+        now_ns = self._steady.now().nanoseconds
+        if self._moving:
+            state = CommandState.COMMANDING
+        elif self._accepted_ns is None:
+            state = CommandState.NEVER
+        else:
+            state = CommandState.TIMED_OUT
+        s = self._settings
+        return self._reporter(CommandHealth(
+            state=state,
+            command_age_s=None if self._accepted_ns is None
+            else (now_ns - self._accepted_ns) * 1e-9,
+            last_command_moving=self._last_moving,
+            limited=dict(self._pipeline.limited),
+            dropped=dict(self._pipeline.dropped),
+            command_rate_hz=self._command_rate.rate(now_ns * 1e-9),
+            output_rate_hz=self._output_rate.rate(now_ns * 1e-9),
+            expected_output_hz=s.wheel_command_rate,
+            timeout_s=s.cmd_vel_timeout,
+        ))
+
+    def _check_input_type(self, now_ns: int) -> None:
+        """Nothing ever arrived: say so if cmd_vel's publishers use the other message type."""
+        if now_ns - self._type_checked_ns < 2_000_000_000:
+            return
+        self._type_checked_ns = now_ns
+        expected = ("geometry_msgs/msg/TwistStamped" if self._settings.enable_stamped_cmd_vel
+                    else "geometry_msgs/msg/Twist")
+        topic = self._sub.topic_name
+        for info in self.get_publishers_info_by_topic(topic):
+            if info.topic_type != expected:
+                self._log.warning(
+                    f"{topic} has a publisher of type {info.topic_type} but this node "
+                    f"expects {expected}: set enable_stamped_cmd_vel to "
+                    f"{str(expected.endswith('Twist')).lower()}",
+                    throttle_duration_sec=THROTTLE_S)
+                return
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script / ``ros2 run diffdrive_odom cmd_vel_node``."""
+    return ros_common.run(CmdVelNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

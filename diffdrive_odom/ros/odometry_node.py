@@ -1,0 +1,242 @@
+"""``odometry_node``: sensor_msgs/JointState -> nav_msgs/Odometry and odom -> base_link.
+
+Thin rclpy shell around :class:`diffdrive_odom.core.pipeline.ReadingPipeline` (the same
+reading path replay and the demo use): it only declares parameters, converts
+messages and logs the verdicts, one throttle per reason. Output is
+stamped with the JointState's own header stamp (the measurement time), never the
+time the message happened to be processed.
+
+Messages cross rclpy as their serialised bytes (:mod:`diffdrive_odom.core.cdr`): at 1 kHz,
+rclpy's conversions to and from Python objects cost more than the odometry itself.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
+
+from diffdrive_odom.core.cdr import JointArrays, JointStateDecoder, OdometryLayout, TransformLayout
+from diffdrive_odom.core.diagnostics import (
+    RateMeter,
+    ReadingHealth,
+    Report,
+    Reporter,
+    odometry_report,
+)
+from diffdrive_odom.core.estimator import Status
+from diffdrive_odom.core.pipeline import Outcome, ReadingPipeline
+from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, OdometrySettings, odometry_settings
+from diffdrive_odom.settings.params import ParamValue
+
+NODE_NAME = "odometry_node"
+NO_INPUT_WARN_S = 5.0  # s of steady time without a reading before saying so
+
+
+class OdometryEndpoints:
+    """Everything ``odometry_node`` does, on the node it is given.
+
+    Both the plain :class:`OdometryNode` and the managed
+    :class:`~diffdrive_odom.ros.odometry_lifecycle_node.OdometryLifecycleNode` (which builds
+    one at configure and destroys it at cleanup) use this one class, so the two never
+    differ in a rule, a topic or a QoS. On a LifecycleNode its publishers are lifecycle
+    publishers: readings are integrated whenever it exists, published only while active.
+    Raises ParameterError (before creating anything) for values that cannot work.
+    """
+
+    def __init__(self, node: Node, values: dict[str, ParamValue]) -> None:
+        self._node = node
+        settings = self._build(values)
+        self._settings = settings
+        self._pipeline = ReadingPipeline(settings)
+        self._decoder = JointStateDecoder()
+        self._build_messages(settings)
+        self._throttle = ros_common.KeyedThrottle(node.get_logger())
+        self._guard = ros_common.ParameterGuard(node, values, self._build, self._apply)
+
+        self._odom_pub = ros_common.create_publisher(
+            node, Odometry, "odom", ros_common.RELIABLE_OUT_QOS)
+        self._tf_pub = ros_common.create_publisher(node, TFMessage, "/tf", ros_common.TF_QOS)
+        self._sub = node.create_subscription(
+            JointState, "joint_states", self._on_joint_state, ros_common.SENSOR_IN_QOS, raw=True
+        )
+        self._reset_srv = node.create_service(Trigger, "~/reset_odometry", self._on_reset)
+        # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
+        # and a missing clock is one of the mistakes this warning is for.
+        self._input_timer = node.create_timer(
+            NO_INPUT_WARN_S, self._check_input, clock=Clock(clock_type=ClockType.STEADY_TIME)
+        )
+        self._started = time.monotonic()
+        self._last_rx: float | None = None
+        self._rate = RateMeter(start=self._started)
+        self._reporter = Reporter(odometry_report)
+        self._diagnostics = ros_common.DiagnosticsPublisher(node, "odometry", self._diagnose)
+        g = settings.geometry
+        node.get_logger().info(
+            f"wheel odometry: r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
+            f"b={g.separation:.6g} m, {settings.odom_frame_id} -> {settings.base_frame_id}, "
+            f"joints {list(settings.encoders.left_wheel_names)} / "
+            f"{list(settings.encoders.right_wheel_names)}"
+        )
+
+    def destroy(self) -> None:
+        """Remove every endpoint, timer and parameter check from the node; the pose goes."""
+        node = self._node
+        self._guard.close()
+        self._diagnostics.destroy()
+        node.destroy_timer(self._input_timer)
+        node.destroy_service(self._reset_srv)
+        node.destroy_subscription(self._sub)
+        ros_common.destroy_publisher(node, self._tf_pub)
+        ros_common.destroy_publisher(node, self._odom_pub)
+
+    def _build(self, values: dict[str, ParamValue]) -> OdometrySettings:
+        return odometry_settings(values, self._node.get_namespace())
+
+    def _apply(self, settings: OdometrySettings) -> None:
+        """Install accepted runtime changes; the pose carries on without a jump."""
+        self._settings = settings
+        self._build_messages(settings)
+        self._pipeline.reconfigure(settings)
+        self._node.get_logger().info("parameters updated")
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self._pipeline.reset()
+        response.success = True
+        response.message = "odometry reset to the origin"
+        self._node.get_logger().info(response.message)
+        return response
+
+    def _check_input(self) -> None:
+        """Say once if nothing arrived: the topic name (namespace, remap) is the usual cause."""
+        self._input_timer.cancel()
+        if self._pipeline.stats.readings == 0:
+            topic = self._sub.topic_name
+            self._node.get_logger().warning(
+                f"no JointState received on {topic} in {NO_INPUT_WARN_S:g} s "
+                f"({self._node.count_publishers(topic)} publisher(s) on it): check the driver's "
+                "topic, this node's namespace and remaps"
+            )
+
+    def _diagnose(self) -> Report:
+        """The /diagnostics status: input rate and age, and what the pipeline dropped."""
+        now = time.monotonic()
+        stats = self._pipeline.stats
+        return self._reporter(ReadingHealth(
+            uptime_s=now - self._started,
+            reading_rate_hz=self._rate.rate(now),
+            since_last_reading_s=None if self._last_rx is None else now - self._last_rx,
+            dropped=dict(stats.dropped),
+            reanchors=stats.reanchors,
+            gap_reanchors=stats.gap_reanchors,
+            time_resets=stats.time_resets,
+            velocity_fallback=stats.velocity_fallback,
+        ))
+
+    def _on_joint_state(self, raw: bytes) -> None:
+        self._last_rx = t = time.monotonic()
+        self._rate.add(t)
+        msg = self._decode(raw)
+        if msg is None:
+            return
+        stamp_ns = msg.sec * 1_000_000_000 + msg.nanosec
+        outcome = self._pipeline.feed(stamp_ns, msg.name, msg.position, msg.velocity)
+        self._report(outcome)
+        if outcome.publish:
+            self._publish(stamp_ns)
+
+    def _decode(self, raw: bytes) -> JointArrays | None:
+        """The reading's fields, or None (with a throttled warning) if unreadable.
+
+        rclpy's own deserialisation takes what the decoder leaves (big-endian senders).
+        """
+        try:
+            if (fields := self._decoder.decode(raw)) is not None:
+                return fields
+        except ValueError:
+            pass
+        try:
+            msg = deserialize_message(raw, JointState)
+        except Exception as exc:  # whatever rclpy raises for bytes it cannot read
+            self._throttle.warning("undecodable", f"joint_states message dropped: its "
+                                   f"{len(raw)} bytes are not a JointState ({exc})")
+            return None
+        stamp = msg.header.stamp
+        return JointArrays(stamp.sec, stamp.nanosec, tuple(msg.name), tuple(msg.position),
+                           tuple(msg.velocity))
+
+    def _report(self, outcome: Outcome) -> None:
+        verdict = outcome.verdict
+        if outcome.note:
+            self._throttle.info("input_mode", outcome.note)
+        if verdict.status is Status.TIME_RESET:
+            self._node.get_logger().warning(verdict.reason)
+        elif verdict.warning:
+            self._throttle.warning(verdict.code, f"joint_states reading {verdict.warning} "
+                                   f"[{verdict.code}]: {verdict.reason}")
+
+    def _build_messages(self, settings: OdometrySettings) -> None:
+        """Fill what stays the same from message to message (frames, covariance) once.
+
+        Each reading then only writes the stamp, pose and twist into the same bytes.
+        """
+        self._odom = OdometryLayout(settings.odom_frame_id, settings.base_frame_id)
+        self._tf = TransformLayout(settings.odom_frame_id, settings.base_frame_id)
+        self._covariance_changed = True
+
+    def _set_covariance(self) -> bool:
+        """The covariance of the published odometry (the only place that sets it).
+
+        Propagated: the pipeline's, every message. Static (the parameters' diagonals):
+        written only after a change. False if it is not finite (never published).
+        """
+        if self._pipeline.estimator.uncertainty is None:
+            if self._covariance_changed:
+                self._odom.covariance(*self._pipeline.covariances())
+                self._covariance_changed = False
+            return True
+        pose_cov, twist_cov = self._pipeline.covariances()
+        if not math.isfinite(sum(pose_cov) + sum(twist_cov)):
+            return False
+        self._odom.covariance(pose_cov, twist_cov)
+        return True
+
+    def _publish(self, stamp_ns: int) -> None:
+        est = self._pipeline.estimator
+        pose = est.pose
+        x, y, theta, linear, angular = pose.x, pose.y, pose.theta, est.linear, est.angular
+        if not math.isfinite(x + y + theta + linear + angular):  # cannot happen; never NaN
+            self._throttle.warning("non_finite_output", "non-finite odometry suppressed")
+            return
+        if not self._set_covariance():  # cannot happen; never NaN
+            self._throttle.warning("non_finite_output", "non-finite covariance suppressed")
+            return
+        self._odom_pub.publish(self._odom.planar(stamp_ns, x, y, theta, linear, angular))
+        if self._settings.enable_odom_tf:
+            self._tf_pub.publish(self._tf.planar(stamp_ns, x, y, theta))
+
+
+class OdometryNode(Node):
+    """Publishes wheel odometry computed from encoder readings, from its start."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self.odometry = OdometryEndpoints(self, ros_common.declare(self, ODOMETRY_PARAMS))
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script / ``ros2 run diffdrive_odom odometry_node``."""
+    return ros_common.run(OdometryNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

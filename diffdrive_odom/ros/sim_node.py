@@ -1,0 +1,196 @@
+"""``sim_node``: a simulated differential-drive base on DDS.
+
+Thin rclpy shell around :class:`diffdrive_odom.core.sim.DiffDriveSim`: it takes the
+cmd_vel node's wheel commands, steps the simulation at a fixed rate and publishes
+what a real base's driver would (``joint_states``, header-stamped, radians or
+ticks) plus what only a simulator knows: the true pose on ``ground_truth/odom``.
+
+Time: by default the node follows its own clock (wall time, or ``/clock`` when run
+with ``use_sim_time``). With ``publish_clock`` it owns the time instead: it advances
+in fixed steps of simulated time, ``real_time_factor`` times faster than the wall,
+and publishes ``/clock`` so the other nodes (``use_sim_time:=true``) and the stamps
+agree. A slow machine then slows the simulated world down instead of making it
+jerky: every step is exactly ``1 / publish_rate`` simulated seconds.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock
+from rclpy.clock_type import ClockType
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from diffdrive_odom.core.cmd_vel_pipeline import JOINT_STATE, TICKS_PER_SECOND
+from diffdrive_odom.core.conversions import yaw_to_quaternion
+from diffdrive_odom.core.encoders import EncoderConfig, JointLookup
+from diffdrive_odom.core.sim import TWO_PI, DiffDriveSim
+from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.settings.params import ParamValue
+from diffdrive_odom.settings.sim import SIM_PARAMS, TICKS, SimSettings, sim_settings
+
+NODE_NAME = "sim_node"
+MAX_STEP_NS = 1_000_000_000  # a clock jump larger than this is not simulated as motion
+
+# Commands: best effort matches reliable and best-effort publishers; only the newest counts.
+COMMAND_QOS = ros_common.qos(5, reliable=False)
+CLOCK_QOS = ros_common.qos(1, reliable=True)
+
+
+class SimNode(Node):
+    """Simulated base: wheel commands in; joint_states, ground truth (and /clock) out."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self._log: Any = self.get_logger()
+        values = ros_common.declare(self, SIM_PARAMS)
+        s = sim_settings(values)
+        self._settings = s
+        self._sim = DiffDriveSim(s.config)
+        self._lookup = JointLookup(EncoderConfig(s.left_wheel_names, s.right_wheel_names))
+        self._guard = ros_common.ParameterGuard(self, values, self._build, self._apply)
+        self._step_ns = round(1e9 / s.publish_rate)
+        self._start_ns = time.time_ns()  # the simulated clock starts at the wall time
+        self._last_clock_ns: int | None = None
+
+        self._joint_pub = self.create_publisher(
+            JointState, "joint_states", ros_common.RELIABLE_OUT_QOS)
+        self._truth_pub = self.create_publisher(
+            Odometry, "ground_truth/odom", ros_common.RELIABLE_OUT_QOS)
+        self._clock_pub: Any = None
+        if s.publish_clock:
+            self._clock_pub = self.create_publisher(ClockMsg, "/clock", CLOCK_QOS)
+        if s.wheel_command_format == JOINT_STATE:
+            self.create_subscription(
+                JointState, "wheel_commands", self._on_joint_command, COMMAND_QOS)
+        else:
+            self.create_subscription(
+                Float64MultiArray, "wheel_commands", self._on_array_command, COMMAND_QOS)
+        if s.publish_clock:
+            # Wall-clock (steady) timer: the node drives /clock, it must not wait on it.
+            steady = Clock(clock_type=ClockType.STEADY_TIME)
+            period = 1.0 / (s.publish_rate * s.real_time_factor)
+            self.create_timer(period, self._on_sim_tick, clock=steady)
+        else:
+            self.create_timer(1.0 / s.publish_rate, self._on_clock_tick)
+        g = s.config.geometry
+        self._log.info(
+            f"simulated base: true r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
+            f"b={g.separation:.6g} m, signs {g.left_wheel_sign:+d}/{g.right_wheel_sign:+d}, "
+            f"joint_states in {s.joint_state_units} at {s.publish_rate:g} Hz"
+            + (f", /clock at {s.real_time_factor:g}x real time" if s.publish_clock else "")
+        )
+        self._publish(self._start_ns)
+
+    # --- parameters -------------------------------------------------------------
+
+    def _build(self, values: dict[str, ParamValue]) -> SimSettings:
+        return sim_settings(values)
+
+    def _apply(self, settings: SimSettings) -> None:
+        """Accepted runtime change: new physics from now on, the robot stays where it is."""
+        self._settings = settings
+        self._sim.reconfigure(settings.config)
+        self._log.info("parameters updated")
+
+    # --- commands ---------------------------------------------------------------
+
+    def _warn(self, text: str) -> None:
+        self._log.warning(text, throttle_duration_sec=ros_common.WARN_THROTTLE_S)
+
+    def _command(self, rates: list[float]) -> None:
+        if not all(math.isfinite(r) for r in rates):
+            self._warn("wheel command with NaN/inf dropped")
+            return
+        self._sim.command(rates)
+
+    def _on_array_command(self, msg: Float64MultiArray) -> None:
+        data = list(msg.data)
+        n = self._sim.config.joints
+        if len(data) != n:
+            self._warn(f"wheel command with {len(data)} values dropped: expected {n} "
+                       f"({', '.join(self._settings.wheel_names)})")
+            return
+        if self._settings.wheel_command_format == TICKS_PER_SECOND:
+            scale = TWO_PI / self._sim.config.ticks_per_revolution
+            data = [d * scale for d in data]
+        self._command(data)
+
+    def _on_joint_command(self, msg: JointState) -> None:
+        idx = self._lookup.indices(msg.name)
+        if idx is None:
+            self._warn("wheel command JointState lacks a wheel joint: dropped")
+            return
+        if len(msg.velocity) < len(msg.name):
+            self._warn(f"wheel command JointState has {len(msg.velocity)} velocities for "
+                       f"{len(msg.name)} names: dropped")
+            return
+        self._command([float(msg.velocity[i]) for i in idx])
+
+    # --- time -------------------------------------------------------------------
+
+    def _on_sim_tick(self) -> None:
+        """publish_clock: one fixed step of simulated time."""
+        self._sim.advance(self._step_ns)
+        now_ns = self._start_ns + self._sim.time_ns
+        clock = ClockMsg()
+        ros_common.ns_to_stamp(now_ns, clock.clock)
+        self._clock_pub.publish(clock)
+        self._publish(now_ns)
+
+    def _on_clock_tick(self) -> None:
+        """Follow the node's clock: advance by however much time really passed."""
+        now_ns = self.get_clock().now().nanoseconds
+        last, self._last_clock_ns = self._last_clock_ns, now_ns
+        if last is None or now_ns <= last:
+            return  # first tick, or time went backwards (a bag restarted): re-anchor
+        dt = now_ns - last
+        if dt > MAX_STEP_NS:
+            self._warn(f"clock jumped {dt * 1e-9:.3f} s: simulating {MAX_STEP_NS * 1e-9:g} s")
+            dt = MAX_STEP_NS
+        self._sim.advance(dt)
+        self._publish(now_ns)
+
+    # --- output -----------------------------------------------------------------
+
+    def _publish(self, stamp_ns: int) -> None:
+        s, sim = self._settings, self._sim
+        js = JointState()
+        ros_common.ns_to_stamp(stamp_ns, js.header.stamp)
+        js.name = list(s.wheel_names)
+        if s.joint_state_units == TICKS:
+            js.position = [float(c) for c in sim.encoder_counts()]
+            per_rad = sim.config.ticks_per_revolution / TWO_PI
+            js.velocity = [float(r) * per_rad for r in sim.joint_rates]
+        else:
+            js.position = [float(a) for a in sim.encoder_radians()]
+            js.velocity = [float(r) for r in sim.joint_rates]
+        self._joint_pub.publish(js)
+
+        pose, twist = sim.pose, sim.twist
+        odom = Odometry()
+        odom.header.stamp = js.header.stamp
+        odom.header.frame_id = s.world_frame_id
+        odom.child_frame_id = s.base_frame_id
+        p = odom.pose.pose
+        p.position.x, p.position.y = pose.x, pose.y
+        qx, qy, qz, qw = yaw_to_quaternion(pose.theta)
+        p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = qx, qy, qz, qw
+        odom.twist.twist.linear.x = twist.linear
+        odom.twist.twist.angular.z = twist.angular
+        self._truth_pub.publish(odom)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script / ``ros2 run diffdrive_odom sim_node``."""
+    return ros_common.run(SimNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

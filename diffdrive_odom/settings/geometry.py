@@ -1,0 +1,76 @@
+"""The rows several nodes share (geometry, joints, cmd_vel type) and what they build.
+
+One YAML under ``/**`` configures every node, so the robot is described once: these
+rows are the odometry node's, the cmd_vel node and the follower take the ones they
+use, and no two nodes can disagree on the robot. ``sim_node`` has rows of its own
+(the simulated robot has defaults, a real one has none).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from diffdrive_odom.core.encoders import EncoderConfig
+from diffdrive_odom.core.errors import as_parameter_error
+from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.settings.params import ParamSpec
+
+GEOMETRY_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("wheel_radius", "double", 0.0,
+              "Nominal wheel radius [m]; must be set (> 0) for your robot."),
+    ParamSpec("wheel_separation", "double", 0.0,
+              "Distance between the wheels' contact points [m]; must be set (> 0)."),
+    ParamSpec("left_wheel_radius_multiplier", "double", 1.0,
+              "Correction factor on the left wheel radius (calibration)."),
+    ParamSpec("right_wheel_radius_multiplier", "double", 1.0,
+              "Correction factor on the right wheel radius (calibration)."),
+    ParamSpec("wheel_separation_multiplier", "double", 1.0,
+              "Correction factor on the wheel separation (calibration)."),
+    ParamSpec("left_wheel_sign", "integer", 1,
+              "1 if the left joint angle grows when the robot drives forward, else -1."),
+    ParamSpec("right_wheel_sign", "integer", 1,
+              "1 if the right joint angle grows when the robot drives forward, else -1."),
+    ParamSpec("left_wheel_names", "string_array", ["left_wheel_joint"],
+              "Joint names of the left wheels (several are averaged).", read_only=True),
+    ParamSpec("right_wheel_names", "string_array", ["right_wheel_joint"],
+              "Joint names of the right wheels (same count as left).", read_only=True),
+    ParamSpec("ticks_per_revolution", "double", 0.0,
+              "0: positions in radians; > 0: raw encoder counts per wheel turn "
+              "(non-integer allowed)."),
+    ParamSpec("encoder_counter_bits", "integer", 0,
+              "Width of a wrapping encoder counter (e.g. 16, 32); 0 = no wrap."),
+)
+
+
+def build_geometry(v: Mapping[str, Any]) -> Geometry:
+    """Geometry from coerced values; errors name the ROS parameter."""
+    with as_parameter_error():
+        return Geometry(
+            wheel_radius=v["wheel_radius"],
+            wheel_separation=v["wheel_separation"],
+            left_wheel_radius_multiplier=v["left_wheel_radius_multiplier"],
+            right_wheel_radius_multiplier=v["right_wheel_radius_multiplier"],
+            wheel_separation_multiplier=v["wheel_separation_multiplier"],
+            left_wheel_sign=v["left_wheel_sign"],
+            right_wheel_sign=v["right_wheel_sign"],
+        )
+
+
+def build_encoders(v: Mapping[str, Any]) -> EncoderConfig:
+    """Encoder config from coerced values; errors name the ROS parameter."""
+    with as_parameter_error():
+        return EncoderConfig(
+            left_wheel_names=v["left_wheel_names"],
+            right_wheel_names=v["right_wheel_names"],
+            ticks_per_revolution=v["ticks_per_revolution"],
+            counter_bits=v["encoder_counter_bits"],
+        )
+
+
+# The cmd_vel message type: the cmd_vel node subscribes it, the follower publishes it,
+# so one row (under ``/**``) keeps the two ends of the topic on the same type.
+STAMPED_CMD_VEL_PARAM = ParamSpec(
+    "enable_stamped_cmd_vel", "bool", False,
+    "Subscribe geometry_msgs/TwistStamped (true) or Twist (false) on cmd_vel "
+    "(Nav2's name and Jazzy default).", read_only=True)

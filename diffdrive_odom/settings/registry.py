@@ -1,0 +1,98 @@
+"""Every node's parameter table, listed once.
+
+The unknown-name check, the README's tables (``scripts/param_tables.py``) and the shipped
+YAML (``scripts/gen_config.py``) all read :data:`TABLES`, so a new node or parameter is
+added in one place.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
+from dataclasses import dataclass
+from functools import cache
+
+from diffdrive_odom.settings.cmd_vel import CMD_VEL_OWN_PARAMS, CMD_VEL_PARAMS
+from diffdrive_odom.settings.follower import FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS
+from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS
+from diffdrive_odom.settings.odometry import ODOMETRY_OWN_PARAMS, ODOMETRY_PARAMS
+from diffdrive_odom.settings.params import ParamSpec
+from diffdrive_odom.settings.sim import SIM_PARAMS
+
+
+@dataclass(frozen=True)
+class Table:
+    """One parameter table: its README marker, its YAML title, its rows."""
+
+    name: str  # the README's ``<!-- name -->`` marker
+    title: str  # the group's heading in the shipped YAML
+    own: tuple[ParamSpec, ...]  # rows listed in this table (shared rows are listed once)
+    declared: tuple[ParamSpec, ...]  # everything the node(s) declare
+    in_config: bool = True  # part of the shipped config/diffdrive_odom.yaml
+
+
+TABLES: tuple[Table, ...] = (
+    Table("geometry", "geometry and joints: odometry_node and cmd_vel_node",
+          GEOMETRY_PARAMS, GEOMETRY_PARAMS),
+    Table("odometry", "odometry_node", ODOMETRY_OWN_PARAMS, ODOMETRY_PARAMS),
+    Table("cmd_vel", "cmd_vel_node", CMD_VEL_OWN_PARAMS, CMD_VEL_PARAMS),
+    Table("sim", "sim_node", SIM_PARAMS, SIM_PARAMS, in_config=False),
+    Table("follower",
+          "path_follower_node (geometry and enable_stamped_cmd_vel: shared rows above)",
+          FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS),
+)
+
+
+def table(name: str) -> Table:
+    """The table with README marker ``name``."""
+    return next(t for t in TABLES if t.name == name)
+
+
+# ------------------------------------------------------------ unknown names
+
+# diff_drive_controller parameters that have no meaning for these nodes: a ddc file
+# is welcome, these are named once at start as ignored instead of warned about.
+DDC_IGNORED: tuple[str, ...] = (
+    "open_loop",  # odometry here always comes from the encoders (joint_states)
+    "position_feedback",  # positions are used when present, else velocities
+    "wheels_per_side",  # the wheel name lists say it
+    "use_stamped_vel",  # Humble's name; enable_stamped_cmd_vel selects the type here
+)
+# Names rclpy itself declares or reads on every node.
+_RCLPY_NAMES = ("use_sim_time", "start_type_description_service")
+_RCLPY_PREFIXES = ("qos_overrides.",)
+
+
+@cache
+def known_names() -> frozenset[str]:
+    """Every parameter some node of this package declares, plus rclpy's own.
+
+    One params file feeds every node, so a name is only suspicious when no node
+    knows it (the cmd_vel node must not warn about the odometry node's names).
+    """
+    return frozenset(s.name for t in TABLES for s in t.declared) | frozenset(_RCLPY_NAMES)
+
+
+def unknown_parameters_report(names: Iterable[str]) -> tuple[str | None, str | None]:
+    """Return (warning, info) lines about parameter names given to a node.
+
+    The warning names unknown ones with the closest real name (typos); the info line
+    names diff_drive_controller parameters that mean nothing here.
+    """
+    known = known_names()
+    ddc = [n for n in names if n in DDC_IGNORED and n not in known]
+    unknown = sorted(
+        n for n in names
+        if n not in known and n not in DDC_IGNORED and not n.startswith(_RCLPY_PREFIXES))
+    warning = info = None
+    if unknown:
+        hints = []
+        for name in unknown:
+            close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
+            hints.append(f"{name} (did you mean {close[0]}?)" if close else name)
+        warning = ("unknown parameters, no diffdrive_odom node uses them (ignored): "
+                   + ", ".join(hints))
+    if ddc:
+        info = ("diff_drive_controller parameters with no meaning here (ignored): "
+                + ", ".join(sorted(ddc)))
+    return warning, info

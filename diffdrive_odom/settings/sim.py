@@ -1,0 +1,186 @@
+"""``sim_node``'s parameters and their validation (no rclpy import).
+
+The simulated robot has rows of its own: nominal geometry with defaults (the demo's
+robot) and the TRUE geometry the base moves with, which may differ from the nominal
+one, as a real robot's does. ``wheel_command_format`` takes the cmd_vel node's
+output formats, defined once in ``cmd_vel_settings``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from diffdrive_odom.core.cmd_vel_pipeline import (
+    FLOAT64_ARRAY,
+    TICKS_PER_SECOND,
+    WHEEL_COMMAND_FORMATS,
+)
+from diffdrive_odom.core.encoders import EncoderConfig
+from diffdrive_odom.core.errors import as_parameter_error
+from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.sim import SimConfig
+from diffdrive_odom.settings.params import ParameterError, ParamSpec, ParamValue, coerce_all
+
+RADIANS = "radians"
+TICKS = "ticks"
+AUTO = "auto"
+JOINT_STATE_UNITS = (AUTO, RADIANS, TICKS)
+
+SIM_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("wheel_radius", "double", 0.033,
+              "Nominal wheel radius [m] (the robot's drawing; shared with the other nodes)."),
+    ParamSpec("wheel_separation", "double", 0.160,
+              "Nominal wheel separation [m] (shared with the other nodes)."),
+    ParamSpec("true_left_wheel_radius", "double", 0.0,
+              "TRUE left wheel radius [m] the base moves with; 0 = wheel_radius."),
+    ParamSpec("true_right_wheel_radius", "double", 0.0,
+              "TRUE right wheel radius [m]; 0 = wheel_radius."),
+    ParamSpec("true_wheel_separation", "double", 0.0,
+              "TRUE wheel separation [m]; 0 = wheel_separation."),
+    ParamSpec("left_wheel_sign", "integer", 1,
+              "Hardware joint sign: -1 = the left joint counts (and turns) backwards "
+              "when the robot drives forward."),
+    ParamSpec("right_wheel_sign", "integer", 1,
+              "Hardware joint sign of the right joint (-1 = flipped)."),
+    ParamSpec("left_wheel_names", "string_array", ["left_wheel_joint"],
+              "Joint names of the left wheels, in wheel command order.", read_only=True),
+    ParamSpec("right_wheel_names", "string_array", ["right_wheel_joint"],
+              "Joint names of the right wheels (same count as left).", read_only=True),
+    ParamSpec("ticks_per_revolution", "double", 0.0,
+              "Encoder counts per wheel turn; 0 = ideal encoder (no quantization)."),
+    ParamSpec("encoder_counter_bits", "integer", 0,
+              "Width of the wrapping encoder counter (e.g. 16); 0 = no wrap."),
+    ParamSpec("encoder_initial_count", "double", 0.0,
+              "Counter value at start (e.g. 65530 to cross a 16-bit wrap at once)."),
+    ParamSpec("joint_state_units", "string", AUTO,
+              "Position units on joint_states: ticks, radians, or auto (ticks when "
+              "ticks_per_revolution > 0).", read_only=True),
+    ParamSpec("motor_time_constant", "double", 0.0,
+              "First-order motor response [s]; 0 = wheels follow commands at once."),
+    ParamSpec("slip_stddev", "double", 0.0,
+              "Wheel slip [m]: std of one side's ground-arc error after 1 m rolled "
+              "(variance grows with distance; Carroll and Jha, sec. 2.3)."),
+    ParamSpec("random_seed", "integer", 0,
+              "Seed of the slip noise (same seed, same run).", read_only=True),
+    ParamSpec("command_timeout", "double", 0.5,
+              "No wheel command for this long [s, simulated] -> wheels stop; 0 = never."),
+    ParamSpec("wheel_command_format", "string", FLOAT64_ARRAY,
+              "Input on wheel_commands: float64_array (rad/s), joint_state (velocity by "
+              "name, rad/s) or ticks_per_second (Float64MultiArray, counts/s).",
+              read_only=True),
+    ParamSpec("publish_rate", "double", 50.0,
+              "joint_states and ground truth rate [Hz of simulated time].", read_only=True),
+    ParamSpec("physics_substeps", "integer", 10,
+              "Motion steps per published step (exactness with a motor lag)."),
+    ParamSpec("publish_clock", "bool", False,
+              "Own the time: publish /clock and run at real_time_factor (run the other "
+              "nodes with use_sim_time:=true).", read_only=True),
+    ParamSpec("real_time_factor", "double", 1.0,
+              "Simulated seconds per wall second when publish_clock is true.", read_only=True),
+    ParamSpec("world_frame_id", "string", "world", "Frame of ground_truth/odom."),
+    ParamSpec("base_frame_id", "string", "base_link",
+              "Child frame of ground_truth/odom (the robot)."),
+)
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """Validated settings of ``sim_node``."""
+
+    config: SimConfig
+    left_wheel_names: tuple[str, ...]
+    right_wheel_names: tuple[str, ...]
+    joint_state_units: str  # RADIANS or TICKS (AUTO resolved)
+    wheel_command_format: str
+    publish_rate: float
+    publish_clock: bool
+    real_time_factor: float
+    world_frame_id: str
+    base_frame_id: str
+
+    @property
+    def wheel_names(self) -> tuple[str, ...]:
+        """Left joints then right joints: the order of commands and readings."""
+        return self.left_wheel_names + self.right_wheel_names
+
+
+def _true(nominal: float, value: float) -> float:
+    return nominal if value == 0.0 else value
+
+
+def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
+    """Validate every sim_node parameter; the first bad one raises ParameterError."""
+    v = coerce_all(SIM_PARAMS, values)
+    for name in ("wheel_radius", "wheel_separation"):
+        if not (math.isfinite(v[name]) and v[name] > 0.0):
+            raise ParameterError(name, f"must be a finite number > 0, got {v[name]!r}")
+    for name in ("true_left_wheel_radius", "true_right_wheel_radius", "true_wheel_separation"):
+        if not (math.isfinite(v[name]) and v[name] >= 0.0):
+            raise ParameterError(name, f"must be 0 (= nominal) or > 0, got {v[name]!r}")
+    r = v["wheel_radius"]
+    with as_parameter_error():
+        geometry = Geometry(
+            wheel_radius=r,
+            wheel_separation=_true(v["wheel_separation"], v["true_wheel_separation"]),
+            left_wheel_radius_multiplier=_true(r, v["true_left_wheel_radius"]) / r,
+            right_wheel_radius_multiplier=_true(r, v["true_right_wheel_radius"]) / r,
+            left_wheel_sign=v["left_wheel_sign"],
+            right_wheel_sign=v["right_wheel_sign"],
+        )
+        encoders = EncoderConfig(v["left_wheel_names"], v["right_wheel_names"],
+                                 v["ticks_per_revolution"], v["encoder_counter_bits"])
+    units = v["joint_state_units"]
+    if units not in JOINT_STATE_UNITS:
+        raise ParameterError("joint_state_units",
+                             f"must be one of {', '.join(JOINT_STATE_UNITS)}, got {units!r}")
+    tpr = encoders.ticks_per_revolution
+    if units == AUTO:
+        units = TICKS if tpr > 0.0 else RADIANS
+    if units == TICKS and tpr <= 0.0:
+        raise ParameterError("ticks_per_revolution", "must be > 0 to publish ticks")
+    if units == RADIANS and encoders.counter_bits > 0:
+        raise ParameterError("encoder_counter_bits",
+                             "a wrapping counter needs joint_state_units ticks")
+    fmt = v["wheel_command_format"]
+    if fmt not in WHEEL_COMMAND_FORMATS:
+        raise ParameterError("wheel_command_format",
+                             f"must be one of {', '.join(WHEEL_COMMAND_FORMATS)}, got {fmt!r}")
+    if fmt == TICKS_PER_SECOND and tpr <= 0.0:
+        raise ParameterError("ticks_per_revolution",
+                             f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")
+    rate = v["publish_rate"]
+    if not (math.isfinite(rate) and 0.0 < rate <= 2000.0):
+        raise ParameterError("publish_rate", f"must be > 0 and <= 2000 [Hz], got {rate!r}")
+    rtf = v["real_time_factor"]
+    if not (math.isfinite(rtf) and 0.0 < rtf <= 100.0):
+        raise ParameterError("real_time_factor", f"must be > 0 and <= 100, got {rtf!r}")
+    for name in ("world_frame_id", "base_frame_id"):
+        if not v[name].strip("/"):
+            raise ParameterError(name, "must not be empty")
+    with as_parameter_error(rename={"substeps": "physics_substeps"}):
+        config = SimConfig(
+            geometry=geometry,
+            wheels_per_side=len(encoders.left_wheel_names),
+            motor_time_constant=v["motor_time_constant"],
+            ticks_per_revolution=tpr,
+            counter_bits=encoders.counter_bits,
+            initial_count=v["encoder_initial_count"],
+            slip_stddev=v["slip_stddev"],
+            command_timeout=v["command_timeout"],
+            substeps=v["physics_substeps"],
+            seed=v["random_seed"],
+        )
+    return SimSettings(
+        config=config,
+        left_wheel_names=encoders.left_wheel_names,
+        right_wheel_names=encoders.right_wheel_names,
+        joint_state_units=units,
+        wheel_command_format=fmt,
+        publish_rate=rate,
+        publish_clock=v["publish_clock"],
+        real_time_factor=rtf,
+        world_frame_id=v["world_frame_id"],
+        base_frame_id=v["base_frame_id"],
+    )

@@ -1,0 +1,420 @@
+"""Bag input/output for the offline tools (no rclpy): read JointState, write odometry.
+
+Reading goes through rosbags' ``AnyReader``, so rosbag2 (sqlite3 or mcap) and ROS 1
+bags look the same; a ROS 2 Jazzy typestore is the default for bags that carry no
+message definitions, and ROS 1 messages are converted to ROS 2 CDR where they have to
+leave the bag (``--keep-input``, ``play``): same field names, minus ``Header.seq``.
+
+Readings come out in *header stamp* order, because the estimator works on
+measurement time and a recorder logs in arrival order; a small heap reorders them
+while streaming, so memory stays constant whatever the bag's length.
+
+Output bags are written with rosbags' own message classes (not rclpy's serializer,
+which pads some messages in a way strict readers reject), as rosbag2 with mcap
+storage by default or sqlite3 on request; ``ros2 bag play`` and independent readers
+(mcap-ros2-support) read them.
+
+CSV columns (one row per published odometry, see :data:`CSV_COLUMNS`):
+
+==============  =============================================================
+``stamp_ns``    measurement time: the JointState header stamp [ns], an integer
+``time``        the same in seconds, written exactly: ``sec.nanosec`` with nine
+                decimals (``1600000000.100000001``), never a rounded float
+``x``, ``y``    position of the base frame in the odom frame [m]
+``yaw``         heading in (-pi, pi] [rad]
+``linear``      forward speed along base x [m/s] (rolling mean as the node)
+``angular``     yaw rate [rad/s] (rolling mean as the node)
+``status``      estimator verdict: reference / updated / time_reset
+``var_x``,      diagonal of the published pose covariance: variance of x, y
+``var_y``,      [m^2] and yaw [rad^2] (the full 6x6 matrix is in the output bag)
+``var_yaw``
+==============  =============================================================
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import heapq
+import itertools
+import os
+import shutil
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any
+
+from rosbags.convert.converter import is_same_wireformat, migrate_bytes
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.interfaces import Connection
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
+
+from diffdrive_odom.core.cdr import JointStateDecoder
+from diffdrive_odom.core.conversions import stamp_to_ns
+
+JOINT_STATE = "sensor_msgs/msg/JointState"
+ODOMETRY = "nav_msgs/msg/Odometry"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+STORAGES = ("mcap", "sqlite3")
+CSV_COLUMNS = ("stamp_ns", "time", "x", "y", "yaw", "linear", "angular", "status",
+               "var_x", "var_y", "var_yaw")
+# Readings displaced further than this many messages from stamp order still come out,
+# in arrival order (the estimator then drops the late one, as the node would).
+REORDER_WINDOW = 64
+
+
+class BagError(RuntimeError):
+    """A bag that cannot be used as asked (missing topic, wrong type, bad path)."""
+
+
+@functools.cache
+def typestore() -> Typestore:
+    """Return the ROS 2 Jazzy typestore (JointState, Odometry, TFMessage, Clock, ...).
+
+    Shared and never modified: building it (and its serializers) costs ~0.3 s.
+    """
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+# What rosbags raises for a path that is not a bag (or a damaged one).
+_NOT_A_BAG = (AnyReaderError, OSError, KeyError, ValueError)
+
+
+class _Reader(AnyReader):
+    """AnyReader whose open() reports a file that is not a bag as one BagError."""
+
+    def open(self) -> None:
+        try:
+            super().open()
+        except _NOT_A_BAG as err:
+            raise BagError(f"{self.paths[0]}: not a readable bag ({err})") from err
+
+
+def open_bag(path: str | Path) -> AnyReader:
+    """Return an unopened reader for a rosbag2 dir / ``.mcap`` / ``.db3`` or ROS 1 ``.bag``.
+
+    Use as a context manager. A single rosbag2 storage file is accepted for
+    convenience: its directory is opened when it holds the metadata. Anything that is
+    not a bag raises :class:`BagError` naming the path, here or on opening.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise BagError(f"{p}: no such bag")
+    if p.is_file() and p.suffix in (".mcap", ".db3") and (p.parent / "metadata.yaml").exists():
+        p = p.parent
+    try:
+        return _Reader([p], default_typestore=typestore())
+    except _NOT_A_BAG as err:
+        raise BagError(f"{p}: not a readable bag ({err})") from err
+
+
+def output_problem(path: str | Path, flag: str) -> str | None:
+    """Why ``path`` cannot be written (one line naming ``flag``), or None.
+
+    Checked before the work starts, so a long replay does not end in a traceback
+    over a typo in ``--plot``.
+    """
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    if p.is_dir():
+        return f"{flag} {p}: is a directory"
+    if not parent.is_dir():
+        return f"{flag} {p}: directory {parent} does not exist"
+    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        return f"{flag} {p}: not writable"
+    return None
+
+
+def connections_for(
+    reader: AnyReader, topic: str, msgtypes: Iterable[str] = ()
+) -> list[Connection]:
+    """Return the connections on ``topic``; BagError naming what exists if none fit."""
+    wanted = set(msgtypes)
+    found = [c for c in reader.connections if c.topic == topic]
+    if not found:
+        have = ", ".join(sorted({c.topic for c in reader.connections})) or "none"
+        raise BagError(f"topic {topic} is not in the bag (topics: {have})")
+    if wanted:
+        typed = [c for c in found if c.msgtype in wanted]
+        if not typed:
+            raise BagError(
+                f"topic {topic} has type {found[0].msgtype}, expected one of {sorted(wanted)}"
+            )
+        found = typed
+    return found
+
+
+@dataclass(frozen=True)
+class JointReading:
+    """One JointState as the estimator takes it, plus where it sat in the bag."""
+
+    stamp_ns: int  # header stamp (measurement time)
+    log_ns: int  # time the recorder logged it
+    names: Sequence[str]
+    position: Sequence[float]
+    velocity: Sequence[float]
+
+
+def _reading(msg: Any, log_ns: int) -> JointReading:
+    return JointReading(
+        stamp_to_ns(msg.header.stamp), log_ns, msg.name, msg.position, msg.velocity
+    )
+
+
+class _JointStates:
+    """A bag's JointState bytes -> readings.
+
+    The node's own CDR decoder for rosbag2 data (rosbags' full deserialisation is
+    several times slower); rosbags' for ROS 1 bags and whatever that decoder leaves.
+    """
+
+    def __init__(self, reader: AnyReader) -> None:
+        self._reader = reader
+        self._decoder = JointStateDecoder() if reader.is2 else None
+
+    def __call__(self, raw: bytes, msgtype: str, log_ns: int) -> JointReading:
+        if self._decoder is not None:
+            try:
+                got = self._decoder.decode(raw)
+            except ValueError:
+                got = None
+            if got is not None:
+                return JointReading(got.sec * 1_000_000_000 + got.nanosec, log_ns, got.name,
+                                    got.position, got.velocity)
+        return _reading(self._reader.deserialize(raw, msgtype), log_ns)
+
+
+Passthrough = Callable[[Connection, int, bytes], None]
+
+
+def iter_joint_states(
+    reader: AnyReader,
+    topic: str = "/joint_states",
+    passthrough: Passthrough | None = None,
+    window: int = REORDER_WINDOW,
+    jump_back_ns: int = 1_000_000_000,
+) -> Iterator[JointReading]:
+    """JointState readings of an open reader, in header stamp order, streaming.
+
+    A stamp more than ``jump_back_ns`` behind the newest one seen is a new run (a bag
+    recorded from a looped play, a restarted simulation): everything before it comes
+    out first, so two runs are never merged by the reordering.
+
+    With ``passthrough``, every message of the bag (JointState included) is also handed
+    to it raw, in log time order, interleaved with the readings (``replay
+    --keep-input`` copies them).
+    """
+    joints = connections_for(reader, topic, (JOINT_STATE,))
+    conns = reader.connections if passthrough is not None else joints
+    joint_ids = {id(c) for c in joints}
+    decode = _JointStates(reader)
+    heap: list[tuple[int, int, JointReading]] = []
+    order = itertools.count()
+    newest: int | None = None
+    for conn, log_ns, raw in reader.messages(connections=conns):
+        if passthrough is not None:
+            passthrough(conn, log_ns, raw)
+            if id(conn) not in joint_ids:
+                continue
+        reading = decode(raw, conn.msgtype, log_ns)
+        if newest is not None and reading.stamp_ns < newest - jump_back_ns:
+            while heap:
+                yield heapq.heappop(heap)[2]
+            newest = None
+        newest = reading.stamp_ns if newest is None else max(newest, reading.stamp_ns)
+        heapq.heappush(heap, (reading.stamp_ns, next(order), reading))
+        if len(heap) > window:
+            yield heapq.heappop(heap)[2]
+    while heap:
+        yield heapq.heappop(heap)[2]
+
+
+def read_joint_states(
+    path: str | Path, topic: str = "/joint_states", jump_back_ns: int = 1_000_000_000
+) -> Iterator[JointReading]:
+    """Open ``path`` and stream its JointState readings in stamp order."""
+    with open_bag(path) as reader:
+        yield from iter_joint_states(reader, topic, jump_back_ns=jump_back_ns)
+
+
+def count_messages(reader: AnyReader, topic: str) -> int:
+    """Messages on ``topic`` according to the bag's index (no decoding)."""
+    return sum(c.msgcount for c in reader.connections if c.topic == topic)
+
+
+@contextmanager
+def staged(path: str | Path) -> Iterator[Path]:
+    """Where to write ``path``: its name in a hidden sibling directory, moved on success.
+
+    On any exception (Ctrl-C included) the staging directory is removed, so a failed
+    run never leaves a half-written output under the name the user asked for. Same
+    file system, so the move is a rename; same name, so a bag's storage file inside
+    (``NAME_0.mcap``) is named as if written in place.
+    """
+    final = Path(path)
+    stage = final.parent / f".{final.name}.partial-{os.getpid()}"
+    stage.mkdir()
+    try:
+        yield stage / final.name
+        os.replace(stage / final.name, final)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+# --- ROS 1 -> ROS 2 -------------------------------------------------------------------
+
+
+class CdrConverter:
+    """Raw bytes of any connection of a bag -> ROS 2 CDR with a Jazzy type name.
+
+    rosbag2 data passes through untouched. ROS 1 data is re-encoded; types whose
+    fields differ from Jazzy's (only ``Header.seq`` for the common messages) are
+    migrated field by field, as ``rosbags-convert`` does. Types Jazzy lacks are
+    registered from the bag's own definitions.
+    """
+
+    def __init__(self, reader: AnyReader) -> None:
+        self._reader = reader
+        self.typestore = get_typestore(Stores.ROS2_JAZZY)  # its own: types get added
+        self._funcs: dict[str, Callable[[bytes], bytes]] = {}
+        self._cache: dict[str, object] = {}
+
+    def __call__(self, conn: Connection, raw: bytes) -> bytes:
+        """CDR bytes of one message of ``conn``."""
+        func = self._funcs.get(conn.msgtype)
+        if func is None:
+            func = self._funcs[conn.msgtype] = self._make(conn.msgtype)
+        return func(raw)
+
+    def _make(self, msgtype: str) -> Callable[[bytes], bytes]:
+        src = self._reader.typestore
+        if self._reader.is2:
+            if msgtype not in self.typestore.fielddefs:
+                self.typestore.register({msgtype: src.fielddefs[msgtype]})
+            return bytes
+        if msgtype not in self.typestore.fielddefs:
+            missing = {
+                k: v
+                for k, v in src.fielddefs.items()
+                if k not in self.typestore.fielddefs and k != "std_msgs/msg/Header"
+            }
+            self.typestore.register(missing)
+        if is_same_wireformat(src, self.typestore, msgtype, msgtype):
+            to_cdr = functools.partial(self.typestore.ros1_to_cdr, typename=msgtype)
+            return lambda raw: bytes(to_cdr(raw))
+        migrate = functools.partial(
+            migrate_bytes, src, self.typestore, msgtype, msgtype, self._cache,
+            src_is2=False, dst_is2=True,
+        )
+        return lambda raw: bytes(migrate(raw))
+
+
+# --- writing ---------------------------------------------------------------------------
+
+
+class BagWriter:
+    """A rosbag2 being written: topics by name, messages as objects or CDR bytes.
+
+    Refuses an existing output path (rosbag2 does too) rather than mixing two runs.
+    """
+
+    def __init__(self, path: str | Path, storage: str = "mcap") -> None:
+        if storage not in STORAGES:
+            raise BagError(f"storage must be one of {STORAGES}, got {storage!r}")
+        self.path = Path(path)
+        if self.path.exists():
+            raise BagError(f"{self.path} exists: remove it or choose another output")
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        self._writer = Writer(self.path, version=9, storage_plugin=plugin)
+        self.typestore = typestore()
+        self._conns: dict[str, tuple[Connection, str]] = {}
+        self.count = 0
+
+    def __enter__(self) -> BagWriter:
+        self._writer.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self._writer.close()
+
+    def add_topic(self, topic: str, msgtype: str, store: Typestore | None = None) -> None:
+        """Register ``topic`` once; a second type on the same topic is an error."""
+        known = self._conns.get(topic)
+        if known is not None:
+            if known[1] != msgtype:
+                raise BagError(f"topic {topic} would carry both {known[1]} and {msgtype}")
+            return
+        conn = self._writer.add_connection(topic, msgtype, typestore=store or self.typestore)
+        self._conns[topic] = (conn, msgtype)
+
+    def has_topic(self, topic: str) -> bool:
+        """Tell whether ``topic`` is registered."""
+        return topic in self._conns
+
+    def write(self, topic: str, log_ns: int, msg: Any) -> None:
+        """Serialize a rosbags message object (Jazzy types) onto ``topic``."""
+        conn, msgtype = self._conns[topic]
+        self._writer.write(conn, log_ns, self.typestore.serialize_cdr(msg, msgtype))
+        self.count += 1
+
+    def write_cdr(self, topic: str, log_ns: int, data: bytes) -> None:
+        """Write already-serialized CDR bytes onto ``topic``."""
+        self._writer.write(self._conns[topic][0], log_ns, data)
+        self.count += 1
+
+
+class CsvWriter:
+    """Odometry rows with the documented :data:`CSV_COLUMNS` (full float precision)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._file: IO[str] | None = None
+        self._csv: Any = None
+
+    def __enter__(self) -> CsvWriter:
+        self._file = open(self.path, "w", newline="", encoding="utf-8")
+        self._csv = csv.writer(self._file)
+        self._csv.writerow(CSV_COLUMNS)
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if self._file is not None:
+            self._file.close()
+
+    def row(
+        self, ns: int, x: float, y: float, yaw: float, *, linear: float, angular: float,
+        status: str, pose_covariance: Sequence[float] = (),
+    ) -> None:
+        """One published pose; floats by ``repr`` so reading back is lossless.
+
+        The stamp is an integer, so it is written as integers too: a float in seconds
+        has only ~0.2 us resolution at today's epoch (``1600000000.1000001``).
+        ``pose_covariance`` is the message's 6x6 row-major matrix; its x, y and yaw
+        variances fill the last three columns (left empty without one).
+        """
+        variances = ([repr(float(pose_covariance[i])) for i in (0, 7, 35)]
+                     if pose_covariance else ["", "", ""])
+        self._csv.writerow(
+            (ns, seconds_text(ns), repr(x), repr(y), repr(yaw), repr(linear), repr(angular),
+             status, *variances)
+        )
+
+
+def seconds_text(ns: int) -> str:
+    """Exact decimal seconds of an integer nanosecond stamp: ``sec.nanosec`` (9 places)."""
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return f"{sec}.{nanosec:09d}"

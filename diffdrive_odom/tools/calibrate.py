@@ -1,0 +1,285 @@
+"""``diffdrive-odom calibrate``: wheel radii, separation and wheel noise from recorded runs.
+
+The CLI only reads bags and prints; the fit is :mod:`diffdrive_odom.core.calibration`.
+Readings are decoded with the odometry node's own parameters and pipeline
+(:func:`diffdrive_odom.core.batch.wheel_steps`), ground truth with ``eval``'s readers, so
+a bag that replays or evaluates also calibrates. The result is printed as a
+``/**: ros__parameters:`` block with the node's own parameter names, to paste into
+its params file (``--yaml FILE`` also writes it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from diffdrive_odom.core import batch, calibration
+from diffdrive_odom.core.calibration import CalibrationError, Fit, Run, Umbmark
+from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.settings.odometry import OdometrySettings
+from diffdrive_odom.settings.params import yaml_text
+from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.replay import add_param_arguments, settings_from_args
+
+PREFIX = "[calibrate]"
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="diffdrive-odom calibrate",
+        description="Fit wheel radii and separation (and the wheel noise k) to ground truth "
+        "recorded with the wheel readings, or run Borenstein and Feng's UMBmark "
+        "(--umbmark CW_BAG CCW_BAG --side L); prints a params block to paste.",
+        formatter_class=HelpFormatter,
+    )
+    ap.add_argument("bags", nargs="*", metavar="BAG",
+                    help="runs with /joint_states and a ground-truth pose topic")
+    ap.add_argument("--umbmark", nargs=2, metavar=("CW_BAG", "CCW_BAG"), default=None,
+                    help="UMBmark from a clockwise and a counter-clockwise square "
+                    "(default: least squares on the BAGs)")
+    ap.add_argument("--side", type=float, default=None, metavar="M",
+                    help="with --umbmark: the squares' side [m] (no default: required there)")
+    ap.add_argument("--cw-end", default=None, metavar="X,Y",
+                    help="with --umbmark: measured end position of the CW square [m], start "
+                    "frame (x forward, y left); --cw-end=-0.1,0.2 when X is negative "
+                    "(default: from the ground-truth topic)")
+    ap.add_argument("--ccw-end", default=None, metavar="X,Y",
+                    help="with --umbmark: the same for the CCW square (default: from the "
+                    "ground-truth topic)")
+    add_param_arguments(ap, required=False, file_help="the node's ROS 2 params YAML: nominal "
+                        "geometry, joint names, encoders (repeatable, later files win; default: "
+                        "none, but this or -p must give wheel_radius and wheel_separation)")
+    ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bags")
+    evaluate.add_reference_arguments(ap)
+    ap.add_argument("--window", type=float, default=calibration.DEFAULT_WINDOW, metavar="M",
+                    help="wheel travel per residual window [m]")
+    ap.add_argument("--no-mount", action="store_true",
+                    help="do not fit the reference frame's offset, yaw and clock lag "
+                    "(default: fitted along; use when the reference is the axle centre)")
+    ap.add_argument("--yaml", metavar="FILE",
+                    help="also write the params block to FILE (default: printed only)")
+    ap.add_argument("--plot", metavar="FILE",
+                    help="write a PNG of the paths before and after (default: none)")
+    return ap
+
+
+def _error(text: str) -> int:
+    print(f"{PREFIX} {text}", file=sys.stderr)
+    return 2
+
+
+def _end_point(text: str, flag: str) -> tuple[float, float]:
+    parts = text.split(",")
+    try:
+        x, y = (float(p) for p in parts)
+    except ValueError:
+        raise CalibrationError(f"{flag}: give X,Y in metres, got {text!r}") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise CalibrationError(f"{flag}: X,Y must be finite, got {text!r}")
+    return x, y
+
+
+def _usage_problem(args: argparse.Namespace) -> str | None:
+    """What is wrong with the command line as a whole, before any bag is opened."""
+    if not args.ros_params:
+        return ("give the nominal geometry: --params-file FILE (the node's params) or "
+                "-p wheel_radius:=R -p wheel_separation:=B")
+    if args.umbmark is None:
+        if not args.bags:
+            return "give one or more BAGs, or --umbmark CW_BAG CCW_BAG --side L"
+        if args.side is not None or args.cw_end or args.ccw_end:
+            return "--side/--cw-end/--ccw-end need --umbmark"
+        if not (math.isfinite(args.window) and args.window > 0):
+            return f"--window must be > 0 m, got {args.window}"
+    else:
+        if args.bags:
+            return "--umbmark takes its two bags itself; no other BAG"
+        if args.side is None:
+            return "--umbmark needs --side L (the squares' side in metres)"
+        if bool(args.cw_end) != bool(args.ccw_end):
+            return "give both --cw-end and --ccw-end, or neither (ground truth from the bags)"
+    for flag, path in (("--yaml", args.yaml), ("--plot", args.plot)):
+        problem = bagio.output_problem(path, flag) if path else None
+        if problem:
+            return problem
+    return None
+
+
+def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,
+         reference: bool) -> Run:
+    """Decode one bag into its wheel steps (and read its ground truth when asked)."""
+    ref = None
+    if reference:
+        topic = evaluate.reference_topic(bag, args.ground_truth, (args.topic,),
+                                         lambda t: print(f"{PREFIX} {t}", file=sys.stderr))
+        ref = evaluate.read_trajectory(bag, topic, args.child_frame)
+    jump = int(settings.estimator.time_jump_threshold * 1e9)
+    steps = batch.wheel_steps(bagio.read_joint_states(bag, args.topic, jump), settings)
+    return Run(Path(bag).name, steps, ref)
+
+
+def main(argv: Sequence[str]) -> int:
+    """``diffdrive-odom calibrate``; exit 2 with one line for a bad bag, topic or option."""
+    args = _parser().parse_args(list(argv))
+    problem = _usage_problem(args)
+    if problem:
+        return _error(problem)
+    settings = settings_from_args(args)
+    if isinstance(settings, str):
+        return _error(settings)
+    try:
+        if args.umbmark is not None:
+            return _umbmark(args, settings)
+        runs = [_run(bag, settings, args, True) for bag in args.bags]
+        result = calibration.fit(runs, settings.geometry, args.window,
+                                 fit_mount=not args.no_mount)
+        text = params_block(result.geometry, result.k_left, result.k_right,
+                            f"least squares on {len(runs)} run(s), window {args.window:g} m")
+        if args.yaml:
+            Path(args.yaml).write_text(text, encoding="utf-8")
+        if args.plot:
+            plot(result, runs, args.plot)
+        print(fit_report(result))
+        print(text, end="")
+    except (bagio.BagError, CalibrationError) as err:
+        return _error(str(err))
+    except OSError as err:
+        return _error(f"cannot write: {err}")
+    return 0
+
+
+def _umbmark(args: argparse.Namespace, settings: OdometrySettings) -> int:
+    typed = args.cw_end is not None
+    cw = _run(args.umbmark[0], settings, args, not typed)
+    ccw = _run(args.umbmark[1], settings, args, not typed)
+    if typed:
+        cw_end = _end_point(args.cw_end, "--cw-end")
+        ccw_end = _end_point(args.ccw_end, "--ccw-end")
+    else:
+        assert cw.reference is not None and ccw.reference is not None
+        cw_end = calibration.reference_end(cw, cw.reference)
+        ccw_end = calibration.reference_end(ccw, ccw.reference)
+    result = calibration.umbmark(cw, ccw, cw_end, ccw_end, side=args.side,
+                                 nominal=settings.geometry)
+    text = params_block(result.geometry, None, None, f"UMBmark, side {args.side:g} m")
+    if args.yaml:
+        Path(args.yaml).write_text(text, encoding="utf-8")
+    print(umbmark_report(result))
+    print(text, end="")
+    return 0
+
+
+def _num(value: float) -> str:
+    return yaml_text(float(f"{value:.7g}"))
+
+
+def params_block(geometry: Geometry, k_left: float | None, k_right: float | None,
+                 how: str) -> str:
+    """The ``/**: ros__parameters:`` block for the node (nominal values kept, multipliers set).
+
+    The separation is given as ``wheel_separation_multiplier`` with the nominal
+    ``wheel_separation``, as the radii are: diff_drive_controller's split.
+    """
+    lines = [
+        f"# diffdrive-odom calibrate: {how}",
+        "/**:",
+        "  ros__parameters:",
+        f"    wheel_radius: {_num(geometry.wheel_radius)}",
+        f"    left_wheel_radius_multiplier: {_num(geometry.left_wheel_radius_multiplier)}",
+        f"    right_wheel_radius_multiplier: {_num(geometry.right_wheel_radius_multiplier)}",
+        f"    wheel_separation: {_num(geometry.wheel_separation)}",
+        f"    wheel_separation_multiplier: {_num(geometry.wheel_separation_multiplier)}",
+    ]
+    if k_left is not None and k_right is not None:
+        lines += [f"    wheel_noise_k_left: {_num(k_left)}  # [m] wheel-travel variance per m",
+                  f"    wheel_noise_k_right: {_num(k_right)}  # [m]"]
+    return "\n".join(lines) + "\n"
+
+
+def fit_report(fit: Fit) -> str:
+    """Human lines: values with uncertainty, nuisances, noise, and per-run errors."""
+    nominal = calibration.values_of(fit.nominal)
+    lines = [f"calibrated from {len(fit.runs)} run(s): {fit.windows} windows of "
+             f"{fit.window:g} m wheel travel, {fit.evaluations} evaluations, "
+             f"{fit.seconds:.2f} s",
+             f"{'':22s} {'nominal':>10s} {'fitted':>10s} {'1-sigma':>10s}"]
+    for name, n, v, s in zip(("left wheel radius [m]", "right wheel radius [m]",
+                              "wheel separation [m]"), nominal, fit.values, fit.std,
+                             strict=True):
+        lines.append(f"{name:22s} {n:10.6f} {v:10.6f} {s:10.6f}")
+    m, ms = fit.mount, fit.mount_std
+    lines.append(f"reference on the robot: x {m[0]:+.4f} +- {ms[0]:.4f} m, y {m[1]:+.4f} +- "
+                 f"{ms[1]:.4f} m, yaw {math.degrees(m[2]):+.3f} +- {math.degrees(ms[2]):.3f} "
+                 f"deg, clock lag {m[3] * 1e3:+.1f} +- {ms[3] * 1e3:.1f} ms")
+    lines.append(f"wheel noise: wheel_noise_k_left {fit.k_left:.3g} m, wheel_noise_k_right "
+                 f"{fit.k_right:.3g} m; RMS residual {fit.rms_before * 1e3:.2f} -> "
+                 f"{fit.rms_after * 1e3:.2f} mm")
+    lines.append("final position error (start aligned), nominal -> calibrated; ATE RMSE:")
+    for r in fit.runs:
+        lines.append(f"  {r.name}: {r.before.final_position_error_aligned_m:.4f} -> "
+                     f"{r.after.final_position_error_aligned_m:.4f} m; "
+                     f"{r.before.ate_rmse_aligned_m:.4f} -> {r.after.ate_rmse_aligned_m:.4f} m")
+    return "\n".join(lines)
+
+
+def umbmark_report(u: Umbmark) -> str:
+    """Human lines: the paper's single pass, the converged values, the end errors."""
+    f = u.first
+    n, one, it = (calibration.values_of(g) for g in (u.nominal, u.one_pass, u.geometry))
+    lines = [
+        f"UMBmark (Borenstein and Feng), side {u.side:g} m: end errors (measured - odometry) "
+        f"CW ({f.cw_error[0]:+.4f}, {f.cw_error[1]:+.4f}) m, CCW ({f.ccw_error[0]:+.4f}, "
+        f"{f.ccw_error[1]:+.4f}) m",
+        f"  alpha {math.degrees(f.alpha):+.4f} deg (from y {math.degrees(f.alpha_y):+.4f}), "
+        f"beta {math.degrees(f.beta):+.4f} deg (from y {math.degrees(f.beta_y):+.4f}); "
+        f"E_d {f.e_d:.6f}, E_b {f.e_b:.6f}",
+        f"{'':22s} {'nominal':>10s} {'one pass':>10s} {'converged':>10s}",
+    ]
+    for name, a, b, c in zip(("left wheel radius [m]", "right wheel radius [m]",
+                              "wheel separation [m]"), n, one, it, strict=True):
+        lines.append(f"{name:22s} {a:10.6f} {b:10.6f} {c:10.6f}")
+    lines.append(f"converged in {u.passes} passes; end position error CW, CCW: "
+                 f"{u.before[0]:.4f}, {u.before[1]:.4f} -> {u.after[0]:.4f}, "
+                 f"{u.after[1]:.4f} m (E_max,syst {u.e_max_before:.4f} -> "
+                 f"{u.e_max_after:.4f} m)")
+    return "\n".join(lines)
+
+
+def plot(fit: Fit, runs: Sequence[Run], path: str | Path) -> None:
+    """PNG: per run, the reference and the odometry before and after calibration."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(runs), figsize=(5.5 * len(runs), 5.5), squeeze=False)
+    for ax, run, figures in zip(axes[0], runs, fit.runs, strict=True):
+        assert run.reference is not None
+        ax.plot(run.reference.x, run.reference.y, "k-", lw=1.5, label="ground truth")
+        for geometry, style, label, m in (
+                (fit.nominal, "--", "nominal", figures.before),
+                (fit.geometry, "-", "calibrated", figures.after)):
+            est = calibration.trajectory(run, geometry)
+            matched = evaluate.match(est, run.reference)
+            aligned = evaluate.align_start(matched.est, matched.ref)
+            ax.plot(aligned[:, 0], aligned[:, 1], style, lw=1.0,
+                    label=f"{label}: end error {m.final_position_error_aligned_m:.3f} m")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+        ax.set_title(run.name, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+__all__ = ["fit_report", "main", "params_block", "plot", "umbmark_report"]
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

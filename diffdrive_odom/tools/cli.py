@@ -1,0 +1,108 @@
+"""``diffdrive-odom``: one entry point for the tools, each in its own module.
+
+Subcommands are imported only when used, so ``diffdrive-odom eval`` does not pay
+for rclpy and ``diffdrive-odom play`` does not pay for matplotlib.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import importlib
+import sys
+from collections.abc import Sequence
+from importlib import metadata
+from pathlib import Path
+from xml.etree import ElementTree
+
+PROGRAM = "diffdrive-odom"
+PACKAGE = "diffdrive_odom"
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("diffdrive_odom.demo.cli",
+             "closed-loop demo: follower + cmd_vel + sim + odometry; calibrates; table, plot, bag"),
+    "play": ("diffdrive_odom.tools.play",
+             "publish a bag's messages over DDS with /clock (no rosbag2)"),
+    "replay": ("diffdrive_odom.tools.replay",
+               "run the estimator over a bag offline; write bag/CSV"),
+    "eval": ("diffdrive_odom.tools.evaluate", "compare odometry with ground truth in a bag"),
+    "calibrate": ("diffdrive_odom.tools.calibrate", "fit wheel radii and separation; UMBmark"),
+}
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Every subcommand's ``--help`` shows each default, once.
+
+    A default of None, False or empty says nothing as "(default: None)": those options
+    spell out their default in their own help text, and an option whose help already
+    says "(default" is left as written.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        default = action.default
+        empty = default is None or default is False or (
+            isinstance(default, (list, tuple)) and not default)
+        if empty or "(default" in (action.help or ""):
+            return action.help
+        return super()._get_help_string(action)
+
+
+def version() -> str:
+    """The installed distribution's version, else package.xml's (a source checkout).
+
+    colcon and pip both install the metadata; the fallback covers running from a tree
+    that was never installed, where package.xml is the one place the version lives.
+    """
+    try:
+        return metadata.version(PACKAGE)
+    except metadata.PackageNotFoundError:
+        pass
+    candidates = [Path(__file__).resolve().parents[2] / "package.xml"]
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        candidates.insert(0, Path(get_package_share_directory(PACKAGE)) / "package.xml")
+    except Exception:  # not in an ament workspace (or the index lacks the package)
+        pass
+    for path in candidates:
+        try:
+            text = ElementTree.parse(path).findtext("version")
+        except (OSError, ElementTree.ParseError):
+            continue
+        if text:
+            return text.strip()
+    return "unknown"
+
+
+def usage() -> str:
+    """The command list, as ``--help`` prints it."""
+    lines = [f"usage: {PROGRAM} [--version] {{{','.join(COMMANDS)}}} ...", ""]
+    lines += [f"  {name:8s} {text}" for name, (_, text) in COMMANDS.items()]
+    lines += ["", f"`{PROGRAM} COMMAND --help` shows each command's options and defaults."]
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Dispatch to ``<module>.main(argv)``; 2 (and the reason) for a missing/unknown command."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if args and args[0] in ("-h", "--help"):
+        print(usage())
+        return 0
+    if args and args[0] == "--version":
+        print(f"{PROGRAM} {version()}")
+        return 0
+    if not args:
+        print(f"{PROGRAM}: no command given\n\n{usage()}", file=sys.stderr)
+        return 2
+    if args[0] not in COMMANDS:
+        close = difflib.get_close_matches(args[0], COMMANDS, n=1)
+        hint = f"; did you mean '{close[0]}'?" if close else ""
+        print(f"{PROGRAM}: unknown command '{args[0]}' (commands: {', '.join(COMMANDS)})"
+              f"{hint}", file=sys.stderr)
+        return 2
+    module = importlib.import_module(COMMANDS[args[0]][0])
+    return int(module.main(args[1:]) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

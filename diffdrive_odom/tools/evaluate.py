@@ -1,0 +1,292 @@
+"""``diffdrive-odom eval``: how far odometry is from ground truth, in numbers and a plot.
+
+The figures are computed by the pure :mod:`diffdrive_odom.core.metrics` (see its
+docstring for what each means); this module reads trajectories from bags, writes
+the JSON and the plot, and is the CLI. The metrics' names are re-exported here so
+``evaluate.Trajectory`` / ``evaluate.evaluate`` keep working for callers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from diffdrive_odom.core.conversions import quaternion_to_yaw, stamp_to_ns
+from diffdrive_odom.core.metrics import (
+    Matched,
+    Metrics,
+    Trajectory,
+    align_best_fit,
+    align_start,
+    evaluate,
+    match,
+    path_length,
+    relative_errors,
+)
+from diffdrive_odom.tools import bagio
+from diffdrive_odom.tools.cli import HelpFormatter
+
+__all__ = [
+    "DEFAULT_REFERENCE", "POSE_TYPES", "Matched", "Metrics", "Trajectory", "align_best_fit",
+    "align_start", "evaluate", "main", "match", "output_problem", "path_length", "plot",
+    "read_trajectory", "reference_topic", "relative_errors", "report",
+]
+
+POSE_TYPES = (
+    "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "nav_msgs/msg/Odometry",
+    "geometry_msgs/msg/TransformStamped",
+    bagio.TF_MESSAGE,
+)
+
+
+# --- reading trajectories from bags ------------------------------------------------------
+
+
+def _pose_of(msg: Any, msgtype: str) -> tuple[Any, Any]:
+    """(position-like, quaternion) of one message of a supported type."""
+    if msgtype == "geometry_msgs/msg/PoseStamped":
+        return msg.pose.position, msg.pose.orientation
+    if msgtype in ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseWithCovarianceStamped"):
+        return msg.pose.pose.position, msg.pose.pose.orientation
+    return msg.transform.translation, msg.transform.rotation  # TransformStamped
+
+
+Notify = Callable[[str], None]
+DEFAULT_REFERENCE = "/ground_truth/pose"
+# Name parts that mark a topic as ground truth (sim_node and the demo write
+# /ground_truth/odom; motion-capture bridges use mocap/vicon/optitrack names).
+REFERENCE_HINTS = ("ground_truth", "groundtruth", "mocap", "vicon", "optitrack")
+
+
+def reference_topic(
+    bag: str | Path, requested: str | None, exclude: Iterable[str] = (),
+    notify: Notify | None = None,
+) -> str:
+    """The reference topic to read: ``requested``, else the default, else the one candidate.
+
+    With no topic asked for and no :data:`DEFAULT_REFERENCE` in the bag, a pose-typed
+    topic whose name looks like ground truth is taken when it is the only one (and
+    ``notify`` is told); otherwise BagError lists what there is.
+    """
+    if requested is not None:
+        return requested
+    with bagio.open_bag(bag) as reader:
+        posed: list[str] = sorted(
+            {str(c.topic) for c in reader.connections if c.msgtype in POSE_TYPES}
+            - set(exclude))
+    if DEFAULT_REFERENCE in posed:
+        return DEFAULT_REFERENCE
+    plausible = [t for t in posed if any(h in t.lower() for h in REFERENCE_HINTS)]
+    if len(plausible) == 1:
+        if notify is not None:
+            notify(f"{DEFAULT_REFERENCE} is not in {bag}; using {plausible[0]}, its only "
+                   "ground-truth topic (--ground-truth to choose another)")
+        return plausible[0]
+    which = "several ground-truth topics" if plausible else "no ground-truth topic"
+    raise bagio.BagError(
+        f"{bag}: {DEFAULT_REFERENCE} is absent and there are {which}; name one with "
+        f"--ground-truth (pose topics: {', '.join(posed) or 'none'})")
+
+
+def read_trajectory(
+    bag: str | Path, topic: str, child_frame: str | None = None,
+    frame_flag: str = "--child-frame", notify: Notify | None = None,
+) -> Trajectory:
+    """Poses on ``topic`` by header stamp; for /tf, the transforms to ``child_frame``.
+
+    On a TFMessage topic without ``child_frame``, the only child frame is used (and
+    ``notify`` told); with several, BagError names them and ``frame_flag``, the
+    option that chooses one.
+    """
+    by_child: dict[str, tuple[list[int], list[float], list[float], list[float]]] = {}
+    seen: set[str] = set()
+    with bagio.open_bag(bag) as reader:
+        conns = bagio.connections_for(reader, topic, POSE_TYPES)
+        for conn, _, raw in reader.messages(connections=conns):
+            msg: Any = reader.deserialize(raw, conn.msgtype)
+            items = list(msg.transforms) if conn.msgtype == bagio.TF_MESSAGE else [msg]
+            for item in items:
+                key = ""  # every pose of a topic that is not a TFMessage
+                if conn.msgtype in (bagio.TF_MESSAGE, "geometry_msgs/msg/TransformStamped"):
+                    child = str(item.child_frame_id).lstrip("/")
+                    seen.add(child)
+                    if child_frame is not None and child != child_frame.lstrip("/"):
+                        continue
+                    key = child if conn.msgtype == bagio.TF_MESSAGE else ""
+                    p, q = _pose_of(item, "geometry_msgs/msg/TransformStamped")
+                else:
+                    p, q = _pose_of(item, conn.msgtype)
+                ts, xs, ys, yaws = by_child.setdefault(key, ([], [], [], []))
+                ts.append(stamp_to_ns(item.header.stamp))
+                xs.append(float(p.x))
+                ys.append(float(p.y))
+                yaws.append(quaternion_to_yaw(q))
+    frames = sorted(k for k in by_child if k)
+    if child_frame is None and len(frames) > 1:
+        raise bagio.BagError(f"{topic}: name the child frame ({frame_flag}); frames: {frames}")
+    if child_frame is None and len(frames) == 1 and notify is not None:
+        notify(f"{topic}: using child frame '{frames[0]}', the only one ({frame_flag} to "
+               "choose)")
+    if not by_child:
+        if seen:
+            raise bagio.BagError(
+                f"{topic}: no transform to '{child_frame}' ({frame_flag}); frames: "
+                f"{sorted(seen)}")
+        raise bagio.BagError(f"{topic}: no poses")
+    ((ts, xs, ys, yaws),) = by_child.values()
+    return Trajectory.from_arrays(ts, xs, ys, yaws)
+
+
+# --- output ---------------------------------------------------------------------------------
+
+
+def plot(
+    est: Trajectory,
+    ref: Trajectory,
+    path: str | Path,
+    labels: tuple[str, str] = ("odometry", "reference"),
+    max_gap: float = 0.5,
+) -> None:
+    """PNG: the paths (raw and start-aligned odometry) and the position error over time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    m = match(est, ref, max_gap)
+    aligned = align_start(m.est, m.ref)
+    t = (m.stamp_ns - m.stamp_ns[0]) * 1e-9
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5.5))
+    ax1.plot(ref.x, ref.y, "k-", lw=1.5, label=labels[1])
+    ax1.plot(est.x, est.y, "-", color="tab:blue", lw=1.0, label=labels[0])
+    ax1.plot(aligned[:, 0], aligned[:, 1], "--", color="tab:orange", lw=1.0,
+             label=f"{labels[0]}, start aligned")
+    ax1.plot(m.ref[-1, 0], m.ref[-1, 1], "ko")
+    ax1.plot(m.est[-1, 0], m.est[-1, 1], "o", color="tab:blue")
+    ax1.set_aspect("equal", adjustable="datalim")
+    ax1.set_xlabel("x [m]")
+    ax1.set_ylabel("y [m]")
+    ax1.grid(True, alpha=0.3)
+    ax1.legend(loc="best", fontsize=8)
+    ax1.set_title("path")
+    ax2.plot(t, np.hypot(*(m.est[:, :2] - m.ref[:, :2]).T), color="tab:blue", label="raw")
+    ax2.plot(t, np.hypot(*(aligned[:, :2] - m.ref[:, :2]).T), "--", color="tab:orange",
+             label="start aligned")
+    ax2.set_xlabel("time [s]")
+    ax2.set_ylabel("position error [m]")
+    ax2.grid(True, alpha=0.3)
+    ax2.legend(loc="best", fontsize=8)
+    ax2.set_title("error against the reference")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def report(
+    metrics: Metrics,
+    est: Trajectory,
+    ref: Trajectory,
+    json_path: str | None,
+    plot_path: str | None,
+    labels: tuple[str, str] = ("odometry", "reference"),
+) -> None:
+    """Write JSON and PNG when asked, then print the table.
+
+    Files first: a closed pipe on stdout must not lose them.
+    """
+    if json_path:
+        figures = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                   for k, v in metrics.as_dict().items()}
+        Path(json_path).write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
+    if plot_path:
+        plot(est, ref, plot_path, labels)
+    print(metrics.table())
+
+
+def add_reference_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--ground-truth`` and ``--child-frame``: how eval and calibrate find the reference."""
+    ap.add_argument("--ground-truth", default=None, metavar="TOPIC",
+                    help="reference topic: PoseStamped, PoseWithCovarianceStamped, Odometry, "
+                    f"or TransformStamped on /tf (default: {DEFAULT_REFERENCE}, else the "
+                    "bag's only ground-truth topic, e.g. sim_node's /ground_truth/odom)")
+    ap.add_argument("--child-frame", default=None, metavar="FRAME",
+                    help="reference child frame on /tf (default: the only one there)")
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="diffdrive-odom eval",
+        description="Compare odometry with ground truth recorded in a bag.",
+        formatter_class=HelpFormatter,
+    )
+    ap.add_argument("bag", help="bag with the odometry (and, by default, the ground truth)")
+    ap.add_argument("--odom", default="/odom", metavar="TOPIC",
+                    help="odometry topic (any pose type, or /tf)")
+    ap.add_argument("--odom-child-frame", default=None, metavar="FRAME",
+                    help="odometry child frame on /tf (default: the only one there)")
+    add_reference_arguments(ap)
+    ap.add_argument("--reference-bag", default=None, metavar="BAG",
+                    help="read the reference from this bag instead, e.g. replay's input "
+                    "(default: BAG)")
+    ap.add_argument("--segment-length", type=float, default=1.0, metavar="M",
+                    help="stretch length for the relative error [m]")
+    ap.add_argument("--max-gap", type=float, default=0.5, metavar="S",
+                    help="longest reference gap to interpolate across [s]")
+    ap.add_argument("--json", metavar="FILE",
+                    help="write the figures as JSON (default: not written)")
+    ap.add_argument("--plot", metavar="FILE", help="write a PNG plot (default: not written)")
+    return ap
+
+
+def output_problem(json_path: str | None, plot_path: str | None) -> str | None:
+    """Why ``--json`` / ``--plot`` cannot be written, checked before any work."""
+    for flag, path in (("--json", json_path), ("--plot", plot_path)):
+        problem = bagio.output_problem(path, flag) if path else None
+        if problem:
+            return problem
+    return None
+
+
+def main(argv: Sequence[str]) -> int:
+    """``diffdrive-odom eval``; exit 2 when a topic, bag or output path cannot be used."""
+    args = _parser().parse_args(list(argv))
+    if not (args.segment_length > 0 and args.max_gap > 0):
+        print("[eval] --segment-length and --max-gap must be > 0", file=sys.stderr)
+        return 2
+    problem = output_problem(args.json, args.plot)
+    if problem:
+        print(f"[eval] {problem}", file=sys.stderr)
+        return 2
+
+    def notify(text: str) -> None:
+        print(f"[eval] {text}", file=sys.stderr)
+
+    ref_bag = args.reference_bag or args.bag
+    try:
+        est = read_trajectory(args.bag, args.odom, args.odom_child_frame,
+                              "--odom-child-frame", notify)
+        exclude = [args.odom] if ref_bag == args.bag else []
+        gt = reference_topic(ref_bag, args.ground_truth, exclude, notify)
+        ref = read_trajectory(ref_bag, gt, args.child_frame, "--child-frame", notify)
+        metrics = evaluate(est, ref, args.segment_length, args.max_gap)
+        report(metrics, est, ref, args.json, args.plot, (args.odom, gt))
+    except (bagio.BagError, ValueError) as err:
+        print(f"[eval] {err}", file=sys.stderr)
+        return 2
+    except OSError as err:  # the output vanished or filled up after the check
+        print(f"[eval] cannot write: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
