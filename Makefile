@@ -35,6 +35,7 @@ test: venv
 lint: venv
 	$(VENV)/bin/ruff check diffdrive_odom test bench scripts launch
 	$(VENV)/bin/mypy
+	$(VENV)/bin/lint-imports
 
 check: test lint
 
