@@ -16,11 +16,9 @@ from diffdrive_odom.settings.registry import TABLES
 from diffdrive_odom.settings.registry import table as registry_table
 
 
-def table(specs: tuple[ParamSpec, ...], skip: tuple[ParamSpec, ...] = ()) -> str:
+def table(specs: tuple[ParamSpec, ...]) -> str:
     rows = ["| parameter | type | default | meaning |", "|---|---|---|---|"]
     for s in specs:
-        if s in skip:
-            continue
         default = yaml_text(s.default)
         rows.append(f"| `{s.name}` | {s.kind} | `{default}` | {s.description} |")
     return "\n".join(rows)

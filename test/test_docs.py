@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from diffdrive_odom.settings.registry import TABLES
+
 from rosutil import ROOT
 
 
@@ -21,7 +23,7 @@ def _script(name: str) -> object:
 def test_readme_parameter_tables_are_current() -> None:
     tables = _script("param_tables")
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    for name in tables.TABLES:  # type: ignore[attr-defined]
+    for name in (t.name for t in TABLES):
         body = tables.rendered(name)  # type: ignore[attr-defined]
         assert f"<!-- {name} -->\n{body}\n" in readme, (
             f"README table '{name}' is stale: run scripts/param_tables.py --update-readme")

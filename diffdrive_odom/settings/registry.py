@@ -36,7 +36,9 @@ TABLES: tuple[Table, ...] = (
           GEOMETRY_PARAMS, GEOMETRY_PARAMS),
     Table("odometry", "odometry_node", ODOMETRY_OWN_PARAMS, ODOMETRY_PARAMS),
     Table("cmd_vel", "cmd_vel_node", CMD_VEL_OWN_PARAMS, CMD_VEL_PARAMS),
-    Table("sim", "sim_node", SIM_PARAMS, SIM_PARAMS, in_config=False),
+    # The sim's rows that equal a geometry row are listed there, once.
+    Table("sim", "sim_node", tuple(s for s in SIM_PARAMS if s not in GEOMETRY_PARAMS),
+          SIM_PARAMS, in_config=False),
     Table("follower",
           "path_follower_node (geometry and enable_stamped_cmd_vel: shared rows above)",
           FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS),
