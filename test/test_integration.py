@@ -20,9 +20,9 @@ from diffdrive_odom.core.integration import (
     compose,
     compose_jacobians,
     integrate_batch,
-    wrap_angle,
 )
 from diffdrive_odom.core.kinematics import Geometry, body_increment
+from diffdrive_odom.core.se2 import wrap_angle
 
 import oracle
 

@@ -16,8 +16,9 @@ from hypothesis import strategies as st
 
 from diffdrive_odom.core.encoders import EncoderConfig
 from diffdrive_odom.core.estimator import EstimatorConfig, OdometryEstimator, Status
-from diffdrive_odom.core.integration import Pose2D, wrap_angle
+from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.se2 import wrap_angle
 
 NAMES = ("left_wheel_joint", "right_wheel_joint")
 DT_NS = 10_000_000

@@ -21,9 +21,10 @@ import numpy as np
 import numpy.typing as npt
 
 from diffdrive_odom.core.estimator import Status
-from diffdrive_odom.core.integration import Pose2D, integrate_batch, wrap_angle
+from diffdrive_odom.core.integration import Pose2D, integrate_batch
 from diffdrive_odom.core.kinematics import Geometry, body_increment
 from diffdrive_odom.core.pipeline import OdometrySettings, ReadingPipeline
+from diffdrive_odom.core.se2 import wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]

@@ -53,7 +53,8 @@ from scipy import optimize
 from diffdrive_odom.core.batch import WheelSteps, final_pose, integrate_steps
 from diffdrive_odom.core.integration import Pose2D, compose
 from diffdrive_odom.core.kinematics import Geometry, body_increment, wheel_arcs
-from diffdrive_odom.core.metrics import Metrics, Trajectory, evaluate
+from diffdrive_odom.core.metrics import Metrics, Trajectory, covered, evaluate, interpolate
+from diffdrive_odom.core.se2 import between, conjugate, wrap_angles
 from diffdrive_odom.core.uncertainty import NoiseModel, PoseUncertainty
 
 FloatArray = npt.NDArray[np.float64]
@@ -127,17 +128,14 @@ class _Windows:
     """A run's fixed data for the fit: matched steps, reference there, window bounds."""
 
     run: Run
+    reference: Trajectory
     index: IntArray  # step indices with a reference pose
-    tq: FloatArray  # their stamps [ns] from the reference's first
-    tr: FloatArray  # the reference's stamps [ns] from its first
-    ref: FloatArray  # (n, 3) reference x, y, yaw
     start: IntArray  # window k spans index[start[k]] .. index[end[k]]
     end: IntArray
 
-    def ref_at(self, offset: float) -> FloatArray:
-        """(len(index), 3) reference poses at the steps' stamps plus ``offset`` s."""
-        t = self.tq + offset * 1e9
-        return np.column_stack([np.interp(t, self.tr, self.ref[:, i]) for i in range(3)])
+    def ref_at(self, lag: float) -> FloatArray:
+        """(len(index), 3) reference poses at the steps' stamps plus ``lag`` s."""
+        return interpolate(self.reference, self.run.steps.stamp_ns[self.index], lag)
 
 
 def _windows(run: Run, nominal: Geometry, window: float, max_gap: float) -> _Windows:
@@ -145,17 +143,9 @@ def _windows(run: Run, nominal: Geometry, window: float, max_gap: float) -> _Win
     _single_segment(run)
     if run.reference is None:
         raise CalibrationError(f"{run.name}: no reference trajectory")
-    ref = run.reference
-    t = run.steps.stamp_ns
-    inside = (t >= ref.stamp_ns[0]) & (t <= ref.stamp_ns[-1])
-    i = np.clip(np.searchsorted(ref.stamp_ns, t, side="right"), 1, len(ref) - 1)
-    gap_ok = (ref.stamp_ns[i] - ref.stamp_ns[i - 1]) * 1e-9 <= max_gap
-    index = np.flatnonzero(inside & (gap_ok | (ref.stamp_ns[i - 1] == t)))
+    index = np.flatnonzero(covered(run.reference, run.steps.stamp_ns, max_gap))
     if len(index) < 2:
         raise CalibrationError(f"{run.name}: the reference does not overlap the readings")
-    t0 = ref.stamp_ns[0]
-    tq = (t[index] - t0).astype(np.float64)
-    tr = (ref.stamp_ns - t0).astype(np.float64)
     s_left, s_right = wheel_arcs(nominal, run.steps.d_left, run.steps.d_right)
     travel = np.cumsum(0.5 * (np.abs(s_left) + np.abs(s_right)))[index]
     bounds = _quiet_bounds(travel - travel[0], window)
@@ -163,8 +153,7 @@ def _windows(run: Run, nominal: Geometry, window: float, max_gap: float) -> _Win
         raise CalibrationError(
             f"{run.name}: the wheels rolled {travel[-1] - travel[0]:.3f} m, less than one "
             f"window ({window:g} m)")
-    return _Windows(run, index, tq, tr, np.column_stack((ref.x, ref.y, ref.yaw)),
-                    bounds[:-1], bounds[1:])
+    return _Windows(run, run.reference, index, bounds[:-1], bounds[1:])
 
 
 def _quiet_bounds(travel: FloatArray, window: float) -> IntArray:
@@ -188,34 +177,22 @@ def _quiet_bounds(travel: FloatArray, window: float) -> IntArray:
     return np.asarray(bounds, dtype=np.int64)
 
 
-def _relative(p: FloatArray, a: IntArray, b: IntArray) -> FloatArray:
-    """Motion from pose ``a`` to pose ``b`` in the frame of ``a``: (n, 3)."""
-    c, s = np.cos(p[a, 2]), np.sin(p[a, 2])
-    dx, dy = p[b, 0] - p[a, 0], p[b, 1] - p[a, 1]
-    return np.column_stack((c * dx + s * dy, -s * dx + c * dy, p[b, 2] - p[a, 2]))
-
-
 def _window_residuals(w: _Windows, geometry: Geometry, heading_length: float,
                       mount: FloatArray) -> FloatArray:
     """(windows, 3): odometry motion minus reference motion per window, in metres.
 
     ``mount`` is the reference frame's pose on the robot ``(x, y, yaw)`` in the base
     frame and its clock's lag ``[3]`` [s] (the reference at ``t + lag`` is the robot
-    at ``t``): the reference's motion ``D`` is the base's ``M D M^-1``, whose
-    rotation is the same and whose translation is ``R_m t + (I - R_D) t_m``.
+    at ``t``): the reference's motion ``D`` is the base's ``M D M^-1``
+    (:func:`~diffdrive_odom.core.se2.conjugate`).
     """
     x, y, th = integrate_steps(w.run.steps, geometry)
     est = np.column_stack((x[w.index], y[w.index], th[w.index]))
-    ref = _relative(w.ref_at(float(mount[3])), w.start, w.end)
+    ref = w.ref_at(float(mount[3]))
     mx, my, myaw = (float(v) for v in mount[:3])
-    cm, sm = math.cos(myaw), math.sin(myaw)
-    cd, sd = np.cos(ref[:, 2]), np.sin(ref[:, 2])
-    base = np.column_stack((
-        cm * ref[:, 0] - sm * ref[:, 1] + (1.0 - cd) * mx + sd * my,
-        sm * ref[:, 0] + cm * ref[:, 1] - sd * mx + (1.0 - cd) * my,
-        ref[:, 2]))
-    diff = _relative(est, w.start, w.end) - base
-    diff[:, 2] = np.remainder(diff[:, 2] + np.pi, 2.0 * np.pi) - np.pi
+    base = conjugate(between(ref[w.start], ref[w.end]), mx, my, myaw)
+    diff = between(est[w.start], est[w.end]) - base
+    diff[:, 2] = wrap_angles(diff[:, 2])
     diff[:, 2] *= heading_length
     return diff
 
@@ -555,13 +532,9 @@ def reference_end(run: Run, reference: Trajectory) -> EndPoint:
     stamp of the run's first reading, where the odometry starts at the origin.
     """
     _single_segment(run)
-    t = reference.stamp_ns
-    t0, t1 = start_stamp(run.steps), int(run.steps.stamp_ns[-1])
-    if t0 < t[0] or t1 > t[-1]:
+    ends = np.array([start_stamp(run.steps), int(run.steps.stamp_ns[-1])], dtype=np.int64)
+    if not covered(reference, ends, math.inf).all():
         raise CalibrationError(f"{run.name}: the reference does not cover the whole run")
-    tr = (t - t[0]).astype(np.float64)
-    tq = np.array([t0 - t[0], t1 - t[0]], dtype=np.float64)
-    x, y, yaw = (np.interp(tq, tr, a) for a in (reference.x, reference.y, reference.yaw))
-    c, s = math.cos(yaw[0]), math.sin(yaw[0])
-    dx, dy = x[1] - x[0], y[1] - y[0]
-    return float(c * dx + s * dy), float(-s * dx + c * dy)
+    poses = interpolate(reference, ends)
+    x, y, _ = between(poses[:1], poses[1:])[0]
+    return float(x), float(y)

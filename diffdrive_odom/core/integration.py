@@ -34,6 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from diffdrive_odom.core.se2 import wrap_angle
+
 Array = npt.NDArray[np.float64]
 
 
@@ -64,12 +66,6 @@ class Pose2D:
     x: float = 0.0
     y: float = 0.0
     theta: float = 0.0
-
-
-def wrap_angle(theta: float) -> float:
-    """Angle to (-pi, pi]; ``math.remainder`` is exact, unlike ``atan2(sin, cos)``."""
-    wrapped = math.remainder(theta, 2.0 * math.pi)
-    return math.pi if wrapped == -math.pi else wrapped
 
 
 def cir_increment(ds: float, dtheta: float) -> tuple[float, float]:

@@ -28,6 +28,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import numpy.typing as npt
 
+from diffdrive_odom.core.se2 import between, wrap_angles
+
+BoolArray = npt.NDArray[np.bool_]
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
@@ -122,30 +125,43 @@ class Matched:
     ref: FloatArray  # (n, 3)
 
 
+def covered(ref: Trajectory, stamp_ns: IntArray, max_gap: float) -> BoolArray:
+    """Which stamps the reference can be interpolated at (the one matching rule).
+
+    Inside its span (no extrapolation) and not across a gap in the reference longer
+    than ``max_gap`` [s]; a stamp equal to a reference pose's always.
+    """
+    inside = (stamp_ns >= ref.stamp_ns[0]) & (stamp_ns <= ref.stamp_ns[-1])
+    i = np.clip(np.searchsorted(ref.stamp_ns, stamp_ns, side="right"), 1, len(ref) - 1)
+    gap = (ref.stamp_ns[i] - ref.stamp_ns[i - 1]) * 1e-9
+    exact = ref.stamp_ns[i - 1] == stamp_ns
+    ok: BoolArray = inside & ((gap <= max_gap) | exact)
+    return ok
+
+
+def interpolate(ref: Trajectory, stamp_ns: IntArray, lag: float = 0.0) -> FloatArray:
+    """(n, 3) reference x, y, yaw at ``stamp_ns`` plus ``lag`` [s], linear in each.
+
+    The heading is the continuous one. Check the stamps with :func:`covered` first
+    (outside the span the end poses are repeated).
+    """
+    t0 = ref.stamp_ns[0]
+    # Interpolate on stamps relative to the first: float64 keeps ns precision there.
+    tr = (ref.stamp_ns - t0).astype(np.float64)
+    tq = (stamp_ns - t0).astype(np.float64) + lag * 1e9
+    return np.column_stack([np.interp(tq, tr, a) for a in (ref.x, ref.y, ref.yaw)])
+
+
 def match(est: Trajectory, ref: Trajectory, max_gap: float = 0.5) -> Matched:
     """Interpolate the reference at each odometry stamp inside its span (no extrapolation)."""
     if len(ref) < 2 or len(est) < 1:
         raise ValueError("need at least 2 reference poses and 1 odometry pose")
-    t = est.stamp_ns
-    inside = (t >= ref.stamp_ns[0]) & (t <= ref.stamp_ns[-1])
-    i = np.clip(np.searchsorted(ref.stamp_ns, t, side="right"), 1, len(ref) - 1)
-    gap = (ref.stamp_ns[i] - ref.stamp_ns[i - 1]) * 1e-9
-    exact = ref.stamp_ns[i - 1] == t
-    ok = inside & ((gap <= max_gap) | exact)
+    ok = covered(ref, est.stamp_ns, max_gap)
     if not ok.any():
         raise ValueError("odometry and reference stamps do not overlap")
-    t, i = t[ok], i[ok]
-    t0 = ref.stamp_ns[0]
-    # Interpolate on stamps relative to the first: float64 keeps ns precision there.
-    tr = (ref.stamp_ns - t0).astype(np.float64)
-    tq = (t - t0).astype(np.float64)
-    ref_xyz = np.column_stack([np.interp(tq, tr, a) for a in (ref.x, ref.y, ref.yaw)])
+    t = est.stamp_ns[ok]
     est_xyz = np.column_stack((est.x[ok], est.y[ok], est.yaw[ok]))
-    return Matched(t, est_xyz, ref_xyz)
-
-
-def _rot(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
-    return np.cos(theta), np.sin(theta)
+    return Matched(t, est_xyz, interpolate(ref, t))
 
 
 def align_start(est: FloatArray, ref: FloatArray) -> FloatArray:
@@ -169,10 +185,6 @@ def align_best_fit(est: FloatArray, ref: FloatArray) -> FloatArray:
     return np.column_stack(
         (mr[0] + c * a[:, 0] - s * a[:, 1], mr[1] + s * a[:, 0] + c * a[:, 1], est[:, 2] + dth)
     )
-
-
-def _wrap(a: FloatArray) -> FloatArray:
-    return np.remainder(np.asarray(a) + np.pi, 2.0 * np.pi) - np.pi
 
 
 def _rmse(est: FloatArray, ref: FloatArray) -> float:
@@ -199,17 +211,11 @@ def relative_errors(
     if len(i) == 0:
         return math.nan, math.nan, 0
     j = j[i]
-
-    def local(p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        c, s = _rot(p[i, 2])
-        dx, dy = p[j, 0] - p[i, 0], p[j, 1] - p[i, 1]
-        return c * dx + s * dy, -s * dx + c * dy, p[j, 2] - p[i, 2]
-
-    ex, ey, eth = local(est)
-    rx, ry, rth = local(ref)
+    ex, ey, eth = between(est[i], est[j]).T
+    rx, ry, rth = between(ref[i], ref[j]).T
     length = dist[j] - dist[i]
     trans = np.hypot(ex - rx, ey - ry) / length
-    head = np.abs(_wrap(eth - rth)) / length
+    head = np.abs(wrap_angles(eth - rth)) / length
     return float(trans.mean()), float(head.mean()), len(i)
 
 
@@ -229,9 +235,9 @@ def evaluate(
         duration_s=float((m.stamp_ns[-1] - m.stamp_ns[0]) * 1e-9),
         distance_m=dist,
         final_position_error_m=float(np.hypot(*(e[-1, :2] - r[-1, :2]))),
-        final_heading_error_rad=float(_wrap(e[-1, 2] - r[-1, 2])),
+        final_heading_error_rad=float(wrap_angles(e[-1, 2] - r[-1, 2])),
         final_position_error_aligned_m=final_aligned,
-        final_heading_error_aligned_rad=float(_wrap(aligned[-1, 2] - r[-1, 2])),
+        final_heading_error_aligned_rad=float(wrap_angles(aligned[-1, 2] - r[-1, 2])),
         ate_rmse_m=_rmse(e, r),
         ate_rmse_aligned_m=_rmse(aligned, r),
         ate_rmse_best_fit_m=_rmse(fitted, r),

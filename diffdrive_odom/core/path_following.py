@@ -27,9 +27,10 @@ import numpy as np
 import numpy.typing as npt
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.integration import Pose2D, wrap_angle
+from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.kinematics import Geometry, body_increment
 from diffdrive_odom.core.routes import ORIGIN, Route, waypoints
+from diffdrive_odom.core.se2 import wrap_angle
 
 Point = tuple[float, float]
 Matrix2 = npt.NDArray[np.float64]

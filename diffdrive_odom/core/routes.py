@@ -19,7 +19,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.integration import Pose2D, compose, wrap_angle
+from diffdrive_odom.core.integration import Pose2D, compose
+from diffdrive_odom.core.se2 import wrap_angle
 
 ORIGIN = Pose2D()
 
