@@ -46,7 +46,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.ros import runtime as ros_common
 
 BIN = Path(sys.executable).parent
 NODE_PARAMS = ["-p", "wheel_radius:=0.05", "-p", "wheel_separation:=0.3"]

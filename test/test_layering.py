@@ -71,8 +71,8 @@ def test_the_check_catches_an_import() -> None:
     """The blocker really blocks: a shell module, which imports rclpy, is refused."""
     out = subprocess.run(
         [sys.executable, "-c", CHECK, json.dumps(BLOCKED),
-         json.dumps(["diffdrive_odom.ros.common"])],
+         json.dumps(["diffdrive_odom.ros.runtime"])],
         capture_output=True, text=True, timeout=120, check=True)
     failures = json.loads(out.stdout.strip().splitlines()[-1])
-    assert "diffdrive_odom.ros.common" in failures
-    assert "must not import" in failures["diffdrive_odom.ros.common"]
+    assert "diffdrive_odom.ros.runtime" in failures
+    assert "must not import" in failures["diffdrive_odom.ros.runtime"]

@@ -28,7 +28,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.ros import runtime as ros_common
 
 from rosutil import node_process
 

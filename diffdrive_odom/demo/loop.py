@@ -48,7 +48,7 @@ from std_msgs.msg import Bool, Float64
 
 from diffdrive_odom.core.conversions import quaternion_to_yaw
 from diffdrive_odom.core.path_following import Point
-from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.ros import runtime as ros_common
 from diffdrive_odom.ros.path_follower_node import DONE_QOS
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.tools import bagio

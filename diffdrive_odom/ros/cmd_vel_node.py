@@ -29,7 +29,7 @@ from diffdrive_odom.core.diagnostics import (
     Reporter,
     cmd_vel_report,
 )
-from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.ros import runtime as ros_common
 from diffdrive_odom.settings.cmd_vel import (
     CMD_VEL_PARAMS,
     JOINT_STATE,

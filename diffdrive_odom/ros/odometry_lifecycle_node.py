@@ -20,7 +20,7 @@ from lifecycle_msgs.srv import ChangeState
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
-from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.ros import runtime as ros_common
 from diffdrive_odom.ros.odometry_node import OdometryEndpoints
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS
 from diffdrive_odom.settings.params import ParameterError

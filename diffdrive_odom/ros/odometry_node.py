@@ -34,7 +34,7 @@ from diffdrive_odom.core.diagnostics import (
 )
 from diffdrive_odom.core.estimator import Status
 from diffdrive_odom.core.pipeline import Outcome, ReadingPipeline
-from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.ros import runtime as ros_common
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, OdometrySettings, odometry_settings
 from diffdrive_odom.settings.params import ParamValue
 

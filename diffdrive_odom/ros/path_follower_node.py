@@ -32,7 +32,7 @@ from diffdrive_odom.core.diagnostics import (
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.path_following import Command, Path, PathFollower, polyline
-from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.ros import runtime as ros_common
 from diffdrive_odom.settings.follower import FOLLOWER_PARAMS, FollowerSettings, follower_settings
 
 NODE_NAME = "path_follower_node"

@@ -31,7 +31,7 @@ from diffdrive_odom.core.cmd_vel_pipeline import JOINT_STATE, TICKS_PER_SECOND
 from diffdrive_odom.core.conversions import yaw_to_quaternion
 from diffdrive_odom.core.encoders import EncoderConfig, JointLookup
 from diffdrive_odom.core.sim import TWO_PI, DiffDriveSim
-from diffdrive_odom.ros import common as ros_common
+from diffdrive_odom.ros import runtime as ros_common
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.settings.sim import SIM_PARAMS, TICKS, SimSettings, sim_settings
 

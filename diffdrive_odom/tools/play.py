@@ -105,7 +105,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     from rclpy.executors import ExternalShutdownException
     from rosgraph_msgs.msg import Clock
 
-    from diffdrive_odom.ros import common as ros_common
+    from diffdrive_odom.ros import runtime as ros_common
 
     conns: list[Connection] = [
         c for c in reader.connections if args.topics is None or c.topic in args.topics
