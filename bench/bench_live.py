@@ -31,7 +31,6 @@ import math
 import os
 import pstats
 import select
-import signal
 import subprocess
 import sys
 import threading
@@ -47,6 +46,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from diffdrive_odom.ros import runtime as ros_common
+from diffdrive_odom.tools import process
 
 BIN = Path(sys.executable).parent
 NODE_PARAMS = ["-p", "wheel_radius:=0.05", "-p", "wheel_separation:=0.3"]
@@ -230,16 +230,6 @@ def _line(proc: subprocess.Popen[str], timeout: float) -> str:
     return proc.stdout.readline().strip()
 
 
-def _stop(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 def _me(*args: str) -> list[str]:
     return [sys.executable, str(Path(__file__).resolve()), *args]
 
@@ -271,8 +261,8 @@ def trial(system: System, rate: int, seconds: float, base_ns: int,
         got = json.loads(_line(sub, 60.0))
         cpu1 = cpu_seconds(system.pid)
     finally:
-        _stop(pub)
-        _stop(sub)
+        process.stop(pub, timeout=10)
+        process.stop(sub, timeout=10)
     measured = [(stamp, ns) for stamp, ns in zip(got["stamps"], got["latencies"], strict=True)
                 if stamp >= sent["start_ns"]]
     lat = sorted(ns for _, ns in measured)
@@ -313,7 +303,7 @@ def systems(kinds: tuple[str, ...],
                     args = _me("--role", "relay", "--executor", kind,
                                "--topic", in_topic, "--out", out_topic)
                 proc = _child(args, {ros_common.EXECUTOR_ENV: kind})
-                stack.callback(_stop, proc)
+                stack.callback(process.stop, proc, timeout=10)
                 started.append(System(f"{what} {kind}", proc.pid, in_topic, out_topic))
         yield started
 
