@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 import yaml
 
-from diffdrive_odom.core import batch, calibration, routes
-from diffdrive_odom.core.calibration import Run
+from diffdrive_odom.core import batch, calibration, routes, umbmark
 from diffdrive_odom.core.kinematics import Geometry, wheel_rates
 from diffdrive_odom.core.metrics import Trajectory
+from diffdrive_odom.core.recorded_run import Run, values_of
 from diffdrive_odom.core.sim import DiffDriveSim, SimConfig
 from diffdrive_odom.settings import odometry as odometry_settings
 from diffdrive_odom.settings import params
@@ -70,12 +70,12 @@ def simulate(route: routes.Route, slip: float = 0.0, seed: int = 0) -> Run:
 
 
 def true_values() -> np.ndarray:
-    return calibration.values_of(TRUE)
+    return values_of(TRUE)
 
 
 def test_core_modules_import_no_ros_or_bag_library() -> None:
     code = ("import sys, diffdrive_odom.core.batch, diffdrive_odom.core.metrics, "
-            "diffdrive_odom.core.calibration; "
+            "diffdrive_odom.core.calibration, diffdrive_odom.core.umbmark; "
             "print([m for m in ('rclpy', 'rosbags') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
@@ -117,19 +117,19 @@ def test_fit_with_wheel_noise_is_within_its_stated_uncertainty() -> None:
 def test_umbmark_formulas_on_hand_worked_end_errors() -> None:
     side, b = 2.0, 0.3
     # Type A only: both squares end 0.04 m short in x (the turns are too small).
-    p = calibration.umbmark_pass((-0.04, -0.03), (-0.04, 0.03), side, b)
+    p = umbmark.umbmark_pass((-0.04, -0.03), (-0.04, 0.03), side, b)
     alpha = 0.08 / (4 * side)
     assert p.alpha == pytest.approx(alpha) and p.beta == pytest.approx(0.0)
     assert p.alpha_y == pytest.approx(alpha * 0.75)
     assert p.e_b == pytest.approx(90.0 / (90.0 - math.degrees(alpha)))
     assert p.e_d == pytest.approx(1.0)
     # Type B only: x errors opposite, the legs bend the same way.
-    p = calibration.umbmark_pass((-0.05, 0.0), (0.05, 0.0), side, b)
+    p = umbmark.umbmark_pass((-0.05, 0.0), (0.05, 0.0), side, b)
     beta = 0.1 / (4 * side)
     radius = (side / 2) / math.sin(beta / 2)
     assert p.beta == pytest.approx(beta) and p.alpha == pytest.approx(0.0)
     assert p.e_d == pytest.approx((radius + b / 2) / (radius - b / 2))
-    g = calibration.umbmark_correct(NOMINAL, p)
+    g = umbmark.umbmark_correct(NOMINAL, p)
     assert g.right_radius / g.left_radius == pytest.approx(p.e_d)
     assert g.left_radius + g.right_radius == pytest.approx(2 * NOMINAL.wheel_radius)
     assert g.left_radius == pytest.approx(NOMINAL.wheel_radius * 2 / (p.e_d + 1))
@@ -139,9 +139,9 @@ def test_umbmark_recovers_the_ratio_and_the_separation_without_noise() -> None:
     cw = simulate(routes.umbmark(SIDE, clockwise=True))
     ccw = simulate(routes.umbmark(SIDE, clockwise=False))
     assert cw.reference is not None and ccw.reference is not None
-    u = calibration.umbmark(cw, ccw, calibration.reference_end(cw, cw.reference),
-                            calibration.reference_end(ccw, ccw.reference),
-                            side=SIDE, nominal=NOMINAL)
+    u = umbmark.umbmark(cw, ccw, umbmark.reference_end(cw, cw.reference),
+                        umbmark.reference_end(ccw, ccw.reference),
+                        side=SIDE, nominal=NOMINAL)
     g = u.geometry
     # UMBmark keeps the mean radius; scaling both radii by s = r_nominal / r_true_mean
     # leaves every heading unchanged when the separation is scaled by s too.
@@ -163,9 +163,9 @@ def test_umbmark_with_noise_stays_near_the_truth() -> None:
     cw = simulate(routes.umbmark(SIDE, clockwise=True), 0.001, seed=4)
     ccw = simulate(routes.umbmark(SIDE, clockwise=False), 0.001, seed=5)
     assert cw.reference is not None and ccw.reference is not None
-    u = calibration.umbmark(cw, ccw, calibration.reference_end(cw, cw.reference),
-                            calibration.reference_end(ccw, ccw.reference),
-                            side=SIDE, nominal=NOMINAL)
+    u = umbmark.umbmark(cw, ccw, umbmark.reference_end(cw, cw.reference),
+                        umbmark.reference_end(ccw, ccw.reference),
+                        side=SIDE, nominal=NOMINAL)
     s = 2 * NOMINAL.wheel_radius / (TRUE.left_radius + TRUE.right_radius)
     assert u.geometry.separation == pytest.approx(TRUE.separation * s, rel=1e-2)
     assert u.geometry.right_radius / u.geometry.left_radius == pytest.approx(
@@ -201,9 +201,9 @@ def test_optiodom_fit_is_physical_and_cuts_the_final_error() -> None:
 def test_optiodom_umbmark_cuts_the_final_error() -> None:
     cw, ccw = _optiodom_runs()
     assert cw.reference is not None and ccw.reference is not None
-    u = calibration.umbmark(cw, ccw, calibration.reference_end(cw, cw.reference),
-                            calibration.reference_end(ccw, ccw.reference), side=1.7,
-                            nominal=Geometry(0.042, 0.2))
+    u = umbmark.umbmark(cw, ccw, umbmark.reference_end(cw, cw.reference),
+                        umbmark.reference_end(ccw, ccw.reference), side=1.7,
+                        nominal=Geometry(0.042, 0.2))
     assert u.e_max_before == pytest.approx(0.1075, abs=1e-3)
     assert u.e_max_after < 0.4 * u.e_max_before
     assert u.geometry.separation == pytest.approx(0.2008, rel=5e-3)
@@ -237,7 +237,7 @@ def test_cli_prints_a_params_block_the_node_accepts(
     values = params.load_params_file(path, "odometry_node")
     settings = odometry_settings.odometry_settings(values)
     fit = calibration.fit(_optiodom_runs(), Geometry(0.042, 0.2))
-    got = calibration.values_of(settings.geometry)
+    got = values_of(settings.geometry)
     assert np.allclose(got, fit.values, rtol=1e-6), (got, fit.values)
     for line in ("left wheel radius", "1-sigma", "final position error", CW_RUN):
         assert line in out
@@ -251,8 +251,8 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
     from_topic = yaml.safe_load(_block(capsys.readouterr().out))
     cw, ccw = _optiodom_runs()
     assert cw.reference is not None and ccw.reference is not None
-    ends = [calibration.reference_end(cw, cw.reference),
-            calibration.reference_end(ccw, ccw.reference)]
+    ends = [umbmark.reference_end(cw, cw.reference),
+            umbmark.reference_end(ccw, ccw.reference)]
     typed = [f"{x!r},{y!r}" for x, y in ends]
     assert cli(["calibrate", "--umbmark", *bags, "--side", "1.7", *NOMINAL_ARGS,
                 f"--cw-end={typed[0]}", f"--ccw-end={typed[1]}"]) == 0

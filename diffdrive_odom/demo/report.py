@@ -18,10 +18,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from diffdrive_odom.core import batch, calibration
-from diffdrive_odom.core.calibration import CalibrationError, Run
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.metrics import Trajectory, evaluate
 from diffdrive_odom.core.path_following import Point
+from diffdrive_odom.core.recorded_run import CalibrationError, Run, trajectory, with_values
+from diffdrive_odom.core.umbmark import reference_end, umbmark
 from diffdrive_odom.settings.odometry import OdometrySettings
 
 from .settings import DemoError
@@ -230,15 +231,15 @@ def calibrate_rows(rec: Recording, odo: OdometrySettings, true: Geometry,
             runs = [_run(name, readings, odo, rec.truth,
                          (max(s.start_ns, t0), min(s.end_ns, t1)))
                     for name, s in (("cw", cw[0]), ("ccw", ccw[0]))]
-            ends = [calibration.reference_end(r, rec.truth) for r in runs]
-            found[UMBMARK] = calibration.umbmark(runs[0], runs[1], ends[0], ends[1],
-                                                 side=side, nominal=nominal).geometry
+            ends = [reference_end(r, rec.truth) for r in runs]
+            found[UMBMARK] = umbmark(runs[0], runs[1], ends[0], ends[1],
+                                     side=side, nominal=nominal).geometry
     except CalibrationError as err:
         raise DemoError(f"calibration failed: {err}") from err
-    found[TRUE] = calibration.with_values(nominal, true.left_radius, true.right_radius,
-                                          true.separation)
+    found[TRUE] = with_values(nominal, true.left_radius, true.right_radius,
+                              true.separation)
     paths = {NOMINAL: rec.odom}
-    paths.update({k: calibration.trajectory(whole, g) for k, g in found.items()})
+    paths.update({k: trajectory(whole, g) for k, g in found.items()})
     rows = {k: _row(nominal if k == NOMINAL else found[k], t, rec.truth)
             for k, t in paths.items()}
     return rows, paths

@@ -17,8 +17,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from diffdrive_odom.core import batch, calibration
-from diffdrive_odom.core.calibration import CalibrationError, Fit, Run, Umbmark
+from diffdrive_odom.core.calibration import Fit
 from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.recorded_run import CalibrationError, Run, trajectory, values_of
+from diffdrive_odom.core.umbmark import Umbmark, reference_end, umbmark
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.settings.params import yaml_text
 from diffdrive_odom.tools import bagio, evaluate
@@ -161,10 +163,9 @@ def _umbmark(args: argparse.Namespace, settings: OdometrySettings) -> int:
         ccw_end = _end_point(args.ccw_end, "--ccw-end")
     else:
         assert cw.reference is not None and ccw.reference is not None
-        cw_end = calibration.reference_end(cw, cw.reference)
-        ccw_end = calibration.reference_end(ccw, ccw.reference)
-    result = calibration.umbmark(cw, ccw, cw_end, ccw_end, side=args.side,
-                                 nominal=settings.geometry)
+        cw_end = reference_end(cw, cw.reference)
+        ccw_end = reference_end(ccw, ccw.reference)
+    result = umbmark(cw, ccw, cw_end, ccw_end, side=args.side, nominal=settings.geometry)
     text = params_block(result.geometry, None, None, f"UMBmark, side {args.side:g} m")
     if args.yaml:
         Path(args.yaml).write_text(text, encoding="utf-8")
@@ -202,7 +203,7 @@ def params_block(geometry: Geometry, k_left: float | None, k_right: float | None
 
 def fit_report(fit: Fit) -> str:
     """Human lines: values with uncertainty, nuisances, noise, and per-run errors."""
-    nominal = calibration.values_of(fit.nominal)
+    nominal = values_of(fit.nominal)
     lines = [f"calibrated from {len(fit.runs)} run(s): {fit.windows} windows of "
              f"{fit.window:g} m wheel travel, {fit.evaluations} evaluations, "
              f"{fit.seconds:.2f} s",
@@ -229,7 +230,7 @@ def fit_report(fit: Fit) -> str:
 def umbmark_report(u: Umbmark) -> str:
     """Human lines: the paper's single pass, the converged values, the end errors."""
     f = u.first
-    n, one, it = (calibration.values_of(g) for g in (u.nominal, u.one_pass, u.geometry))
+    n, one, it = (values_of(g) for g in (u.nominal, u.one_pass, u.geometry))
     lines = [
         f"UMBmark (Borenstein and Feng), side {u.side:g} m: end errors (measured - odometry) "
         f"CW ({f.cw_error[0]:+.4f}, {f.cw_error[1]:+.4f}) m, CCW ({f.ccw_error[0]:+.4f}, "
@@ -263,7 +264,7 @@ def plot(fit: Fit, runs: Sequence[Run], path: str | Path) -> None:
         for geometry, style, label, m in (
                 (fit.nominal, "--", "nominal", figures.before),
                 (fit.geometry, "-", "calibrated", figures.after)):
-            est = calibration.trajectory(run, geometry)
+            est = trajectory(run, geometry)
             matched = evaluate.match(est, run.reference)
             aligned = evaluate.align_start(matched.est, matched.ref)
             ax.plot(aligned[:, 0], aligned[:, 1], style, lw=1.0,
