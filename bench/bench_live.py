@@ -10,11 +10,11 @@ in turn at every rate (interleaved, so machine noise hits all of them alike):
 
 - node:  the real console script ``.venv/bin/odometry_node``,
 - relay: a bare rclpy node in this file, JointState in, nav_msgs/Odometry out with
-  the same header and no math, on the node's QoS (ros_common.SENSOR_IN_QOS /
+  the same header and no math, on the node's QoS (ros.qos.SENSOR_IN_QOS /
   RELIABLE_OUT_QOS),
 
 each with rclpy's EventsExecutor (the default) and the SingleThreadedExecutor
-(``DIFFDRIVE_ODOM_EXECUTOR=single``), both built by ros_common.make_executor.
+(``DIFFDRIVE_ODOM_EXECUTOR=single``), both built by ros.runtime.make_executor.
 Rates rise until every system lost over 1 % of them. CPU per message is the user + system
 time of the system's process (/proc/<pid>/stat) while a trial ran, over messages
 sent. ``--profile`` runs the node in this process under cProfile at 1 kHz instead and
@@ -45,7 +45,9 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from diffdrive_odom.ros import runtime as ros_common
+from diffdrive_odom.core.conversions import ns_to_stamp, stamp_to_ns
+from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS
+from diffdrive_odom.ros.runtime import EXECUTOR_ENV, EXECUTOR_KINDS, make_executor
 from diffdrive_odom.tools import process
 
 BIN = Path(sys.executable).parent
@@ -54,7 +56,7 @@ WHEEL_SPEEDS = (4.0, 6.0)  # rad/s of the published joints: well under max_wheel
 IDLE_END_S = 0.5  # the subscriber stops this long after the last message
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 RATES = (100, 250, 500, 1000, 2000, 3000)
-KINDS = ros_common.EXECUTOR_KINDS
+KINDS = EXECUTOR_KINDS
 
 
 # --- the three roles (child processes) -----------------------------------------------
@@ -62,9 +64,9 @@ KINDS = ros_common.EXECUTOR_KINDS
 def role_relay(in_topic: str, out_topic: str, kind: str) -> int:
     """JointState -> Odometry with the same header: the rclpy floor the node stands on."""
     rclpy.init()
-    executor, spin = ros_common.make_executor(kind)
+    executor, spin = make_executor(kind)
     node = Node("bench_relay")
-    pub = node.create_publisher(Odometry, out_topic, ros_common.RELIABLE_OUT_QOS)
+    pub = node.create_publisher(Odometry, out_topic, RELIABLE_OUT_QOS)
 
     def relay(msg: JointState) -> None:
         out = Odometry()
@@ -72,7 +74,7 @@ def role_relay(in_topic: str, out_topic: str, kind: str) -> int:
         out.child_frame_id = "base_link"
         pub.publish(out)
 
-    node.create_subscription(JointState, in_topic, relay, ros_common.SENSOR_IN_QOS)
+    node.create_subscription(JointState, in_topic, relay, SENSOR_IN_QOS)
     executor.add_node(node)
     try:
         spin(lambda: False)
@@ -103,7 +105,7 @@ def role_pub(topic: str, rate: float, count: int, base_ns: int) -> int:
     """
     rclpy.init()
     node = Node("bench_pub")
-    pub = node.create_publisher(JointState, topic, ros_common.SENSOR_IN_QOS)
+    pub = node.create_publisher(JointState, topic, SENSOR_IN_QOS)
     if not _wait(lambda: pub.get_subscription_count() > 0, 30.0):
         print("no subscriber", flush=True)
         return 1
@@ -113,7 +115,7 @@ def role_pub(topic: str, rate: float, count: int, base_ns: int) -> int:
 
     def send() -> int:
         ns = time.time_ns()
-        msg.header.stamp = ros_common.ns_to_stamp(ns, msg.header.stamp)
+        msg.header.stamp = ns_to_stamp(ns, msg.header.stamp)
         t = (ns - base_ns) / 1e9
         msg.position = [WHEEL_SPEEDS[0] * t, WHEEL_SPEEDS[1] * t]
         pub.publish(msg)
@@ -144,21 +146,21 @@ def role_sub(topic: str, idle_end: float = IDLE_END_S, longest: float = 120.0) -
     """Prints ``warm`` at the first Odometry, then, once messages stop for a while,
     one JSON line of every message's stamp and stamp-to-receive latency."""
     rclpy.init()
-    executor, _ = ros_common.make_executor("events")
+    executor, _ = make_executor("events")
     node = Node("bench_sub")
     stamps: list[int] = []
     latencies: list[int] = []
     last = [0.0]
 
     def on_odom(msg: Odometry) -> None:
-        stamp = ros_common.stamp_to_ns(msg.header.stamp)
+        stamp = stamp_to_ns(msg.header.stamp)
         latencies.append(time.time_ns() - stamp)
         stamps.append(stamp)
         last[0] = time.monotonic()
         if len(stamps) == 1:
             print("warm", flush=True)
 
-    sub = node.create_subscription(Odometry, topic, on_odom, ros_common.RELIABLE_OUT_QOS)
+    sub = node.create_subscription(Odometry, topic, on_odom, RELIABLE_OUT_QOS)
     executor.add_node(node)
     if not _wait(lambda: sub.get_publisher_count() > 0, 30.0):
         print("no publisher", flush=True)
@@ -302,7 +304,7 @@ def systems(kinds: tuple[str, ...],
                 else:
                     args = _me("--role", "relay", "--executor", kind,
                                "--topic", in_topic, "--out", out_topic)
-                proc = _child(args, {ros_common.EXECUTOR_ENV: kind})
+                proc = _child(args, {EXECUTOR_ENV: kind})
                 stack.callback(process.stop, proc, timeout=10)
                 started.append(System(f"{what} {kind}", proc.pid, in_topic, out_topic))
         yield started
@@ -379,7 +381,7 @@ def profile(kind: str, rate: int, seconds: float, top: int) -> None:
     prefix = f"/bench_live_{os.getpid()}/profile"
     rclpy.init(args=["bench", "--ros-args", *NODE_PARAMS,
                      "-r", f"joint_states:={prefix}/joint_states", "-r", f"odom:={prefix}/odom"])
-    executor, _ = ros_common.make_executor(kind)
+    executor, _ = make_executor(kind)
     node = OdometryNode()
     executor.add_node(node)
     system = System(f"node {kind} (in process)", os.getpid(),

@@ -16,7 +16,7 @@ from diffdrive_odom.core import batch
 from diffdrive_odom.core.estimator import Reason, Status
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.pipeline import VELOCITY_ON, ReadingPipeline
-from diffdrive_odom.ros.runtime import KeyedThrottle
+from diffdrive_odom.core.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import bagio, replay
 

@@ -28,7 +28,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.ros import runtime as ros_common
+from diffdrive_odom.core.conversions import ns_to_stamp
+from diffdrive_odom.ros.qos import qos
+from diffdrive_odom.ros.runtime import EXECUTOR_KINDS, make_executor
 
 from rosutil import node_process
 
@@ -51,7 +53,7 @@ class Burst:
         self._context = Context()
         rclpy.init(context=self._context)
         self._node = Node("signal_burst", context=self._context)
-        self.pubs = [self._node.create_publisher(msg_type, t, ros_common.qos(100, True))
+        self.pubs = [self._node.create_publisher(msg_type, t, qos(100, True))
                      for t in topics]
         self._make = make
         self._target = 0
@@ -93,7 +95,7 @@ def burst(msg_type: Any, topics: list[str], make: Callable[[int], Any]) -> Itera
 def joint_state(k: int) -> JointState:
     msg = JointState()
     ns = time.time_ns()
-    msg.header.stamp = ros_common.ns_to_stamp(ns, msg.header.stamp)
+    msg.header.stamp = ns_to_stamp(ns, msg.header.stamp)
     msg.name = ["left_wheel_joint", "right_wheel_joint"]
     t = ns * 1e-9 % 1000.0
     msg.position = [2.0 * t, 3.0 * t]  # a steady motion, well under max_wheel_speed
@@ -182,10 +184,10 @@ def test_spin_loop_ends_on_a_shutdown_that_wakes_no_wait() -> None:
     down as rclpy's signal thread does it (no on_shutdown callbacks, no wake-up) under a
     node with nothing to wake the wait; each executor's spin loop must still end.
     """
-    for kind in ros_common.EXECUTOR_KINDS:
+    for kind in EXECUTOR_KINDS:
         context = Context()
         rclpy.init(context=context)
-        executor, spin = ros_common.make_executor(kind, context=context)
+        executor, spin = make_executor(kind, context=context)
         node = Node("quiet_node", context=context)
         executor.add_node(node)
         worker = threading.Thread(target=spin, args=(lambda: False,), daemon=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 
 def yaw_to_quaternion(theta: float) -> tuple[float, float, float, float]:
@@ -40,9 +40,20 @@ def quaternion_to_yaw(q: QuaternionLike) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
+NS_PER_S = 1_000_000_000
+
+S = TypeVar("S", bound=StampLike)
+
+
 def stamp_to_ns(stamp: StampLike) -> int:
     """A builtin_interfaces/Time (rclpy's or rosbags') -> integer nanoseconds, no rounding."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+
+
+def ns_to_stamp(ns: int, stamp: S) -> S:
+    """Fill a builtin_interfaces/Time (rclpy's or rosbags') from integer nanoseconds; returns it."""
+    stamp.sec, stamp.nanosec = divmod(int(ns), NS_PER_S)
+    return stamp
 
 
 def covariance_matrix(diagonal: Sequence[float]) -> list[float]:

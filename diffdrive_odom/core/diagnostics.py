@@ -1,7 +1,7 @@
 """Health reports for ``/diagnostics``: levels, rate meters and the two nodes' verdicts.
 
 Pure Python (no rclpy, no messages) so the verdicts are unit-tested from plain
-numbers; :class:`diffdrive_odom.ros.runtime.DiagnosticsPublisher` turns a
+numbers; :class:`diffdrive_odom.ros.diagnostics.DiagnosticsPublisher` turns a
 :class:`Report` into the ``diagnostic_msgs/DiagnosticStatus`` that
 diagnostic_aggregator and rqt_robot_monitor read.
 

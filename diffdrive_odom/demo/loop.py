@@ -46,10 +46,9 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64
 
-from diffdrive_odom.core.conversions import quaternion_to_yaw
+from diffdrive_odom.core.conversions import quaternion_to_yaw, stamp_to_ns
 from diffdrive_odom.core.path_following import Point
-from diffdrive_odom.ros import runtime as ros_common
-from diffdrive_odom.ros.path_follower_node import DONE_QOS
+from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.tools import bagio
 
@@ -72,8 +71,8 @@ from .settings import (
 )
 
 NODES = ("sim_node", "cmd_vel_node", "odometry_node", FOLLOWER)
-RECORD_QOS = ros_common.qos(1000, reliable=True)
-LATEST_QOS = ros_common.qos(1, reliable=False)  # only the newest /clock matters
+RECORD_QOS = qos(1000, reliable=True)
+LATEST_QOS = qos(1, reliable=False)  # only the newest /clock matters
 ACK_RESEND_S = 1.0  # wall seconds before a path the follower did not take is sent again
 
 
@@ -216,7 +215,7 @@ class Recorder:
             self.node.create_subscription(ClockMsg, "/clock", self._on_clock, LATEST_QOS)
             self.node.create_subscription(Bool, f"/{FOLLOWER}/done", self._on_done, DONE_QOS)
             self.path_pub = self.node.create_publisher(
-                PathMsg, "/path", ros_common.RELIABLE_OUT_QOS)
+                PathMsg, "/path", RELIABLE_OUT_QOS)
             self._stack = stack.pop_all()
         return self
 
@@ -230,7 +229,7 @@ class Recorder:
         self.executor.spin_once(timeout_sec=timeout)
 
     def _on_clock(self, msg: ClockMsg) -> None:
-        self.now_ns = ros_common.stamp_to_ns(msg.clock)
+        self.now_ns = stamp_to_ns(msg.clock)
 
     def _on_done(self, msg: Bool) -> None:
         if msg.data:
@@ -246,12 +245,12 @@ class Recorder:
         if topic == "/joint_states":
             js = deserialize_message(raw, JointState)
             self.joint_states.append(JointSample(
-                ros_common.stamp_to_ns(js.header.stamp), tuple(js.name),
+                stamp_to_ns(js.header.stamp), tuple(js.name),
                 tuple(js.position), tuple(js.velocity)))
         elif topic in ("/odom", "/ground_truth/odom"):
             msg = deserialize_message(raw, Odometry)
             series = self.odom if topic == "/odom" else self.truth
-            series.add(ros_common.stamp_to_ns(msg.header.stamp), *_pose_of(msg))
+            series.add(stamp_to_ns(msg.header.stamp), *_pose_of(msg))
         elif topic == f"/{FOLLOWER}/cross_track_error":
             e = float(deserialize_message(raw, Float64).data)
             self.cross_track_max = max(self.cross_track_max, abs(e))

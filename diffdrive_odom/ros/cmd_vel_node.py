@@ -21,6 +21,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from diffdrive_odom.core.cmd_vel_pipeline import CommandPipeline, Tick
+from diffdrive_odom.core.conversions import stamp_to_ns
 from diffdrive_odom.core.diagnostics import (
     CommandHealth,
     CommandState,
@@ -29,7 +30,11 @@ from diffdrive_odom.core.diagnostics import (
     Reporter,
     cmd_vel_report,
 )
-from diffdrive_odom.ros import runtime as ros_common
+from diffdrive_odom.core.throttle import WARN_THROTTLE_S, KeyedThrottle
+from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
+from diffdrive_odom.ros.parameters import ParameterGuard, declare
+from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, qos
+from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.settings.cmd_vel import (
     CMD_VEL_PARAMS,
     JOINT_STATE,
@@ -39,11 +44,11 @@ from diffdrive_odom.settings.cmd_vel import (
 
 NODE_NAME = "cmd_vel_node"
 DIAGNOSTIC_TASK = "cmd_vel"  # status "cmd_vel_node: cmd_vel" on /diagnostics
-THROTTLE_S = ros_common.WARN_THROTTLE_S
+THROTTLE_S = WARN_THROTTLE_S
 
 # Best effort matches reliable and best-effort publishers alike (teleop, Nav2,
 # joystick drivers); only the newest command matters, so the queue is short.
-CMD_IN_QOS = ros_common.qos(5, reliable=False)
+CMD_IN_QOS = qos(5, reliable=False)
 
 
 class CmdVelNode(Node):
@@ -58,8 +63,8 @@ class CmdVelNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._log: Any = cast(Any, self).get_logger()  # rclpy's get_logger is untyped
-        self._throttle = ros_common.KeyedThrottle(self._log)
-        values = ros_common.declare(self, CMD_VEL_PARAMS)
+        self._throttle = KeyedThrottle(self._log)
+        values = declare(self, CMD_VEL_PARAMS)
         s = cmd_vel_settings(values)
         self._settings = s
         self._pipeline = CommandPipeline(s)
@@ -68,15 +73,15 @@ class CmdVelNode(Node):
         self._received = False
         self._zero_stamp_warned = False
         self._type_checked_ns = 0
-        self._guard = ros_common.ParameterGuard(self, values, cmd_vel_settings, self._apply)
+        self._guard = ParameterGuard(self, values, cmd_vel_settings, self._apply)
         self._init_diagnostics()
 
         if s.wheel_command_format == JOINT_STATE:
             self._wheel_pub = self.create_publisher(
-                JointState, "wheel_commands", ros_common.RELIABLE_OUT_QOS)
+                JointState, "wheel_commands", RELIABLE_OUT_QOS)
         else:
             self._wheel_pub = self.create_publisher(
-                Float64MultiArray, "wheel_commands", ros_common.RELIABLE_OUT_QOS)
+                Float64MultiArray, "wheel_commands", RELIABLE_OUT_QOS)
         self._limited_pub: Any = None
         if s.publish_limited_velocity:
             self._make_limited_pub()
@@ -103,7 +108,7 @@ class CmdVelNode(Node):
 
     def _make_limited_pub(self) -> None:
         self._limited_pub = self.create_publisher(
-            TwistStamped, "cmd_vel_out", ros_common.RELIABLE_OUT_QOS)
+            TwistStamped, "cmd_vel_out", RELIABLE_OUT_QOS)
 
     def _apply(self, s: CmdVelSettings) -> None:
         """Install accepted runtime changes; the motion state carries on (no jump)."""
@@ -123,7 +128,7 @@ class CmdVelNode(Node):
         self._accept(msg, None)
 
     def _on_twist_stamped(self, msg: TwistStamped) -> None:
-        stamp_ns: int | None = ros_common.stamp_to_ns(msg.header.stamp)
+        stamp_ns: int | None = stamp_to_ns(msg.header.stamp)
         if stamp_ns == 0:
             if not self._zero_stamp_warned:
                 self._zero_stamp_warned = True
@@ -190,7 +195,7 @@ class CmdVelNode(Node):
         self._command_rate = RateMeter(start)
         self._output_rate = RateMeter(start)
         self._reporter = Reporter(cmd_vel_report)
-        self._diagnostics = ros_common.DiagnosticsPublisher(
+        self._diagnostics = DiagnosticsPublisher(
             self, DIAGNOSTIC_TASK, self._diagnose)
 
     def _diagnose(self) -> Report:
@@ -235,7 +240,7 @@ class CmdVelNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console script / ``ros2 run diffdrive_odom cmd_vel_node``."""
-    return ros_common.run(CmdVelNode, args)
+    return run(CmdVelNode, args)
 
 
 if __name__ == "__main__":

@@ -20,8 +20,9 @@ from lifecycle_msgs.srv import ChangeState
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
-from diffdrive_odom.ros import runtime as ros_common
 from diffdrive_odom.ros.odometry_node import OdometryEndpoints
+from diffdrive_odom.ros.parameters import declare, parameter_values
+from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS
 from diffdrive_odom.settings.params import ParameterError
 
@@ -35,7 +36,7 @@ class OdometryLifecycleNode(LifecycleNode):
         super().__init__(NODE_NAME, **kwargs)
         # Declared now, checked at configure: while unconfigured any value can be set,
         # so a bad one given at start can be fixed with set_parameters and configure retried.
-        ros_common.declare(self, ODOMETRY_PARAMS)
+        declare(self, ODOMETRY_PARAMS)
         self._odometry: OdometryEndpoints | None = None
         service = self._service_change_state
         self._change_state = service.callback
@@ -61,7 +62,7 @@ class OdometryLifecycleNode(LifecycleNode):
         """Validate the parameters and create the endpoints; a bad value FAILS, one line."""
         try:
             self._odometry = OdometryEndpoints(
-                self, ros_common.parameter_values(self, ODOMETRY_PARAMS))
+                self, parameter_values(self, ODOMETRY_PARAMS))
         except ParameterError as err:
             self.get_logger().error(f"configure failed: {err}")
             return TransitionCallbackReturn.FAILURE
@@ -91,7 +92,7 @@ class OdometryLifecycleNode(LifecycleNode):
 
 def main(args: list[str] | None = None) -> int:
     """Console script / ``ros2 run diffdrive_odom odometry_lifecycle_node``."""
-    return ros_common.run(OdometryLifecycleNode, args)
+    return run(OdometryLifecycleNode, args)
 
 
 if __name__ == "__main__":

@@ -34,7 +34,12 @@ from diffdrive_odom.core.diagnostics import (
 )
 from diffdrive_odom.core.estimator import Status
 from diffdrive_odom.core.pipeline import Outcome, ReadingPipeline
-from diffdrive_odom.ros import runtime as ros_common
+from diffdrive_odom.core.throttle import KeyedThrottle
+from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
+from diffdrive_odom.ros.parameters import ParameterGuard, declare
+from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
+from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS, TF_QOS
+from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, OdometrySettings, odometry_settings
 from diffdrive_odom.settings.params import ParamValue
 
@@ -60,14 +65,13 @@ class OdometryEndpoints:
         self._pipeline = ReadingPipeline(settings)
         self._decoder = JointStateDecoder()
         self._build_messages(settings)
-        self._throttle = ros_common.KeyedThrottle(node.get_logger())
-        self._guard = ros_common.ParameterGuard(node, values, self._build, self._apply)
+        self._throttle = KeyedThrottle(node.get_logger())
+        self._guard = ParameterGuard(node, values, self._build, self._apply)
 
-        self._odom_pub = ros_common.create_publisher(
-            node, Odometry, "odom", ros_common.RELIABLE_OUT_QOS)
-        self._tf_pub = ros_common.create_publisher(node, TFMessage, "/tf", ros_common.TF_QOS)
+        self._odom_pub = create_publisher(node, Odometry, "odom", RELIABLE_OUT_QOS)
+        self._tf_pub = create_publisher(node, TFMessage, "/tf", TF_QOS)
         self._sub = node.create_subscription(
-            JointState, "joint_states", self._on_joint_state, ros_common.SENSOR_IN_QOS, raw=True
+            JointState, "joint_states", self._on_joint_state, SENSOR_IN_QOS, raw=True
         )
         self._reset_srv = node.create_service(Trigger, "~/reset_odometry", self._on_reset)
         # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
@@ -79,7 +83,7 @@ class OdometryEndpoints:
         self._last_rx: float | None = None
         self._rate = RateMeter(start=self._started)
         self._reporter = Reporter(odometry_report)
-        self._diagnostics = ros_common.DiagnosticsPublisher(node, "odometry", self._diagnose)
+        self._diagnostics = DiagnosticsPublisher(node, "odometry", self._diagnose)
         g = settings.geometry
         node.get_logger().info(
             f"wheel odometry: r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
@@ -96,8 +100,8 @@ class OdometryEndpoints:
         node.destroy_timer(self._input_timer)
         node.destroy_service(self._reset_srv)
         node.destroy_subscription(self._sub)
-        ros_common.destroy_publisher(node, self._tf_pub)
-        ros_common.destroy_publisher(node, self._odom_pub)
+        destroy_publisher(node, self._tf_pub)
+        destroy_publisher(node, self._odom_pub)
 
     def _build(self, values: dict[str, ParamValue]) -> OdometrySettings:
         return odometry_settings(values, self._node.get_namespace())
@@ -230,12 +234,12 @@ class OdometryNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self.odometry = OdometryEndpoints(self, ros_common.declare(self, ODOMETRY_PARAMS))
+        self.odometry = OdometryEndpoints(self, declare(self, ODOMETRY_PARAMS))
 
 
 def main(args: list[str] | None = None) -> int:
     """Console script / ``ros2 run diffdrive_odom odometry_node``."""
-    return ros_common.run(OdometryNode, args)
+    return run(OdometryNode, args)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from rclpy.clock_type import ClockType
 from rclpy.node import Node
 from std_msgs.msg import Bool, Float64
 
-from diffdrive_odom.core.conversions import quaternion_to_yaw
+from diffdrive_odom.core.conversions import quaternion_to_yaw, stamp_to_ns
 from diffdrive_odom.core.diagnostics import (
     FollowerHealth,
     FollowerState,
@@ -32,19 +32,21 @@ from diffdrive_odom.core.diagnostics import (
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.path_following import Command, Path, PathFollower, polyline
-from diffdrive_odom.ros import runtime as ros_common
+from diffdrive_odom.core.throttle import WARN_THROTTLE_S
+from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
+from diffdrive_odom.ros.parameters import ParameterGuard, declare
+from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
+from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.settings.follower import FOLLOWER_PARAMS, FollowerSettings, follower_settings
 
 NODE_NAME = "path_follower_node"
 DIAGNOSTIC_TASK = "path_follower"
 DROP_REASONS = ("non_finite_odom", "bad_path", "path_frame")
 MAX_STEP_S = 0.5  # a longer gap between odometry stamps is not integrated
-THROTTLE_S = ros_common.WARN_THROTTLE_S
+THROTTLE_S = WARN_THROTTLE_S
 
-ODOM_IN_QOS = ros_common.qos(10, reliable=False)  # matches reliable and best-effort odometry
-PATH_IN_QOS = ros_common.qos(1, reliable=True)
-# Latched: a late subscriber (a mission script) still learns that the path is done.
-DONE_QOS = ros_common.qos(1, reliable=True, latched=True)
+ODOM_IN_QOS = qos(10, reliable=False)  # matches reliable and best-effort odometry
+PATH_IN_QOS = qos(1, reliable=True)
 
 
 class PathFollowerNode(Node):
@@ -53,12 +55,12 @@ class PathFollowerNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._log: Any = cast(Any, self).get_logger()
-        values = ros_common.declare(self, FOLLOWER_PARAMS)
+        values = declare(self, FOLLOWER_PARAMS)
         s = follower_settings(values)
         self._settings = s
         self._follower: PathFollower | None = (
             PathFollower(s.path, s.gains, s.geometry) if s.path is not None else None)
-        self._guard = ros_common.ParameterGuard(self, values, follower_settings, self._apply)
+        self._guard = ParameterGuard(self, values, follower_settings, self._apply)
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._last_stamp_ns: int | None = None
         self._odom_ns: int | None = None  # steady time of the last odometry
@@ -69,16 +71,16 @@ class PathFollowerNode(Node):
         self._limited = 0
 
         cmd_type = TwistStamped if s.enable_stamped_cmd_vel else Twist
-        self._cmd_pub = self.create_publisher(cmd_type, "cmd_vel", ros_common.RELIABLE_OUT_QOS)
+        self._cmd_pub = self.create_publisher(cmd_type, "cmd_vel", RELIABLE_OUT_QOS)
         self._error_pub = self.create_publisher(
-            Float64, "~/cross_track_error", ros_common.RELIABLE_OUT_QOS)
+            Float64, "~/cross_track_error", RELIABLE_OUT_QOS)
         self._progress_pub = self.create_publisher(
-            Float64, "~/progress", ros_common.RELIABLE_OUT_QOS)
+            Float64, "~/progress", RELIABLE_OUT_QOS)
         self._done_pub = self.create_publisher(Bool, "~/done", DONE_QOS)
         self.create_subscription(Odometry, "odom", self._on_odom, ODOM_IN_QOS)
         self.create_subscription(PathMsg, "path", self._on_path, PATH_IN_QOS)
         self._reporter = Reporter(follower_report)
-        self._diagnostics = ros_common.DiagnosticsPublisher(self, DIAGNOSTIC_TASK, self._diagnose)
+        self._diagnostics = DiagnosticsPublisher(self, DIAGNOSTIC_TASK, self._diagnose)
         self._publish_done(False)
         g = s.gains
         self._log.info(
@@ -150,7 +152,7 @@ class PathFollowerNode(Node):
             return
         self._odom_ns = self._steady.now().nanoseconds
         self._odom_frame = msg.header.frame_id.lstrip("/")
-        stamp = ros_common.stamp_to_ns(msg.header.stamp)
+        stamp = stamp_to_ns(msg.header.stamp)
         last, self._last_stamp_ns = self._last_stamp_ns, stamp
         dt = 0.0 if last is None else (stamp - last) * 1e-9
         if not 0.0 < dt <= MAX_STEP_S:
@@ -216,7 +218,7 @@ class PathFollowerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console script / ``ros2 run diffdrive_odom path_follower_node``."""
-    return ros_common.run(PathFollowerNode, args)
+    return run(PathFollowerNode, args)
 
 
 if __name__ == "__main__":

@@ -28,10 +28,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from diffdrive_odom.core.cmd_vel_pipeline import JOINT_STATE, TICKS_PER_SECOND
-from diffdrive_odom.core.conversions import yaw_to_quaternion
+from diffdrive_odom.core.conversions import ns_to_stamp, yaw_to_quaternion
 from diffdrive_odom.core.encoders import EncoderConfig, JointLookup
 from diffdrive_odom.core.sim import TWO_PI, DiffDriveSim
-from diffdrive_odom.ros import runtime as ros_common
+from diffdrive_odom.core.throttle import WARN_THROTTLE_S
+from diffdrive_odom.ros.parameters import ParameterGuard, declare
+from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, qos
+from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.settings.sim import SIM_PARAMS, TICKS, SimSettings, sim_settings
 
@@ -39,8 +42,8 @@ NODE_NAME = "sim_node"
 MAX_STEP_NS = 1_000_000_000  # a clock jump larger than this is not simulated as motion
 
 # Commands: best effort matches reliable and best-effort publishers; only the newest counts.
-COMMAND_QOS = ros_common.qos(5, reliable=False)
-CLOCK_QOS = ros_common.qos(1, reliable=True)
+COMMAND_QOS = qos(5, reliable=False)
+CLOCK_QOS = qos(1, reliable=True)
 
 
 class SimNode(Node):
@@ -49,20 +52,20 @@ class SimNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._log: Any = self.get_logger()
-        values = ros_common.declare(self, SIM_PARAMS)
+        values = declare(self, SIM_PARAMS)
         s = sim_settings(values)
         self._settings = s
         self._sim = DiffDriveSim(s.config)
         self._lookup = JointLookup(EncoderConfig(s.left_wheel_names, s.right_wheel_names))
-        self._guard = ros_common.ParameterGuard(self, values, self._build, self._apply)
+        self._guard = ParameterGuard(self, values, self._build, self._apply)
         self._step_ns = round(1e9 / s.publish_rate)
         self._start_ns = time.time_ns()  # the simulated clock starts at the wall time
         self._last_clock_ns: int | None = None
 
         self._joint_pub = self.create_publisher(
-            JointState, "joint_states", ros_common.RELIABLE_OUT_QOS)
+            JointState, "joint_states", RELIABLE_OUT_QOS)
         self._truth_pub = self.create_publisher(
-            Odometry, "ground_truth/odom", ros_common.RELIABLE_OUT_QOS)
+            Odometry, "ground_truth/odom", RELIABLE_OUT_QOS)
         self._clock_pub: Any = None
         if s.publish_clock:
             self._clock_pub = self.create_publisher(ClockMsg, "/clock", CLOCK_QOS)
@@ -102,7 +105,7 @@ class SimNode(Node):
     # --- commands ---------------------------------------------------------------
 
     def _warn(self, text: str) -> None:
-        self._log.warning(text, throttle_duration_sec=ros_common.WARN_THROTTLE_S)
+        self._log.warning(text, throttle_duration_sec=WARN_THROTTLE_S)
 
     def _command(self, rates: list[float]) -> None:
         if not all(math.isfinite(r) for r in rates):
@@ -140,7 +143,7 @@ class SimNode(Node):
         self._sim.advance(self._step_ns)
         now_ns = self._start_ns + self._sim.time_ns
         clock = ClockMsg()
-        ros_common.ns_to_stamp(now_ns, clock.clock)
+        ns_to_stamp(now_ns, clock.clock)
         self._clock_pub.publish(clock)
         self._publish(now_ns)
 
@@ -162,7 +165,7 @@ class SimNode(Node):
     def _publish(self, stamp_ns: int) -> None:
         s, sim = self._settings, self._sim
         js = JointState()
-        ros_common.ns_to_stamp(stamp_ns, js.header.stamp)
+        ns_to_stamp(stamp_ns, js.header.stamp)
         js.name = list(s.wheel_names)
         if s.joint_state_units == TICKS:
             js.position = [float(c) for c in sim.encoder_counts()]
@@ -189,7 +192,7 @@ class SimNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console script / ``ros2 run diffdrive_odom sim_node``."""
-    return ros_common.run(SimNode, args)
+    return run(SimNode, args)
 
 
 if __name__ == "__main__":

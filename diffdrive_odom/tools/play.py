@@ -105,7 +105,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     from rclpy.executors import ExternalShutdownException
     from rosgraph_msgs.msg import Clock
 
-    from diffdrive_odom.ros import runtime as ros_common
+    from diffdrive_odom.ros import qos as ros_qos
 
     conns: list[Connection] = [
         c for c in reader.connections if args.topics is None or c.topic in args.topics
@@ -129,7 +129,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
                 continue
             name = remap.get(conn.topic, conn.topic)
             if name not in by_name:
-                qos = ros_common.qos(100, reliable=True, latched=name == "/tf_static")
+                qos = ros_qos.qos(100, reliable=True, latched=name == "/tf_static")
                 by_name[name] = _Topic(name, node.create_publisher(cls, name, qos))
             topics[id(conn)] = by_name[name]
         if not topics:
