@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from diffdrive_odom.core.path_following import polyline
+from diffdrive_odom.core.paths import polyline
 from diffdrive_odom.demo import BAG_TOPICS, DEFAULT_PARAMS
 from diffdrive_odom.tools import bagio, evaluate
 

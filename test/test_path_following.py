@@ -17,18 +17,8 @@ from hypothesis import strategies as st
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.integration import Pose2D, compose
 from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.path_following import (
-    Arc,
-    Gains,
-    Line,
-    Path,
-    PathFollower,
-    circle,
-    law_matrix,
-    line,
-    polyline,
-    route_points,
-)
+from diffdrive_odom.core.path_following import Gains, PathFollower, law_matrix
+from diffdrive_odom.core.paths import Arc, Line, Path, circle, line, polyline, route_points
 from diffdrive_odom.core.routes import square
 from diffdrive_odom.settings.follower import FOLLOWER_PARAMS, follower_settings
 from diffdrive_odom.settings.params import ParameterError, defaults

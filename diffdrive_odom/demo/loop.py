@@ -47,7 +47,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64
 
 from diffdrive_odom.core.conversions import quaternion_to_yaw, stamp_to_ns
-from diffdrive_odom.core.path_following import Point
+from diffdrive_odom.core.paths import Point
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.tools import bagio

@@ -10,7 +10,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from diffdrive_odom.core.metrics import Trajectory, match, path_length
-from diffdrive_odom.core.path_following import Point
+from diffdrive_odom.core.paths import Point
 
 from .report import FIT, NOMINAL, UMBMARK
 

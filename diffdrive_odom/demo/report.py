@@ -20,7 +20,7 @@ import numpy as np
 from diffdrive_odom.core import batch, calibration
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.metrics import Trajectory, evaluate
-from diffdrive_odom.core.path_following import Point
+from diffdrive_odom.core.paths import Point
 from diffdrive_odom.core.recorded_run import CalibrationError, Run, trajectory, with_values
 from diffdrive_odom.core.umbmark import reference_end, umbmark
 from diffdrive_odom.settings.odometry import OdometrySettings

@@ -14,7 +14,7 @@ from pathlib import Path
 import yaml
 
 from diffdrive_odom.core import routes
-from diffdrive_odom.core.path_following import Point, route_points
+from diffdrive_odom.core.paths import Point, route_points
 from diffdrive_odom.settings.follower import FollowerSettings, follower_settings
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
 from diffdrive_odom.settings.params import (

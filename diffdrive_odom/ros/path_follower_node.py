@@ -31,7 +31,8 @@ from diffdrive_odom.core.diagnostics import (
 )
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.path_following import Command, Path, PathFollower, polyline
+from diffdrive_odom.core.path_following import Command, PathFollower
+from diffdrive_odom.core.paths import Path, polyline
 from diffdrive_odom.core.throttle import WARN_THROTTLE_S
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare

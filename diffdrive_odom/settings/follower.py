@@ -17,7 +17,8 @@ from typing import Any
 
 from diffdrive_odom.core.errors import as_parameter_error
 from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.path_following import Gains, Path, Point, circle, polyline, route_points
+from diffdrive_odom.core.path_following import Gains
+from diffdrive_odom.core.paths import Path, Point, circle, polyline, route_points
 from diffdrive_odom.core.routes import make_route
 from diffdrive_odom.core.routes import names as route_names
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, STAMPED_CMD_VEL_PARAM, build_geometry
