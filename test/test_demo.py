@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 import yaml
 
 from diffdrive_odom.core.paths import polyline
@@ -35,6 +36,8 @@ from diffdrive_odom.tools import bagio, evaluate
 
 import oracle
 from rosutil import executable
+
+pytestmark = [pytest.mark.dds, pytest.mark.process, pytest.mark.demo, pytest.mark.slow]
 
 # The demo robot's nominal geometry and encoder, read from the shipped params file.
 DOC = yaml.safe_load(DEFAULT_PARAMS.read_text())
@@ -260,12 +263,15 @@ def test_ctrl_c_stops_every_node(tmp_path: Path) -> None:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
-        line = ""
-        deadline = time.monotonic() + 30
-        while "pid" not in line and time.monotonic() < deadline:
+        out = ""
+        deadline = time.monotonic() + 60
+        while "nodes up" not in out and time.monotonic() < deadline:
             line = proc.stdout.readline()
-        children = pids(line)
-        time.sleep(3.0)  # nodes up and the route started or starting
+            if not line:
+                break
+            out += line
+        children = pids(out)
+        assert "nodes up" in out, out  # the demo's ready line: the route starts now
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=20)
     finally:

@@ -7,8 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from diffdrive_odom.demo.loop import Children, Recorder
+from diffdrive_odom.demo.children import Children
+from diffdrive_odom.demo.recorder import Recorder
 from diffdrive_odom.demo.settings import DemoError
+
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 DOMAIN = int(os.environ.get("ROS_DOMAIN_ID", "0"))
 

@@ -7,7 +7,9 @@ few names other code uses is resolved on first use from the submodule that owns 
 - :mod:`.settings`: options, the params file of a run, the squares' paths, the topic table
 - :mod:`.report`: recorded series, calibration from the run, the results table (pure)
 - :mod:`.plot`: the picture (matplotlib, pure)
-- :mod:`.loop`: the four nodes as child processes and this process's recorder node
+- :mod:`.children`: the four nodes as child processes (logs, stop on leaving)
+- :mod:`.recorder`: this process's node (records the bag, sends the paths)
+- :mod:`.loop`: the run (start, wait until up, drive the squares, evaluate)
 - :mod:`.cli`: the command line
 """
 

@@ -1,4 +1,4 @@
-"""The closed loop: four nodes as child processes, and this process's recorder node.
+"""The closed-loop run: start the four nodes, drive the squares on the recorder, evaluate.
 
 ``path_follower_node`` steers on the odometry (``odom`` in, ``cmd_vel`` out);
 ``cmd_vel_node`` turns the twist into wheel commands for ``sim_node``, a simulated
@@ -9,53 +9,32 @@ than real time and a slow machine only slows it down. This process sends each
 square's path on ``/path``, waits for the follower's ``~/done``, and records
 everything into a rosbag2 (raw CDR as received, so every reader can decode it).
 
-Every resource is held by an ExitStack: the child processes are stopped and the ROS
-context and bag are closed when the demo ends, fails (a constructor included) or is
+The child processes are :mod:`.children`, this process's node :mod:`.recorder`. Every
+resource is held by an ExitStack: the child processes are stopped and the ROS context
+and bag are closed when the demo ends, fails (a constructor included) or is
 interrupted.
 """
 
 from __future__ import annotations
 
-import importlib
 import json
 import os
 import random
 import shutil
-import signal
-import subprocess
-import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
-from typing import Any
 
 import numpy as np
-import rclpy
-from geometry_msgs.msg import PoseStamped
-from nav_msgs.msg import Odometry
-from nav_msgs.msg import Path as PathMsg
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
-from rclpy.serialization import deserialize_message
-from rclpy.signals import SignalHandlerOptions
-from rosgraph_msgs.msg import Clock as ClockMsg
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64
 
-from diffdrive_odom.core.conversions import quaternion_to_yaw, stamp_to_ns
-from diffdrive_odom.core.paths import Point
-from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.settings.params import ParamValue
-from diffdrive_odom.tools import bagio
 
 from . import report
-from .report import DemoResult, JointSample, PoseSeries, Recording, Square
+from .children import Children
+from .recorder import Recorder
+from .report import DemoResult, Square
 from .settings import (
-    BAG_TOPICS,
     FOLLOWER,
     SETTLE_S,
     STARTUP_TIMEOUT_S,
@@ -71,232 +50,7 @@ from .settings import (
 )
 
 NODES = ("sim_node", "cmd_vel_node", "odometry_node", FOLLOWER)
-RECORD_QOS = qos(1000, reliable=True)
-LATEST_QOS = qos(1, reliable=False)  # only the newest /clock matters
 ACK_RESEND_S = 1.0  # wall seconds before a path the follower did not take is sent again
-
-
-# --- child processes --------------------------------------------------------------------
-
-
-@dataclass
-class Child:
-    """A node started as its own process, its output going to a log file."""
-
-    name: str
-    proc: subprocess.Popen[bytes]
-    log: Path
-
-    def tail(self, lines: int = 12) -> str:
-        """Last lines of its output (for error messages)."""
-        try:
-            text = self.log.read_text(encoding="utf-8", errors="replace")
-        except OSError:
-            return ""
-        return "\n".join(f"  [{self.name}] {line}" for line in text.splitlines()[-lines:])
-
-
-def _executable(name: str) -> str:
-    path = Path(sys.executable).parent / name
-    found = str(path) if path.exists() else shutil.which(name)
-    if found is None:
-        raise DemoError(f"{name} not found next to {sys.executable} or on PATH (make venv)")
-    return found
-
-
-class Children:
-    """The nodes as child processes; leaving the ``with`` block stops every one started.
-
-    SIGINT first (the nodes exit cleanly on it), then SIGKILL whatever is left.
-    """
-
-    def __init__(self, env: Mapping[str, str], logs: Path, grace: float = 5.0) -> None:
-        self.env, self.logs, self.grace = dict(env), logs, grace
-        self.started: list[Child] = []
-
-    def start(self, name: str, args: Sequence[str]) -> Child:
-        """Start a console script with ``--ros-args``."""
-        exe = _executable(name)
-        log = self.logs / f"{name}.log"
-        with open(log, "wb") as out:
-            proc = subprocess.Popen([exe, "--ros-args", *args], stdout=out,
-                                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                    env=self.env)
-        child = Child(name, proc, log)
-        self.started.append(child)
-        return child
-
-    def check(self, what: str) -> None:
-        """Raise DemoError if a child has exited."""
-        for c in self.started:
-            if c.proc.poll() is not None:
-                raise DemoError(f"{c.name} exited with {c.proc.returncode} while {what}:\n"
-                                f"{c.tail()}")
-
-    def tails(self, lines: int = 5) -> str:
-        """Each child's last log lines."""
-        return "\n".join(c.tail(lines) for c in self.started)
-
-    def __enter__(self) -> Children:
-        return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        for c in self.started:
-            if c.proc.poll() is None:
-                c.proc.send_signal(signal.SIGINT)
-        deadline = time.monotonic() + self.grace
-        for c in self.started:
-            try:
-                c.proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                c.proc.kill()
-                c.proc.wait()
-
-
-# --- this process's node ---------------------------------------------------------------
-
-
-def message_class(type_name: str) -> Any:
-    """``pkg/msg/Name`` -> the rclpy message class (the topic table holds only names)."""
-    pkg, _, name = type_name.split("/")
-    return getattr(importlib.import_module(f"{pkg}.msg"), name)
-
-
-def _pose_of(msg: Any) -> tuple[float, float, float]:
-    p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    return float(p.x), float(p.y), quaternion_to_yaw(q)
-
-
-class Recorder:
-    """The demo's own node: records every topic into the bag and sends the paths.
-
-    Messages are taken raw (the CDR bytes DDS delivered) and written to the bag as
-    they are, so the bag holds exactly what the nodes sent; the few needed for the
-    evaluation are decoded as well. A context manager: ``__enter__`` builds the ROS
-    context, node and bag writer on an ExitStack, so a failure half-way undoes what
-    was built, and ``__exit__`` closes them all.
-    """
-
-    def __init__(self, domain_id: int, bag_path: Path | None,
-                 topics: Mapping[str, str] = BAG_TOPICS) -> None:
-        self.domain_id, self.bag_path, self.topics = domain_id, bag_path, dict(topics)
-        self.context = Context()
-        self.writer: bagio.BagWriter | None = None
-        self.now_ns: int | None = None
-        self.odom, self.truth = PoseSeries(), PoseSeries()
-        self.joint_states: list[JointSample] = []
-        self.counts: dict[str, int] = dict.fromkeys(self.topics, 0)
-        self.done_true = self.done_false = 0
-        self.cross_track_max = 0.0
-        self._stack = ExitStack()
-
-    def __enter__(self) -> Recorder:
-        with ExitStack() as stack:
-            # No rclpy signal handlers: Ctrl-C stays a KeyboardInterrupt, so the caller
-            # stops the child processes.
-            rclpy.init(context=self.context, domain_id=self.domain_id,
-                       signal_handler_options=SignalHandlerOptions.NO)
-            stack.callback(rclpy.try_shutdown, context=self.context)
-            self.node = Node("diffdrive_odom_demo", context=self.context)
-            stack.callback(self.node.destroy_node)
-            self.executor = SingleThreadedExecutor(context=self.context)
-            stack.callback(self.executor.shutdown)
-            self.executor.add_node(self.node)
-            if self.bag_path is not None:
-                self.writer = stack.enter_context(bagio.BagWriter(self.bag_path))
-            for topic, type_name in self.topics.items():
-                cls = message_class(type_name)
-                if self.writer is not None:
-                    self.writer.add_topic(topic, type_name)
-                self.node.create_subscription(
-                    cls, topic, lambda raw, t=topic: self._on_raw(t, raw), RECORD_QOS,
-                    raw=True)
-            self.node.create_subscription(ClockMsg, "/clock", self._on_clock, LATEST_QOS)
-            self.node.create_subscription(Bool, f"/{FOLLOWER}/done", self._on_done, DONE_QOS)
-            self.path_pub = self.node.create_publisher(
-                PathMsg, "/path", RELIABLE_OUT_QOS)
-            self._stack = stack.pop_all()
-        return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self._stack.close()
-        self.writer = None
-
-    def spin_once(self, timeout: float) -> None:
-        """Handle what arrived (or wait up to ``timeout`` seconds)."""
-        self.executor.spin_once(timeout_sec=timeout)
-
-    def _on_clock(self, msg: ClockMsg) -> None:
-        self.now_ns = stamp_to_ns(msg.clock)
-
-    def _on_done(self, msg: Bool) -> None:
-        if msg.data:
-            self.done_true += 1
-        else:
-            self.done_false += 1
-
-    def _on_raw(self, topic: str, raw: bytes) -> None:
-        log_ns = self.now_ns if self.now_ns is not None else time.time_ns()
-        self.counts[topic] += 1
-        if self.writer is not None:
-            self.writer.write_cdr(topic, log_ns, bytes(raw))
-        if topic == "/joint_states":
-            js = deserialize_message(raw, JointState)
-            self.joint_states.append(JointSample(
-                stamp_to_ns(js.header.stamp), tuple(js.name),
-                tuple(js.position), tuple(js.velocity)))
-        elif topic in ("/odom", "/ground_truth/odom"):
-            msg = deserialize_message(raw, Odometry)
-            series = self.odom if topic == "/odom" else self.truth
-            series.add(stamp_to_ns(msg.header.stamp), *_pose_of(msg))
-        elif topic == f"/{FOLLOWER}/cross_track_error":
-            e = float(deserialize_message(raw, Float64).data)
-            self.cross_track_max = max(self.cross_track_max, abs(e))
-
-    def send_path(self, points: Sequence[Point]) -> None:
-        """Publish a path (odom frame) for the follower."""
-        msg = PathMsg()
-        msg.header.frame_id = "odom"
-        for x, y in points:
-            pose = PoseStamped()
-            pose.header.frame_id = "odom"
-            pose.pose.position.x, pose.pose.position.y = float(x), float(y)
-            pose.pose.orientation.w = 1.0
-            msg.poses.append(pose)
-        self.path_pub.publish(msg)
-
-    def _has(self, topic: str, node: str, publisher: bool) -> bool:
-        infos = (self.node.get_publishers_info_by_topic(topic) if publisher
-                 else self.node.get_subscriptions_info_by_topic(topic))
-        return any(i.node_name == node for i in infos)
-
-    def ready(self) -> bool:
-        """Every link of the loop is up: clock, encoders, odometry, follower, cmd_vel -> sim."""
-        c = self.counts
-        return (self.now_ns is not None and self.done_false > 0
-                and all(c[t] > 0 for t in ("/joint_states", "/odom", "/ground_truth/odom",
-                                           "/tf"))
-                and self._has("/path", FOLLOWER, publisher=False)
-                and self._has("/odom", FOLLOWER, publisher=False)
-                and self._has("/cmd_vel", "cmd_vel_node", publisher=False)
-                and self._has("/wheel_commands", "sim_node", publisher=False)
-                and self._has("/wheel_commands", "cmd_vel_node", publisher=True))
-
-    def status(self) -> str:
-        """Message counts so far, for error messages."""
-        counts = ", ".join(f"{t}: {n}" for t, n in self.counts.items())
-        clock = "no /clock yet" if self.now_ns is None else "/clock running"
-        return f"{clock}; done {self.done_true}x; {counts}"
-
-    def recording(self, squares: Sequence[Square]) -> Recording:
-        """What was heard, for :mod:`.report`."""
-        return Recording(tuple(self.joint_states), self.odom.trajectory(),
-                         self.truth.trajectory(), tuple(squares), self.cross_track_max)
-
-
-# --- the run ----------------------------------------------------------------------------
 
 
 class _Waiter:
@@ -413,6 +167,8 @@ def run(opts: DemoOptions) -> DemoResult:
               + f"; logs in {logs}", flush=True)
         waiter = _Waiter(recorder, children)
         waiter.until(recorder.ready, wall0 + STARTUP_TIMEOUT_S, "starting the nodes")
+        print(f"[{opts.route}] nodes up after {time.monotonic() - wall0:.1f} s; driving",
+              flush=True)
         squares = _drive(waiter, opts, settings.follower.gains.look_ahead,
                          wall0 + opts.timeout)
     wall = time.monotonic() - wall0

@@ -13,7 +13,6 @@ With ``--loop`` the bag starts over and time jumps back, as with ``ros2 bag play
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 import time
 from collections.abc import Sequence
@@ -22,6 +21,7 @@ from typing import Any
 
 from rosbags.interfaces import Connection
 
+from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.tools import bagio
 from diffdrive_odom.tools.cli import HelpFormatter
 
@@ -36,9 +36,8 @@ class _Topic:
 
 def _message_class(msgtype: str) -> Any:
     """Return the rclpy message class for ``pkg/msg/Type`` (None if not installed here)."""
-    pkg, kind, name = msgtype.split("/")
     try:
-        return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+        return message_class(msgtype)
     except (ImportError, AttributeError):
         return None
 
