@@ -23,7 +23,7 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from diffdrive_odom.core.conversions import yaw_to_quaternion
+from diffdrive_odom.core.conversions import split_ns, yaw_to_quaternion
 
 CDR_LE = b"\x00\x01\x00\x00"  # encapsulation: plain CDR, little endian, no options
 _ORIGIN = 4  # alignment counts from the end of the encapsulation header
@@ -191,7 +191,7 @@ class OdometryLayout:
     def planar(self, stamp_ns: int, x: float, y: float, yaw: float, linear: float,
                angular: float) -> bytes:
         """The message of a planar pose and twist stamped ``stamp_ns`` (> 0)."""
-        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        sec, nanosec = split_ns(stamp_ns)
         _, _, qz, qw = yaw_to_quaternion(yaw)
         return self.encode(sec, nanosec, x, y, qz, qw, linear, angular)
 
@@ -220,6 +220,6 @@ class TransformLayout:
 
     def planar(self, stamp_ns: int, x: float, y: float, yaw: float) -> bytes:
         """The message of a planar pose stamped ``stamp_ns`` (> 0)."""
-        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        sec, nanosec = split_ns(stamp_ns)
         _, _, qz, qw = yaw_to_quaternion(yaw)
         return self.encode(sec, nanosec, x, y, qz, qw)

@@ -50,9 +50,19 @@ def stamp_to_ns(stamp: StampLike) -> int:
     return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
 
 
+def split_ns(ns: int) -> tuple[int, int]:
+    """Integer nanoseconds -> ``(sec, nanosec)`` of a builtin_interfaces/Time.
+
+    Floor division, as :func:`divmod`: ``nanosec`` is always in ``[0, 1e9)`` (-1 ns is
+    ``(-1, 999_999_999)``), so :func:`stamp_to_ns` inverts it exactly, however large.
+    """
+    sec, nanosec = divmod(int(ns), NS_PER_S)
+    return sec, nanosec
+
+
 def ns_to_stamp(ns: int, stamp: S) -> S:
     """Fill a builtin_interfaces/Time (rclpy's or rosbags') from integer nanoseconds; returns it."""
-    stamp.sec, stamp.nanosec = divmod(int(ns), NS_PER_S)
+    stamp.sec, stamp.nanosec = split_ns(ns)
     return stamp
 
 

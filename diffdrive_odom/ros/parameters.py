@@ -114,4 +114,3 @@ class ParameterGuard(Generic[T]):
             self._values, settings = self._pending
             self._pending = None
             self._apply(settings)
-

@@ -27,4 +27,3 @@ def destroy_publisher(node: Node, publisher: Publisher) -> None:
         node.destroy_lifecycle_publisher(publisher)
     else:
         node.destroy_publisher(publisher)
-

@@ -54,7 +54,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from diffdrive_odom.core.cdr import JointStateDecoder
-from diffdrive_odom.core.conversions import stamp_to_ns
+from diffdrive_odom.core.conversions import split_ns, stamp_to_ns
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -416,5 +416,5 @@ class CsvWriter:
 
 def seconds_text(ns: int) -> str:
     """Exact decimal seconds of an integer nanosecond stamp: ``sec.nanosec`` (9 places)."""
-    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    sec, nanosec = split_ns(ns)
     return f"{sec}.{nanosec:09d}"

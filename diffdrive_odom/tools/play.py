@@ -21,6 +21,7 @@ from typing import Any
 
 from rosbags.interfaces import Connection
 
+from diffdrive_odom.core.conversions import split_ns
 from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.tools import bagio
 from diffdrive_odom.tools.cli import HelpFormatter
@@ -207,7 +208,7 @@ def _play_once(
 
     def publish_clock(ns: int) -> None:
         msg = clock_cls()
-        msg.clock.sec, msg.clock.nanosec = divmod(min(max(ns, start_ns), end_ns), 10**9)
+        msg.clock.sec, msg.clock.nanosec = split_ns(min(max(ns, start_ns), end_ns))
         clock_pub.publish(msg)
 
     if clock_pub is not None:
