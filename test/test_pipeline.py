@@ -16,6 +16,14 @@ from diffdrive_odom.core import batch
 from diffdrive_odom.core.estimator import Reason, Status
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.pipeline import VELOCITY_ON, ReadingPipeline
+from diffdrive_odom.core.publication import (
+    COVARIANCE_REFUSED,
+    NON_FINITE,
+    ODOMETRY_REFUSED,
+    Publication,
+    pipeline_publication,
+    publication,
+)
 from diffdrive_odom.core.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import bagio, replay
@@ -134,6 +142,42 @@ def test_the_demo_reintegrates_through_the_same_rules(tmp_path: Path) -> None:
     steps = batch.wheel_steps(readings, s)
     assert len(steps) == 50
     assert math.isclose(batch.final_pose(steps, s.geometry).x, R * 5.0, abs_tol=1e-12)
+
+
+def test_the_publication_rule_refuses_anything_non_finite() -> None:
+    """The one rule of what goes out (the node and replay both call it): a NaN or inf in
+    the pose, the twist or either covariance keeps the pose back, with the reason."""
+    zeros = [0.0] * 36
+    ok = publication(Pose2D(1.0, 2.0, 0.5), 0.3, -0.1, zeros, zeros)
+    assert isinstance(ok, Publication)
+    assert (ok.pose, ok.linear, ok.angular) == (Pose2D(1.0, 2.0, 0.5), 0.3, -0.1)
+    assert ok.pose_covariance is zeros and ok.twist_covariance is zeros  # as given
+    for bad in (math.nan, math.inf, -math.inf):
+        cov = [0.0] * 35 + [bad]
+        assert publication(Pose2D(), 0.0, 0.0, cov, zeros) is COVARIANCE_REFUSED
+        assert publication(Pose2D(), 0.0, 0.0, zeros, cov) is COVARIANCE_REFUSED
+        for pose, linear, angular in ((Pose2D(bad, 0.0, 0.0), 0.0, 0.0),
+                                      (Pose2D(0.0, 0.0, bad), 0.0, 0.0),
+                                      (Pose2D(), bad, 0.0), (Pose2D(), 0.0, bad)):
+            # The pose is checked first: its covariance is made from it.
+            assert publication(pose, linear, angular, cov, cov) is ODOMETRY_REFUSED
+    assert COVARIANCE_REFUSED.code == ODOMETRY_REFUSED.code == NON_FINITE
+    assert COVARIANCE_REFUSED.reason == "non-finite covariance suppressed"
+    assert ODOMETRY_REFUSED.reason == "non-finite odometry suppressed"
+
+
+def test_a_valid_but_absurd_geometry_makes_the_covariance_non_finite_and_it_is_refused(
+        tmp_path: Path) -> None:
+    """Real input, no patching: a 1e-300 m axle (the parameter checks accept it) driven
+    straight keeps a finite pose, but heading variance ~ wheel variance / b**2 overflows."""
+    pipe = ReadingPipeline(settings(tmp_path, wheel_separation=1e-300))
+    first = pipe.feed(T0, NAMES, [0.0, 0.0])
+    assert first.publish and isinstance(pipeline_publication(pipe), Publication)
+    out = pipe.feed(T0 + STEP, NAMES, [0.1, 0.1])
+    assert out.publish and pipe.estimator.pose == Pose2D(R * 0.1, 0.0, 0.0)
+    pose_cov, twist_cov = pipe.covariances()
+    assert not all(map(math.isfinite, [*pose_cov, *twist_cov]))
+    assert pipeline_publication(pipe) is COVARIANCE_REFUSED
 
 
 def test_keyed_throttle_holds_back_per_key_only() -> None:

@@ -12,7 +12,6 @@ rclpy's conversions to and from Python objects cost more than the odometry itsel
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
@@ -34,6 +33,7 @@ from diffdrive_odom.core.diagnostics import (
 )
 from diffdrive_odom.core.estimator import Status
 from diffdrive_odom.core.pipeline import Outcome, ReadingPipeline
+from diffdrive_odom.core.publication import Publication, Refusal, pipeline_publication
 from diffdrive_odom.core.throttle import KeyedThrottle
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
@@ -197,34 +197,26 @@ class OdometryEndpoints:
         self._tf = TransformLayout(settings.odom_frame_id, settings.base_frame_id)
         self._covariance_changed = True
 
-    def _set_covariance(self) -> bool:
+    def _set_covariance(self, out: Publication) -> None:
         """The covariance of the published odometry (the only place that sets it).
 
         Propagated: the pipeline's, every message. Static (the parameters' diagonals):
-        written only after a change. False if it is not finite (never published).
+        written only after a change.
         """
-        if self._pipeline.estimator.uncertainty is None:
-            if self._covariance_changed:
-                self._odom.covariance(*self._pipeline.covariances())
-                self._covariance_changed = False
-            return True
-        pose_cov, twist_cov = self._pipeline.covariances()
-        if not math.isfinite(sum(pose_cov) + sum(twist_cov)):
-            return False
-        self._odom.covariance(pose_cov, twist_cov)
-        return True
+        if self._pipeline.estimator.uncertainty is None and not self._covariance_changed:
+            return
+        self._odom.covariance(out.pose_covariance, out.twist_covariance)
+        self._covariance_changed = False
 
     def _publish(self, stamp_ns: int) -> None:
-        est = self._pipeline.estimator
-        pose = est.pose
-        x, y, theta, linear, angular = pose.x, pose.y, pose.theta, est.linear, est.angular
-        if not math.isfinite(x + y + theta + linear + angular):  # cannot happen; never NaN
-            self._throttle.warning("non_finite_output", "non-finite odometry suppressed")
+        out = pipeline_publication(self._pipeline)  # replay publishes by the same rule
+        if isinstance(out, Refusal):  # cannot happen; never NaN
+            self._throttle.warning(out.code, out.reason)
             return
-        if not self._set_covariance():  # cannot happen; never NaN
-            self._throttle.warning("non_finite_output", "non-finite covariance suppressed")
-            return
-        self._odom_pub.publish(self._odom.planar(stamp_ns, x, y, theta, linear, angular))
+        self._set_covariance(out)
+        pose = out.pose
+        x, y, theta = pose.x, pose.y, pose.theta
+        self._odom_pub.publish(self._odom.planar(stamp_ns, x, y, theta, out.linear, out.angular))
         if self._settings.enable_odom_tf:
             self._tf_pub.publish(self._tf.planar(stamp_ns, x, y, theta))
 
