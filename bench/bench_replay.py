@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from diffdrive_odom.core import batch  # noqa: E402
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings  # noqa: E402
-from diffdrive_odom.tools import bagio, replay  # noqa: E402
+from diffdrive_odom.tools import bagio, replay, sinks  # noqa: E402
 
 DATA = ROOT / "test" / "data"
 
@@ -90,7 +90,7 @@ def _replay_to_bag(bag: Path, settings: OdometrySettings, out: Path) -> None:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
         replay.replay_readings(bagio.read_joint_states(bag), settings,
-                               replay.output_sink(settings, w, table))
+                               sinks.output_sink(settings, w, table))
 
 
 def bench_bag(name: str, bag: Path, settings: OdometrySettings, tmp: Path) -> None:

@@ -24,7 +24,7 @@ from diffdrive_odom.core import batch
 from diffdrive_odom.core.conversions import quaternion_to_yaw
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools import bagio, replay, sinks
 from diffdrive_odom.tools.cli import main as cli
 
 import oracle
@@ -231,6 +231,40 @@ def _write_run(path: Path, stamps: list[int], wheels: list[tuple[float, float]],
                 position=np.array([left, right]), velocity=np.zeros(0), effort=np.zeros(0)))
 
 
+def test_replay_refuses_what_the_node_refuses(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    """A pose whose covariance is not finite is not written, as the node does not publish
+    it (both ask core.publication): a 1e-300 m axle (accepted by the parameter checks)
+    driven straight. Only the reference reading's pose goes out; the rest are counted."""
+    values = {"wheel_radius": 0.05, "wheel_separation": 1e-300}
+    settings = _settings(tmp_path, values)
+    n = 20
+    bag = tmp_path / "tiny_axle"
+    _write_run(bag, [10**9 + k * 20_000_000 for k in range(n)], [(0.1 * k, 0.1 * k)
+                                                                 for k in range(n)])
+    poses: list[replay.Published] = []
+    stats = replay.replay_readings(bagio.read_joint_states(bag), settings, poses.append)
+    assert stats.pipeline.published == n
+    assert stats.refused == {"non-finite covariance suppressed": n - 1}
+    assert stats.published == len(poses) == 1
+    assert all(map(math.isfinite, [*poses[0].pose_covariance, *poses[0].twist_covariance]))
+    assert math.isclose(stats.final_pose.x, 0.05 * 0.1 * (n - 1), abs_tol=1e-12)
+    out, table = tmp_path / "out", tmp_path / "out.csv"
+    params = write_params(tmp_path / "q.yaml", values)
+    capfd.readouterr()
+    assert cli(["replay", str(bag), "--params-file", str(params), "-o", str(out),
+                "--csv", str(table)]) == 0
+    captured = capfd.readouterr()
+    assert f"[replay] non-finite covariance suppressed: {n - 1} pose(s) not written" \
+        in captured.err
+    assert f"{n} readings" in captured.out and "-> 1 poses" in captured.out
+    odoms = [m for _, _, m in mcap_messages(out, ["/odom"])]
+    assert len(odoms) == 1
+    assert all(map(math.isfinite, [*odoms[0].pose.covariance, *odoms[0].twist.covariance]))
+    assert len(table.read_text().splitlines()) == 2  # the header and the one pose
+
+
+@pytest.mark.process
 def test_a_looped_bag_restarts_both_paths_at_the_origin(tmp_path: Path) -> None:
     """Stamps jumping back (a bag recorded from a looped play) restart the pose."""
     r, b = 0.05, 0.25
@@ -264,6 +298,7 @@ def test_a_looped_bag_restarts_both_paths_at_the_origin(tmp_path: Path) -> None:
     assert first_run == second_run
 
 
+@pytest.mark.process
 def test_streaming_memory_does_not_grow_with_the_bag(tmp_path: Path) -> None:
     settings = _settings(tmp_path, {"wheel_radius": 0.05, "wheel_separation": 0.25})
     peaks = []
@@ -279,7 +314,7 @@ def test_streaming_memory_does_not_grow_with_the_bag(tmp_path: Path) -> None:
             w.add_topic("/odom", bagio.ODOMETRY)
             w.add_topic("/tf", bagio.TF_MESSAGE)
             stats = replay.replay_readings(bagio.read_joint_states(bag), settings,
-                                           replay.output_sink(settings, w, None))
+                                           sinks.output_sink(settings, w, None))
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
         assert stats.published == n

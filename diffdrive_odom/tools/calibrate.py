@@ -24,8 +24,14 @@ from diffdrive_odom.core.umbmark import Umbmark, reference_end, umbmark
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.settings.params import yaml_text
 from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools.args import (
+    add_param_arguments,
+    add_reference_arguments,
+    fail,
+    outputs_problem,
+    settings_from_args,
+)
 from diffdrive_odom.tools.cli import HelpFormatter
-from diffdrive_odom.tools.replay import add_param_arguments, settings_from_args
 
 PREFIX = "[calibrate]"
 
@@ -56,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
                         "geometry, joint names, encoders (repeatable, later files win; default: "
                         "none, but this or -p must give wheel_radius and wheel_separation)")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bags")
-    evaluate.add_reference_arguments(ap)
+    add_reference_arguments(ap)
     ap.add_argument("--window", type=float, default=calibration.DEFAULT_WINDOW, metavar="M",
                     help="wheel travel per residual window [m]")
     ap.add_argument("--no-mount", action="store_true",
@@ -70,8 +76,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _error(text: str) -> int:
-    print(f"{PREFIX} {text}", file=sys.stderr)
-    return 2
+    return fail(PREFIX, text)
 
 
 def _end_point(text: str, flag: str) -> tuple[float, float]:
@@ -104,11 +109,7 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
             return "--umbmark needs --side L (the squares' side in metres)"
         if bool(args.cw_end) != bool(args.ccw_end):
             return "give both --cw-end and --ccw-end, or neither (ground truth from the bags)"
-    for flag, path in (("--yaml", args.yaml), ("--plot", args.plot)):
-        problem = bagio.output_problem(path, flag) if path else None
-        if problem:
-            return problem
-    return None
+    return outputs_problem(("--yaml", args.yaml), ("--plot", args.plot))
 
 
 def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,

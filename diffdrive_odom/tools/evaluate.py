@@ -31,6 +31,12 @@ from diffdrive_odom.core.metrics import (
     relative_errors,
 )
 from diffdrive_odom.tools import bagio
+from diffdrive_odom.tools.args import (
+    DEFAULT_REFERENCE,
+    add_reference_arguments,
+    fail,
+    outputs_problem,
+)
 from diffdrive_odom.tools.cli import HelpFormatter
 
 __all__ = [
@@ -61,7 +67,7 @@ def _pose_of(msg: Any, msgtype: str) -> tuple[Any, Any]:
 
 
 Notify = Callable[[str], None]
-DEFAULT_REFERENCE = "/ground_truth/pose"
+PREFIX = "[eval]"
 # Name parts that mark a topic as ground truth (sim_node and the demo write
 # /ground_truth/odom; motion-capture bridges use mocap/vicon/optitrack names).
 REFERENCE_HINTS = ("ground_truth", "groundtruth", "mocap", "vicon", "optitrack")
@@ -212,16 +218,6 @@ def report(
     print(metrics.table())
 
 
-def add_reference_arguments(ap: argparse.ArgumentParser) -> None:
-    """``--ground-truth`` and ``--child-frame``: how eval and calibrate find the reference."""
-    ap.add_argument("--ground-truth", default=None, metavar="TOPIC",
-                    help="reference topic: PoseStamped, PoseWithCovarianceStamped, Odometry, "
-                    f"or TransformStamped on /tf (default: {DEFAULT_REFERENCE}, else the "
-                    "bag's only ground-truth topic, e.g. sim_node's /ground_truth/odom)")
-    ap.add_argument("--child-frame", default=None, metavar="FRAME",
-                    help="reference child frame on /tf (default: the only one there)")
-
-
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="diffdrive-odom eval",
@@ -249,26 +245,20 @@ def _parser() -> argparse.ArgumentParser:
 
 def output_problem(json_path: str | None, plot_path: str | None) -> str | None:
     """Why ``--json`` / ``--plot`` cannot be written, checked before any work."""
-    for flag, path in (("--json", json_path), ("--plot", plot_path)):
-        problem = bagio.output_problem(path, flag) if path else None
-        if problem:
-            return problem
-    return None
+    return outputs_problem(("--json", json_path), ("--plot", plot_path))
 
 
 def main(argv: Sequence[str]) -> int:
     """``diffdrive-odom eval``; exit 2 when a topic, bag or output path cannot be used."""
     args = _parser().parse_args(list(argv))
     if not (args.segment_length > 0 and args.max_gap > 0):
-        print("[eval] --segment-length and --max-gap must be > 0", file=sys.stderr)
-        return 2
+        return fail(PREFIX, "--segment-length and --max-gap must be > 0")
     problem = output_problem(args.json, args.plot)
     if problem:
-        print(f"[eval] {problem}", file=sys.stderr)
-        return 2
+        return fail(PREFIX, problem)
 
     def notify(text: str) -> None:
-        print(f"[eval] {text}", file=sys.stderr)
+        print(f"{PREFIX} {text}", file=sys.stderr)
 
     ref_bag = args.reference_bag or args.bag
     try:
@@ -280,11 +270,9 @@ def main(argv: Sequence[str]) -> int:
         metrics = evaluate(est, ref, args.segment_length, args.max_gap)
         report(metrics, est, ref, args.json, args.plot, (args.odom, gt))
     except (bagio.BagError, ValueError) as err:
-        print(f"[eval] {err}", file=sys.stderr)
-        return 2
+        return fail(PREFIX, str(err))
     except OSError as err:  # the output vanished or filled up after the check
-        print(f"[eval] cannot write: {err}", file=sys.stderr)
-        return 2
+        return fail(PREFIX, f"cannot write: {err}")
     return 0
 
 

@@ -1,0 +1,104 @@
+"""The command-line flags replay, calibrate and eval share, and what they resolve to.
+
+One definition per flag, so the tools that run the node's estimator take its settings
+the same way (``--params-file``/``-p`` in rcl's order, ``--node-name``, ``--namespace``)
+and the tools that read ground truth find it the same way (``--ground-truth``,
+``--child-frame``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
+from diffdrive_odom.settings.params import ParameterError, ParamSource, resolve_parameters
+from diffdrive_odom.settings.registry import unknown_parameters_report
+from diffdrive_odom.tools import bagio
+
+NODE_NAME = "odometry_node"
+DEFAULT_REFERENCE = "/ground_truth/pose"  # the ground-truth topic looked for first
+
+
+def fail(prefix: str, text: str) -> int:
+    """Say ``text`` on stderr after the tool's ``prefix``; the exit status of a usage error."""
+    print(f"{prefix} {text}", file=sys.stderr)
+    return 2
+
+
+def load_settings(
+    params: str | Path | Sequence[ParamSource], node_name: str = NODE_NAME,
+    namespace: str = "/",
+) -> OdometrySettings:
+    """Return the node's settings from its params files and ``-p`` overrides.
+
+    Sources are in command-line order, resolved as rclpy resolves them for this node
+    name and namespace, and validated exactly as the node does.
+    """
+    sources = [("file", str(params))] if isinstance(params, (str, Path)) else list(params)
+    values = resolve_parameters(sources, node_name, namespace)
+    for line in unknown_parameters_report(list(values)):
+        if line:
+            print(f"[replay] {line}", file=sys.stderr)
+    return odometry_settings(values, "/" + namespace.strip("/"))
+
+
+class _RosParam(argparse.Action):
+    """Keeps ``--params-file`` and ``-p`` in one list, in command-line order (rcl's order)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        kind = "file" if option_string == "--params-file" else "param"
+        namespace.ros_params = [*(getattr(namespace, "ros_params", None) or []), (kind, values)]
+
+
+def add_param_arguments(ap: argparse.ArgumentParser, required: bool, file_help: str) -> None:
+    """Add the flags every tool running the node's estimator takes its settings from.
+
+    ``--params-file`` / ``-p`` go into one ordered list (rcl's order), then
+    ``--node-name`` and ``--namespace``.
+    """
+    ap.add_argument("--params-file", required=required, action=_RosParam, dest="ros_params",
+                    metavar="FILE", help=file_help)
+    ap.add_argument("-p", "--param", action=_RosParam, dest="ros_params", metavar="NAME:=VALUE",
+                    help="parameter override, as the node's -p (repeatable; order with "
+                         "--params-file matters as in rcl; default: none)")
+    ap.add_argument("--node-name", default=NODE_NAME,
+                    help="node name the params are resolved for (-r __node:=)")
+    ap.add_argument("--namespace", default="/",
+                    help="node namespace (-r __ns:=): params resolution and frame prefix")
+
+
+def settings_from_args(args: argparse.Namespace) -> OdometrySettings | str:
+    """The settings :func:`add_param_arguments`' flags give, or the one line why not."""
+    try:
+        return load_settings(args.ros_params, args.node_name, args.namespace)
+    except ParameterError as err:
+        return str(err)
+    except OSError as err:
+        return f"--params-file: {err}"
+
+
+def add_reference_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--ground-truth`` and ``--child-frame``: how eval and calibrate find the reference."""
+    ap.add_argument("--ground-truth", default=None, metavar="TOPIC",
+                    help="reference topic: PoseStamped, PoseWithCovarianceStamped, Odometry, "
+                    f"or TransformStamped on /tf (default: {DEFAULT_REFERENCE}, else the "
+                    "bag's only ground-truth topic, e.g. sim_node's /ground_truth/odom)")
+    ap.add_argument("--child-frame", default=None, metavar="FRAME",
+                    help="reference child frame on /tf (default: the only one there)")
+
+
+def outputs_problem(*outputs: tuple[str, str | None]) -> str | None:
+    """Why one of the ``(flag, path)`` outputs asked for cannot be written, or None.
+
+    Checked before any work, so a typo in an output path costs nothing.
+    """
+    for flag, path in outputs:
+        problem = bagio.output_problem(path, flag) if path else None
+        if problem:
+            return problem
+    return None
