@@ -1,14 +1,88 @@
-"""Test-session setup: every run gets its own DDS domain, on loopback only."""
+"""Test-session setup: every run (each xdist worker) gets its own DDS domain, on loopback
+only; a test marked neither ``process`` nor ``dds`` may start neither (the tiers); the
+colcon workspace that test_colcon and test_launch share."""
 
 from __future__ import annotations
 
 import os
 import random
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
 
 # Before anything imports rclpy or starts a node: child processes inherit these.
 if "ROS_DOMAIN_ID" not in os.environ or os.environ.get("DIFFDRIVE_ODOM_FRESH_DOMAIN", "1") == "1":
     os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid() ^ id(os)).randint(1, 100))
     os.environ["DIFFDRIVE_ODOM_FRESH_DOMAIN"] = "0"
+if os.environ.get("PYTEST_XDIST_WORKER", "").startswith("gw"):
+    # Workers inherit the controller's domain: each moves to its own (gw0 -> +1, gw1 -> +2).
+    _worker = int(os.environ["PYTEST_XDIST_WORKER"][2:])
+    os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) + _worker) % 100 + 1)
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.pop("ROS_LOCALHOST_ONLY", None)
 os.environ.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+
+
+def _refuse(what: str, marker: str, nodeid: str) -> Any:
+    def refuse(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError(f"{nodeid} {what}: mark it `{marker}` (setup.cfg lists the tiers)")
+    return refuse
+
+
+@pytest.fixture(autouse=True)
+def _tier_guard(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """A test of the fast tier really is pure: no child process, no rclpy Context."""
+    marks = {m.name for m in request.node.iter_markers()}
+    if "process" not in marks:
+        monkeypatch.setattr(subprocess, "Popen", _refuse("starts a process", "process",
+                                                         request.node.nodeid))
+    rclpy = sys.modules.get("rclpy")
+    if "dds" not in marks and rclpy is not None:
+        monkeypatch.setattr(rclpy, "init", _refuse("starts rclpy", "dds", request.node.nodeid))
+    yield
+
+
+BIN = Path(sys.executable).parent
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _tracked_files() -> list[str]:
+    # Tracked and new (not ignored) files: what a commit of this checkout would hold.
+    out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+                         cwd=ROOT, capture_output=True, text=True)
+    if out.returncode == 0 and out.stdout.strip():
+        return out.stdout.split()
+    # Not a git checkout (an sdist): take everything but caches and build outputs.
+    skip = {".venv", "build", "install", "log", "__pycache__", ".git"}
+    return [str(p.relative_to(ROOT)) for p in ROOT.rglob("*")
+            if p.is_file() and not skip & set(p.relative_to(ROOT).parts)]
+
+
+@pytest.fixture(scope="session")
+def colcon_ws(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The workspace with the package built by ``colcon build``, once per test session.
+
+    test_launch runs its launch files against this install too: one build serves both.
+    The package's tracked files are copied into a fresh workspace, as a user's checkout
+    in ``~/ws/src`` would be.
+    """
+    ws = tmp_path_factory.mktemp("colcon_ws")
+    src = ws / "src" / "diffdrive_odom"
+    for rel in _tracked_files():
+        if rel.startswith("test/data/") or not (ROOT / rel).is_file():
+            continue  # the workspace does not need the recordings; skip deleted files
+        dest = src / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / rel, dest)
+    env = {**os.environ, "PATH": f"{BIN}:{os.environ.get('PATH', '')}"}
+    build = subprocess.run(
+        [str(BIN / "colcon"), "build", "--event-handlers", "console_direct-"],
+        cwd=ws, capture_output=True, text=True, env=env, timeout=300,
+    )
+    assert build.returncode == 0, build.stdout + build.stderr
+    return ws

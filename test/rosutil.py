@@ -2,25 +2,39 @@
 
 A test owns a private rclpy Context and an executor; the node under test runs as a
 separate process started from the venv's console script, exactly as a user runs it.
+What several test files share lives here (no test module imports another): the peer
+side of an odometry node, its process with live output, a burst source.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import pytest
 import rclpy
-from rcl_interfaces.srv import ListParameters
+from builtin_interfaces.msg import Time
+from nav_msgs.msg import Odometry
+from rcl_interfaces.srv import GetParameters, ListParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import parameter_value_to_python
+from sensor_msgs.msg import JointState
+from tf2_msgs.msg import TFMessage
 
+from diffdrive_odom.core.conversions import ns_to_stamp
+from diffdrive_odom.core.errors import ParameterError
+from diffdrive_odom.ros.qos import qos
 from diffdrive_odom.tools import process
 
 BIN = Path(sys.executable).parent
@@ -166,13 +180,242 @@ def wait_for_subscriber(
     return spin_until(executor, lambda: publisher.get_subscription_count() > 0, timeout)
 
 
-def assert_refuses_to_start(executable_name: str, cases: dict[str, list[str]]) -> None:
-    """Each case (parameter name -> ``-p`` arguments) must stop the node at start with
-    a non-zero exit and exactly one output line naming that parameter."""
-    for name, params in cases.items():
-        with node_process(executable_name, ["--ros-args", *params]) as proc:
-            code = proc.wait(timeout=20)
-            out = proc.stdout.read() if proc.stdout else ""
-        assert code != 0, f"{name}: node started with a bad value"
-        lines = [ln for ln in out.splitlines() if ln.strip()]
-        assert len(lines) == 1 and f"'{name}'" in lines[0], out
+def assert_refuses_to_start(executable_name: str, name: str, params: list[str]) -> None:
+    """The node, started with ``params`` (``-p`` arguments), stops at once with exit code 2
+    and exactly one output line naming the parameter ``name``: what a user sees."""
+    with node_process(executable_name, ["--ros-args", *params]) as proc:
+        code = proc.wait(timeout=20)
+        out = proc.stdout.read() if proc.stdout else ""
+    assert code == 2, f"{name}: exit {code}, not 2 (a bad value)\n{out}"
+    lines = [ln for ln in out.splitlines() if ln.strip()]
+    assert len(lines) == 1 and f"'{name}'" in lines[0], out
+
+
+def assert_refused_in_process(node_class: Callable[..., Node], name: str,
+                              params: list[str]) -> None:
+    """Building ``node_class`` with ``params`` (``-p`` arguments, parsed by rcl as on the
+    command line) in a private Context raises the ParameterError naming ``name``, in one
+    line: the error a node's process prints as its one line before it exits 2
+    (``ros.runtime.run``), without the cost of starting a process per case."""
+    context = Context()
+    rclpy.init(context=context, args=["test", "--ros-args", *params])
+    try:
+        with pytest.raises(ParameterError) as err:
+            node_class(context=context)
+    finally:
+        rclpy.try_shutdown(context=context)
+    assert err.value.name == name, f"expected {name!r}, got {err.value.name!r}: {err.value}"
+    message = str(err.value)
+    assert f"'{name}'" in message and "\n" not in message.strip(), message
+
+
+def node_parameters(node: Node, ex: Any, fqn: str, names: list[str],
+                    timeout: float = 20.0) -> dict[str, Any]:
+    """Values of ``names`` read from the running node ``fqn`` over GetParameters."""
+    result = call_service(node, ex, GetParameters, f"{fqn}/get_parameters",
+                          GetParameters.Request(names=names), timeout)
+    assert result is not None
+    return {n: parameter_value_to_python(v) for n, v in zip(names, result.values, strict=True)}
+
+
+# --- the peer side of an odometry node ------------------------------------------------
+
+T0_NS = 1_700_000_000 * 10**9  # an arbitrary, realistic epoch for stamps
+STEP_NS = 20_000_000  # 50 Hz
+
+
+def stamp(ns: int) -> Time:
+    return Time(sec=ns // 10**9, nanosec=ns % 10**9)
+
+
+def ns_of(t: Time) -> int:
+    return int(t.sec) * 10**9 + int(t.nanosec)
+
+
+def yaw(q: Any) -> float:
+    return 2.0 * math.atan2(q.z, q.w)
+
+
+@dataclass
+class Sink:
+    """Collects what the node publishes."""
+
+    odom: list[Odometry] = field(default_factory=list)
+    tf: list[TFMessage] = field(default_factory=list)
+    odom_sub: Any = None
+    node: Any = None
+
+
+def listen(node: Node, odom_topic: str) -> Sink:
+    sink = Sink(node=node)
+    sink.odom_sub = node.create_subscription(Odometry, odom_topic, sink.odom.append, 50)
+    node.create_subscription(TFMessage, "/tf", sink.tf.append, 50)
+    return sink
+
+
+def output_if_ended(proc: Any) -> str:
+    """A child's output once it has ended (what it said when it died)."""
+    if proc is None or proc.poll() is None:
+        return "(still running)"
+    return proc.stdout.read() if proc.stdout else ""
+
+
+def wait_ready(executor: Any, pub: Any, sink: Sink, proc: Any = None) -> None:
+    """Wait for discovery both ways between us (``pub``, ``sink``) and the node.
+
+    A first pose published before the node's odom publisher sees us is lost, and the
+    repeats of its reading are dropped as repeats, so none would follow: our side's
+    matches are not enough (see :func:`handshake`).
+    """
+    assert wait_matched(sink.node, executor, pub, sink.odom_sub), (
+        "odometry_node and this test never matched: " + output_if_ended(proc))
+
+
+def send_first(executor: Any, pub: Any, sink: Sink, msg: JointState) -> None:
+    """Send the reference reading until the node answers it.
+
+    Discovery can report a match a moment before the first sample is deliverable;
+    repeating the same stamp is harmless (the node drops repeats).
+    """
+    want = ns_of(msg.header.stamp)
+    for _ in range(100):
+        pub.publish(msg)
+        if spin_until(executor,
+                      lambda: any(ns_of(o.header.stamp) == want for o in sink.odom), 0.2):
+            return
+    raise AssertionError("the node never answered the first reading")
+
+
+def drive_straight(pub: Any, ex: Any, sink: Sink, start_k: int, steps: int,
+                   rad_per_step: float, prime: bool = True) -> int:
+    """Readings ``start_k..start_k + steps``: both wheels at ``k * rad_per_step`` rad,
+    stamped on k; the first sent until answered when ``prime``. Returns the last k."""
+    for k in range(start_k, start_k + steps + 1):
+        msg = JointState()
+        msg.header.stamp = stamp(T0_NS + k * STEP_NS)
+        msg.name = ["left_wheel_joint", "right_wheel_joint"]
+        msg.position = [k * rad_per_step, k * rad_per_step]
+        if k == start_k and prime:
+            send_first(ex, pub, sink, msg)
+        else:
+            pub.publish(msg)
+            spin_for(ex, 0.005)
+    return start_k + steps
+
+
+# --- an odometry node whose output is read as it comes (the fault tests) ----------------
+
+NAMES = ["left_wheel_joint", "right_wheel_joint"]
+R, B = 0.1, 0.4  # the geometry odometry_node() starts the node with
+GEOMETRY = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}"]
+
+
+class Output:
+    """Lines of a child process's output, collected by a thread as they arrive."""
+
+    def __init__(self, proc: Any) -> None:
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(proc,), daemon=True)
+        self._thread.start()
+
+    def _read(self, proc: Any) -> None:
+        for line in proc.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    def matching(self, *words: str) -> list[str]:
+        return [ln for ln in self.lines if all(w in ln for w in words)]
+
+    def wait_for(self, *words: str, timeout: float = 15.0) -> list[str]:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not self.matching(*words):
+            time.sleep(0.05)
+        return self.matching(*words)
+
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+
+@contextmanager
+def odometry_node(*extra: str) -> Iterator[tuple[Any, Output]]:
+    with node_process("odometry_node", ["--ros-args", *GEOMETRY, *extra]) as proc:
+        yield proc, Output(proc)
+
+
+def reading(t_ns: int, position: list[float], velocity: list[float] | None = None,
+            names: list[str] | None = None) -> JointState:
+    msg = JointState()
+    msg.header.stamp = stamp(t_ns)
+    msg.name = list(names if names is not None else NAMES)
+    msg.position = position
+    msg.velocity = velocity or []
+    return msg
+
+
+# --- a burst source and the stop deadline (the signal tests) ---------------------------
+
+EXIT_WITHIN_S = 1.0  # a node ends this soon after SIGTERM or SIGINT
+PULSE = 200  # messages back to back
+QUIET_S = 0.15  # then nothing for this long
+
+
+class Burst:
+    """Publishes ``make(k)`` in pulses on one topic of ``topics`` at a time (``aim``),
+    from a thread of its own, in a private Context.
+
+    Only the process about to be signalled is fed: the others of its batch stay idle,
+    so the exit time measured is the node's, not that of two cores shared with nine
+    busy neighbours.
+    """
+
+    def __init__(self, msg_type: Any, topics: list[str], make: Callable[[int], Any]) -> None:
+        self._context = Context()
+        rclpy.init(context=self._context)
+        self._node = Node("signal_burst", context=self._context)
+        self.pubs = [self._node.create_publisher(msg_type, t, qos(100, True))
+                     for t in topics]
+        self._make = make
+        self._target = 0
+        self._stop = threading.Event()
+        self.sent = 0
+        self.cycle_s = QUIET_S  # how long one pulse and its quiet spell last, measured
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def aim(self, k: int) -> None:
+        self._target = k
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            start = time.monotonic()
+            pub = self.pubs[self._target]
+            for _ in range(PULSE):
+                pub.publish(self._make(self.sent))
+                self.sent += 1
+            self._stop.wait(QUIET_S)
+            self.cycle_s = time.monotonic() - start
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self._node.destroy_node()
+        rclpy.try_shutdown(context=self._context)
+
+
+@contextmanager
+def burst(msg_type: Any, topics: list[str], make: Callable[[int], Any]) -> Iterator[Burst]:
+    b = Burst(msg_type, topics, make)
+    try:
+        yield b
+    finally:
+        b.close()
+
+
+def joint_state(k: int) -> JointState:
+    """A reading stamped now, of a steady motion well under max_wheel_speed."""
+    msg = JointState()
+    ns = time.time_ns()
+    msg.header.stamp = ns_to_stamp(ns, msg.header.stamp)
+    msg.name = ["left_wheel_joint", "right_wheel_joint"]
+    t = ns * 1e-9 % 1000.0
+    msg.position = [2.0 * t, 3.0 * t]
+    return msg

@@ -12,7 +12,11 @@ import re
 import subprocess
 import sys
 
+import pytest
+
 from rosutil import ROOT, node_process
+
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 
 def run_bench(name: str, timeout: float) -> str:

@@ -73,6 +73,7 @@ def true_values() -> np.ndarray:
     return values_of(TRUE)
 
 
+@pytest.mark.process
 def test_core_modules_import_no_ros_or_bag_library() -> None:
     code = ("import sys, diffdrive_odom.core.batch, diffdrive_odom.core.metrics, "
             "diffdrive_odom.core.calibration, diffdrive_odom.core.umbmark; "

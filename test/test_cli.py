@@ -59,6 +59,7 @@ def test_an_unknown_command_is_named_and_exits_2(capsys: pytest.CaptureFixture[s
     assert all(name in out for name in cli_module.COMMANDS)
 
 
+@pytest.mark.process
 def test_version_is_the_package_version(capsys: pytest.CaptureFixture[str],
                                         monkeypatch: pytest.MonkeyPatch) -> None:
     expected = _package_xml_version()
@@ -76,6 +77,7 @@ def test_version_is_the_package_version(capsys: pytest.CaptureFixture[str],
 
 
 @pytest.mark.parametrize("command", sorted(cli_module.COMMANDS))
+@pytest.mark.process
 def test_every_subcommand_help_shows_every_default(command: str) -> None:
     done = _run("diffdrive-odom", command, "--help")
     assert done.returncode == 0, done.stderr
@@ -99,6 +101,7 @@ def test_every_subcommand_help_shows_every_default(command: str) -> None:
 
 
 @pytest.mark.parametrize("node", NODES)
+@pytest.mark.process
 def test_node_help_prints_topics_and_where_parameters_go(node: str) -> None:
     done = _run(node, "--help")
     assert done.returncode == 0, done.stdout + done.stderr
@@ -113,6 +116,7 @@ def test_node_help_prints_topics_and_where_parameters_go(node: str) -> None:
     assert ns.returncode == 0 and expected in ns.stdout, ns.stdout
 
 
+@pytest.mark.process
 def test_node_arguments_outside_ros_args_are_named_with_the_right_form() -> None:
     done = _run("odometry_node", "-p", "wheel_radius:=0.05")
     assert done.returncode == 2
@@ -128,6 +132,7 @@ def test_node_arguments_outside_ros_args_are_named_with_the_right_form() -> None
 
 
 @pytest.mark.parametrize("node", NODES)
+@pytest.mark.process
 def test_a_missing_params_file_is_one_line_naming_it(node: str, tmp_path: Path) -> None:
     missing = tmp_path / "nope.yaml"
     done = _run(node, "--ros-args", "--params-file", str(missing))

@@ -27,10 +27,18 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from diffdrive_odom.ros.cmd_vel_node import CmdVelNode
 from diffdrive_odom.settings.cmd_vel import CMD_VEL_PARAMS, cmd_vel_settings
 from diffdrive_odom.settings.params import ParameterError, load_params_file
 
-from rosutil import assert_refuses_to_start, node_process, ros_test_node, spin_for, spin_until
+from rosutil import (
+    assert_refused_in_process,
+    assert_refuses_to_start,
+    node_process,
+    ros_test_node,
+    spin_for,
+    spin_until,
+)
 
 # --- parameters (pure) ---------------------------------------------------------------
 
@@ -182,6 +190,8 @@ def is_zero(values: Any) -> bool:
 # --- DDS tests ---------------------------------------------------------------------------
 
 
+@pytest.mark.dds
+@pytest.mark.process
 def test_twist_to_float64_array_watchdog_rate_nan_and_runtime_parameters() -> None:
     args = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}",
             "-p", "left_wheel_names:=['fl','rl']", "-p", "right_wheel_names:=['fr','rr']",
@@ -252,6 +262,8 @@ def test_twist_to_float64_array_watchdog_rate_nan_and_runtime_parameters() -> No
         assert all(math.isfinite(x) for x in m.data)
 
 
+@pytest.mark.dds
+@pytest.mark.process
 def test_twist_stamped_to_joint_state_stale_and_zero_stamps() -> None:
     r, b = 0.05, 0.3
     args = ["-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}",
@@ -311,6 +323,8 @@ cmd_vel_node:
 """
 
 
+@pytest.mark.dds
+@pytest.mark.process
 def test_ticks_params_file_acceleration_limit_and_cmd_vel_out(tmp_path: Path) -> None:
     path = tmp_path / "params.yaml"
     path.write_text(PARAMS_YAML)
@@ -343,6 +357,8 @@ def test_ticks_params_file_acceleration_limit_and_cmd_vel_out(tmp_path: Path) ->
         assert list(sink.msgs[-1][1].data) == pytest.approx([left, right])
 
 
+@pytest.mark.dds
+@pytest.mark.process
 def test_sim_time_stale_stamps_ignored_and_fresh_ones_followed() -> None:
     args = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}",
             "-p", "enable_stamped_cmd_vel:=true", "-p", "use_sim_time:=true"]
@@ -382,15 +398,27 @@ def twist_stamped_none() -> TwistStamped:
     return stamped(math.nan, 0.0, 1)
 
 
-def test_bad_parameters_stop_the_node_with_their_name() -> None:
-    geometry = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}"]
-    cases = {
-        "linear.x.max_deceleration": [*geometry, "-p", "linear.x.max_deceleration:=2.0"],
-        "ticks_per_revolution": [*geometry, "-p", "wheel_command_format:=ticks_per_second"],
-        "wheel_command_rate": [*geometry, "-p", "wheel_command_rate:=0.0"],
-        "wheel_radius": ["-p", f"wheel_separation:={B}"],
-    }
-    assert_refuses_to_start("cmd_vel_node", cases)
+_GEOMETRY = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}"]
+BAD_PARAMETERS = {
+    "linear.x.max_deceleration": [*_GEOMETRY, "-p", "linear.x.max_deceleration:=2.0"],
+    "ticks_per_revolution": [*_GEOMETRY, "-p", "wheel_command_format:=ticks_per_second"],
+    "wheel_command_rate": [*_GEOMETRY, "-p", "wheel_command_rate:=0.0"],
+    "wheel_radius": ["-p", f"wheel_separation:={B}"],
+}
+
+
+@pytest.mark.dds
+@pytest.mark.parametrize("name", BAD_PARAMETERS)
+def test_bad_parameters_stop_the_node_with_their_name(name: str) -> None:
+    """Each case in this process (the node's own construction, rcl parsing the -p)."""
+    assert_refused_in_process(CmdVelNode, name, BAD_PARAMETERS[name])
+
+
+@pytest.mark.dds
+@pytest.mark.process
+def test_a_bad_parameter_stops_the_process_with_exit_2_and_one_line() -> None:
+    assert_refuses_to_start("cmd_vel_node", "linear.x.max_deceleration",
+                            BAD_PARAMETERS["linear.x.max_deceleration"])
 
 
 # --- nonsense never reaches the driver ----------------------------------------------------
@@ -434,6 +462,8 @@ FUZZ_NODES = [
 
 @pytest.mark.parametrize(("fmt", "extra", "k", "per_side", "reproduced"), FUZZ_NODES,
                          ids=[n[0] for n in FUZZ_NODES])
+@pytest.mark.dds
+@pytest.mark.process
 def test_fuzzed_twists_never_reach_the_driver_and_a_normal_command_follows(
         fmt: str, extra: list[str], k: float, per_side: int, reproduced: Twist) -> None:
     args = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}",

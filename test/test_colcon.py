@@ -8,26 +8,15 @@ package's tracked files are copied into a fresh workspace, as a user's checkout 
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from rosutil import BIN, ROOT
+from rosutil import BIN
 
-
-def _tracked_files() -> list[str]:
-    # Tracked and new (not ignored) files: what a commit of this checkout would hold.
-    out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard"],
-                         cwd=ROOT, capture_output=True, text=True)
-    if out.returncode == 0 and out.stdout.strip():
-        return out.stdout.split()
-    # Not a git checkout (an sdist): take everything but caches and build outputs.
-    skip = {".venv", "build", "install", "log", "__pycache__", ".git"}
-    return [str(p.relative_to(ROOT)) for p in ROOT.rglob("*")
-            if p.is_file() and not skip & set(p.relative_to(ROOT).parts)]
+pytestmark = [pytest.mark.process, pytest.mark.launch]
 
 
 def _in_workspace(ws: Path, command: str) -> subprocess.CompletedProcess[str]:
@@ -38,39 +27,6 @@ def _in_workspace(ws: Path, command: str) -> subprocess.CompletedProcess[str]:
         ["bash", "-c", f". install/setup.sh && {command}"],
         cwd=ws, capture_output=True, text=True, env=env, timeout=120,
     )
-
-
-_BUILT: dict[str, Path] = {}
-
-
-def colcon_install(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The workspace with the package built by ``colcon build``, once per test session.
-
-    test_launch runs its launch files against this install too: one build serves both.
-    """
-    if "ws" in _BUILT:
-        return _BUILT["ws"]
-    ws = tmp_path_factory.mktemp("colcon_ws")
-    src = ws / "src" / "diffdrive_odom"
-    for rel in _tracked_files():
-        if rel.startswith("test/data/") or not (ROOT / rel).is_file():
-            continue  # the workspace does not need the recordings; skip deleted files
-        dest = src / rel
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(ROOT / rel, dest)
-    env = {**os.environ, "PATH": f"{BIN}:{os.environ.get('PATH', '')}"}
-    build = subprocess.run(
-        [str(BIN / "colcon"), "build", "--event-handlers", "console_direct-"],
-        cwd=ws, capture_output=True, text=True, env=env, timeout=300,
-    )
-    assert build.returncode == 0, build.stdout + build.stderr
-    _BUILT["ws"] = ws
-    return ws
-
-
-@pytest.fixture(scope="session")
-def colcon_ws(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return colcon_install(tmp_path_factory)
 
 
 def test_colcon_build_and_installed_executables(colcon_ws: Path) -> None:

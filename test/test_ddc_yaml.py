@@ -12,14 +12,24 @@ from __future__ import annotations
 import math
 import time
 
+import pytest
 from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
-from test_param_resolution import node_parameters
 from tf2_msgs.msg import TFMessage
 
-from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until, wait_matched
+from rosutil import (
+    DATA,
+    node_parameters,
+    node_process,
+    ros_test_node,
+    spin_for,
+    spin_until,
+    wait_matched,
+)
+
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 DDC = str(DATA / "diffbot_controllers.yaml")
 ARGS = ["--ros-args", "--params-file", DDC, "-r", "__node:=diffbot_base_controller"]

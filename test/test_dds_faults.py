@@ -14,23 +14,31 @@ import time
 from contextlib import ExitStack
 from typing import Any
 
+import pytest
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import JointState
-from test_faults import B, R, odometry_node, reading
-from test_odometry_node import (
+
+import oracle
+from diagutil import diagnosed
+from rosutil import (
     STEP_NS,
     T0_NS,
+    B,
+    R,
     Sink,
-    _ns,
     listen,
+    ns_of,
+    odometry_node,
+    reading,
+    ros_test_node,
     send_first,
+    spin_for,
+    spin_until,
     wait_ready,
     yaw,
 )
 
-import oracle
-from diagutil import diagnosed
-from rosutil import ros_test_node, spin_for, spin_until
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 OK, WARN, ERROR = 0, 1, 2
 
@@ -48,9 +56,9 @@ def drive(ex: Any, pub: Any, t0_ns: int, start: tuple[float, float],
 
 def pose_at(ex: Any, sink: Sink, t_ns: int, timeout: float = 10.0) -> Odometry:
     """The odometry the node published for the reading stamped ``t_ns``."""
-    assert spin_until(ex, lambda: any(_ns(o.header.stamp) == t_ns for o in sink.odom),
+    assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == t_ns for o in sink.odom),
                       timeout), f"no odometry for stamp {t_ns}"
-    return [o for o in sink.odom if _ns(o.header.stamp) == t_ns][-1]
+    return [o for o in sink.odom if ns_of(o.header.stamp) == t_ns][-1]
 
 
 def assert_pose(o: Odometry, x: float, y: float, theta: float, tol: float = 1e-9) -> None:
@@ -155,7 +163,7 @@ def test_burst_of_5000_readings_ends_on_the_exact_pose() -> None:
         last_ns = T0_NS + n * step
         # Best effort may lose the last one too: repeat it (repeats are dropped as such).
         for _ in range(50):
-            if spin_until(ex, lambda: any(_ns(o.header.stamp) == last_ns for o in sink.odom),
+            if spin_until(ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom),
                           0.5):
                 break
             pub.publish(last)

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from diffdrive_odom.settings.registry import TABLES
 
 from rosutil import ROOT
@@ -29,6 +31,7 @@ def test_readme_parameter_tables_are_current() -> None:
             f"README table '{name}' is stale: run scripts/param_tables.py --update-readme")
 
 
+@pytest.mark.process
 def test_shipped_yaml_is_current() -> None:
     out = subprocess.run([sys.executable, str(ROOT / "scripts" / "gen_config.py")],
                          capture_output=True, text=True, check=True)

@@ -7,61 +7,26 @@ come, so a warning that should appear at once is checked at once.
 from __future__ import annotations
 
 import math
-import threading
-import time
-from collections.abc import Iterator
-from contextlib import contextmanager
-from typing import Any
 
+import pytest
 from sensor_msgs.msg import JointState
-from test_odometry_node import STEP_NS, T0_NS, _ns, listen, send_first, stamp, wait_ready
 
-from rosutil import node_process, ros_test_node, spin_for, spin_until
+from rosutil import (
+    STEP_NS,
+    T0_NS,
+    R,
+    listen,
+    ns_of,
+    odometry_node,
+    reading,
+    ros_test_node,
+    send_first,
+    spin_for,
+    spin_until,
+    wait_ready,
+)
 
-NAMES = ["left_wheel_joint", "right_wheel_joint"]
-R, B = 0.1, 0.4
-GEOMETRY = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}"]
-
-
-class Output:
-    """Lines of a child process's output, collected by a thread as they arrive."""
-
-    def __init__(self, proc: Any) -> None:
-        self.lines: list[str] = []
-        self._thread = threading.Thread(target=self._read, args=(proc,), daemon=True)
-        self._thread.start()
-
-    def _read(self, proc: Any) -> None:
-        for line in proc.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def matching(self, *words: str) -> list[str]:
-        return [ln for ln in self.lines if all(w in ln for w in words)]
-
-    def wait_for(self, *words: str, timeout: float = 15.0) -> list[str]:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and not self.matching(*words):
-            time.sleep(0.05)
-        return self.matching(*words)
-
-    def text(self) -> str:
-        return "\n".join(self.lines)
-
-
-@contextmanager
-def odometry_node(*extra: str) -> Iterator[tuple[Any, Output]]:
-    with node_process("odometry_node", ["--ros-args", *GEOMETRY, *extra]) as proc:
-        yield proc, Output(proc)
-
-
-def reading(t_ns: int, position: list[float], velocity: list[float] | None = None,
-            names: list[str] | None = None) -> JointState:
-    msg = JointState()
-    msg.header.stamp = stamp(t_ns)
-    msg.name = list(names if names is not None else NAMES)
-    msg.position = position
-    msg.velocity = velocity or []
-    return msg
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 
 def test_driver_restart_after_a_pause_keeps_the_pose() -> None:
@@ -75,18 +40,18 @@ def test_driver_restart_after_a_pause_keeps_the_pose() -> None:
             pub.publish(reading(T0_NS + k * STEP_NS, [0.4 * k, 0.4 * k]))
             spin_for(ex, 0.005)
         before_ns = T0_NS + 50 * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == before_ns for o in sink.odom))
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == before_ns for o in sink.odom))
         restart_ns = before_ns + 4 * 10**9
         for k in range(26):  # the driver comes back counting from 0: 5 rad in 0.5 s
             pub.publish(reading(restart_ns + k * STEP_NS, [0.2 * k, 0.2 * k]))
             spin_for(ex, 0.005)
         last_ns = restart_ns + 25 * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last_ns for o in sink.odom))
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom))
         gap = out.wait_for("max_reading_gap")
         assert proc.poll() is None
-    before = [o for o in sink.odom if _ns(o.header.stamp) == before_ns][-1]
+    before = [o for o in sink.odom if ns_of(o.header.stamp) == before_ns][-1]
     assert math.isclose(before.pose.pose.position.x, R * 20.0, abs_tol=1e-9)
-    final = [o for o in sink.odom if _ns(o.header.stamp) == last_ns][-1]
+    final = [o for o in sink.odom if ns_of(o.header.stamp) == last_ns][-1]
     # Where the motion before the pause left it, plus the 5 rad after: 2.5 m.
     assert math.isclose(final.pose.pose.position.x, R * 25.0, abs_tol=1e-9)
     assert final.pose.pose.position.y == 0.0
@@ -128,7 +93,7 @@ def test_two_different_bad_inputs_are_both_reported() -> None:
         spin_for(ex, 0.05)
         pub.publish(reading(T0_NS + 3 * STEP_NS, [0.1, 0.1]))
         last_ns = T0_NS + 3 * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last_ns for o in sink.odom))
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom))
         short = out.wait_for("position has 1 entries for 2 names")
         nan = out.wait_for("NaN or infinite")
     assert short and nan, out.text()
@@ -152,13 +117,13 @@ def test_bytes_that_are_no_joint_state_are_dropped_and_the_drive_goes_on() -> No
         spin_for(ex, 0.05)
         last_ns = T0_NS + 2 * STEP_NS
         pub.publish(reading(last_ns, [1.0, 1.0]))
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last_ns for o in sink.odom))
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom))
         dropped = out.wait_for("not a JointState")
         assert proc.poll() is None
     assert dropped, out.text()
-    final = next(o for o in sink.odom if _ns(o.header.stamp) == last_ns)
+    final = next(o for o in sink.odom if ns_of(o.header.stamp) == last_ns)
     assert math.isclose(final.pose.pose.position.x, R * 1.0, abs_tol=1e-12)
-    assert not any(_ns(o.header.stamp) == T0_NS + STEP_NS for o in sink.odom)
+    assert not any(ns_of(o.header.stamp) == T0_NS + STEP_NS for o in sink.odom)
 
 
 def test_silent_input_is_reported_with_the_resolved_topic() -> None:
@@ -183,9 +148,9 @@ def test_nan_positions_fall_back_to_velocity_and_say_so_once() -> None:
             pub.publish(reading(T0_NS + k * STEP_NS, nan2, [2.0, 2.0]))
             spin_for(ex, 0.005)
         last_ns = T0_NS + 50 * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last_ns for o in sink.odom))
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom))
         lines = out.wait_for("integrating wheel velocities")
         spin_for(ex, 0.3)
-    final = [o for o in sink.odom if _ns(o.header.stamp) == last_ns][-1]
+    final = [o for o in sink.odom if ns_of(o.header.stamp) == last_ns][-1]
     assert math.isclose(final.pose.pose.position.x, R * 2.0, abs_tol=1e-9)
     assert len(lines) == 1 and len(out.matching("integrating wheel velocities")) == 1, out.text()

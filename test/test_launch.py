@@ -32,10 +32,18 @@ from rclpy.parameter_client import AsyncParameterClient
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
-from test_colcon import colcon_install
-from test_odometry_node import STEP_NS, T0_NS, listen, send_first, stamp, wait_ready
 
-from rosutil import ROOT, ros_test_node, spin_until
+from rosutil import (
+    ROOT,
+    STEP_NS,
+    T0_NS,
+    listen,
+    ros_test_node,
+    send_first,
+    spin_until,
+    stamp,
+    wait_ready,
+)
 
 PACKAGE = "diffdrive_odom"
 REQUIRED_ARGUMENTS = {"params_file", "namespace", "use_sim_time"}
@@ -52,9 +60,9 @@ MISSING_LAUNCH_ROS = (
 
 
 @pytest.fixture(scope="session")
-def install(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def install(colcon_ws: Path) -> Path:
     """The package's colcon install prefix (built once per session, shared with test_colcon)."""
-    return colcon_install(tmp_path_factory) / "install" / PACKAGE
+    return colcon_ws / "install" / PACKAGE
 
 
 # --- (a) what the files declare and name, read without launch -----------------------------
@@ -120,6 +128,8 @@ def read_launch_file(path: Path) -> Named:
 
 
 @pytest.mark.parametrize("name", sorted(EXECUTABLES))
+@pytest.mark.process
+@pytest.mark.launch
 def test_launch_file_declares_arguments_and_names_installed_files(
     name: str, install: Path
 ) -> None:
@@ -316,6 +326,9 @@ def drive(node: Node, linear: float, angular: float) -> None:
     node.create_timer(0.05, lambda: pub.publish(cmd))
 
 
+@pytest.mark.dds
+@pytest.mark.process
+@pytest.mark.launch
 def test_odometry_launch_runs_namespaced_on_sim_time(launch_env: Path) -> None:
     def check() -> None:
         with ros_test_node("launch_peer") as (node, ex):
@@ -326,6 +339,9 @@ def test_odometry_launch_runs_namespaced_on_sim_time(launch_env: Path) -> None:
     assert_clean(run, launch_env, {"odometry_node"})
 
 
+@pytest.mark.dds
+@pytest.mark.process
+@pytest.mark.launch
 def test_base_launch_runs_odometry_and_cmd_vel(launch_env: Path) -> None:
     r, b = example_robot()
     v, w = 0.21, 1.0
@@ -351,6 +367,9 @@ def test_base_launch_runs_odometry_and_cmd_vel(launch_env: Path) -> None:
 
 
 @pytest.mark.parametrize("sim_time", [True, False], ids=["sim_time", "wall_time"])
+@pytest.mark.dds
+@pytest.mark.process
+@pytest.mark.launch
 def test_base_launch_with_sim_closes_the_loop(launch_env: Path, sim_time: bool) -> None:
     """use_sim: a Twist moves the simulated base and odometry follows its truth; the sim
     owns /clock with use_sim_time and publishes none without."""

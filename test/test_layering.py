@@ -12,7 +12,11 @@ import pkgutil
 import subprocess
 import sys
 
+import pytest
+
 import diffdrive_odom
+
+pytestmark = [pytest.mark.process]
 
 # The rclpy shells and the bag tools: the only modules allowed to import ROS or rosbags.
 SHELL = {

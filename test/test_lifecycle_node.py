@@ -12,6 +12,7 @@ import signal
 import time
 from typing import Any
 
+import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
@@ -21,18 +22,26 @@ from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from test_odometry_node import (
+
+from rosutil import (
+    EXIT_WITHIN_S,
     STEP_NS,
     T0_NS,
     Sink,
-    _ns,
+    burst,
+    call_service,
     drive_straight,
+    joint_state,
     listen,
+    node_process,
+    ns_of,
+    ros_test_node,
+    spin_for,
+    spin_until,
     wait_ready,
 )
-from test_signals import EXIT_WITHIN_S, burst, joint_state
 
-from rosutil import call_service, node_process, ros_test_node, spin_for, spin_until
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 NAME = "/odometry_lifecycle_node"
 R, B = 0.1, 0.4
@@ -72,7 +81,7 @@ class Manager:
 
 
 def step(o: Any) -> int:
-    k, rest = divmod(_ns(o.header.stamp) - T0_NS, STEP_NS)
+    k, rest = divmod(ns_of(o.header.stamp) - T0_NS, STEP_NS)
     assert rest == 0
     return k
 
@@ -93,7 +102,7 @@ def assert_closed_form(sink: Sink, origin_k: int = 0) -> None:
     tfs = [t for m in sink.tf for t in m.transforms if t.child_frame_id == "base_link"]
     assert tfs
     for t in tfs:
-        k = (_ns(t.header.stamp) - T0_NS) // STEP_NS
+        k = (ns_of(t.header.stamp) - T0_NS) // STEP_NS
         assert math.isclose(t.transform.translation.x, R * (k - origin_k) * PER_STEP,
                             abs_tol=1e-9)
 

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import time
 
+import pytest
 from sensor_msgs.msg import JointState
-from test_odometry_node import STEP_NS, T0_NS, stamp
 
 from diagutil import Peer, assert_finite, diagnosed
-from rosutil import spin_for, spin_until
+from rosutil import STEP_NS, T0_NS, spin_for, spin_until, stamp
+
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 GEOMETRY = ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4"]
 NAMES = ["left_wheel_joint", "right_wheel_joint"]

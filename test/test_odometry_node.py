@@ -9,13 +9,11 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from builtin_interfaces.msg import Time
-from nav_msgs.msg import Odometry
+import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
@@ -23,80 +21,32 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
-from tf2_msgs.msg import TFMessage
 
+from diffdrive_odom.ros.odometry_node import OdometryNode
 from diffdrive_odom.tools.cli import main as cli
 
 import oracle
 from bagutil import mcap_messages, write_params
 from rosutil import (
     ROOT,
+    STEP_NS,
+    T0_NS,
+    assert_refused_in_process,
     assert_refuses_to_start,
+    drive_straight,
+    listen,
     node_process,
+    ns_of,
     ros_test_node,
+    send_first,
     spin_for,
     spin_until,
-    wait_matched,
+    stamp,
+    wait_ready,
+    yaw,
 )
 
-T0_NS = 1_700_000_000 * 10**9  # an arbitrary, realistic epoch for stamps
-STEP_NS = 20_000_000  # 50 Hz
-
-
-def stamp(ns: int) -> Time:
-    return Time(sec=ns // 10**9, nanosec=ns % 10**9)
-
-
-def yaw(q: Any) -> float:
-    return 2.0 * math.atan2(q.z, q.w)
-
-
-@dataclass
-class Sink:
-    """Collects what the node publishes."""
-
-    odom: list[Odometry] = field(default_factory=list)
-    tf: list[TFMessage] = field(default_factory=list)
-    odom_sub: Any = None
-    node: Any = None
-
-
-def listen(node: Node, odom_topic: str) -> Sink:
-    sink = Sink(node=node)
-    sink.odom_sub = node.create_subscription(Odometry, odom_topic, sink.odom.append, 50)
-    node.create_subscription(TFMessage, "/tf", sink.tf.append, 50)
-    return sink
-
-
-def wait_ready(executor: Any, pub: Any, sink: Sink, proc: Any = None) -> None:
-    """Wait for discovery both ways between us (``pub``, ``sink``) and the node.
-
-    A first pose published before the node's odom publisher sees us is lost, and the
-    repeats of its reading are dropped as repeats, so none would follow: our side's
-    matches are not enough (see :func:`rosutil.handshake`).
-    """
-    assert wait_matched(sink.node, executor, pub, sink.odom_sub), (
-        "odometry_node and this test never matched: " + _output(proc))
-
-
-def send_first(executor: Any, pub: Any, sink: Sink, msg: JointState) -> None:
-    """Send the reference reading until the node answers it.
-
-    Discovery can report a match a moment before the first sample is deliverable;
-    repeating the same stamp is harmless (the node drops repeats).
-    """
-    want = _ns(msg.header.stamp)
-    for _ in range(100):
-        pub.publish(msg)
-        if spin_until(executor, lambda: any(_ns(o.header.stamp) == want for o in sink.odom), 0.2):
-            return
-    raise AssertionError("the node never answered the first reading")
-
-
-def _output(proc: Any) -> str:
-    if proc is None or proc.poll() is None:
-        return "(still running)"
-    return proc.stdout.read() if proc.stdout else ""
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 
 def test_ticks_wrap_shuffled_names_sign_flip_and_nonzero_start() -> None:
@@ -133,16 +83,16 @@ def test_ticks_wrap_shuffled_names_sign_flip_and_nonzero_start() -> None:
                 spin_for(ex, 0.005)
         last_ns = T0_NS + steps * STEP_NS
         assert spin_until(
-            ex, lambda: any(_ns(o.header.stamp) == last_ns for o in sink.odom), 10.0
+            ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom), 10.0
         ), f"no odom for the last reading ({len(sink.odom)} received)"
 
     s_left = r * steps * left_inc * 2 * math.pi / tpr
     s_right = r * steps * (-right_inc) * 2 * math.pi / tpr
     ex_x, ex_y, ex_th = oracle.wheel_arc(s_left, s_right, b)  # constant ratio: one arc
-    first = min(sink.odom, key=lambda o: _ns(o.header.stamp))
-    assert _ns(first.header.stamp) == T0_NS
+    first = min(sink.odom, key=lambda o: ns_of(o.header.stamp))
+    assert ns_of(first.header.stamp) == T0_NS
     assert first.pose.pose.position.x == 0.0 and first.pose.pose.position.y == 0.0
-    final = max(sink.odom, key=lambda o: _ns(o.header.stamp))
+    final = max(sink.odom, key=lambda o: ns_of(o.header.stamp))
     p = final.pose.pose
     assert math.isclose(p.position.x, ex_x, abs_tol=1e-9)
     assert math.isclose(p.position.y, ex_y, abs_tol=1e-9)
@@ -156,34 +106,13 @@ def test_ticks_wrap_shuffled_names_sign_flip_and_nonzero_start() -> None:
     assert final.pose.covariance[0] > 0.0 and final.twist.covariance[35] > 0.0
     # Every stamp published is a stamp we sent (never the node's clock).
     sent = {T0_NS + k * STEP_NS for k in range(steps + 1)}
-    assert {_ns(o.header.stamp) for o in sink.odom} <= sent
-    tfs = [t for m in sink.tf for t in m.transforms if _ns(t.header.stamp) == last_ns]
+    assert {ns_of(o.header.stamp) for o in sink.odom} <= sent
+    tfs = [t for m in sink.tf for t in m.transforms if ns_of(t.header.stamp) == last_ns]
     assert tfs, "no /tf for the last reading"
     t = tfs[-1]
     assert (t.header.frame_id, t.child_frame_id) == ("odom", "base_link")
     assert math.isclose(t.transform.translation.x, ex_x, abs_tol=1e-9)
     assert math.isclose(t.transform.translation.y, ex_y, abs_tol=1e-9)
-
-
-def _ns(t: Time) -> int:
-    return int(t.sec) * 10**9 + int(t.nanosec)
-
-
-def drive_straight(pub: Any, ex: Any, sink: Sink, start_k: int, steps: int,
-                   rad_per_step: float, prime: bool = True) -> int:
-    """Readings ``start_k..start_k + steps``: both wheels at ``k * rad_per_step`` rad,
-    stamped on k; the first sent until answered when ``prime``. Returns the last k."""
-    for k in range(start_k, start_k + steps + 1):
-        msg = JointState()
-        msg.header.stamp = stamp(T0_NS + k * STEP_NS)
-        msg.name = ["left_wheel_joint", "right_wheel_joint"]
-        msg.position = [k * rad_per_step, k * rad_per_step]
-        if k == start_k and prime:
-            send_first(ex, pub, sink, msg)
-        else:
-            pub.publish(msg)
-            spin_for(ex, 0.005)
-    return start_k + steps
 
 
 def test_params_file_namespace_remap_and_reset_service() -> None:
@@ -198,8 +127,8 @@ def test_params_file_namespace_remap_and_reset_service() -> None:
         per_step = 0.5 / r / 50  # 0.5 m in 50 steps
         k = drive_straight(pub, ex, sink, 0, 50, per_step)
         last = T0_NS + k * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
-        before = max(sink.odom, key=lambda o: _ns(o.header.stamp))
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
+        before = max(sink.odom, key=lambda o: ns_of(o.header.stamp))
         assert math.isclose(before.pose.pose.position.x, 0.5, abs_tol=1e-9)
         assert before.header.frame_id == "robot1/odom"
         assert before.child_frame_id == "robot1/base_link"
@@ -214,26 +143,34 @@ def test_params_file_namespace_remap_and_reset_service() -> None:
         # Drive on from where the wheels are: no jump, 0.25 m more from the origin.
         k2 = drive_straight(pub, ex, sink, k + 1, 24, per_step, prime=False)
         last2 = T0_NS + k2 * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last2 for o in sink.odom), 10.0)
-        after = max(sink.odom, key=lambda o: _ns(o.header.stamp))
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last2 for o in sink.odom), 10.0)
+        after = max(sink.odom, key=lambda o: ns_of(o.header.stamp))
         assert math.isclose(after.pose.pose.position.x, 0.25, abs_tol=1e-9)
         assert after.pose.pose.position.y == 0.0
 
 
-def test_bad_parameters_stop_the_node_with_their_name() -> None:
-    cases = {
-        "wheel_radius": ["-p", "wheel_radius:=-0.1", "-p", "wheel_separation:=0.3"],
-        "wheel_separation": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=.nan"],
-        "right_wheel_names": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
-                              "-p", "right_wheel_names:=['a','b']"],
-        "pose_covariance_diagonal": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
-                                     "-p", "pose_covariance_diagonal:=[1.0,2.0]"],
-        "enable_odom_tf": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
-                           "-p", "enable_odom_tf:=3"],
-        "max_reading_gap": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
-                            "-p", "max_reading_gap:=0.0"],
-    }
-    assert_refuses_to_start("odometry_node", cases)
+BAD_PARAMETERS = {
+    "wheel_radius": ["-p", "wheel_radius:=-0.1", "-p", "wheel_separation:=0.3"],
+    "wheel_separation": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=.nan"],
+    "right_wheel_names": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
+                          "-p", "right_wheel_names:=['a','b']"],
+    "pose_covariance_diagonal": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
+                                 "-p", "pose_covariance_diagonal:=[1.0,2.0]"],
+    "enable_odom_tf": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
+                       "-p", "enable_odom_tf:=3"],
+    "max_reading_gap": ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.3",
+                        "-p", "max_reading_gap:=0.0"],
+}
+
+
+@pytest.mark.parametrize("name", BAD_PARAMETERS)
+def test_bad_parameters_stop_the_node_with_their_name(name: str) -> None:
+    """Each case in this process (the node's own construction, rcl parsing the -p)."""
+    assert_refused_in_process(OdometryNode, name, BAD_PARAMETERS[name])
+
+
+def test_a_bad_parameter_stops_the_process_with_exit_2_and_one_line() -> None:
+    assert_refuses_to_start("odometry_node", "wheel_radius", BAD_PARAMETERS["wheel_radius"])
 
 
 def _set_param(node: Node, ex: Any, name: str, value: ParameterValue) -> Any:
@@ -283,13 +220,13 @@ def test_runtime_parameter_refused_with_reason_and_bad_messages_dropped() -> Non
         send(6, [1e6, 1e6])  # implausibly fast: skipped, re-anchored
         send(7, [1e6 + 1.0, 1e6 + 1.0])  # good: 1 rad more
         last = T0_NS + 7 * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
         assert proc.poll() is None, "node died on bad input"
     for o in sink.odom:
         values = [o.pose.pose.position.x, o.pose.pose.position.y, o.pose.pose.orientation.z,
                   o.pose.pose.orientation.w, o.twist.twist.linear.x, o.twist.twist.angular.z]
         assert all(math.isfinite(v) for v in values)
-    final = max(sink.odom, key=lambda o: _ns(o.header.stamp))
+    final = max(sink.odom, key=lambda o: ns_of(o.header.stamp))
     # radius 0.2 after the runtime change: 2 rad of good motion = 0.4 m straight ahead.
     assert math.isclose(final.pose.pose.position.x, 0.4, abs_tol=1e-9)
     assert final.pose.pose.position.y == 0.0
@@ -307,17 +244,17 @@ def test_best_effort_publisher_and_sim_time_loop_reset() -> None:
         wait_ready(ex, pub, sink, proc)
         k = drive_straight(pub, ex, sink, 0, 20, 0.5)  # 10 rad -> 1 m
         last = T0_NS + k * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
         assert math.isclose(
-            max(sink.odom, key=lambda o: _ns(o.header.stamp)).pose.pose.position.x, 1.0,
+            max(sink.odom, key=lambda o: ns_of(o.header.stamp)).pose.pose.position.x, 1.0,
             abs_tol=1e-9)
         sink.odom.clear()
         # The "bag" starts again: same stamps and wheel angles as at its beginning.
         time.sleep(0.05)
         drive_straight(pub, ex, sink, 0, 10, 0.5)  # 0.5 m in the new run
         last = T0_NS + 10 * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
-        final = [o for o in sink.odom if _ns(o.header.stamp) == last][-1]
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
+        final = [o for o in sink.odom if ns_of(o.header.stamp) == last][-1]
         assert math.isclose(final.pose.pose.position.x, 0.5, abs_tol=1e-9)
         assert proc.poll() is None
     out = _output_after_stop(proc)
@@ -341,11 +278,11 @@ def test_publish_rate_throttles_by_stamp_and_tf_can_be_disabled() -> None:
         wait_ready(ex, pub, sink, proc)
         k = drive_straight(pub, ex, sink, 0, 50, 0.1)  # 1 s of readings at 50 Hz
         last = T0_NS + k * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
         spin_for(ex, 0.3)
-    stamps = sorted({_ns(o.header.stamp) for o in sink.odom})
+    stamps = sorted({ns_of(o.header.stamp) for o in sink.odom})
     assert stamps == [T0_NS + i * 100_000_000 for i in range(11)]
-    final = max(sink.odom, key=lambda o: _ns(o.header.stamp))
+    final = max(sink.odom, key=lambda o: ns_of(o.header.stamp))
     assert math.isclose(final.pose.pose.position.x, 0.1 * 0.1 * 50, abs_tol=1e-9)
     assert not any(t.child_frame_id == "base_link" for m in sink.tf for t in m.transforms)
     # covariance_model static: the configured diagonals, as diff_drive_controller does.
@@ -399,8 +336,8 @@ def test_propagated_covariance_grows_along_a_drive_and_replay_writes_the_same(
         pub = node.create_publisher(JointState, "/joint_states", 10)
         wait_ready(ex, pub, sink, proc)
         last = T0_NS + drive_straight(pub, ex, sink, 0, steps, per_step) * STEP_NS
-        assert spin_until(ex, lambda: any(_ns(o.header.stamp) == last for o in sink.odom), 10.0)
-    live = {_ns(o.header.stamp): o for o in sink.odom}
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
+    live = {ns_of(o.header.stamp): o for o in sink.odom}
     assert len(live) == steps + 1
     var_x = []
     for ns in sorted(live):
@@ -421,7 +358,7 @@ def test_propagated_covariance_grows_along_a_drive_and_replay_writes_the_same(
     _joint_bag(bag, [T0_NS + i * STEP_NS for i in range(steps + 1)],
                [[i * per_step, i * per_step] for i in range(steps + 1)])
     assert cli(["replay", str(bag), "--params-file", str(params), "-o", str(out)]) == 0
-    replayed = {_ns(m.header.stamp): m for _, _, m in mcap_messages(out, ["/odom"])}
+    replayed = {ns_of(m.header.stamp): m for _, _, m in mcap_messages(out, ["/odom"])}
     assert sorted(replayed) == sorted(live)
     for ns, m in replayed.items():
         assert list(m.pose.covariance) == list(live[ns].pose.covariance)

@@ -20,6 +20,8 @@ from sensor_msgs.msg import JointState
 
 from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until, wait_matched
 
+pytestmark = [pytest.mark.dds, pytest.mark.process]
+
 RUNS: dict[str, float | None] = {
     # run: distance of nominal wheel odometry from ground truth at the end [m], where an
     # independent figure exists (issue #5 / the data's README for run-04).

@@ -15,15 +15,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from rcl_interfaces.srv import GetParameters
-from rclpy.node import Node
-from rclpy.parameter import parameter_value_to_python
 
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS
 from diffdrive_odom.settings.params import resolve_parameters
 from diffdrive_odom.tools import replay
 
-from rosutil import ROOT, call_service, node_process, ros_test_node
+from rosutil import ROOT, node_parameters, node_process, ros_test_node
 
 CONFIG = str(ROOT / "config" / "diffdrive_odom.yaml")
 SPECS = ODOMETRY_PARAMS
@@ -93,15 +90,6 @@ CASES: dict[str, list[str]] = {
 }
 
 
-def node_parameters(node: Node, ex: Any, fqn: str, names: list[str],
-                    timeout: float = 20.0) -> dict[str, Any]:
-    """Values of ``names`` read from the running node ``fqn`` over GetParameters."""
-    result = call_service(node, ex, GetParameters, f"{fqn}/get_parameters",
-                          GetParameters.Request(names=names), timeout)
-    assert result is not None
-    return {n: parameter_value_to_python(v) for n, v in zip(names, result.values, strict=True)}
-
-
 def replay_flags(ros_args: list[str]) -> list[str]:
     """The replay command line equivalent to the node's --ros-args."""
     out: list[str] = []
@@ -142,6 +130,8 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
 
 
 @pytest.mark.parametrize("case", list(CASES), ids=list(CASES))
+@pytest.mark.dds
+@pytest.mark.process
 def test_replay_resolves_as_the_node_does(case: str, files: dict[str, str]) -> None:
     ros_args = [files.get(a, a) if prev == "--params-file" else a
                 for prev, a in zip(["", *CASES[case][:-1]], CASES[case], strict=True)]
@@ -162,6 +152,8 @@ def test_replay_resolves_as_the_node_does(case: str, files: dict[str, str]) -> N
     assert settings.geometry.wheel_radius == got["wheel_radius"]
 
 
+@pytest.mark.dds
+@pytest.mark.process
 def test_known_figures_of_the_old_problems(files: dict[str, str]) -> None:
     """The values themselves, from rcl's rules (not from the code under test)."""
     def resolve(*argv: str) -> dict[str, Any]:
@@ -187,6 +179,8 @@ def run_to_exit(executable: str, args: list[str], seconds: float = 4.0) -> str:
 
 
 @pytest.mark.parametrize("executable", ["odometry_node", "cmd_vel_node"])
+@pytest.mark.dds
+@pytest.mark.process
 def test_a_typo_gets_one_warning_with_the_real_name(executable: str, tmp_path: Path) -> None:
     typo = tmp_path / "typo.yaml"
     typo.write_text("/**:\n  ros__parameters:\n    wheel_seperation_multiplier: 1.01\n",

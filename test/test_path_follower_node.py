@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
@@ -24,15 +25,19 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool
 
+from diffdrive_odom.ros.path_follower_node import PathFollowerNode
 from diffdrive_odom.settings.params import yaml_text
 
 from rosutil import (
+    assert_refused_in_process,
     assert_refuses_to_start,
     node_process,
     ros_test_node,
     spin_until,
     wait_for_subscriber,
 )
+
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 R, B = 0.05, 0.30
 RTF = 4.0  # simulated seconds per wall second
@@ -227,12 +232,22 @@ def test_square_is_followed_with_the_error_peaking_at_the_corners(tmp_path: Path
     assert math.hypot(px[-1] - 0.0, py[-1] - 0.0) < 0.1  # back at the start
 
 
-def test_bad_parameters_stop_the_node_with_one_line() -> None:
-    base = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}"]
-    assert_refuses_to_start("path_follower_node", {
-        "follower.look_ahead": [*base, "-p", "follower.look_ahead:=0.0"],
-        "follower.k_p": [*base, "-p", "follower.k_p:=-1.0"],
-        "follower.path_type": [*base, "-p", "follower.path_type:=spiral"],
-        "follower.points": [*base, "-p", "follower.path_type:=line",
-                            "-p", "follower.points:=[0.0, 0.0, 1.0]"],
-    })
+_BASE = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}"]
+BAD_PARAMETERS = {
+    "follower.look_ahead": [*_BASE, "-p", "follower.look_ahead:=0.0"],
+    "follower.k_p": [*_BASE, "-p", "follower.k_p:=-1.0"],
+    "follower.path_type": [*_BASE, "-p", "follower.path_type:=spiral"],
+    "follower.points": [*_BASE, "-p", "follower.path_type:=line",
+                        "-p", "follower.points:=[0.0, 0.0, 1.0]"],
+}
+
+
+@pytest.mark.parametrize("name", BAD_PARAMETERS)
+def test_bad_parameters_stop_the_node_with_one_line(name: str) -> None:
+    """Each case in this process (the node's own construction, rcl parsing the -p)."""
+    assert_refused_in_process(PathFollowerNode, name, BAD_PARAMETERS[name])
+
+
+def test_a_bad_parameter_stops_the_process_with_exit_2_and_one_line() -> None:
+    assert_refuses_to_start("path_follower_node", "follower.look_ahead",
+                            BAD_PARAMETERS["follower.look_ahead"])

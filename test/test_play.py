@@ -12,6 +12,7 @@ import signal
 from pathlib import Path
 from typing import Any
 
+import pytest
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 
@@ -90,6 +91,8 @@ def _node_args(params: Path) -> list[str]:
     return ["--ros-args", "--params-file", str(params), "-p", "use_sim_time:=true"]
 
 
+@pytest.mark.dds
+@pytest.mark.process
 def test_play_with_clock_drives_the_node_to_offline_replays_poses(tmp_path: Path) -> None:
     params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
     expected = _offline(RUN04, params)
@@ -118,6 +121,8 @@ def test_play_with_clock_drives_the_node_to_offline_replays_poses(tmp_path: Path
     assert clocks[-1] == bag_end
 
 
+@pytest.mark.dds
+@pytest.mark.process
 def test_looped_play_restarts_the_node_cleanly_and_ctrl_c_exits_0(tmp_path: Path) -> None:
     params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
     with bagio.open_bag(RUN04) as reader:
@@ -154,6 +159,8 @@ def test_looped_play_restarts_the_node_cleanly_and_ctrl_c_exits_0(tmp_path: Path
     assert log.count("jumped back") >= 2, log
 
 
+@pytest.mark.dds
+@pytest.mark.process
 def test_play_converts_a_ros1_bag_for_the_node(tmp_path: Path) -> None:
     """TurtleBot3 (ROS 1, right wheel first, wheels not at zero): no jump at the start."""
     params = write_params(tmp_path / "p.yaml", TB3_PARAMS)

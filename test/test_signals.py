@@ -17,10 +17,10 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import ExitStack, contextmanager
-from typing import Any
+from collections.abc import Callable
+from contextlib import ExitStack
 
+import pytest
 import rclpy
 from geometry_msgs.msg import Twist
 from rclpy.context import Context
@@ -28,78 +28,11 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.core.conversions import ns_to_stamp
-from diffdrive_odom.ros.qos import qos
 from diffdrive_odom.ros.runtime import EXECUTOR_KINDS, make_executor
 
-from rosutil import node_process
+from rosutil import EXIT_WITHIN_S, GEOMETRY, Burst, burst, joint_state, node_process
 
-EXIT_WITHIN_S = 1.0
-PULSE = 200  # messages back to back
-QUIET_S = 0.15  # then nothing for this long
-GEOMETRY = ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4"]
-
-
-class Burst:
-    """Publishes ``make(k)`` in pulses on one topic of ``topics`` at a time (``aim``),
-    from a thread of its own, in a private Context.
-
-    Only the process about to be signalled is fed: the others of its batch stay idle,
-    so the exit time measured is the node's, not that of two cores shared with nine
-    busy neighbours.
-    """
-
-    def __init__(self, msg_type: Any, topics: list[str], make: Callable[[int], Any]) -> None:
-        self._context = Context()
-        rclpy.init(context=self._context)
-        self._node = Node("signal_burst", context=self._context)
-        self.pubs = [self._node.create_publisher(msg_type, t, qos(100, True))
-                     for t in topics]
-        self._make = make
-        self._target = 0
-        self._stop = threading.Event()
-        self.sent = 0
-        self.cycle_s = QUIET_S  # how long one pulse and its quiet spell last, measured
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def aim(self, k: int) -> None:
-        self._target = k
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            start = time.monotonic()
-            pub = self.pubs[self._target]
-            for _ in range(PULSE):
-                pub.publish(self._make(self.sent))
-                self.sent += 1
-            self._stop.wait(QUIET_S)
-            self.cycle_s = time.monotonic() - start
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join()
-        self._node.destroy_node()
-        rclpy.try_shutdown(context=self._context)
-
-
-@contextmanager
-def burst(msg_type: Any, topics: list[str], make: Callable[[int], Any]) -> Iterator[Burst]:
-    b = Burst(msg_type, topics, make)
-    try:
-        yield b
-    finally:
-        b.close()
-
-
-def joint_state(k: int) -> JointState:
-    msg = JointState()
-    ns = time.time_ns()
-    msg.header.stamp = ns_to_stamp(ns, msg.header.stamp)
-    msg.name = ["left_wheel_joint", "right_wheel_joint"]
-    t = ns * 1e-9 % 1000.0
-    msg.position = [2.0 * t, 3.0 * t]  # a steady motion, well under max_wheel_speed
-    return msg
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 
 def twist(k: int) -> Twist:

@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import pytest
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
@@ -23,7 +24,18 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from rosutil import executable, node_process, ros_test_node, spin_for, spin_until
+from diffdrive_odom.ros.sim_node import SimNode
+
+from rosutil import (
+    assert_refused_in_process,
+    assert_refuses_to_start,
+    node_process,
+    ros_test_node,
+    spin_for,
+    spin_until,
+)
+
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 R, B = 0.05, 0.30  # nominal = true geometry in these tests
 
@@ -233,16 +245,19 @@ def test_runtime_parameters_refused_with_reason_or_applied() -> None:
         assert sim.poll() is None
 
 
-def test_bad_parameters_refuse_to_start_with_one_line() -> None:
-    cases = [
-        ("publish_rate:=0.0", "publish_rate"),
-        ("joint_state_units:=furlongs", "joint_state_units"),
-        ("true_right_wheel_radius:=-0.1", "true_right_wheel_radius"),
-        ("encoder_counter_bits:=16", "encoder_counter_bits"),
-    ]
-    for arg, name in cases:
-        proc = subprocess.run([executable("sim_node"), "--ros-args", "-p", arg],
-                              capture_output=True, text=True, timeout=30)
-        assert proc.returncode == 2, proc.stderr
-        lines = proc.stderr.strip().splitlines()
-        assert len(lines) == 1 and f"'{name}'" in lines[0], proc.stderr
+BAD_PARAMETERS = {
+    "publish_rate": "publish_rate:=0.0",
+    "joint_state_units": "joint_state_units:=furlongs",
+    "true_right_wheel_radius": "true_right_wheel_radius:=-0.1",
+    "encoder_counter_bits": "encoder_counter_bits:=16",
+}
+
+
+@pytest.mark.parametrize("name", BAD_PARAMETERS)
+def test_bad_parameters_refuse_to_start_with_one_line(name: str) -> None:
+    """Each case in this process (the node's own construction, rcl parsing the -p)."""
+    assert_refused_in_process(SimNode, name, ["-p", BAD_PARAMETERS[name]])
+
+
+def test_a_bad_parameter_stops_the_process_with_exit_2_and_one_line() -> None:
+    assert_refuses_to_start("sim_node", "publish_rate", ["-p", BAD_PARAMETERS["publish_rate"]])

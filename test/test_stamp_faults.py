@@ -12,11 +12,24 @@ from __future__ import annotations
 import math
 from itertools import pairwise
 
+import pytest
 from sensor_msgs.msg import JointState
-from test_faults import R, odometry_node, reading
-from test_odometry_node import STEP_NS, T0_NS, _ns, listen, send_first, wait_ready
 
-from rosutil import ros_test_node, spin_for
+from rosutil import (
+    STEP_NS,
+    T0_NS,
+    R,
+    listen,
+    ns_of,
+    odometry_node,
+    reading,
+    ros_test_node,
+    send_first,
+    spin_for,
+    wait_ready,
+)
+
+pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 RAD_PER_STEP = 0.1  # 5 rad/s at 50 Hz
 BACK_NS = 300_000_000
@@ -56,14 +69,14 @@ def test_far_future_and_stepped_back_stamps_keep_pose_and_twist() -> None:
             o.pose.pose.position.x, o.pose.pose.position.y, o.pose.pose.orientation.z,
             o.pose.pose.orientation.w, o.twist.twist.linear.x, o.twist.twist.angular.z)
     )
-    assert not any(_ns(o.header.stamp) == future_ns for o in odom)
+    assert not any(ns_of(o.header.stamp) == future_ns for o in odom)
     assert not out.matching("restarted at the origin"), out.text()
     assert len(outlier) == 1, out.text()
     xs = [o.pose.pose.position.x for o in odom]
     assert all(b >= a for a, b in pairwise(xs)), "went backwards"
-    final = [o for o in odom if _ns(o.header.stamp) == T0_NS + last * STEP_NS - BACK_NS][-1]
+    final = [o for o in odom if ns_of(o.header.stamp) == T0_NS + last * STEP_NS - BACK_NS][-1]
     assert math.isclose(final.pose.pose.position.x, R * RAD_PER_STEP * last, abs_tol=1e-9)
     assert final.pose.pose.position.y == 0.0
     # Every twist after the first reading is the true 0.5 m/s (main spiked to 8 m/s).
-    twists = [o.twist.twist.linear.x for o in odom if _ns(o.header.stamp) > T0_NS]
+    twists = [o.twist.twist.linear.x for o in odom if ns_of(o.header.stamp) > T0_NS]
     assert twists and all(math.isclose(v, 0.5, rel_tol=1e-9) for v in twists), twists
