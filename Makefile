@@ -9,7 +9,7 @@ SHARED_LAUNCH ?= ../shared/launch
 LAUNCH_STAMP := $(VENV)/.launch-installed
 PIP_QUIET := 2>&1 | grep -v '^WARNING: Location' || true
 
-.PHONY: venv demo test lint check bench clean
+.PHONY: venv demo test test-fast test-dds lint check bench clean
 
 venv: $(STAMP) $(if $(wildcard $(SHARED_LAUNCH)/install.sh),$(LAUNCH_STAMP))
 
@@ -29,8 +29,16 @@ $(LAUNCH_STAMP): $(STAMP) $(SHARED_LAUNCH)/install.sh
 demo: venv
 	$(VENV)/bin/diffdrive-odom demo
 
+# Tiers (markers in setup.cfg): test = everything (CI); test-fast = the pure tier (no DDS,
+# no child process, nothing slow), under a minute; test-dds = what talks over DDS.
 test: venv
 	$(PY) -m pytest -q
+
+test-fast: venv
+	$(PY) -m pytest -q -m "not dds and not process and not slow"
+
+test-dds: venv
+	$(PY) -m pytest -q -m dds
 
 lint: venv
 	$(VENV)/bin/ruff check diffdrive_odom test bench scripts launch

@@ -140,6 +140,7 @@ def assert_sane(pipeline: CommandPipeline, robot: Robot, rates: tuple[float, ...
     assert pipeline.bound == pytest.approx(bound)
 
 
+@pytest.mark.slow  # hypothesis: thousands of runs, 15-25 s
 @FUZZ
 @given(robots(), events, st.floats(-0.9, 0.9), st.floats(-0.9, 0.9))
 def test_nonsense_never_gets_out_and_a_clean_command_is_then_followed(

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -195,6 +196,7 @@ def run(shape: Shape, feed: object, est: OdometryEstimator,
 shapes = st.sampled_from(SHAPES)
 
 
+@pytest.mark.slow  # hypothesis: thousands of runs, 15-25 s
 @settings(FUZZ, max_examples=1500)
 @given(data=st.data())
 def test_the_estimator_survives_anything_and_then_tracks_a_clean_drive(
@@ -211,6 +213,7 @@ def test_the_estimator_survives_anything_and_then_tracks_a_clean_drive(
         data.draw(clean_drives, label="drive"))
 
 
+@pytest.mark.slow  # hypothesis: thousands of runs, 15-25 s
 @settings(FUZZ, max_examples=1000)
 @given(data=st.data())
 def test_the_pipeline_survives_anything_and_counts_every_reading(

@@ -1,29 +1,34 @@
-"""The pure core never imports rclpy, ROS messages or rosbags: enforced, not hoped for.
+"""The core and the settings never import rclpy, ROS messages or bag libraries: enforced.
 
-Each core module is imported in a fresh interpreter in which those packages cannot be
-imported at all (a meta-path finder refuses them), so an import anywhere in the core's
-import graph, even an indirect one, fails the test with the module that pulled it in.
+Every module of ``diffdrive_odom.core`` and ``diffdrive_odom.settings`` (walked with
+pkgutil, so a new module is checked too) is imported in a fresh interpreter in which
+those packages cannot be imported at all (a meta-path finder refuses them), so an
+import anywhere in their import graph, even an indirect one, fails the test with the
+module that pulled it in. import-linter's contracts (setup.cfg) say the same per
+package, and more (the layers); they are run here too when the tool is installed.
 """
 
 from __future__ import annotations
 
 import json
 import pkgutil
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
-import diffdrive_odom
+import diffdrive_odom.core
+import diffdrive_odom.settings
 
 pytestmark = [pytest.mark.process]
 
-# The rclpy shells and the bag tools: the only modules allowed to import ROS or rosbags.
-SHELL = {
-    "ros_common", "bagio", "replay", "evaluate", "play", "demo", "cli", "calibrate",
-}
-# The demo is a package: its rclpy parts (loop, cli) are shell, these are pure.
-PURE_DEMO = ("diffdrive_odom.demo", "diffdrive_odom.demo.settings",
+ROOT = Path(__file__).resolve().parent.parent
+# Also pure, as before the layers had packages: the package and each layer's
+# ``__init__`` (a docstring of what the layer may import), and the demo's pure parts.
+ALSO_PURE = ("diffdrive_odom", "diffdrive_odom.ros", "diffdrive_odom.tools",
+             "diffdrive_odom.demo", "diffdrive_odom.demo.settings",
              "diffdrive_odom.demo.report", "diffdrive_odom.demo.plot")
 BLOCKED = (
     "rclpy", "rosbags", "mcap", "mcap_ros2", "builtin_interfaces", "rcl_interfaces",
@@ -52,18 +57,21 @@ print(json.dumps(failures))
 """
 
 
-def core_modules() -> list[str]:
-    """Every module of the package that is not a node, the rclpy layer or a bag tool."""
-    names = [m.name for m in pkgutil.iter_modules(diffdrive_odom.__path__)]
-    return sorted([f"diffdrive_odom.{n}" for n in names
-                   if n not in SHELL and not n.endswith("_node")] + list(PURE_DEMO))
+def pure_modules() -> list[str]:
+    """Every module of the core and settings packages, and :data:`ALSO_PURE`."""
+    names = []
+    for package in (diffdrive_odom.core, diffdrive_odom.settings):
+        names.append(package.__name__)
+        names += [m.name for m in pkgutil.walk_packages(package.__path__, package.__name__ + ".")]
+    return sorted(names) + list(ALSO_PURE)
 
 
 def test_the_core_imports_no_ros_and_no_rosbags() -> None:
-    modules = core_modules()
+    modules = pure_modules()
     assert {"diffdrive_odom.core.integration", "diffdrive_odom.core.estimator",
-            "diffdrive_odom.core.conversions",
-            "diffdrive_odom.core.pipeline", "diffdrive_odom.settings.params"} <= set(modules)
+            "diffdrive_odom.core.conversions", "diffdrive_odom.core.pipeline",
+            "diffdrive_odom.settings.params", "diffdrive_odom.settings.registry"} <= set(modules)
+    assert len([m for m in modules if m.startswith("diffdrive_odom.core.")]) >= 18
     out = subprocess.run(
         [sys.executable, "-c", CHECK, json.dumps(BLOCKED), json.dumps(modules)],
         capture_output=True, text=True, timeout=120, check=True)
@@ -80,3 +88,15 @@ def test_the_check_catches_an_import() -> None:
     failures = json.loads(out.stdout.strip().splitlines()[-1])
     assert "diffdrive_odom.ros.runtime" in failures
     assert "must not import" in failures["diffdrive_odom.ros.runtime"]
+
+
+def test_import_linter_contracts_are_kept() -> None:
+    """``lint-imports`` (import-linter; ``make lint`` runs it too): the layers and the
+    pure core hold, per package."""
+    tool = Path(sys.executable).parent / "lint-imports"
+    command = str(tool) if tool.exists() else shutil.which("lint-imports")
+    if command is None:
+        pytest.skip("lint-imports (import-linter) is not installed: pip install import-linter")
+    out = subprocess.run([command], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "0 broken" in out.stdout, out.stdout
