@@ -3,9 +3,9 @@
 The wheel-travel noise model is Chong and Kleeman's ("Accurate odometry and error
 modelling for a mobile robot", ICRA 1997): each wheel's ground arc over a step is off
 by zero-mean noise of variance ``k |arc|``. Expected values come from that definition
-(closed forms derived in the docstrings) or from simulating it (the simulated base's
-wheel slip has exactly this variance with ``slip_stddev = sqrt(k)``), never from the
-code under test.
+(closed forms derived in the docstrings) or from simulating it: the Monte Carlo truth
+integrates noisy wheel arcs, and a geometry drawn per run, with ``test/oracle.py``'s
+textbook arcs, never with the code under test.
 """
 
 from __future__ import annotations
@@ -24,14 +24,16 @@ from diffdrive_odom.core.errors import ParameterError
 from diffdrive_odom.core.estimator import OdometryEstimator
 from diffdrive_odom.core.kinematics import Geometry, wheel_rates
 from diffdrive_odom.core.pipeline import ReadingPipeline
-from diffdrive_odom.core.sim import DiffDriveSim, SimConfig
 from diffdrive_odom.core.uncertainty import (
+    DEFAULT_K,
     UNOBSERVED_VARIANCE,
     NoiseModel,
     pose_message_covariance,
     twist_message_covariance,
 )
 from diffdrive_odom.settings.odometry import odometry_settings
+
+import oracle
 
 R, B = 0.05, 0.3
 GEOMETRY = Geometry(R, B)
@@ -41,8 +43,11 @@ STEP_NS = 50_000_000  # 20 Hz
 
 
 def _estimator(k_left: float, k_right: float, encoders: EncoderConfig = ENCODERS,
-               geometry: Geometry = GEOMETRY) -> OdometryEstimator:
-    return OdometryEstimator(geometry, encoders, noise=NoiseModel(k_left, k_right))
+               geometry: Geometry = GEOMETRY, radius_ratio: float = 0.0,
+               separation_ratio: float = 0.0) -> OdometryEstimator:
+    """The wheel-noise part alone unless the geometry ratios are given."""
+    return OdometryEstimator(geometry, encoders, noise=NoiseModel(
+        k_left, k_right, radius_ratio, separation_ratio))
 
 
 def _p3(est: OdometryEstimator) -> np.ndarray:
@@ -90,6 +95,50 @@ def test_straight_line_closed_form() -> None:
     p = _p3(est)
     assert p[0, 0] == pytest.approx(8e-5 * h / 4, rel=1e-12)
     assert p[2, 2] == pytest.approx(8e-5 * h / B**2, rel=1e-12)
+
+
+def test_geometry_term_on_a_straight_line_grows_with_distance_squared() -> None:
+    """Straight along x, s = N h, no wheel noise, radii uncertain by ``sr`` each (relative).
+
+    A relative radius error ``e_l`` scales the left arcs: the path's length by
+    ``s e_l / 2`` and the heading by ``-s e_l / b`` at the end, growing along the way, so
+    ``y`` collects ``-(h^2 / b) sum_j (N - j + 1/2) = -s^2 / (2 b)`` per unit ``e_l``
+    (the chord at the mid-step heading, as in the closed form above). Both wheels
+    independent: ``var(x) = sr^2 s^2 / 2``, ``var(theta) = 2 sr^2 s^2 / b^2``,
+    ``var(y) = sr^2 s^4 / (2 b^2)``, ``cov(y, theta) = sr^2 s^3 / b^2``. The separation
+    scales the heading change, which is zero here: no term from ``sb``.
+    """
+    sr, n, rad = 0.01, 60, 0.6
+    est = _estimator(0.0, 0.0, radius_ratio=sr, separation_ratio=0.05)
+    est.update(1, NAMES, [0.0, 0.0])
+    h = R * rad
+    for i in range(1, n + 1):
+        est.update(1 + i * STEP_NS, NAMES, [i * rad, i * rad])
+        s = i * h
+        assert _p3(est)[0, 0] == pytest.approx(sr**2 * s**2 / 2, rel=1e-12)
+    p = _p3(est)
+    assert p[2, 2] == pytest.approx(2 * sr**2 * s**2 / B**2, rel=1e-12)
+    assert p[1, 1] == pytest.approx(sr**2 * s**4 / (2 * B**2), rel=1e-9)
+    assert p[1, 2] == pytest.approx(sr**2 * s**3 / B**2, rel=1e-9)
+    assert abs(p[0, 1]) < 1e-15 and abs(p[0, 2]) < 1e-15
+    est.reset()  # reset clears the sensitivity too
+    assert est.uncertainty is not None and not np.any(_p3(est))
+
+
+def test_geometry_term_of_a_spin_on_the_spot() -> None:
+    """A spin by ``phi`` (wheels ``-+ b phi / 2``): the heading error is the radius error's
+    ``phi / 2`` per wheel and the separation error's ``-phi``. One wrong radius also moves
+    the centre (by at most half that wheel's travel times its error)."""
+    sr, sb, rad = 0.004, 0.02, 3.0
+    est = _estimator(0.0, 0.0, radius_ratio=sr, separation_ratio=sb)
+    est.update(1, NAMES, [0.0, 0.0])
+    for i in range(1, 11):
+        est.update(1 + i * STEP_NS, NAMES, [-i * rad, i * rad])
+    phi = 2 * R * 10 * rad / B
+    p = _p3(est)
+    assert p[2, 2] == pytest.approx(2 * sr**2 * (phi / 2) ** 2 + sb**2 * phi**2, rel=1e-12)
+    travel = R * 10 * rad
+    assert p[0, 0] + p[1, 1] <= 2 * (sr * travel / 2) ** 2 * (1 + 1e-12)
 
 
 def test_twist_covariance_from_the_same_model_and_dt() -> None:
@@ -189,23 +238,37 @@ def _route() -> list[tuple[float, float, float]]:
             (1.5, 0.4, 0.0)]
 
 
-def _final_nees(k_true: float, k_model: float, runs: int) -> np.ndarray:
+def _final_nees(k_true: float, k_model: float, runs: int, sr: float = 0.0, sb: float = 0.0,
+                sr_model: float = 0.0, sb_model: float = 0.0) -> np.ndarray:
+    """Final-pose NEES of the estimator (nominal geometry) against the oracle's truth.
+
+    Per run the robot's true radii and separation are drawn once (relative 1-sigma
+    ``sr``, ``sb``: the geometry error is one draw per robot), and each step's true
+    wheel arcs are the true radius times the joint increment plus slip of variance
+    ``k_true |arc|``. The truth integrates those arcs with :func:`oracle.wheel_arc`
+    (the textbook arc, not the package's step); the estimator sees only the joints.
+    """
     nees = np.empty(runs)
     for run in range(runs):
-        sim = DiffDriveSim(SimConfig(GEOMETRY, slip_stddev=math.sqrt(k_true),
-                                     command_timeout=0.0, seed=run))
-        est = _estimator(k_model, k_model)
-        t = STEP_NS
-        est.update(t, NAMES, list(sim.joint_angles))
+        rng = np.random.default_rng(run)
+        e_l, e_r, e_b = rng.standard_normal(3) * (sr, sr, sb)
+        r_l, r_r, b = R * (1 + e_l), R * (1 + e_r), B * (1 + e_b)
+        est = _estimator(k_model, k_model, radius_ratio=sr_model, separation_ratio=sb_model)
+        t, left, right, truth = STEP_NS, 0.0, 0.0, oracle.ORIGIN
+        est.update(t, NAMES, [left, right])
         for seconds, v, w in _route():
-            sim.command(list(wheel_rates(GEOMETRY, v, w)))
+            rate_l, rate_r = wheel_rates(GEOMETRY, v, w)  # commanded with the nominal one
+            d_l, d_r = rate_l * STEP_NS * 1e-9, rate_r * STEP_NS * 1e-9
             for _ in range(round(seconds * 1e9 / STEP_NS)):
-                sim.advance(STEP_NS)
-                t += STEP_NS
-                est.update(t, NAMES, list(sim.joint_angles))
-        truth, pose = sim.pose, est.pose
-        e = np.array([pose.x - truth.x, pose.y - truth.y,
-                      math.remainder(pose.theta - truth.theta, 2 * math.pi)])
+                s_l, s_r = r_l * d_l, r_r * d_r
+                s_l += math.sqrt(k_true * abs(s_l)) * rng.standard_normal()
+                s_r += math.sqrt(k_true * abs(s_r)) * rng.standard_normal()
+                truth = oracle.wheel_arc(s_l, s_r, b, truth)
+                t, left, right = t + STEP_NS, left + d_l, right + d_r
+                est.update(t, NAMES, [left, right])
+        pose = est.pose
+        e = np.array([pose.x - truth[0], pose.y - truth[1],
+                      math.remainder(pose.theta - truth[2], 2 * math.pi)])
         nees[run] = e @ np.linalg.solve(_p3(est), e)
     return nees
 
@@ -223,6 +286,18 @@ def test_nees_of_the_final_pose_is_inside_the_95_percent_bounds() -> None:
     assert low <= nees.sum() <= high, nees.mean()
 
 
+def test_nees_with_an_uncertain_geometry_is_inside_the_95_percent_bounds() -> None:
+    """Radii off by 1 % and the separation by 3 % (1 sigma, one draw per run) dominate
+    the wheel noise: the geometry term makes the covariance consistent, and without it
+    the same runs are far overconfident."""
+    runs, sr, sb = 200, 0.01, 0.03
+    nees = _final_nees(1e-6, 1e-6, runs, sr, sb, sr, sb)
+    low, high = _chi2_quantile(0.025, 3 * runs), _chi2_quantile(0.975, 3 * runs)
+    assert low <= nees.sum() <= high, nees.mean()
+    without = _final_nees(1e-6, 1e-6, 60, sr, sb)
+    assert without.mean() > 10 * 3, without.mean()
+
+
 def test_nees_fails_when_the_model_k_is_ten_times_too_small() -> None:
     """The same test can fail: with k / 10 the covariance is overconfident."""
     runs = 60
@@ -233,7 +308,8 @@ def test_nees_fails_when_the_model_k_is_ten_times_too_small() -> None:
 # --- parameters and the pipeline --------------------------------------------------------
 
 
-BASE = {"wheel_radius": R, "wheel_separation": B}
+BASE = {"wheel_radius": R, "wheel_separation": B, "wheel_radius_stddev_ratio": 0.0,
+        "wheel_separation_stddev_ratio": 0.0}
 
 
 @pytest.mark.parametrize(("name", "value"), [
@@ -241,6 +317,8 @@ BASE = {"wheel_radius": R, "wheel_separation": B}
     ("wheel_noise_k_left", -1e-5),
     ("wheel_noise_k_right", float("nan")),
     ("wheel_noise_k_left", float("inf")),
+    ("wheel_radius_stddev_ratio", -0.01),
+    ("wheel_separation_stddev_ratio", float("nan")),
 ])
 def test_bad_noise_parameters_name_themselves(name: str, value: object) -> None:
     with pytest.raises(ParameterError) as err:
@@ -290,4 +368,4 @@ def test_runtime_changes_of_the_model_carry_the_covariance_on() -> None:
     assert pipe.covariances()[0][0] == 0.001  # pose_covariance_diagonal default
     pipe.reconfigure(odometry_settings(BASE))
     pipe.feed(1 + 3 * STEP_NS, JOINTS, [3.0, 3.0])
-    assert pipe.covariances()[0][0] == pytest.approx(1e-5 * R / 2, rel=1e-12)
+    assert pipe.covariances()[0][0] == pytest.approx(DEFAULT_K * R / 2, rel=1e-12)

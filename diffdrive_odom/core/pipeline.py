@@ -254,6 +254,7 @@ class ReadingPipeline:
             self._estimator.pose = before.pose
             if before.uncertainty is not None and self._estimator.uncertainty is not None:
                 self._estimator.uncertainty.covariance = before.uncertainty.covariance
+                self._estimator.uncertainty.sensitivity = before.uncertainty.sensitivity
         else:
             self._estimator.set_geometry(settings.geometry)
             self._estimator.set_noise(settings.noise)

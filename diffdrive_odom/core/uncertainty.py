@@ -6,7 +6,7 @@ ICRA 1997): each wheel's ground travel over a step carries zero-mean noise of
 variance ``k |d|``, ``d`` the arc that wheel rolled, ``k`` [m] per side. Variance
 in proportion to distance makes the model independent of the reading rate (ten
 small steps add the same variance as one big one) and zero at rest. Systematic
-error (wrong radii, separation) is not random and is not covered: calibrate it out.
+error (wrong radii, separation) is not random: it is the geometry term below.
 
 Each step the 3x3 pose covariance goes through the exact CIR step's Jacobians
 (Furlan, Marzorati and Sorrenti, "2D transforms for the odometry of a differential
@@ -16,6 +16,20 @@ linear wheel -> body map of :func:`kinematics.body_increment`:
     P <- F_pose P F_pose^T + G Q G^T,   G = F_step B,   Q = diag(var_left, var_right)
 
 with ``B`` the 2x2 Jacobian of ``(ds, dtheta)`` w.r.t. the joint angle increments.
+
+Systematic error (the true radii and separation differ from the configured ones) is the
+other part of odometry error (Kelly, "Linearized Error Propagation in Odometry"; Chong
+and Kleeman): one draw per robot, not per step, so it is not added step by step. Beside
+``P`` the state carries ``J``, the sensitivity of the pose to the relative errors of
+``(left radius, right radius, separation)``:
+
+    J <- F_pose J + F_step G,   G = [[s_l / 2, s_r / 2, 0], [-s_l / b, s_r / b, -dtheta]]
+
+(``s_l``, ``s_r`` the step's wheel arcs, ``G = d(ds, dtheta) / d(ln r_l, ln r_r, ln b)``),
+and the published pose covariance adds ``J S J^T`` with ``S = diag(sr^2, sr^2, sb^2)``,
+``sr`` / ``sb`` = ``wheel_radius_stddev_ratio`` / ``wheel_separation_stddev_ratio``
+(each radius independent). That term grows with distance squared where ``P`` grows with
+distance. Reset sets both ``P`` and ``J`` back to zero.
 
 Encoder quantization (the Caltech ME/CS 133 notes, "Kinematics and Odometry for a
 Differential Drive Vehicle", list it among the four sources of drift) is *not*
@@ -39,7 +53,8 @@ Messages carry 6x6 row-major matrices over (x, y, z, roll, pitch, yaw) and
 (vx, vy, vz, wx, wy, wz). A planar sensor says nothing of z, roll and pitch and
 their rates: those get :data:`UNOBSERVED_VARIANCE` (large and finite, as
 robot_localization expects of a 2D sensor). Lateral velocity ``vy`` is zero by the
-rolling constraint, so the model gives it no variance.
+rolling constraint, so the model gives it no variance. The twist covariance has no geometry
+term (not modelled: at the default ratios it is a few tenths of a percent of the speed).
 """
 
 from __future__ import annotations
@@ -56,12 +71,14 @@ from diffdrive_odom.core.kinematics import Geometry, body_increment
 Matrix = tuple[tuple[float, ...], ...]
 
 UNOBSERVED_VARIANCE = 1.0e6
-# Default wheel-travel noise [m]: a side's ground arc off by 3.2 mm (1 sigma) after
-# 1 m rolled. Chosen on the OptiOdom recordings (Sousa et al.) integrated with the
-# *nominal* geometry, so it also covers the systematic error of an uncalibrated robot:
-# their final-pose NEES is then at most about 3 (the mean of chi-square with 3 degrees
-# of freedom); after calibration ~3e-6 would do. See README "Uncertainty".
-DEFAULT_K = 1.0e-5
+# Defaults for an uncalibrated robot: wheel-travel noise k [m] (a side's arc off by 1 mm,
+# 1 sigma, after 1 m rolled), each radius known to 0.25 % and the separation to 1 %
+# (1 sigma). Chosen on the June 2020 OptiOdom sessions (Sousa et al.) with the nominal
+# geometry and judged on the December/January ones (bench/bench_calibration.py; README
+# "Uncertainty"): final-pose mean NEES inside the 95 % band on both.
+DEFAULT_K = 1.0e-6
+DEFAULT_RADIUS_STDDEV_RATIO = 0.0025
+DEFAULT_SEPARATION_STDDEV_RATIO = 0.01
 ZERO3: Matrix = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 
 
@@ -71,14 +88,22 @@ class UncertaintyConfigError(ConfigError):
 
 @dataclass(frozen=True)
 class NoiseModel:
-    """Wheel-travel noise per side [m]: variance ``k * |arc|`` of each step's ground arc."""
+    """Wheel-travel noise and geometry uncertainty: what the propagated covariance covers.
+
+    ``k`` per side [m]: variance ``k * |arc|`` of each step's ground arc. The ratios: the
+    relative 1-sigma uncertainty of each effective radius and of the separation.
+    """
 
     k_left: float = DEFAULT_K
     k_right: float = DEFAULT_K
+    radius_stddev_ratio: float = DEFAULT_RADIUS_STDDEV_RATIO
+    separation_stddev_ratio: float = DEFAULT_SEPARATION_STDDEV_RATIO
 
     def __post_init__(self) -> None:
         for field, value in (("wheel_noise_k_left", self.k_left),
-                             ("wheel_noise_k_right", self.k_right)):
+                             ("wheel_noise_k_right", self.k_right),
+                             ("wheel_radius_stddev_ratio", self.radius_stddev_ratio),
+                             ("wheel_separation_stddev_ratio", self.separation_stddev_ratio)):
             if (isinstance(value, bool) or not isinstance(value, (int, float))
                     or not math.isfinite(value) or value < 0.0):
                 raise UncertaintyConfigError(field, f"must be finite and >= 0, got {value!r}")
@@ -156,6 +181,37 @@ def _wheel_noise2(b: Matrix, var_l: float, var_r: float) -> Matrix:
             (cross, b10 * b10 * var_l + b11 * b11 * var_r))
 
 
+def _sensitivity_step(j: Matrix, f_pose: Matrix, f_step: Matrix, ds: float, dtheta: float,
+                      separation: float) -> Matrix:
+    """``F_pose J + F_step G``: the pose's sensitivity to the relative geometry errors."""
+    (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = j
+    a, b = f_pose[0][2], f_pose[1][2]  # F_pose = [[1, 0, a], [0, 1, b], [0, 0, 1]]
+    (f00, f01), (f10, f11), (_, f21) = f_step
+    half = 0.5 * dtheta * separation
+    s_l, s_r = ds - half, ds + half  # the wheels' arcs
+    g00, g01 = 0.5 * s_l, 0.5 * s_r
+    g10, g11, g12 = -s_l / separation, s_r / separation, -dtheta
+    return ((j00 + a * j20 + f00 * g00 + f01 * g10, j01 + a * j21 + f00 * g01 + f01 * g11,
+             j02 + a * j22 + f01 * g12),
+            (j10 + b * j20 + f10 * g00 + f11 * g10, j11 + b * j21 + f10 * g01 + f11 * g11,
+             j12 + b * j22 + f11 * g12),
+            (j20 + f21 * g10, j21 + f21 * g11, j22 + f21 * g12))
+
+
+def geometry_term(j: Matrix, radius_ratio: float, separation_ratio: float) -> Matrix:
+    """``J S J^T`` with ``S = diag(radius_ratio^2, radius_ratio^2, separation_ratio^2)``."""
+    vr, vb = radius_ratio * radius_ratio, separation_ratio * separation_ratio
+    (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = j
+    return _symmetric(
+        vr * (j00 * j00 + j01 * j01) + vb * j02 * j02,
+        vr * (j00 * j10 + j01 * j11) + vb * j02 * j12,
+        vr * (j00 * j20 + j01 * j21) + vb * j02 * j22,
+        vr * (j10 * j10 + j11 * j11) + vb * j12 * j12,
+        vr * (j10 * j20 + j11 * j21) + vb * j12 * j22,
+        vr * (j20 * j20 + j21 * j21) + vb * j22 * j22,
+    )
+
+
 def wheel_jacobian(geometry: Geometry) -> Matrix:
     """``d(ds, dtheta) / d(joint increments)``: the columns of the linear map itself."""
     left = body_increment(geometry, 1.0, 0.0)
@@ -216,6 +272,8 @@ class PoseUncertainty:
         self.model = model
         self.start = start
         self.covariance: Matrix = start
+        # d pose / d(ln left radius, ln right radius, ln separation); zero at the start.
+        self.sensitivity: Matrix = ZERO3
         self._quantum = quantization_variance(ticks_per_revolution, wheels_per_side)
         self._rates: deque[Matrix] = deque(maxlen=window)
         self._geometry: Geometry | None = None
@@ -224,6 +282,7 @@ class PoseUncertainty:
     def reset(self) -> None:
         """Back to the start value (a reset or restart of the odometry); twist forgotten."""
         self.covariance = self.start
+        self.sensitivity = ZERO3
         self.forget_twist()
 
     def forget_twist(self) -> None:
@@ -248,6 +307,8 @@ class PoseUncertainty:
         self.covariance = _add3(
             _congruence3(f_pose, self.covariance), _wheel_noise3(_times2x2(f_step, b), var_l, var_r)
         )
+        self.sensitivity = _sensitivity_step(self.sensitivity, f_pose, f_step, ds, dtheta,
+                                             geometry.separation)
         q = 2.0 * self._quantum  # the step's two readings
         scale = 1.0 / (dt * dt)
         self._rates.append(_wheel_noise2(b, (var_l + q) * scale, (var_r + q) * scale))
@@ -259,13 +320,18 @@ class PoseUncertainty:
         return self._b
 
     def pose_covariance(self, pose: Pose2D, geometry: Geometry) -> Matrix:
-        """Covariance of ``pose``: the propagated state plus the quantization floor."""
+        """Covariance of ``pose``: wheel noise, geometry uncertainty, quantization floor."""
+        model = self.model
+        cov = self.covariance
+        if model.radius_stddev_ratio or model.separation_stddev_ratio:
+            cov = _add3(cov, geometry_term(self.sensitivity, model.radius_stddev_ratio,
+                                           model.separation_stddev_ratio))
         if self._quantum == 0.0:
-            return self.covariance
+            return cov
         _, at_heading = compose_jacobians(Pose2D(0.0, 0.0, pose.theta), 0.0, 0.0)
         w = _times2x2(at_heading, self._wheel_jacobian(geometry))
         q = 2.0 * self._quantum  # the reference and the current reading
-        return _add3(self.covariance, _wheel_noise3(w, q, q))
+        return _add3(cov, _wheel_noise3(w, q, q))
 
     def twist_covariance(self) -> Matrix:
         """Covariance of the rolling-mean twist (vx, wz); zero before a step is integrated."""

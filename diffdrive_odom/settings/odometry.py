@@ -13,7 +13,12 @@ from typing import Any
 from diffdrive_odom.core.errors import as_parameter_error
 from diffdrive_odom.core.estimator import EstimatorConfig
 from diffdrive_odom.core.pipeline import OdometrySettings as OdometrySettings
-from diffdrive_odom.core.uncertainty import DEFAULT_K, NoiseModel
+from diffdrive_odom.core.uncertainty import (
+    DEFAULT_K,
+    DEFAULT_RADIUS_STDDEV_RATIO,
+    DEFAULT_SEPARATION_STDDEV_RATIO,
+    NoiseModel,
+)
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, build_encoders, build_geometry
 from diffdrive_odom.settings.params import ParameterError, ParamSpec, ParamValue, coerce_all
 
@@ -34,6 +39,12 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "Left wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated)."),
     ParamSpec("wheel_noise_k_right", "double", DEFAULT_K,
               "Right wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated)."),
+    ParamSpec("wheel_radius_stddev_ratio", "double", DEFAULT_RADIUS_STDDEV_RATIO,
+              "Relative 1-sigma uncertainty of each effective wheel radius (propagated: "
+              "its pose term grows with distance squared); calibrate prints it."),
+    ParamSpec("wheel_separation_stddev_ratio", "double", DEFAULT_SEPARATION_STDDEV_RATIO,
+              "Relative 1-sigma uncertainty of the effective wheel separation (propagated); "
+              "calibrate prints it."),
     ParamSpec("pose_covariance_diagonal", "double_array",
               [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 0.01],
               "Diagonal of the pose covariance (x, y, z, roll, pitch, yaw); "
@@ -81,7 +92,8 @@ def _noise_model(v: Mapping[str, Any]) -> NoiseModel | None:
         raise ParameterError(
             "covariance_model", f"must be one of {', '.join(COVARIANCE_MODELS)}, got {model!r}")
     with as_parameter_error():
-        noise = NoiseModel(v["wheel_noise_k_left"], v["wheel_noise_k_right"])
+        noise = NoiseModel(v["wheel_noise_k_left"], v["wheel_noise_k_right"],
+                           v["wheel_radius_stddev_ratio"], v["wheel_separation_stddev_ratio"])
     return noise if model == "propagated" else None
 
 
