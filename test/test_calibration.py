@@ -1,8 +1,8 @@
 """Calibration: simulated runs with a known true geometry, the OptiOdom squares, the CLI.
 
-Simulated runs come from the pure simulator (no DDS): the route is commanded with the
-NOMINAL inverse kinematics, as a robot's cmd_vel node would, and the base moves with
-its TRUE geometry; the simulator's pose is the ground truth.
+Simulated runs: the route is commanded with the NOMINAL inverse kinematics, as a robot's
+cmd_vel node would, and the base moves with its TRUE geometry; the ground truth comes
+from test/oracle.py's closed-form arcs, independent of the package's step.
 """
 
 from __future__ import annotations
@@ -17,15 +17,15 @@ import numpy as np
 import pytest
 import yaml
 
-from diffdrive_odom.core import batch, calibration, routes, umbmark
+from diffdrive_odom.core import batch, calibration, crossval, routes, umbmark
 from diffdrive_odom.core.kinematics import Geometry, wheel_rates
 from diffdrive_odom.core.metrics import Trajectory
 from diffdrive_odom.core.recorded_run import Run, values_of
-from diffdrive_odom.core.sim import DiffDriveSim, SimConfig
 from diffdrive_odom.settings import odometry as odometry_settings
 from diffdrive_odom.settings import params
 from diffdrive_odom.tools.cli import main as cli
 
+import oracle
 from rosutil import DATA
 
 NOMINAL = Geometry(0.05, 0.30)
@@ -49,21 +49,34 @@ class Reading:
 
 
 def simulate(route: routes.Route, slip: float = 0.0, seed: int = 0) -> Run:
-    """Drive ``route`` on the true base; readings at RATE and the true pose at each."""
-    sim = DiffDriveSim(SimConfig(TRUE, slip_stddev=slip, command_timeout=0.0, seed=seed))
+    """Drive ``route`` on the true base; readings at RATE and the true pose at each.
+
+    The wheels turn at the rates the NOMINAL inverse kinematics commands; the ground
+    rolls under them with the TRUE radii (plus slip of variance ``slip^2 |arc|`` per
+    side), and the true pose integrates those arcs with the TRUE separation by
+    ``test/oracle.py``'s textbook arcs: not the package's step, so an error shared by
+    the estimator and the truth cannot cancel.
+    """
+    rng = np.random.default_rng(seed)
     names = ("left_wheel_joint", "right_wheel_joint")
-    dt_ns = round(1e9 / RATE)
+    dt = 1.0 / RATE
     t0 = 10**9
-    readings, stamps, poses = [], [], []
-    for k in range(round((route.duration + 1.0) * RATE) + 1):
-        if k:
-            sim.command(list(wheel_rates(NOMINAL, *route.command_at((k - 1) / RATE))))
-            sim.advance(dt_ns)
-        stamp = t0 + sim.time_ns
-        readings.append(Reading(stamp, names, tuple(sim.joint_angles.tolist()), ()))
+    left = right = 0.0
+    pose = oracle.ORIGIN
+    readings = [Reading(t0, names, (0.0, 0.0), ())]
+    stamps, poses = [t0], [pose]
+    for k in range(1, round((route.duration + 1.0) * RATE) + 1):
+        rate_l, rate_r = wheel_rates(NOMINAL, *route.command_at((k - 1) * dt))
+        d_l, d_r = rate_l * dt, rate_r * dt
+        s_l, s_r = TRUE.left_radius * d_l, TRUE.right_radius * d_r
+        s_l += slip * math.sqrt(abs(s_l)) * rng.standard_normal()
+        s_r += slip * math.sqrt(abs(s_r)) * rng.standard_normal()
+        pose = oracle.wheel_arc(s_l, s_r, TRUE.separation, pose)
+        left, right = left + d_l, right + d_r
+        stamp = t0 + round(k * dt * 1e9)
+        readings.append(Reading(stamp, names, (left, right), ()))
         stamps.append(stamp)
-        p = sim.pose
-        poses.append((p.x, p.y, p.theta))
+        poses.append(pose)
     x, y, th = np.array(poses).T
     return Run(route.name, batch.wheel_steps(readings, SETTINGS),
                Trajectory.from_arrays(stamps, x, y, th))
@@ -91,25 +104,37 @@ def test_fit_recovers_the_true_geometry_without_noise() -> None:
             simulate(routes.umbmark(SIDE, clockwise=False))]
     fit = calibration.fit(runs, NOMINAL)
     assert np.all(np.abs(fit.values / true_values() - 1.0) < 1e-3), fit.values
-    assert np.all(np.abs(fit.mount) < 1e-4), fit.mount  # the reference is the axle centre
+    assert abs(fit.start_yaw) < 1e-4, fit.start_yaw  # the reference is not turned
     for r in fit.runs:  # the nominal geometry is visibly wrong, the fitted one is not
         assert r.before.final_position_error_aligned_m > 0.1
         assert r.after.final_position_error_aligned_m < 1e-3
 
 
-def test_fit_with_wheel_noise_is_within_its_stated_uncertainty() -> None:
-    slip = 0.003  # m after 1 m rolled: k = slip^2 per side
+def test_fit_with_wheel_noise_is_within_its_bootstrap_uncertainty() -> None:
+    slip = 0.003  # m after 1 m rolled
     runs = [simulate(routes.umbmark(SIDE, clockwise=True), slip, seed=1),
             simulate(routes.umbmark(SIDE, clockwise=False), slip, seed=2),
-            simulate(routes.figure_eight(1.0), slip, seed=3)]
+            simulate(routes.figure_eight(1.0), slip, seed=3),
+            simulate(routes.umbmark(SIDE, clockwise=True), slip, seed=4)]
     fit = calibration.fit(runs, NOMINAL)
+    cov = crossval.bootstrap(runs, NOMINAL)
+    assert cov is not None
+    std = np.sqrt(np.diag(cov))
     err = fit.values - true_values()
-    assert np.all(fit.std < 2e-3 * true_values()), fit.std  # a real constraint, not a shrug
-    assert np.all(np.abs(err) < 3.0 * fit.std), (err, fit.std)
+    assert np.all(std < 5e-3 * true_values()), std  # a real constraint, not a shrug
+    assert np.all(np.abs(err) < 3.0 * std), (err, std)
     assert np.all(np.abs(err) > 0.0)
-    # The noise estimate sees the simulator's slip variance per metre (slip^2).
-    for k in (fit.k_left, fit.k_right):
-        assert 0.4 * slip**2 < k < 2.5 * slip**2, (fit.k_left, fit.k_right, slip**2)
+    assert crossval.bootstrap(runs[:2], NOMINAL) is None  # 2 runs: no sigma
+
+
+def test_held_out_check_beats_nominal_on_simulated_runs() -> None:
+    """The nominal geometry is wrong by ~3 %: a geometry fitted on the other runs wins."""
+    runs = [simulate(routes.umbmark(SIDE, clockwise=True), 0.002, seed=5),
+            simulate(routes.umbmark(SIDE, clockwise=False), 0.002, seed=6),
+            simulate(routes.figure_eight(1.0), 0.002, seed=7)]
+    c = crossval.check(crossval.held_out(runs, NOMINAL))
+    assert c is not None and c.runs == 3 and c.better
+    assert c.fpe_held_out < 0.2 * c.fpe_nominal, c
 
 
 # --- UMBmark ---------------------------------------------------------------------------
@@ -218,21 +243,38 @@ def _block(out: str) -> str:
     return out[start:]
 
 
-def test_cli_prints_a_params_block_the_node_accepts(
+def test_cli_refuses_when_held_out_runs_do_better_with_the_nominal_geometry(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One square each way: a geometry fitted on one direction alone (Type A and B errors
+    are not separable from one square, Borenstein and Feng) ends the other further off
+    than the nominal one. calibrate says so first, exits 1 and prints no block."""
+    saved = tmp_path / "fit.yaml"
+    args = ["calibrate", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN),
+            "--ground-truth", "/ground_truth/pose", *NOMINAL_ARGS, "--yaml", str(saved)]
+    assert cli(args) == 1
+    out = capsys.readouterr().out
+    assert out.startswith("NOT BETTER THAN NOMINAL on held-out runs"), out
+    assert "/**:" not in out and not saved.exists()
+    assert "fixed, not fitted: clock lag" in out and "reference offset from the axle" in out
+    assert "it needs 3 or more runs" in out  # 2 runs: no bootstrap sigma
+
+
+def test_cli_force_prints_a_params_block_the_node_accepts(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     plot, saved = tmp_path / "fit.png", tmp_path / "fit.yaml"
     code = cli(["calibrate", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN),
-                "--ground-truth", "/ground_truth/pose", *NOMINAL_ARGS,
+                "--ground-truth", "/ground_truth/pose", *NOMINAL_ARGS, "--force",
                 "--plot", str(plot), "--yaml", str(saved)])
     out = capsys.readouterr().out
     assert code == 0, out
+    assert out.startswith("NOT BETTER THAN NOMINAL on held-out runs (--force")
     assert plot.stat().st_size > 10_000
     block = _block(out)
     assert saved.read_text(encoding="utf-8").endswith(block)
     entry = yaml.safe_load(block)["/**"]["ros__parameters"]
-    assert {"wheel_noise_k_left", "wheel_noise_k_right"} <= set(entry)
-    assert entry["wheel_noise_k_left"] >= 0 and entry["wheel_noise_k_right"] >= 0
+    assert "wheel_radius_stddev_ratio" not in entry  # no sigma from 2 runs
     path = tmp_path / "calibrated.yaml"
     path.write_text(block, encoding="utf-8")
     values = params.load_params_file(path, "odometry_node")
@@ -242,6 +284,36 @@ def test_cli_prints_a_params_block_the_node_accepts(
     assert np.allclose(got, fit.values, rtol=1e-6), (got, fit.values)
     for line in ("left wheel radius", "1-sigma", "final position error", CW_RUN):
         assert line in out
+
+
+def test_cli_with_one_run_says_the_check_cannot_be_made(
+    capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert cli(["calibrate", str(OPTIODOM / CCW_RUN), *NOMINAL_ARGS]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("held-out check: cannot be made with 1 run"), out
+    assert "/**:" in out
+
+
+def test_bootstrap_ratios_go_into_a_block_the_node_accepts() -> None:
+    """Three simulated runs: sigma printed as the node's stddev ratios, pasteable."""
+    from diffdrive_odom.tools.calibrate import params_block
+
+    runs = [simulate(routes.umbmark(SIDE, clockwise=True), 0.002, seed=8),
+            simulate(routes.umbmark(SIDE, clockwise=False), 0.002, seed=9),
+            simulate(routes.figure_eight(1.0), 0.002, seed=10)]
+    fit = calibration.fit(runs, NOMINAL)
+    cov = crossval.bootstrap(runs, NOMINAL)
+    assert cov is not None
+    ratios = crossval.stddev_ratios(fit.values, cov)
+    rel = np.sqrt(np.diag(cov)) / fit.values
+    assert ratios == (max(rel[0], rel[1]), rel[2])
+    entry = yaml.safe_load(params_block(fit.geometry, ratios, "test"))["/**"]["ros__parameters"]
+    settings = odometry_settings.odometry_settings(entry)
+    assert settings.noise is not None
+    assert settings.noise.radius_stddev_ratio == pytest.approx(ratios[0], rel=1e-6)
+    assert settings.noise.separation_stddev_ratio == pytest.approx(ratios[1], rel=1e-6)
+    assert 0.0 < ratios[0] < 0.01 and 0.0 < ratios[1] < 0.02
 
 
 def test_cli_umbmark_from_topic_and_from_typed_end_points(
@@ -261,7 +333,7 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
     assert yaml.safe_load(_block(out)) == from_topic
     assert "E_d" in out and "E_b" in out
     values = from_topic["/**"]["ros__parameters"]
-    assert "wheel_noise_k_left" not in values  # UMBmark has no residuals to estimate k from
+    assert "wheel_radius_stddev_ratio" not in values  # UMBmark states no uncertainty
     odometry_settings.odometry_settings(values)
 
 
@@ -272,7 +344,8 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
     ([str(OPTIODOM / CW_RUN), "-p", "wheel_radius:=-1", "-p", "wheel_separation:=0.2"],
      "wheel_radius"),
     (["/no/such/bag", *NOMINAL_ARGS], "/no/such/bag"),
-    ([str(OPTIODOM / CW_RUN), "--window", "0", *NOMINAL_ARGS], "--window"),
+    ([str(OPTIODOM / CW_RUN), "--window", "0.25", *NOMINAL_ARGS], "--window"),
+    ([str(OPTIODOM / CW_RUN), "--no-mount", *NOMINAL_ARGS], "--no-mount"),
     (["--umbmark", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN), *NOMINAL_ARGS], "--side"),
     (["--umbmark", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN), "--side", "1.7",
       "--cw-end", "1,2", "--ccw-end", "x", *NOMINAL_ARGS], "--ccw-end"),

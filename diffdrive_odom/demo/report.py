@@ -221,7 +221,7 @@ def calibrate_rows(rec: Recording, odo: OdometrySettings, true: Geometry,
     readings = sorted(rec.joint_states, key=lambda r: r.stamp_ns)
     whole = _run("demo", readings, odo, rec.truth)
     try:
-        fitted = calibration.fit([whole], nominal, fit_mount=False).geometry
+        fitted = calibration.fit([whole], nominal, figures=False).geometry
         found = {FIT: fitted}
         cw = [s for s in rec.squares if s.clockwise]
         ccw = [s for s in rec.squares if not s.clockwise]

@@ -1,6 +1,10 @@
-"""``diffdrive-odom calibrate``: wheel radii, separation and wheel noise from recorded runs.
+"""``diffdrive-odom calibrate``: wheel radii, separation and their uncertainty from runs.
 
-The CLI only reads bags and prints; the fit is :mod:`diffdrive_odom.core.calibration`.
+The CLI only reads bags and prints; the fit is :mod:`diffdrive_odom.core.calibration`,
+the held-out check and the bootstrap :mod:`diffdrive_odom.core.crossval`. It judges its
+own result first: each run integrated with a geometry fitted on the others, against
+the nominal geometry; when the nominal one does better it says so on the first line,
+exits 1 and prints no block (``--force`` prints it anyway).
 Readings are decoded with the odometry node's own parameters and pipeline
 (:func:`diffdrive_odom.core.batch.wheel_steps`), ground truth with ``eval``'s readers, so
 a bag that replays or evaluates also calibrates. The result is printed as a
@@ -16,11 +20,18 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from diffdrive_odom.core import batch, calibration
+import numpy as np
+import numpy.typing as npt
+
+from diffdrive_odom.core import batch, calibration, crossval
 from diffdrive_odom.core.calibration import Fit
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.recorded_run import CalibrationError, Run, trajectory, values_of
 from diffdrive_odom.core.umbmark import Umbmark, reference_end, umbmark
+from diffdrive_odom.core.uncertainty import (
+    DEFAULT_RADIUS_STDDEV_RATIO,
+    DEFAULT_SEPARATION_STDDEV_RATIO,
+)
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.settings.params import yaml_text
 from diffdrive_odom.tools import bagio, evaluate
@@ -39,9 +50,9 @@ PREFIX = "[calibrate]"
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="diffdrive-odom calibrate",
-        description="Fit wheel radii and separation (and the wheel noise k) to ground truth "
-        "recorded with the wheel readings, or run Borenstein and Feng's UMBmark "
-        "(--umbmark CW_BAG CCW_BAG --side L); prints a params block to paste.",
+        description="Fit wheel radii and separation to ground truth recorded with the wheel "
+        "readings, check the fit on held-out runs, bootstrap its uncertainty; or run "
+        "Borenstein and Feng's UMBmark (--umbmark CW_BAG CCW_BAG --side L); prints a params block to paste.",
         formatter_class=HelpFormatter,
     )
     ap.add_argument("bags", nargs="*", metavar="BAG",
@@ -63,11 +74,11 @@ def _parser() -> argparse.ArgumentParser:
                         "none, but this or -p must give wheel_radius and wheel_separation)")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bags")
     add_reference_arguments(ap)
-    ap.add_argument("--window", type=float, default=calibration.DEFAULT_WINDOW, metavar="M",
-                    help="wheel travel per residual window [m]")
-    ap.add_argument("--no-mount", action="store_true",
-                    help="do not fit the reference frame's offset, yaw and clock lag "
-                    "(default: fitted along; use when the reference is the axle centre)")
+    ap.add_argument("--force", action="store_true",
+                    help="print the params block even when the calibrated geometry does not "
+                    "beat the nominal one on held-out runs (default: refused, exit 1)")
+    ap.add_argument("--window", default=None, help=argparse.SUPPRESS)  # refused: see below
+    ap.add_argument("--no-mount", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--yaml", metavar="FILE",
                     help="also write the params block to FILE (default: printed only)")
     ap.add_argument("--plot", metavar="FILE",
@@ -100,8 +111,10 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
             return "give one or more BAGs, or --umbmark CW_BAG CCW_BAG --side L"
         if args.side is not None or args.cw_end or args.ccw_end:
             return "--side/--cw-end/--ccw-end need --umbmark"
-        if not (math.isfinite(args.window) and args.window > 0):
-            return f"--window must be > 0 m, got {args.window}"
+        if args.window is not None or args.no_mount:
+            return ("--window/--no-mount are gone: the fit uses the whole trajectory with the "
+                    "reference's start yaw as its only nuisance (offset from the axle and "
+                    "clock lag fixed at 0); see README 'Calibration'")
     else:
         if args.bags:
             return "--umbmark takes its two bags itself; no other BAG"
@@ -138,21 +151,51 @@ def main(argv: Sequence[str]) -> int:
         if args.umbmark is not None:
             return _umbmark(args, settings)
         runs = [_run(bag, settings, args, True) for bag in args.bags]
-        result = calibration.fit(runs, settings.geometry, args.window,
-                                 fit_mount=not args.no_mount)
-        text = params_block(result.geometry, result.k_left, result.k_right,
-                            f"least squares on {len(runs)} run(s), window {args.window:g} m")
-        if args.yaml:
-            Path(args.yaml).write_text(text, encoding="utf-8")
-        if args.plot:
-            plot(result, runs, args.plot)
-        print(fit_report(result))
-        print(text, end="")
+        return _least_squares(args, settings, runs)
     except (bagio.BagError, CalibrationError) as err:
         return _error(str(err))
     except OSError as err:
         return _error(f"cannot write: {err}")
     return 0
+
+
+def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
+                   runs: Sequence[Run]) -> int:
+    """Fit, check it on held-out runs, bootstrap its sigma; print (or refuse) the block."""
+    nominal = settings.geometry
+    result = calibration.fit(runs, nominal)
+    verdict = crossval.check(crossval.held_out(runs, nominal)) if len(runs) >= 2 else None
+    covariance = crossval.bootstrap(runs, nominal)
+    ratios = None if covariance is None else crossval.stddev_ratios(result.values, covariance)
+    refused = verdict is not None and not verdict.better
+    print(check_line(verdict, len(runs), refused and args.force))
+    text = params_block(result.geometry, ratios, f"least squares on {len(runs)} run(s)")
+    if args.plot:
+        plot(result, runs, args.plot)
+    print(fit_report(result, covariance))
+    if refused and not args.force:
+        print(f"{PREFIX} no params block: the nominal geometry did better on held-out runs "
+              "(--force prints it anyway)")
+        return 1
+    if args.yaml:
+        Path(args.yaml).write_text(text, encoding="utf-8")
+    print(text, end="")
+    return 0
+
+
+def check_line(c: crossval.Check | None, runs: int, forced: bool) -> str:
+    """The verdict of the held-out check, the first line calibrate prints."""
+    if c is None:
+        return (f"held-out check: cannot be made with {runs} run (give 2 or more runs: each "
+                "is then judged with a geometry fitted on the others)")
+    figures = (f"mean final position error {c.fpe_nominal:.4f} m nominal, {c.fpe_held_out:.4f} "
+               f"m calibrated; ATE {c.ate_nominal:.4f} -> {c.ate_held_out:.4f} m "
+               f"(leave-one-run-out over {c.runs} runs)")
+    if c.better:
+        return ("held-out check: calibrated geometry better than nominal on runs it did not "
+                f"see: {figures}")
+    return ("NOT BETTER THAN NOMINAL on held-out runs"
+            + (" (--force: block printed anyway)" if forced else "") + f": {figures}")
 
 
 def _umbmark(args: argparse.Namespace, settings: OdometrySettings) -> int:
@@ -167,7 +210,7 @@ def _umbmark(args: argparse.Namespace, settings: OdometrySettings) -> int:
         cw_end = reference_end(cw, cw.reference)
         ccw_end = reference_end(ccw, ccw.reference)
     result = umbmark(cw, ccw, cw_end, ccw_end, side=args.side, nominal=settings.geometry)
-    text = params_block(result.geometry, None, None, f"UMBmark, side {args.side:g} m")
+    text = params_block(result.geometry, None, f"UMBmark, side {args.side:g} m")
     if args.yaml:
         Path(args.yaml).write_text(text, encoding="utf-8")
     print(umbmark_report(result))
@@ -179,12 +222,13 @@ def _num(value: float) -> str:
     return yaml_text(float(f"{value:.7g}"))
 
 
-def params_block(geometry: Geometry, k_left: float | None, k_right: float | None,
-                 how: str) -> str:
+def params_block(geometry: Geometry, ratios: tuple[float, float] | None, how: str) -> str:
     """The ``/**: ros__parameters:`` block for the node (nominal values kept, multipliers set).
 
     The separation is given as ``wheel_separation_multiplier`` with the nominal
-    ``wheel_separation``, as the radii are: diff_drive_controller's split.
+    ``wheel_separation``, as the radii are: diff_drive_controller's split. ``ratios``:
+    the bootstrap's ``wheel_radius_stddev_ratio`` / ``wheel_separation_stddev_ratio``
+    (None: too few runs for one; the node's defaults describe an uncalibrated robot).
     """
     lines = [
         f"# diffdrive-odom calibrate: {how}",
@@ -196,31 +240,37 @@ def params_block(geometry: Geometry, k_left: float | None, k_right: float | None
         f"    wheel_separation: {_num(geometry.wheel_separation)}",
         f"    wheel_separation_multiplier: {_num(geometry.wheel_separation_multiplier)}",
     ]
-    if k_left is not None and k_right is not None:
-        lines += [f"    wheel_noise_k_left: {_num(k_left)}  # [m] wheel-travel variance per m",
-                  f"    wheel_noise_k_right: {_num(k_right)}  # [m]"]
+    if ratios is not None:
+        lines += [f"    wheel_radius_stddev_ratio: {_num(ratios[0])}  # bootstrap 1-sigma, "
+                  f"relative (default {DEFAULT_RADIUS_STDDEV_RATIO:g})",
+                  f"    wheel_separation_stddev_ratio: {_num(ratios[1])}  # (default "
+                  f"{DEFAULT_SEPARATION_STDDEV_RATIO:g})"]
     return "\n".join(lines) + "\n"
 
 
-def fit_report(fit: Fit) -> str:
-    """Human lines: values with uncertainty, nuisances, noise, and per-run errors."""
+def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None) -> str:
+    """Human lines: values with bootstrap sigma, what is fixed, per-run errors."""
     nominal = values_of(fit.nominal)
-    lines = [f"calibrated from {len(fit.runs)} run(s): {fit.windows} windows of "
-             f"{fit.window:g} m wheel travel, {fit.evaluations} evaluations, "
-             f"{fit.seconds:.2f} s",
+    lines = [f"calibrated from {len(fit.runs)} run(s): whole trajectory, {fit.samples} "
+             f"samples, {fit.loss} loss, {fit.evaluations} evaluations, {fit.seconds:.2f} s",
              f"{'':22s} {'nominal':>10s} {'fitted':>10s} {'1-sigma':>10s}"]
-    for name, n, v, s in zip(("left wheel radius [m]", "right wheel radius [m]",
-                              "wheel separation [m]"), nominal, fit.values, fit.std,
-                             strict=True):
-        lines.append(f"{name:22s} {n:10.6f} {v:10.6f} {s:10.6f}")
-    m, ms = fit.mount, fit.mount_std
-    lines.append(f"reference on the robot: x {m[0]:+.4f} +- {ms[0]:.4f} m, y {m[1]:+.4f} +- "
-                 f"{ms[1]:.4f} m, yaw {math.degrees(m[2]):+.3f} +- {math.degrees(ms[2]):.3f} "
-                 f"deg, clock lag {m[3] * 1e3:+.1f} +- {ms[3] * 1e3:.1f} ms")
-    lines.append(f"wheel noise: wheel_noise_k_left {fit.k_left:.3g} m, wheel_noise_k_right "
-                 f"{fit.k_right:.3g} m; RMS residual {fit.rms_before * 1e3:.2f} -> "
-                 f"{fit.rms_after * 1e3:.2f} mm")
-    lines.append("final position error (start aligned), nominal -> calibrated; ATE RMSE:")
+    std = None if covariance is None else np.sqrt(np.diag(covariance))
+    for i, (name, n, v) in enumerate(zip(("left wheel radius [m]", "right wheel radius [m]",
+                                          "wheel separation [m]"), nominal, fit.values,
+                                         strict=True)):
+        sigma = "-" if std is None else f"{std[i]:.6f}"
+        lines.append(f"{name:22s} {n:10.6f} {v:10.6f} {sigma:>10s}")
+    lines.append("1-sigma: bootstrap over runs, " + (
+        f"{crossval.BOOTSTRAP_RUNS} resamples" if std is not None else
+        f"not given: it needs {crossval.MIN_RUNS_FOR_SIGMA} or more runs; the node's default "
+        "stddev ratios stay"))
+    lines.append(f"fitted nuisance: the reference's yaw about the start "
+                 f"{math.degrees(fit.start_yaw):+.3f} deg")
+    for what, value, why in calibration.FIXED:
+        lines.append(f"fixed, not fitted: {what} = {value} ({why})")
+    lines.append(f"RMS residual {fit.rms_before * 1e3:.2f} -> {fit.rms_after * 1e3:.2f} mm")
+    lines.append("in-sample (the runs it was fitted to) final position error, start aligned, "
+                 "nominal -> calibrated; ATE RMSE:")
     for r in fit.runs:
         lines.append(f"  {r.name}: {r.before.final_position_error_aligned_m:.4f} -> "
                      f"{r.after.final_position_error_aligned_m:.4f} m; "
