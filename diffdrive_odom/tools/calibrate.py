@@ -52,7 +52,8 @@ def _parser() -> argparse.ArgumentParser:
         prog="diffdrive-odom calibrate",
         description="Fit wheel radii and separation to ground truth recorded with the wheel "
         "readings, check the fit on held-out runs, bootstrap its uncertainty; or run "
-        "Borenstein and Feng's UMBmark (--umbmark CW_BAG CCW_BAG --side L); prints a params block to paste.",
+        "Borenstein and Feng's UMBmark (--umbmark CW_BAG CCW_BAG --side L); prints a params "
+        "block to paste.",
         formatter_class=HelpFormatter,
     )
     ap.add_argument("bags", nargs="*", metavar="BAG",
