@@ -29,10 +29,12 @@ $(LAUNCH_STAMP): $(STAMP) $(SHARED_LAUNCH)/install.sh
 demo: venv
 	$(VENV)/bin/diffdrive-odom demo
 
-# Tiers (markers in setup.cfg): test = everything (CI); test-fast = the pure tier (no DDS,
-# no child process, nothing slow), under a minute; test-dds = what talks over DDS.
+# Tiers (markers in setup.cfg): test = everything (CI): all but the `serial` tests on two
+# xdist workers (each its own DDS domain), then those alone; test-fast = the pure tier (no
+# DDS, no child process, nothing slow), under a minute; test-dds = what talks over DDS.
 test: venv
-	$(PY) -m pytest -q
+	rc=0; $(PY) -m pytest -q -n 2 --dist loadgroup -m "not serial" || rc=$$?; \
+	$(PY) -m pytest -q -m serial || rc=$$?; exit $$rc
 
 test-fast: venv
 	$(PY) -m pytest -q -m "not dds and not process and not slow"

@@ -16,7 +16,7 @@ import pytest
 
 from rosutil import ROOT, node_process
 
-pytestmark = [pytest.mark.dds, pytest.mark.process]
+pytestmark = [pytest.mark.dds, pytest.mark.process, pytest.mark.serial]
 
 
 def run_bench(name: str, timeout: float) -> str:

@@ -23,7 +23,7 @@ import diagutil
 from diagutil import Peer, assert_finite
 from rosutil import spin_for, spin_until
 
-pytestmark = [pytest.mark.dds, pytest.mark.process]
+pytestmark = [pytest.mark.dds, pytest.mark.process, pytest.mark.serial]
 
 GEOMETRY = ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4"]
 NAME = "cmd_vel_node: cmd_vel"

@@ -16,7 +16,7 @@ import pytest
 
 from rosutil import BIN
 
-pytestmark = [pytest.mark.process, pytest.mark.launch]
+pytestmark = [pytest.mark.process, pytest.mark.launch, pytest.mark.xdist_group("colcon")]
 
 
 def _in_workspace(ws: Path, command: str) -> subprocess.CompletedProcess[str]:

@@ -59,6 +59,9 @@ MISSING_LAUNCH_ROS = (
 )
 
 
+pytestmark = [pytest.mark.xdist_group("colcon")]
+
+
 @pytest.fixture(scope="session")
 def install(colcon_ws: Path) -> Path:
     """The package's colcon install prefix (built once per session, shared with test_colcon)."""

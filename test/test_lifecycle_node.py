@@ -216,6 +216,7 @@ def test_bad_parameter_fails_configure_and_can_be_fixed() -> None:
     assert "Traceback" not in out
 
 
+@pytest.mark.serial
 def test_sigterm_in_the_active_state_exits_0_within_a_second() -> None:
     """While a burst of readings is integrated and published."""
     topic = "/lifecycle_signal/joint_states"

@@ -15,7 +15,7 @@ from sensor_msgs.msg import JointState
 from diagutil import Peer, assert_finite, diagnosed
 from rosutil import STEP_NS, T0_NS, spin_for, spin_until, stamp
 
-pytestmark = [pytest.mark.dds, pytest.mark.process]
+pytestmark = [pytest.mark.dds, pytest.mark.process, pytest.mark.serial]
 
 GEOMETRY = ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4"]
 NAMES = ["left_wheel_joint", "right_wheel_joint"]

@@ -147,6 +147,7 @@ def test_wrapping_counter_and_flipped_joint_are_undone_by_the_odometry_parameter
         assert yaw(bad.pose.pose.orientation) < -1.0 < 0.6 < yaw(gt.pose.pose.orientation)
 
 
+@pytest.mark.serial
 def test_clock_stamps_formats_and_timeout() -> None:
     rtf = 3.0
     args = ["--ros-args", "-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}",
@@ -236,7 +237,7 @@ def test_runtime_parameters_refused_with_reason_or_applied() -> None:
         double = ParameterType.PARAMETER_DOUBLE
         bad = _set_param(node, ex, "slip_stddev", ParameterValue(type=double, double_value=-1.0))
         assert not bad.successful and "slip_stddev" in bad.reason
-        fixed = _set_param(node, ex, "publish_rate",
+        fixed = _set_param(node, ex, "joint_state_rate",
                            ParameterValue(type=double, double_value=10.0))
         assert not fixed.successful  # read-only: the rate is the simulation's step
         ok = _set_param(node, ex, "true_right_wheel_radius",
@@ -246,7 +247,7 @@ def test_runtime_parameters_refused_with_reason_or_applied() -> None:
 
 
 BAD_PARAMETERS = {
-    "publish_rate": "publish_rate:=0.0",
+    "joint_state_rate": "joint_state_rate:=0.0",
     "joint_state_units": "joint_state_units:=furlongs",
     "true_right_wheel_radius": "true_right_wheel_radius:=-0.1",
     "encoder_counter_bits": "encoder_counter_bits:=16",
@@ -260,4 +261,5 @@ def test_bad_parameters_refuse_to_start_with_one_line(name: str) -> None:
 
 
 def test_a_bad_parameter_stops_the_process_with_exit_2_and_one_line() -> None:
-    assert_refuses_to_start("sim_node", "publish_rate", ["-p", BAD_PARAMETERS["publish_rate"]])
+    assert_refuses_to_start("sim_node", "joint_state_rate",
+                            ["-p", BAD_PARAMETERS["joint_state_rate"]])
