@@ -1,0 +1,40 @@
+"""The calibration bench still runs: ``--quick`` on the 12 OptiOdom training squares.
+
+Figures are the bench's to report; checked here is that every section prints, that the
+product's fit beats the nominal geometry on held-out squares (the real-data claim the
+README makes), and that the bench skips with one line where ../shared is missing.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+
+import pytest
+
+from rosutil import ROOT
+
+pytestmark = [pytest.mark.process, pytest.mark.slow]
+
+TRAIN = ROOT.parent / "shared" / "data" / "optiodom_train"
+
+
+@pytest.mark.skipif(not (TRAIN / "to_rosbag2.py").exists(),
+                    reason="../shared/data/optiodom_train is not here (a user's clone)")
+def test_calibration_bench_quick_prints_every_section() -> None:
+    proc = subprocess.run([sys.executable, str(ROOT / "bench" / "bench_calibration.py"),
+                           "--quick"], capture_output=True, text=True, timeout=600, cwd=ROOT,
+                          env=dict(os.environ))
+    out = proc.stdout
+    assert proc.returncode == 0, out + proc.stderr
+    for head in ("== 1. Objectives", "== 2. The product's fit", "== 3. Bootstrap",
+                 "== 4. Final-pose NEES"):
+        assert head in out, out
+    row = re.search(r"^ALL training runs\s+(\S+)/\S+ \S+\s+\S+\s+\S+ \S+\s+\S+\s+(\S+)/", out,
+                    re.M)
+    assert row, out
+    nominal, loro = (float(v) for v in row.groups())
+    assert loro < nominal, out
+    assert re.search(r"^calibrated LOEO \(held out\).* runs mean", out, re.M), out
