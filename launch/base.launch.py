@@ -26,7 +26,6 @@ PACKAGE = "diffdrive_odom"
 SIM_PARAMETERS = {
     "motor_time_constant": 0.05,  # [s] first-order motor response
     "command_timeout": 0.5,  # [s] no wheel command -> the wheels stop
-    "publish_rate": 50.0,  # [Hz] joint_states and ground_truth/odom
 }
 
 

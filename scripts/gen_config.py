@@ -16,14 +16,15 @@ from __future__ import annotations
 import sys
 
 from diffdrive_odom.settings.params import ParamSpec, yaml_text
-from diffdrive_odom.settings.registry import TABLES
+from diffdrive_odom.settings.registry import config_groups
 
 # Values for the example robot instead of the defaults (the OptiOdom robot whose
 # recordings are in test/data): the geometry has no usable default.
 EXAMPLE = {"wheel_radius": 0.042, "wheel_separation": 0.200}
 
-GROUPS: tuple[tuple[str, tuple[ParamSpec, ...]], ...] = tuple(
-    (t.title, t.own) for t in TABLES if t.in_config)
+# Every node's rows, the sim's too: the one file starts every node (a name shared by
+# several nodes is written once, and means the same to each).
+GROUPS: tuple[tuple[str, tuple[ParamSpec, ...]], ...] = config_groups()
 
 
 def dump(spec: ParamSpec, indent: str) -> str:

@@ -26,6 +26,7 @@ from diffdrive_odom.settings.params import (
     parse_override,
 )
 from diffdrive_odom.settings.registry import unknown_parameters_report
+from diffdrive_odom.settings.sim import SIM_PARAMS, sim_settings
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "config" / "diffdrive_odom.yaml"
@@ -209,7 +210,11 @@ def names(specs: tuple[ParamSpec, ...]) -> list[str]:
 
 
 def all_package_params() -> tuple[ParamSpec, ...]:
-    return ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS + FOLLOWER_OWN_PARAMS
+    """Every node's rows in the shipped file's order, a name shared by nodes once."""
+    first: dict[str, ParamSpec] = {}
+    for spec in ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS + SIM_PARAMS + FOLLOWER_OWN_PARAMS:
+        first.setdefault(spec.name, spec)
+    return tuple(first.values())
 
 
 def test_config_file_gives_the_odometry_node_every_parameter() -> None:
@@ -223,6 +228,16 @@ def test_config_file_gives_the_odometry_node_every_parameter() -> None:
 def test_config_file_gives_the_cmd_vel_node_its_parameters() -> None:
     values = load_params_file(CONFIG, "cmd_vel_node")
     assert set(names(CMD_VEL_PARAMS)) <= set(values)
+
+
+def test_config_file_gives_the_sim_every_parameter_and_a_valid_rate() -> None:
+    """The shipped file starts sim_node too: its /** publish_rate is the odometry node's
+    throttle (0 = every reading), the sim's output rate is joint_state_rate (> 0)."""
+    values = load_params_file(CONFIG, "sim_node")
+    assert set(names(SIM_PARAMS)) <= set(values)
+    settings = sim_settings(values)
+    assert settings.joint_state_rate == 50.0
+    assert settings.config.geometry.wheel_radius == EXAMPLE_ROBOT["wheel_radius"]
 
 
 @pytest.mark.parametrize(("node", "namespace"), [
@@ -245,6 +260,17 @@ def test_no_two_nodes_share_a_name_with_different_meanings() -> None:
     by_name = {s.name: s for s in GEOMETRY_PARAMS + CMD_VEL_OWN_PARAMS}
     for spec in FOLLOWER_PARAMS:  # a shared row is the very same spec
         assert spec.name in own or by_name[spec.name] == spec, spec.name
+    # The sim shares the robot's drawing, its joints, the robot's frame and the format of
+    # wheel_commands (the topic between cmd_vel_node and the sim): each means the same to
+    # both. Its output rate is not the odometry node's publish_rate (0 = every reading).
+    others = {s.name: s for s in ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS + FOLLOWER_OWN_PARAMS}
+    shared = {s.name for s in SIM_PARAMS} & set(others)
+    assert shared == {"wheel_radius", "wheel_separation", "left_wheel_sign", "right_wheel_sign",
+                      "left_wheel_names", "right_wheel_names", "ticks_per_revolution",
+                      "encoder_counter_bits", "base_frame_id", "wheel_command_format"}
+    for spec in SIM_PARAMS:
+        if spec.name in shared:
+            assert spec.kind == others[spec.name].kind, spec.name
 
 
 def test_node_section_overrides_the_wildcard(tmp_path: Path) -> None:

@@ -81,7 +81,7 @@ def write_params(tmp: Path, follower: dict[str, Any], sim: dict[str, Any] | None
                  odometry: dict[str, Any] | None = None) -> Path:
     sections = {
         "/**": {"wheel_radius": R, "wheel_separation": B, "use_sim_time": True},
-        "sim_node": {"publish_clock": True, "real_time_factor": RTF, "publish_rate": 50.0,
+        "sim_node": {"publish_clock": True, "real_time_factor": RTF, "joint_state_rate": 50.0,
                      "command_timeout": 0.5 * RTF, **(sim or {})},
         "cmd_vel_node": {"wheel_command_rate": 50.0 * RTF, "cmd_vel_timeout": 0.5 * RTF},
         "odometry_node": odometry or {},

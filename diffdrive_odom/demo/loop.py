@@ -94,7 +94,7 @@ def _run_params(opts: DemoOptions, s: Settings, output: Path) -> Path:
         sim_changes["command_timeout"] = timeout * max(1.0, rtf)
     sim_changes.update(publish_clock=True, real_time_factor=float(rtf))
     # The cmd_vel heartbeat is on the wall clock: keep it at one command per sim step.
-    cmd_rate = max(50.0, s.sim.publish_rate * rtf)
+    cmd_rate = max(50.0, s.sim.joint_state_rate * rtf)
     return write_run_params(opts.params_file, {
         "sim_node": sim_changes,
         "cmd_vel_node": {"use_sim_time": True, "wheel_command_rate": float(cmd_rate)},

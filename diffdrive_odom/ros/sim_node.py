@@ -10,7 +10,7 @@ with ``use_sim_time``). With ``publish_clock`` it owns the time instead: it adva
 in fixed steps of simulated time, ``real_time_factor`` times faster than the wall,
 and publishes ``/clock`` so the other nodes (``use_sim_time:=true``) and the stamps
 agree. A slow machine then slows the simulated world down instead of making it
-jerky: every step is exactly ``1 / publish_rate`` simulated seconds.
+jerky: every step is exactly ``1 / joint_state_rate`` simulated seconds.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ class SimNode(Node):
         self._sim = DiffDriveSim(s.config)
         self._lookup = JointLookup(EncoderConfig(s.left_wheel_names, s.right_wheel_names))
         self._guard = ParameterGuard(self, values, self._build, self._apply)
-        self._step_ns = round(1e9 / s.publish_rate)
+        self._step_ns = round(1e9 / s.joint_state_rate)
         self._start_ns = time.time_ns()  # the simulated clock starts at the wall time
         self._last_clock_ns: int | None = None
 
@@ -78,15 +78,15 @@ class SimNode(Node):
         if s.publish_clock:
             # Wall-clock (steady) timer: the node drives /clock, it must not wait on it.
             steady = Clock(clock_type=ClockType.STEADY_TIME)
-            period = 1.0 / (s.publish_rate * s.real_time_factor)
+            period = 1.0 / (s.joint_state_rate * s.real_time_factor)
             self.create_timer(period, self._on_sim_tick, clock=steady)
         else:
-            self.create_timer(1.0 / s.publish_rate, self._on_clock_tick)
+            self.create_timer(1.0 / s.joint_state_rate, self._on_clock_tick)
         g = s.config.geometry
         self._log.info(
             f"simulated base: true r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
             f"b={g.separation:.6g} m, signs {g.left_wheel_sign:+d}/{g.right_wheel_sign:+d}, "
-            f"joint_states in {s.joint_state_units} at {s.publish_rate:g} Hz"
+            f"joint_states in {s.joint_state_units} at {s.joint_state_rate:g} Hz"
             + (f", /clock at {s.real_time_factor:g}x real time" if s.publish_clock else "")
         )
         self._publish(self._start_ns)

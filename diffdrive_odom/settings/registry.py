@@ -2,7 +2,9 @@
 
 The unknown-name check, the README's tables (``scripts/param_tables.py``) and the shipped
 YAML (``scripts/gen_config.py``) all read :data:`TABLES`, so a new node or parameter is
-added in one place.
+added in one place. The shipped YAML holds every parameter of every node (the sim's too)
+under one ``/**`` section, so a name several nodes declare is written once and must mean
+the same to each of them (``test_params`` checks which names are shared).
 """
 
 from __future__ import annotations
@@ -28,7 +30,6 @@ class Table:
     title: str  # the group's heading in the shipped YAML
     own: tuple[ParamSpec, ...]  # rows listed in this table (shared rows are listed once)
     declared: tuple[ParamSpec, ...]  # everything the node(s) declare
-    in_config: bool = True  # part of the shipped config/diffdrive_odom.yaml
 
 
 TABLES: tuple[Table, ...] = (
@@ -37,8 +38,8 @@ TABLES: tuple[Table, ...] = (
     Table("odometry", "odometry_node", ODOMETRY_OWN_PARAMS, ODOMETRY_PARAMS),
     Table("cmd_vel", "cmd_vel_node", CMD_VEL_OWN_PARAMS, CMD_VEL_PARAMS),
     # The sim's rows that equal a geometry row are listed there, once.
-    Table("sim", "sim_node", tuple(s for s in SIM_PARAMS if s not in GEOMETRY_PARAMS),
-          SIM_PARAMS, in_config=False),
+    Table("sim", "sim_node (its nominal geometry, joints and base_frame_id: the rows above)",
+          tuple(s for s in SIM_PARAMS if s not in GEOMETRY_PARAMS), SIM_PARAMS),
     Table("follower",
           "path_follower_node (geometry and enable_stamped_cmd_vel: shared rows above)",
           FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS),
@@ -48,6 +49,22 @@ TABLES: tuple[Table, ...] = (
 def table(name: str) -> Table:
     """The table with README marker ``name``."""
     return next(t for t in TABLES if t.name == name)
+
+
+def config_groups() -> tuple[tuple[str, tuple[ParamSpec, ...]], ...]:
+    """(title, rows) of the shipped YAML: every table's rows, each name once (first table wins).
+
+    One ``/**`` section cannot hold a name twice; the sim's rows that share a name with a
+    geometry row (its nominal radius, its joints) differ from it only in default and
+    wording, so the geometry row is written and the sim reads the same value.
+    """
+    written: set[str] = set()
+    groups = []
+    for t in TABLES:
+        rows = tuple(s for s in t.own if s.name not in written)
+        written.update(s.name for s in rows)
+        groups.append((t.title, rows))
+    return tuple(groups)
 
 
 # ------------------------------------------------------------ unknown names

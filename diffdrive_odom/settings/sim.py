@@ -70,8 +70,9 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
               "Input on wheel_commands: float64_array (rad/s), joint_state (velocity by "
               "name, rad/s) or ticks_per_second (Float64MultiArray, counts/s).",
               read_only=True),
-    ParamSpec("publish_rate", "double", 50.0,
-              "joint_states and ground truth rate [Hz of simulated time].", read_only=True),
+    ParamSpec("joint_state_rate", "double", 50.0,
+              "joint_states and ground truth rate [Hz of simulated time], > 0; not "
+              "publish_rate, which is the odometry node's.", read_only=True),
     ParamSpec("physics_substeps", "integer", 10,
               "Motion steps per published step (exactness with a motor lag)."),
     ParamSpec("publish_clock", "bool", False,
@@ -94,7 +95,7 @@ class SimSettings:
     right_wheel_names: tuple[str, ...]
     joint_state_units: str  # RADIANS or TICKS (AUTO resolved)
     wheel_command_format: str
-    publish_rate: float
+    joint_state_rate: float
     publish_clock: bool
     real_time_factor: float
     world_frame_id: str
@@ -150,9 +151,9 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
     if fmt == TICKS_PER_SECOND and tpr <= 0.0:
         raise ParameterError("ticks_per_revolution",
                              f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")
-    rate = v["publish_rate"]
+    rate = v["joint_state_rate"]
     if not (math.isfinite(rate) and 0.0 < rate <= 2000.0):
-        raise ParameterError("publish_rate", f"must be > 0 and <= 2000 [Hz], got {rate!r}")
+        raise ParameterError("joint_state_rate", f"must be > 0 and <= 2000 [Hz], got {rate!r}")
     rtf = v["real_time_factor"]
     if not (math.isfinite(rtf) and 0.0 < rtf <= 100.0):
         raise ParameterError("real_time_factor", f"must be > 0 and <= 100, got {rtf!r}")
@@ -178,7 +179,7 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
         right_wheel_names=encoders.right_wheel_names,
         joint_state_units=units,
         wheel_command_format=fmt,
-        publish_rate=rate,
+        joint_state_rate=rate,
         publish_clock=v["publish_clock"],
         real_time_factor=rtf,
         world_frame_id=v["world_frame_id"],
