@@ -369,3 +369,37 @@ def test_runtime_changes_of_the_model_carry_the_covariance_on() -> None:
     pipe.reconfigure(odometry_settings(BASE))
     pipe.feed(1 + 3 * STEP_NS, JOINTS, [3.0, 3.0])
     assert pipe.covariances()[0][0] == pytest.approx(DEFAULT_K * R / 2, rel=1e-12)
+
+
+# --- real runs ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("run", ["square_231220200029_run-01", "square_231220200029_run-04"])
+def test_final_pose_nees_of_the_optiodom_squares_with_the_defaults(run: str) -> None:
+    """The node's defaults (nominal geometry) on two real squares: the final pose's NEES
+    against motion capture, whose own error (1 mm, 0.5 deg; README "Uncertainty") is
+    added, lies below chi-square(3)'s 99 % quantile and is not vanishingly small (a
+    covariance inflated until nothing can fail is no better than an overconfident one).
+    """
+    from diffdrive_odom.core.metrics import interpolate
+    from diffdrive_odom.core.se2 import between
+    from diffdrive_odom.tools import bagio, evaluate
+
+    from rosutil import DATA
+
+    bag = DATA / "optiodom" / run
+    pipe = ReadingPipeline(odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2}))
+    readings = list(bagio.read_joint_states(bag))
+    for r in readings:
+        pipe.feed(r.stamp_ns, r.names, r.position, r.velocity)
+    est = pipe.estimator
+    assert est.stamp_ns is not None
+    ends = interpolate(evaluate.read_trajectory(bag, "/ground_truth/pose"),
+                       np.array([readings[0].stamp_ns, est.stamp_ns]))
+    truth = between(ends[:1], ends[1:])[0]
+    e = np.array([est.pose.x - truth[0], est.pose.y - truth[1],
+                  math.remainder(est.pose.theta - truth[2], 2 * math.pi)])
+    cov = np.array(pipe.covariances()[0]).reshape(6, 6)[np.ix_([0, 1, 5], [0, 1, 5])]
+    cov += np.diag([1e-3**2, 1e-3**2, math.radians(0.5) ** 2])
+    nees = float(e @ np.linalg.solve(cov, e))
+    assert 0.1 < nees < 11.34, nees  # chi2(3): its 0.8 % and 99 % quantiles
