@@ -68,7 +68,9 @@ def test_counters_count_each_rule_once(tmp_path: Path) -> None:
         (T0 + 7 * STEP, NAMES, [50.4, 50.4]),  # back on time: the held one was an outlier
         (T0 + 7 * STEP + 3 * 10**9, NAMES, [0.0, 0.0]),  # 3 s ahead: held
         (T0 + 8 * STEP + 3 * 10**9, NAMES, [0.1, 0.1]),  # continued: gap, published
-        (T0 + 10**9, NAMES, [0.0, 0.0]),  # 5 s back: time reset, published
+        # Back to before the gap (a return to the old timeline would be after its last
+        # reading): time reset, published.
+        (T0 + STEP // 2, NAMES, [0.0, 0.0]),
     ]
     outcomes = [pipe.feed(*f) for f in feeds]
     assert [o.publish for o in outcomes] == [True, False, False, False, False, False, False,
@@ -79,7 +81,7 @@ def test_counters_count_each_rule_once(tmp_path: Path) -> None:
                          "stale_stamp": 1, "zero_stamp": 1, "future_stamp": 1}
     assert s.dropped_total == 6
     assert (s.reanchors, s.gap_reanchors, s.time_resets) == (1, 1, 1)
-    assert s.last_usable_stamp_ns == T0 + 10**9
+    assert s.last_usable_stamp_ns == T0 + STEP // 2
     assert not s.velocity_fallback
     assert outcomes[9].verdict.status is Status.HELD
     assert outcomes[10].verdict.code is Reason.FUTURE_STAMP

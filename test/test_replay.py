@@ -349,7 +349,11 @@ def test_progress_line_on_request(tmp_path: Path, capfd: pytest.CaptureFixture[s
 
 
 def _write_joint_bag(path: Path, readings: list[tuple[int, list[str], list[float]]]) -> None:
-    """A JointState MCAP written with rosbags directly (not the package's writer)."""
+    """A JointState MCAP written with rosbags directly (not the package's writer).
+
+    Logged at the stamp, as a recorder on a synced clock logs on receipt: replay takes
+    the log time as the receive time, which tells a driver's pause from its clock jumping.
+    """
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -358,7 +362,7 @@ def _write_joint_bag(path: Path, readings: list[tuple[int, list[str], list[float
     msgtype = "sensor_msgs/msg/JointState"
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
         conn = w.add_connection("/joint_states", msgtype, typestore=store)
-        for k, (ns, names, position) in enumerate(readings):
+        for ns, names, position in readings:
             sec, nsec = divmod(ns, 10**9)
             msg = types[msgtype](
                 header=types["std_msgs/msg/Header"](
@@ -366,7 +370,7 @@ def _write_joint_bag(path: Path, readings: list[tuple[int, list[str], list[float
                     frame_id=""),
                 name=names, position=np.array(position, dtype=np.float64),
                 velocity=np.zeros(0), effort=np.zeros(0))
-            w.write(conn, 10**9 + k * 10**6, store.serialize_cdr(msg, msgtype))
+            w.write(conn, ns, store.serialize_cdr(msg, msgtype))
 
 
 def test_a_driver_restart_after_a_pause_keeps_the_pose_in_replay(tmp_path: Path) -> None:

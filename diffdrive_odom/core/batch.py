@@ -4,8 +4,9 @@ Pure Python + numpy (no rclpy, no message or bag import), so replay, the benchma
 and calibration share it whatever the readings come from (a bag, the simulator, a
 list in a test). The estimator itself (:class:`~diffdrive_odom.core.pipeline.ReadingPipeline`)
 decides which readings become steps, so the batch path and the node agree on what is
-dropped; the steps are geometry-free joint angle increments, so any geometry can be
-integrated from them with numpy (``kinematics.body_increment`` on arrays,
+dropped (the steps of a burst of outlier stamps it discards are taken back); the
+steps are geometry-free joint angle increments, so any geometry can be integrated
+from them with numpy (``kinematics.body_increment`` on arrays,
 ``integration.integrate_batch``): the cheap half that calibration repeats in its
 fitting loop. The step's math stays in those two functions.
 """
@@ -20,7 +21,7 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core.estimator import Status
+from diffdrive_odom.core.estimator import Reason, Status
 from diffdrive_odom.core.integration import Pose2D, integrate_batch
 from diffdrive_odom.core.kinematics import Geometry, body_increment
 from diffdrive_odom.core.pipeline import OdometrySettings, ReadingPipeline
@@ -76,8 +77,17 @@ def wheel_steps(readings: Iterable[Reading], settings: OdometrySettings) -> Whee
     est = pipe.estimator
     stamps, dts, lefts, rights, segs = array("q"), array("d"), array("d"), array("d"), array("q")
     segments = 0
+    trial_start = 0  # steps before the timeline on trial (estimator.on_trial) began
     for r in readings:
-        status = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity).verdict.status
+        on_trial = est.on_trial
+        verdict = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity).verdict
+        status = verdict.status
+        if on_trial != est.on_trial:
+            if not on_trial:  # this reading's step starts the trial
+                trial_start = len(dts)
+            elif verdict.code is Reason.FUTURE_STAMP:  # discarded: so are its steps
+                for column in (stamps, dts, lefts, rights, segs):
+                    del column[trial_start:]
         if status is Status.UPDATED:
             inc = est.last_increment
             assert inc is not None  # set by every UPDATED step

@@ -31,7 +31,7 @@ class Reason(enum.StrEnum):
     FIRST = "first"  # first reading (or the first after a restart): the reference
     ZERO_STAMP = "zero_stamp"  # header stamp zero or negative: driver does not stamp
     MISSING_JOINT = "missing_joint"  # a configured wheel joint is not in the message
-    BAD_ARRAY = "bad_array"  # position/velocity shorter than name
+    BAD_ARRAY = "bad_array"  # position/velocity not one value per name (nor empty)
     NON_FINITE = "non_finite"  # a wheel value is NaN or infinite
     NO_DATA = "no_data"  # neither position nor velocity filled
     STALE_STAMP = "stale_stamp"  # same or slightly older stamp than the reference
@@ -40,7 +40,8 @@ class Reason(enum.StrEnum):
     TIME_RESET = "time_reset"  # stamp far back: restarted at the origin
     OUT_OF_RANGE = "out_of_range"  # a count outside the configured counter's range
     HELD = "held"  # stamp over max_reading_gap ahead: held until the next reading decides
-    FUTURE_STAMP = "future_stamp"  # a lone reading stamped far ahead: dropped as an outlier
+    FUTURE_STAMP = "future_stamp"  # reading(s) stamped far ahead: dropped as outliers
+    CLOCK_JUMP = "clock_jump"  # stamps jumped ahead of the time elapsed: not published yet
     INPUT_SWITCH = "input_switch"  # switched between position and velocity input
 
 
@@ -164,6 +165,9 @@ class WheelReading:
     stamp_ns: int
     values: tuple[float, ...]
     from_velocity: bool
+    # When it arrived, on the receiver's clock (None: not known); tells a pause from a
+    # clock that jumped.
+    receive_ns: int | None = None
 
 
 @dataclass(frozen=True)
@@ -227,21 +231,24 @@ def decode(
     position: Sequence[float],
     velocity: Sequence[float],
     counter_bits: int = 0,
+    receive_ns: int | None = None,
 ) -> WheelReading | Rejection:
     """Pick the wheels' values out of a JointState's arrays; a reason if unusable.
 
     Positions are preferred. Velocities are used when ``position`` is empty or holds
     NaN for every wheel (ros2_control's joint_state_broadcaster reports a missing
     position interface as NaN). With a wrapping counter (``counter_bits`` > 0) a
-    position outside the counter's range is refused.
+    position outside the counter's range is refused. An array that is neither empty
+    nor one value per name is refused whole: a longer one is as malformed as a shorter
+    one (which value belongs to which joint is unknown), so neither is integrated.
     """
     idx = lookup.indices(names)
     if idx is None:
         return lookup.missing(names)
     n = len(names)
-    if 0 < len(position) < n:
+    if len(position) not in (0, n):
         return Rejection(Reason.BAD_ARRAY, f"position has {len(position)} entries for {n} names")
-    if 0 < len(velocity) < n:
+    if len(velocity) not in (0, n):
         return Rejection(Reason.BAD_ARRAY, f"velocity has {len(velocity)} entries for {n} names")
     if len(position) > 0:
         values = tuple([float(position[i]) for i in idx])
@@ -255,7 +262,7 @@ def decode(
                         f"a wheel count is outside the range of a {counter_bits}-bit counter "
                         "(encoder_counter_bits)",
                     )
-            return WheelReading(stamp_ns, values, False)
+            return WheelReading(stamp_ns, values, False, receive_ns)
         if not (len(velocity) > 0 and all(map(math.isnan, values))):
             return Rejection(Reason.NON_FINITE, "a wheel position is NaN or infinite")
     if len(velocity) == 0:
@@ -263,7 +270,7 @@ def decode(
     values = tuple([float(velocity[i]) for i in idx])
     if not all(map(math.isfinite, values)):
         return Rejection(Reason.NON_FINITE, "a wheel velocity is NaN or infinite")
-    return WheelReading(stamp_ns, values, True)
+    return WheelReading(stamp_ns, values, True, receive_ns)
 
 
 def increment(

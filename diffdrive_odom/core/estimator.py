@@ -3,7 +3,8 @@
 Pure Python, shared by the odometry node, offline replay and the benchmarks. A
 reading flows one way: decode (encoders) -> increment -> kinematics -> CIR step
 (integration). Every reading gets a verdict (:class:`Status`) so the caller can log
-or count without the estimator knowing about ROS logging.
+or count without the estimator knowing about ROS logging (the verdicts and their
+texts: :mod:`diffdrive_odom.core.timeline`).
 
 Rules that make it safe to feed anything (no exception escapes, no state is ever
 non-finite):
@@ -26,17 +27,27 @@ non-finite):
   counters the difference of two readings says nothing about the motion); if the next
   is back near the old timeline, it was a lone outlier and is dropped
   (``future_stamp``), so a bogus stamp neither licenses travel nor fakes a bag loop;
+- a timeline taken after a gap is on trial until it has lasted
+  :data:`~diffdrive_odom.core.timeline.ADOPT_CLOCK_AFTER_S` of its own stamps: a
+  reading back on the old timeline (after its last reading, by no more than the new
+  one has run) shows the new one was a burst of outlier stamps, which is discarded
+  (``future_stamp``, every reading of it counted) and the pose integrated from the
+  old timeline's last reading (positions are cumulative: no motion is lost). When
+  receive times are known, a jump into the future that the receiver's clock did not
+  see elapse (not a pause: the driver's clock jumped) is not published while on
+  trial, so no far-future pose leaks out; one that lasts is the driver's new clock,
+  taken (``gap``) once it has lasted that long;
 - a stamp far in the past (a bag played in a loop) starts over at the origin.
 """
 
 from __future__ import annotations
 
-import enum
 import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
+from diffdrive_odom.core import timeline
 from diffdrive_odom.core.encoders import (
     EncoderConfig,
     JointLookup,
@@ -51,64 +62,19 @@ from diffdrive_odom.core.encoders import (
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.integration import Pose2D, compose
 from diffdrive_odom.core.kinematics import Geometry, body_from_arcs, wheel_arcs
+from diffdrive_odom.core.timeline import ON_TRIAL, UPDATED, Trial
+from diffdrive_odom.core.timeline import (  # re-exported: update() returns them
+    Status as Status,
+)
+from diffdrive_odom.core.timeline import (
+    Verdict as Verdict,
+)
 from diffdrive_odom.core.uncertainty import NoiseModel, PoseUncertainty
 
 # m a wheel can roll between two readings, whatever the settings: more is no robot's
 # motion (1 km is 36 km/h for 100 s), and it keeps the pose where a double still
 # resolves the next millimetre even with ``max_wheel_speed: .inf``.
 MAX_STEP_ARC = 1000.0
-
-
-class Status(enum.Enum):
-    """What the estimator did with one reading."""
-
-    REFERENCE = "reference"  # first reading / re-anchored: no motion integrated
-    UPDATED = "updated"
-    DROPPED = "dropped"  # unusable: state untouched
-    REANCHORED = "reanchored"  # implausible step skipped; this reading is the new reference
-    TIME_RESET = "time_reset"  # stamp jumped back: estimator restarted from this reading
-    HELD = "held"  # stamp far ahead: kept aside until the next reading decides, not published
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """The outcome of :meth:`OdometryEstimator.update`.
-
-    ``code`` is the stable key to count by; ``reason`` the human text for logs.
-    """
-
-    status: Status
-    code: Reason = Reason.UPDATED
-    reason: str = ""
-
-    @property
-    def has_new_pose(self) -> bool:
-        """True when the pose may have changed and is worth publishing."""
-        return self.status in (Status.UPDATED, Status.REFERENCE, Status.TIME_RESET)
-
-    @property
-    def dropped_code(self) -> Reason | None:
-        """The code of a reading this verdict drops, if any; counters key on it.
-
-        That is this reading, or (for ``future_stamp``) an earlier one found to be an
-        outlier.
-        """
-        if self.status is Status.DROPPED or self.code is Reason.FUTURE_STAMP:
-            return self.code
-        return None
-
-    @property
-    def warning(self) -> str:
-        """What a log says about this verdict ('' when nothing is worth a warning)."""
-        if self.dropped_code is not None:
-            return "dropped"
-        if self.status is Status.REANCHORED or self.code is Reason.GAP:
-            return "re-anchored"
-        return ""
-
-
-# The verdict of every plain step (frozen, so one instance serves them all).
-UPDATED = Verdict(Status.UPDATED)
 
 
 class EstimatorConfigError(ConfigError):
@@ -200,6 +166,8 @@ class OdometryEstimator:
         self._held: WheelReading | None = None
         # First and last stale (older) readings since the last step, same input mode.
         self._stale: tuple[WheelReading, WheelReading] | None = None
+        # The timeline taken after the last gap, while on trial.
+        self._trial: Trial | None = None
         self._linear_mean = _RollingMean(self.config.velocity_rolling_window_size)
         self._angular_mean = _RollingMean(self.config.velocity_rolling_window_size)
         # Pose / twist covariance propagated through each step; None = not modelled
@@ -211,6 +179,11 @@ class OdometryEstimator:
     def stamp_ns(self) -> int | None:
         """Stamp of the reading the current pose refers to (None before the first)."""
         return None if self._reference is None else self._reference.stamp_ns
+
+    @property
+    def on_trial(self) -> bool:
+        """True while the timeline taken after the last gap may still be discarded."""
+        return self._trial is not None
 
     @property
     def from_velocity(self) -> bool:
@@ -240,6 +213,7 @@ class OdometryEstimator:
         """Pose and twist to zero; the last reading stays the reference, so no jump follows."""
         self.pose = Pose2D()
         self.last_step = None
+        self._trial = None  # its saved pose is from before the reset
         self._forget_twist()
         if self.uncertainty is not None:
             self.uncertainty.reset()
@@ -257,6 +231,7 @@ class OdometryEstimator:
         self._reference = None
         self._held = None
         self._stale = None
+        self._trial = None
 
     def update(
         self,
@@ -264,10 +239,15 @@ class OdometryEstimator:
         names: Sequence[str],
         position: Sequence[float],
         velocity: Sequence[float] = (),
+        receive_ns: int | None = None,
     ) -> Verdict:
-        """Feed one JointState's content; returns what was done with it."""
+        """Feed one JointState's content; returns what was done with it.
+
+        ``receive_ns``: when it arrived on the receiver's clock (the node's, a bag's log
+        time), if known: it tells a real pause from a driver's clock that jumped.
+        """
         reading = decode(self._lookup, stamp_ns, names, position, velocity,
-                         self.encoders.counter_bits)
+                         self.encoders.counter_bits, receive_ns)
         if not isinstance(reading, WheelReading):
             return Verdict(Status.DROPPED, reading.code, str(reading))
         ref = self._reference
@@ -275,21 +255,19 @@ class OdometryEstimator:
             self._reference = reading
             return Verdict(Status.REFERENCE, Reason.FIRST, "first reading taken as reference")
         age_ns = ref.stamp_ns - reading.stamp_ns
+        gap = self.config.max_reading_gap
+        trial = self._trial
         if age_ns >= 0:
+            if trial is not None and trial.returned_to(reading, ref.stamp_ns, gap * 1e9):
+                return self._discard_trial(trial, reading)
             if age_ns > self.config.time_jump_threshold * 1e9:
                 self.restart()
                 self._reference = reading
-                return Verdict(
-                    Status.TIME_RESET, Reason.TIME_RESET,
-                    f"stamp jumped back {age_ns * 1e-9:.3f} s: odometry restarted at the origin",
-                )
+                return timeline.time_reset(age_ns)
             if age_ns > 0 and reading.from_velocity == ref.from_velocity:
                 # Kept for the next step's interval and twist (a clock stepped back).
                 self._stale = (self._stale[0] if self._stale else reading, reading)
-            what = "repeats" if age_ns == 0 else "is older than"
-            return Verdict(Status.DROPPED, Reason.STALE_STAMP,
-                           f"stamp {what} the previous reading's")
-        gap = self.config.max_reading_gap
+            return timeline.stale(age_ns)
         held = self._held
         if -age_ns * 1e-9 > gap:
             if held is not None and 0 < reading.stamp_ns - held.stamp_ns <= gap * 1e9:
@@ -297,30 +275,38 @@ class OdometryEstimator:
             # Far ahead: a pause (the next reading will continue from it) or a lone
             # outlier (the next is back near the old timeline); wait and see.
             self._held = reading
-            if held is not None:
-                return Verdict(
-                    Status.HELD, Reason.FUTURE_STAMP,
-                    f"the reading stamped {(held.stamp_ns - ref.stamp_ns) * 1e-9:.3f} s after "
-                    "the last usable one was not continued: dropped as an outlier; this one "
-                    "is held in its place",
-                )
-            return Verdict(
-                Status.HELD, Reason.HELD,
-                f"stamp {-age_ns * 1e-9:.3f} s after the last usable reading: held until the "
-                "next reading shows a pause or an outlier",
-            )
+            return timeline.held(-age_ns, None if held is None else held.stamp_ns - ref.stamp_ns)
         verdict = self._step(ref, reading)
-        if held is None:
+        if held is not None:
+            self._held = None
+            if verdict.status is Status.UPDATED:
+                verdict = timeline.lone_outlier(held.stamp_ns - ref.stamp_ns)
+        return verdict if trial is None else self._on_trial(trial, reading, verdict)
+
+    def _on_trial(self, trial: Trial, reading: WheelReading, verdict: Verdict) -> Verdict:
+        """``verdict`` for a reading on a timeline on trial: taken for good once it lasted."""
+        trial.readings += 1
+        if not trial.lasted(reading):
+            return ON_TRIAL if trial.suspect and verdict.status is Status.UPDATED else verdict
+        self._trial = None
+        if not trial.suspect or verdict.status is not Status.UPDATED:
             return verdict
-        self._held = None
-        if verdict.status is not Status.UPDATED:
-            return verdict
-        return Verdict(
-            Status.UPDATED, Reason.FUTURE_STAMP,
-            f"a lone reading stamped {(held.stamp_ns - ref.stamp_ns) * 1e-9:.3f} s after "
-            "the last usable one was dropped as an outlier (the readings after it continue "
-            "the old timeline)",
-        )
+        return timeline.clock_adopted(trial)
+
+    def _discard_trial(self, trial: Trial, reading: WheelReading) -> Verdict:
+        """The old timeline is back: the trial's readings were outliers; integrate from it.
+
+        Pose and covariance go back to what the old timeline left; the step from its
+        last reading covers every motion since (positions are cumulative).
+        """
+        self._trial = self._held = self._stale = None
+        self.pose = trial.pose
+        unc = self.uncertainty
+        if unc is not None and trial.covariance is not None:
+            unc.covariance, unc.sensitivity = trial.covariance
+        self._forget_twist()
+        verdict = self._step(trial.before, reading)
+        return timeline.burst_discarded(trial) if verdict.status is Status.UPDATED else verdict
 
     def _continue_after_gap(
         self, ref: WheelReading, held: WheelReading, reading: WheelReading
@@ -328,21 +314,20 @@ class OdometryEstimator:
         """A held reading is continued: the pause was real, so it is the new reference.
 
         Nothing is known of the motion over the pause: keep the pose, forget the twist,
-        then integrate this reading from the held one.
+        then integrate this reading from the held one. The new timeline is on
+        :class:`~diffdrive_odom.core.timeline.Trial`, not published while on it when
+        the jump is the driver's clock (:func:`~diffdrive_odom.core.timeline.suspect_jump`).
         """
-        self._held = None
+        unc = self.uncertainty
+        self._trial = trial = Trial(
+            ref, held, self.pose, None if unc is None else (unc.covariance, unc.sensitivity),
+            timeline.suspect_jump(ref, held, self.config.max_reading_gap))
+        self._held = self._stale = None
         self._forget_twist()
-        self._reference = held
-        self._stale = None
         verdict = self._step(held, reading)
         if verdict.status is not Status.UPDATED:
             return verdict
-        return Verdict(
-            Status.UPDATED, Reason.GAP,
-            f"{(held.stamp_ns - ref.stamp_ns) * 1e-9:.3f} s since the last usable reading "
-            f"(max_reading_gap {self.config.max_reading_gap:g} s): taken as the new "
-            "reference, no motion integrated over the gap (driver restart?)",
-        )
+        return timeline.gap_taken(trial, self.config.max_reading_gap)
 
     def _step(self, ref: WheelReading, reading: WheelReading) -> Verdict:
         """Integrate ``reading`` from the reference ``ref`` if the step is plausible.

@@ -1,7 +1,9 @@
 """One reading's path, shared by the odometry node, ``replay`` and the demo.
 
-Every rule for one JointState reading is applied here, in this order: a zero or
-negative header stamp is dropped (output is stamped with the measurement time, so an
+Every rule for one JointState reading is applied here, in this order: the stamp is
+chosen (``stamp_source``: the header's, or the receive time) and a header stamp far
+from the receiver's clock is named once (:mod:`diffdrive_odom.core.stamps`); a zero or
+negative stamp is dropped (output is stamped with the measurement time, so an
 unstamped reading cannot be placed); the estimator decides (decode, stale stamps,
 time reset, gap, speed check, integration); the ``publish_rate`` gate decides whether
 the pose goes out. The outcome and a set of counters come back, so the node logs,
@@ -24,6 +26,7 @@ from diffdrive_odom.core.estimator import (
     Verdict,
 )
 from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.stamps import ClockOffsetCheck, StampSource
 from diffdrive_odom.core.uncertainty import (
     NoiseModel,
     pose_message_covariance,
@@ -49,6 +52,7 @@ class OdometrySettings:
     pose_covariance_diagonal: tuple[float, ...]
     twist_covariance_diagonal: tuple[float, ...]
     noise: NoiseModel | None  # None: covariance_model static (the diagonals above)
+    stamp_source: StampSource = StampSource.HEADER
 
 
 ZERO_STAMP = Verdict(
@@ -73,7 +77,8 @@ class PipelineStats:
     - ``published``: poses that passed the publish gate.
     - ``dropped``: readings dropped, by reason code (``zero_stamp``, ``missing_joint``,
       ``bad_array``, ``non_finite``, ``no_data``, ``out_of_range``, ``stale_stamp``,
-      ``future_stamp``); only codes seen. A reading stamped over ``max_reading_gap``
+      ``future_stamp``, which counts every reading of a discarded burst); only codes
+      seen. A reading stamped over ``max_reading_gap``
       ahead is held (not published, not counted) until the next reading shows whether
       it was a pause (then a ``gap`` re-anchor) or a lone outlier (``future_stamp``).
     - ``reanchors``: implausible steps (faster than ``max_wheel_speed``, a wheel rolling
@@ -107,12 +112,16 @@ class Outcome:
     """What happened to one reading: the verdict, whether to publish, and a one-off note.
 
     ``note`` is set only when the input mode changes (velocity fallback on or off), so
-    a caller that logs it says so once, not per reading.
+    a caller that logs it says so once, not per reading; ``warning`` only the first
+    time header stamps are found far from the receiver's clock. ``stamp_ns``: the
+    reading's stamp as used (``stamp_source``), which a published pose carries.
     """
 
     verdict: Verdict
     publish: bool
     note: str = ""
+    warning: str = ""
+    stamp_ns: int = 0
 
 
 class PublishGate:
@@ -158,6 +167,7 @@ class ReadingPipeline:
         self._time_resets = 0
         self._last_usable_ns: int | None = None
         self._velocity = False
+        self._clock = ClockOffsetCheck()
 
     @property
     def estimator(self) -> OdometryEstimator:
@@ -189,19 +199,34 @@ class ReadingPipeline:
         names: Sequence[str],
         position: Sequence[float],
         velocity: Sequence[float] = (),
+        receive_ns: int | None = None,
+        check_clock: bool = True,
     ) -> Outcome:
-        """Apply every rule to one reading (a JointState's stamp and arrays)."""
+        """Apply every rule to one reading (a JointState's stamp and arrays).
+
+        ``receive_ns``: when it arrived on the receiver's clock (the node's clock, a
+        bag's log time; None: unknown). ``check_clock``: False where that clock is not
+        the one drivers stamp with (simulated time), so no offset is named.
+        """
         self._readings += 1
+        warning = ""
+        if receive_ns is not None and receive_ns > 0:
+            if self._settings.stamp_source is StampSource.RECEIVE_TIME:
+                stamp_ns = receive_ns
+            elif check_clock and stamp_ns > 0:
+                warning = self._clock.check(stamp_ns, receive_ns)
+        else:
+            receive_ns = None
         verdict = (
-            self._estimator.update(stamp_ns, names, position, velocity)
+            self._estimator.update(stamp_ns, names, position, velocity, receive_ns)
             if stamp_ns > 0 else ZERO_STAMP
         )
         status = verdict.status
         dropped = verdict.dropped_code
         if dropped is not None:
-            self._dropped[dropped] = self._dropped.get(dropped, 0) + 1
+            self._dropped[dropped] = self._dropped.get(dropped, 0) + verdict.count
         if status in (Status.DROPPED, Status.HELD):
-            return Outcome(verdict, False)
+            return Outcome(verdict, False, "", warning, stamp_ns)
         self._last_usable_ns = stamp_ns
         if status is Status.REANCHORED:
             self._reanchors += 1
@@ -216,7 +241,7 @@ class ReadingPipeline:
         publish = verdict.has_new_pose and self._gate.due(stamp_ns)
         if publish:
             self._published += 1
-        return Outcome(verdict, publish, note)
+        return Outcome(verdict, publish, note, warning, stamp_ns)
 
     def covariances(self) -> tuple[list[float], list[float]]:
         """Pose and twist covariance (6x6 row-major) of the current estimate.
@@ -239,14 +264,16 @@ class ReadingPipeline:
     def reconfigure(self, settings: OdometrySettings) -> None:
         """Install validated settings at runtime; the pose carries on without a jump.
 
-        A new encoder or estimator config changes the units of the reference reading,
-        so the pose is kept and the next reading becomes the reference. Counters go on.
+        A new encoder or estimator config changes the units of the reference reading
+        (a new ``stamp_source`` its time), so the pose is kept and the next reading
+        becomes the reference. Counters go on.
         """
         old = self._settings
         self._settings = settings
         self._static = _static_covariances(settings)
         self._gate.rate = settings.publish_rate
-        if settings.encoders != old.encoders or settings.estimator != old.estimator:
+        if (settings.encoders != old.encoders or settings.estimator != old.estimator
+                or settings.stamp_source != old.stamp_source):
             before = self._estimator
             self._estimator = OdometryEstimator(
                 settings.geometry, settings.encoders, settings.estimator, settings.noise

@@ -152,11 +152,17 @@ class OdometryEndpoints:
         msg = self._decode(raw)
         if msg is None:
             return
-        stamp_ns = msg.sec * 1_000_000_000 + msg.nanosec
-        outcome = self._pipeline.feed(stamp_ns, msg.name, msg.position, msg.velocity)
+        clock = self._node.get_clock()
+        # The receive time on this node's clock: the stamp with stamp_source receive_time,
+        # and what a driver's own clock is checked against (not on simulated time, whose
+        # clock the drivers of a simulation stamp with anyway).
+        outcome = self._pipeline.feed(
+            msg.sec * 1_000_000_000 + msg.nanosec, msg.name, msg.position, msg.velocity,
+            receive_ns=clock.now().nanoseconds,
+            check_clock=not getattr(clock, "ros_time_is_active", False))
         self._report(outcome)
         if outcome.publish:
-            self._publish(stamp_ns)
+            self._publish(outcome.stamp_ns)
 
     def _decode(self, raw: bytes) -> JointArrays | None:
         """The reading's fields, or None (with a throttled warning) if unreadable.
@@ -182,6 +188,8 @@ class OdometryEndpoints:
         verdict = outcome.verdict
         if outcome.note:
             self._throttle.info("input_mode", outcome.note)
+        if outcome.warning:  # said once by the pipeline
+            self._node.get_logger().warning(outcome.warning)
         if verdict.status is Status.TIME_RESET:
             self._node.get_logger().warning(verdict.reason)
         elif verdict.warning:

@@ -13,6 +13,7 @@ from typing import Any
 from diffdrive_odom.core.errors import as_parameter_error
 from diffdrive_odom.core.estimator import EstimatorConfig
 from diffdrive_odom.core.pipeline import OdometrySettings as OdometrySettings
+from diffdrive_odom.core.stamps import StampSource
 from diffdrive_odom.core.uncertainty import (
     DEFAULT_K,
     DEFAULT_RADIUS_STDDEV_RATIO,
@@ -30,6 +31,10 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("tf_frame_prefix", "string", "",
               "Frame prefix; empty = the node's namespace (as diff_drive_controller)."),
     ParamSpec("enable_odom_tf", "bool", True, "Publish odom -> base_link on /tf."),
+    ParamSpec("stamp_source", "string", "header",
+              "header: stamp odometry with each JointState's header stamp (the measurement "
+              "time); receive_time: with the time it arrived on this node's clock, as "
+              "diff_drive_controller (a driver whose clock is not synced)."),
     ParamSpec("publish_rate", "double", 0.0,
               "Max odometry publish rate [Hz]; 0 = publish every reading."),
     ParamSpec("covariance_model", "string", "propagated",
@@ -83,6 +88,15 @@ def _estimator_config(v: Mapping[str, Any]) -> EstimatorConfig:
 
 
 COVARIANCE_MODELS = ("propagated", "static")
+
+
+def _stamp_source(value: str) -> StampSource:
+    """The ``stamp_source`` value, or ParameterError naming the choices."""
+    try:
+        return StampSource(value)
+    except ValueError:
+        choices = ", ".join(StampSource)
+        raise ParameterError("stamp_source", f"must be one of {choices}, got {value!r}") from None
 
 
 def _noise_model(v: Mapping[str, Any]) -> NoiseModel | None:
@@ -143,4 +157,5 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
         twist_covariance_diagonal=_covariance(
             "twist_covariance_diagonal", v["twist_covariance_diagonal"]),
         noise=_noise_model(v),
+        stamp_source=_stamp_source(v["stamp_source"]),
     )

@@ -61,7 +61,8 @@ class ReplayStats:
     ``reasons`` counts by reason code (see ``encoders.Reason``), ``examples`` keeps
     the first human text of each code; ``refused`` counts the poses the publication
     rule kept back (by reason text, as the node warns); ``published`` is what went out;
-    ``pipeline`` is the shared counters' snapshot.
+    ``pipeline`` is the shared counters' snapshot; ``warnings`` what the node would
+    have warned of once (a driver's clock far from the log time).
     """
 
     readings: int = 0
@@ -70,6 +71,7 @@ class ReplayStats:
     reasons: Counter[str] = field(default_factory=Counter)
     examples: dict[str, str] = field(default_factory=dict)
     refused: Counter[str] = field(default_factory=Counter)
+    warnings: list[str] = field(default_factory=list)  # the pipeline's one-off warnings
     final_pose: Pose2D = field(default_factory=Pose2D)
     final_stamp_ns: int | None = None
     seconds: float = 0.0
@@ -108,18 +110,21 @@ def replay_readings(
     stats = ReplayStats()
     start = time.perf_counter()
     for r in readings:
-        outcome = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity)
+        # The bag's log time is the receive time: the node's rules on stamps apply alike.
+        outcome = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
+        if outcome.warning:
+            stats.warnings.append(outcome.warning)
         verdict = outcome.verdict
         stats.statuses[verdict.status.value] += 1
         if verdict.code not in (Reason.UPDATED, Reason.FIRST):
-            stats.reasons[verdict.code] += 1
+            stats.reasons[verdict.code] += verdict.count  # a discarded burst: all
             stats.examples.setdefault(verdict.code, verdict.reason)
         if outcome.publish and sink is not None:
             out = pipeline_publication(pipe)
             if isinstance(out, Refusal):
                 stats.refused[out.reason] += 1
             else:
-                sink(Published(r.stamp_ns, r.log_ns, out.pose, out.linear, out.angular,
+                sink(Published(outcome.stamp_ns, r.log_ns, out.pose, out.linear, out.angular,
                                verdict.status, out.pose_covariance, out.twist_covariance))
     stats.seconds = time.perf_counter() - start
     stats.pipeline = pipe.stats
@@ -226,6 +231,8 @@ def main(argv: Sequence[str]) -> int:
         _remove_outputs(args)
         return _error(_no_usable_reading(stats, args.topic))
     print(stats.summary())
+    for warning in stats.warnings:
+        print(f"{PREFIX} {warning}", file=sys.stderr)
     for code, count in stats.reasons.most_common(5):
         print(f"  {count} x {code}: {stats.examples[code]}", file=sys.stderr)
     for reason, count in stats.refused.most_common():  # the node's warning, counted
