@@ -36,7 +36,12 @@ class OdometryLifecycleNode(LifecycleNode):
         super().__init__(NODE_NAME, **kwargs)
         # Declared now, checked at configure: while unconfigured any value can be set,
         # so a bad one given at start can be fixed with set_parameters and configure retried.
-        declare(self, ODOMETRY_PARAMS)
+        # One the declared type or range cannot hold keeps its default and is the reason
+        # configure fails until a value is set.
+        self._refused: dict[str, ParameterError] = {}
+        declare(self, ODOMETRY_PARAMS, self._refused)
+        self.add_post_set_parameters_callback(
+            lambda params: [self._refused.pop(p.name, None) for p in params])
         self._odometry: OdometryEndpoints | None = None
         service = self._service_change_state
         self._change_state = service.callback
@@ -61,6 +66,8 @@ class OdometryLifecycleNode(LifecycleNode):
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Validate the parameters and create the endpoints; a bad value FAILS, one line."""
         try:
+            for err in self._refused.values():
+                raise err
             self._odometry = OdometryEndpoints(
                 self, parameter_values(self, ODOMETRY_PARAMS))
         except ParameterError as err:

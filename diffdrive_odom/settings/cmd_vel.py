@@ -34,7 +34,15 @@ from diffdrive_odom.settings.geometry import (
     STAMPED_CMD_VEL_PARAM,
     build_geometry,
 )
-from diffdrive_odom.settings.params import ParameterError, ParamSpec, ParamValue, coerce_all
+from diffdrive_odom.settings.params import (
+    NON_NEGATIVE,
+    POSITIVE,
+    ParameterError,
+    ParamSpec,
+    ParamValue,
+    Range,
+    coerce_all,
+)
 
 # [rad/s] ~95 000 rpm: no wheel turns this fast, so a command beyond it is nonsense.
 DEFAULT_PLAUSIBLE_WHEEL_VELOCITY = 1e4
@@ -92,10 +100,12 @@ CMD_VEL_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "joint_state (sensor_msgs/JointState velocity, rad/s) or ticks_per_second "
               "(Float64MultiArray, encoder counts/s).", read_only=True),
     ParamSpec("cmd_vel_timeout", "double", 0.5,
-              "Publish zeros when no valid command arrived for this long [s]; 0 = never."),
+              "Publish zeros when no valid command arrived for this long [s]; 0 = never.",
+              range=NON_NEGATIVE),
     ParamSpec("wheel_command_rate", "double", 50.0,
               "Rate of wheel_commands [Hz], steady whether or not commands arrive (> 0); "
-              "not publish_rate, which is the odometry node's."),
+              "not publish_rate, which is the odometry node's.",
+              range=Range(0.0, 10_000.0, "> 0")),
     ParamSpec("publish_limited_velocity", "bool", False,
               "Publish the twist actually commanded (after limits) on cmd_vel_out."),
     ParamSpec("control_point_offset", "double", 0.0,
@@ -108,7 +118,7 @@ CMD_VEL_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "Sanity bound [rad/s], > 0: a command whose wheel targets (after control point, "
               "inverse kinematics and limits) are beyond it or not finite is refused with a "
               "warning and counted as dropped 'implausible', never forwarded; the default is "
-              "beyond any robot. Not a limit: see max_wheel_velocity."),
+              "beyond any robot. Not a limit: see max_wheel_velocity.", range=POSITIVE),
     *(spec for axis in _AXES for spec in _limit_specs(*axis)),
 )
 

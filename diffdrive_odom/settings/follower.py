@@ -22,7 +22,15 @@ from diffdrive_odom.core.paths import Path, Point, circle, polyline, route_point
 from diffdrive_odom.core.routes import make_route
 from diffdrive_odom.core.routes import names as route_names
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, STAMPED_CMD_VEL_PARAM, build_geometry
-from diffdrive_odom.settings.params import ParameterError, ParamSpec, ParamValue, coerce_all
+from diffdrive_odom.settings.params import (
+    NON_NEGATIVE,
+    POSITIVE,
+    ParameterError,
+    ParamSpec,
+    ParamValue,
+    Range,
+    coerce_all,
+)
 
 PREFIX = "follower."
 NONE, LINE, CIRCLE, POLYLINE, ROUTE = "none", "line", "circle", "polyline", "route"
@@ -54,22 +62,30 @@ FOLLOWER_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "route: a scripted route's corners (square, square_cw, umbmark_cw, "
               "umbmark_ccw, umbmark) from the origin."),
     ParamSpec(_p("route_size"), "double", 0.0,
-              "route: side [m]; 0 = the route's default (1 m square, 4 m UMBmark)."),
+              "route: side [m]; 0 = the route's default (1 m square, 4 m UMBmark).",
+              range=NON_NEGATIVE),
     ParamSpec(_p("corner_radius"), "double", 0.25,
-              "Fillet radius at polyline corners [m], > 0 (shrinks on short legs)."),
-    ParamSpec(_p("desired_speed"), "double", 0.2, "v_des along the path [m/s], > 0."),
+              "Fillet radius at polyline corners [m], > 0 (shrinks on short legs).",
+              range=POSITIVE),
+    ParamSpec(_p("desired_speed"), "double", 0.2, "v_des along the path [m/s], > 0.",
+              range=POSITIVE),
     ParamSpec(_p("k_p"), "double", 1.0,
-              "Path error gain [1/s], > 0: the cross-track error decays as exp(-k_p t)."),
+              "Path error gain [1/s], > 0: the cross-track error decays as exp(-k_p t).",
+              range=POSITIVE),
     ParamSpec(_p("k_i"), "double", 1.0,
-              "Speed error integral gain [1/s], >= 0 (0 = no integral feedback)."),
+              "Speed error integral gain [1/s], >= 0 (0 = no integral feedback).",
+              range=NON_NEGATIVE),
     ParamSpec(_p("look_ahead"), "double", 0.1,
-              "l [m], > 0: the controlled point P is l ahead of the axle (l = 0 is singular)."),
+              "l [m], > 0: the controlled point P is l ahead of the axle (l = 0 is singular).",
+              range=POSITIVE),
     ParamSpec(_p("max_angular_velocity"), "double", 2.0,
-              "Largest omega the follower asks for [rad/s], > 0."),
+              "Largest omega the follower asks for [rad/s], > 0.", range=POSITIVE),
     ParamSpec(_p("min_alignment"), "double", 0.2,
-              "Smallest |Gamma . n| the law divides by, in (0, 1] (heading across the path)."),
+              "Smallest |Gamma . n| the law divides by, in (0, 1] (heading across the path).",
+              range=Range(0.0, 1.0, "> 0")),
     ParamSpec(_p("max_speed_correction"), "double", 0.5,
-              "Bound of the integral's speed correction, fraction of desired_speed, [0, 1]."),
+              "Bound of the integral's speed correction, fraction of desired_speed, [0, 1].",
+              range=Range(0.0, 1.0)),
 )
 
 FOLLOWER_PARAMS: tuple[ParamSpec, ...] = (

@@ -14,32 +14,42 @@ from typing import Any
 from diffdrive_odom.core.encoders import EncoderConfig
 from diffdrive_odom.core.errors import as_parameter_error
 from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.settings.params import ParamSpec
+from diffdrive_odom.settings.params import (
+    COUNTER_BITS,
+    NON_NEGATIVE,
+    POSITIVE,
+    SIGN,
+    ParamSpec,
+)
 
 GEOMETRY_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("wheel_radius", "double", 0.0,
-              "Nominal wheel radius [m]; must be set (> 0) for your robot."),
+              "Nominal wheel radius [m]; must be set (> 0) for your robot.", range=POSITIVE),
     ParamSpec("wheel_separation", "double", 0.0,
-              "Distance between the wheels' contact points [m]; must be set (> 0)."),
+              "Distance between the wheels' contact points [m]; must be set (> 0).",
+              range=POSITIVE),
     ParamSpec("left_wheel_radius_multiplier", "double", 1.0,
-              "Correction factor on the left wheel radius (calibration)."),
+              "Correction factor on the left wheel radius (calibration).", range=POSITIVE),
     ParamSpec("right_wheel_radius_multiplier", "double", 1.0,
-              "Correction factor on the right wheel radius (calibration)."),
+              "Correction factor on the right wheel radius (calibration).", range=POSITIVE),
     ParamSpec("wheel_separation_multiplier", "double", 1.0,
-              "Correction factor on the wheel separation (calibration)."),
+              "Correction factor on the wheel separation (calibration).", range=POSITIVE),
     ParamSpec("left_wheel_sign", "integer", 1,
-              "1 if the left joint angle grows when the robot drives forward, else -1."),
+              "1 if the left joint angle grows when the robot drives forward, else -1.",
+              range=SIGN),
     ParamSpec("right_wheel_sign", "integer", 1,
-              "1 if the right joint angle grows when the robot drives forward, else -1."),
+              "1 if the right joint angle grows when the robot drives forward, else -1.",
+              range=SIGN),
     ParamSpec("left_wheel_names", "string_array", ["left_wheel_joint"],
               "Joint names of the left wheels (several are averaged).", read_only=True),
     ParamSpec("right_wheel_names", "string_array", ["right_wheel_joint"],
               "Joint names of the right wheels (same count as left).", read_only=True),
     ParamSpec("ticks_per_revolution", "double", 0.0,
               "0: positions in radians; > 0: raw encoder counts per wheel turn "
-              "(non-integer allowed)."),
+              "(non-integer allowed).", range=NON_NEGATIVE),
     ParamSpec("encoder_counter_bits", "integer", 0,
-              "Width of a wrapping encoder counter (e.g. 16, 32); 0 = no wrap."),
+              "Width of a wrapping encoder counter (e.g. 16, 32); 0 = no wrap.",
+              range=COUNTER_BITS),
 )
 
 

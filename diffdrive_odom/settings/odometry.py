@@ -21,7 +21,15 @@ from diffdrive_odom.core.uncertainty import (
     NoiseModel,
 )
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, build_encoders, build_geometry
-from diffdrive_odom.settings.params import ParameterError, ParamSpec, ParamValue, coerce_all
+from diffdrive_odom.settings.params import (
+    AT_LEAST_ONE,
+    NON_NEGATIVE,
+    POSITIVE_OR_INF,
+    ParameterError,
+    ParamSpec,
+    ParamValue,
+    coerce_all,
+)
 
 ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("odom_frame_id", "string", "odom", "Frame of the published pose."),
@@ -36,20 +44,24 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "time); receive_time: with the time it arrived on this node's clock, as "
               "diff_drive_controller (a driver whose clock is not synced)."),
     ParamSpec("publish_rate", "double", 0.0,
-              "Max odometry publish rate [Hz]; 0 = publish every reading."),
+              "Max odometry publish rate [Hz]; 0 = publish every reading.",
+              range=NON_NEGATIVE),
     ParamSpec("covariance_model", "string", "propagated",
               "propagated: covariance from wheel noise through each step (grows with "
               "distance); static: the two diagonals below, as diff_drive_controller."),
     ParamSpec("wheel_noise_k_left", "double", DEFAULT_K,
-              "Left wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated)."),
+              "Left wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated).",
+              range=NON_NEGATIVE),
     ParamSpec("wheel_noise_k_right", "double", DEFAULT_K,
-              "Right wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated)."),
+              "Right wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated).",
+              range=NON_NEGATIVE),
     ParamSpec("wheel_radius_stddev_ratio", "double", DEFAULT_RADIUS_STDDEV_RATIO,
               "Relative 1-sigma uncertainty of each effective wheel radius (propagated: "
-              "its pose term grows with distance squared); calibrate prints it."),
+              "its pose term grows with distance squared); calibrate prints it.",
+              range=NON_NEGATIVE),
     ParamSpec("wheel_separation_stddev_ratio", "double", DEFAULT_SEPARATION_STDDEV_RATIO,
               "Relative 1-sigma uncertainty of the effective wheel separation (propagated); "
-              "calibrate prints it."),
+              "calibrate prints it.", range=NON_NEGATIVE),
     ParamSpec("pose_covariance_diagonal", "double_array",
               [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 0.01],
               "Diagonal of the pose covariance (x, y, z, roll, pitch, yaw); "
@@ -59,16 +71,20 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "Diagonal of the twist covariance (vx, vy, vz, wx, wy, wz); "
               "covariance_model static only."),
     ParamSpec("velocity_rolling_window_size", "integer", 1,
-              "Readings in the rolling mean of the twist (never applied to the pose)."),
+              "Readings in the rolling mean of the twist (never applied to the pose).",
+              range=AT_LEAST_ONE),
     ParamSpec("max_wheel_speed", "double", 200.0,
               "Fastest plausible joint speed [rad/s]; faster steps are skipped "
-              "(.inf = no speed check; a wheel rolling over 1 km in one step still is)."),
+              "(.inf = no speed check; a wheel rolling over 1 km in one step still is).",
+              range=POSITIVE_OR_INF),
     ParamSpec("time_jump_threshold", "double", 1.0,
-              "A stamp this far [s] behind the last restarts odometry (bag loop)."),
+              "A stamp this far [s] behind the last restarts odometry (bag loop).",
+              range=NON_NEGATIVE),
     ParamSpec("max_reading_gap", "double", 1.0,
               "A reading this long [s] after the last usable one is held; if the next "
               "continues from it, it is the new reference, no motion integrated (driver "
-              "restart), else it is dropped (future_stamp); .inf = off."),
+              "restart), else it is dropped (future_stamp); .inf = off.",
+              range=POSITIVE_OR_INF),
 )
 
 

@@ -1,19 +1,23 @@
 """The parameter machinery every node's settings module builds on (no rclpy import).
 
-Here: :class:`ParamSpec` (one row: name, type, default, one-line meaning), coercion,
-params-file and ``-p`` resolution exactly as rcl does it, the report of unknown names
-and :func:`yaml_text`. The tables themselves live with their node, one settings
-module each (``geometry_settings``: the rows every node shares; ``odometry_settings``,
+Here: :class:`ParamSpec` (one row: name, type, default, one-line meaning, the
+:class:`Range` that ``ros2 param describe`` shows, read-only), coercion, the type rule
+of values given through ROS (:func:`as_declared_type`), params-file and ``-p``
+resolution exactly as rcl does it, the report of unknown names and :func:`yaml_text`.
+The tables themselves live with their node, one settings module each
+(``geometry_settings``: the rows every node shares; ``odometry_settings``,
 ``cmd_vel_settings``, ``sim_settings``, ``follower_settings``). One table serves four
 readers: the node (declare + validate), the offline tools (same params YAML),
-``config/diffdrive_odom.yaml`` and the README's parameter tables. Values are
-coerced here rather than by rclpy's static typing so that ``-p wheel_radius:=1``
-(an integer on the command line) works and a wrong type gets one clear line.
+``config/diffdrive_odom.yaml`` and the README's parameter tables. The nodes declare
+every parameter with its type fixed, as generate_parameter_library does; the rule of
+:func:`as_declared_type` turns what ROS hands over in another type but with the same
+meaning (``-p wheel_radius:=1`` is an integer) into the declared type first.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -82,19 +86,129 @@ COERCE: dict[str, Callable[[str, ParamValue], ParamValue]] = {
 }
 
 
+INT64_MAX = 2**63 - 1
+
+
+@dataclass(frozen=True)
+class Range:
+    """The closed range ``[low, high]`` a value lies in, as ROS describes one.
+
+    The node puts it in the parameter's descriptor (FloatingPointRange / IntegerRange):
+    ``ros2 param describe`` shows it and rclpy refuses a value outside it before any
+    callback runs. ROS ranges are closed and know no "finite", so where the rule is
+    stricter (``> 0``, finite) ``rule`` says it in words (the descriptor's
+    additional_constraints) and the settings validation enforces it. A range is only
+    written where it is true: every value it excludes the validation refuses too.
+    ``step`` is for integer ranges (2 with ``[-1, 1]``: -1 or 1).
+    """
+
+    low: float
+    high: float
+    rule: str = ""
+    step: int = 0
+
+    def holds(self, value: float) -> bool:
+        """Tell whether ``value`` is in the closed range (and on a step); NaN is not."""
+        if not self.low <= value <= self.high:
+            return False
+        return self.step == 0 or (value - self.low) % self.step == 0
+
+    def text(self) -> str:
+        """``[low, high]`` and the rule, for a message."""
+        return f"in [{self.low:g}, {self.high:g}]" + (f" ({self.rule})" if self.rule else "")
+
+
+INF = math.inf
+POSITIVE = Range(0.0, INF, "> 0, finite")
+POSITIVE_OR_INF = Range(0.0, INF, "> 0; .inf allowed")
+NON_NEGATIVE = Range(0.0, INF, "finite")
+SIGN = Range(-1, 1, "-1 or 1", step=2)
+AT_LEAST_ONE = Range(1, INT64_MAX)
+COUNTER_BITS = Range(0, 64)
+
+
 @dataclass(frozen=True)
 class ParamSpec:
-    """One parameter: name, kind (a key of ``COERCE``), default and one-line meaning."""
+    """One parameter: name, kind (a key of ``COERCE``), default and one-line meaning.
+
+    ``range``: the closed range ROS is told about, where one is true; ``read_only``:
+    a runtime change is not supported (the node would have to be rebuilt).
+    """
 
     name: str
     kind: str
     default: ParamValue
     description: str
     read_only: bool = False
+    range: Range | None = None
 
     def coerce(self, value: ParamValue) -> ParamValue:
         """The value in this parameter's Python type, or ParameterError."""
         return COERCE[self.kind](self.name, value)
+
+    def admit(self, value: ParamValue) -> ParamValue:
+        """A value given at start, as the node declares it, or ParameterError.
+
+        Converted to the declared type (:func:`as_declared_type`), typed and inside
+        :attr:`range`; else the error names the parameter (rclpy would raise a traceback).
+        """
+        typed = self.coerce(as_declared_type(self, value))
+        if self.range is not None and not self.range.holds(typed):
+            raise ParameterError(self.name, f"must be {self.range.text()}, got {typed!r}")
+        return list(typed) if isinstance(typed, tuple) else typed
+
+
+def _number_text(text: str) -> float | None:
+    """The number rcl's params-file reader makes of ``text``, else None."""
+    try:
+        value = _rcl_scalar(text.strip(), True)
+    except ValueError:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value)
+
+
+def _as_double(value: ParamValue) -> ParamValue:
+    if isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, str):
+        number = _number_text(value)
+        return value if number is None else number
+    return value
+
+
+def as_declared_type(spec: ParamSpec, value: ParamValue) -> ParamValue:
+    """``value`` in the type ``spec`` declares, when it came in another with the same meaning.
+
+    Else ``value`` unchanged (rclpy then refuses the type, naming both).
+    * An integer for a double, and integers in a double list: ``ros2 param set /node
+      wheel_radius 1``, ``-p wheel_radius:=1`` and a YAML ``1`` all arrive as INTEGER.
+    * An integral double for an integer (``16.0`` counter bits), as :meth:`ParamSpec.coerce`.
+    * For a double or a double list, a string that is a number as rcl reads one
+      (``1e-05``, ``nan``, ``-inf``): ``ros2 param load`` (rclpy's
+      ``parameter_dict_from_yaml_file``) re-reads each value of the file as
+      ``yaml.safe_load(str(value))``, and YAML 1.1 takes ``str(1e-05)`` = ``'1e-05'``
+      (no dot) and ``'nan'`` for strings, so a node's own dump would not load back. A
+      list with such an item arrives as one string, ``'[0.001, 1e-06]'``.
+    """
+    if spec.kind == "double":
+        return _as_double(value)
+    if spec.kind == "integer" and isinstance(value, float) and value.is_integer():
+        return int(value)
+    if spec.kind == "double_array":
+        if isinstance(value, str):
+            import yaml
+
+            try:
+                value = _rcl_value(_yaml_tree(value), spec.name)
+            except (ParameterError, yaml.YAMLError):  # not a value rcl reads: left to rclpy
+                return value
+        if isinstance(value, (list, tuple)):
+            items = [_as_double(v) for v in value]
+            if all(isinstance(v, float) for v in items):
+                return items
+    return value
 
 
 def defaults(specs: Iterable[ParamSpec]) -> dict[str, ParamValue]:

@@ -92,6 +92,30 @@ def known_names() -> frozenset[str]:
     return frozenset(s.name for t in TABLES for s in t.declared) | frozenset(_RCLPY_NAMES)
 
 
+# The node each table (other than the shared geometry rows) belongs to.
+_NODES = {"odometry": "odometry_node", "cmd_vel": "cmd_vel_node", "sim": "sim_node",
+          "follower": "path_follower_node"}
+
+
+def closest(name: str, candidates: Iterable[str]) -> str | None:
+    """The candidate ``name`` is most likely a typo of (difflib, ratio >= 0.6), if any."""
+    close = difflib.get_close_matches(name, sorted(candidates), n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
+def unknown_name_hint(name: str, declared: Iterable[str]) -> str:
+    """Why a node declaring ``declared`` has no ``name`` ("" when no reason is known).
+
+    The closest of its names (a typo), else the nodes of this package that have it.
+    """
+    close = closest(name, declared)
+    if close:
+        return f"did you mean {close}?"
+    owners = sorted(node for key, node in _NODES.items()
+                    if any(s.name == name for s in table(key).declared))
+    return f"a parameter of {' and '.join(owners)}" if owners else ""
+
+
 def unknown_parameters_report(names: Iterable[str]) -> tuple[str | None, str | None]:
     """Return (warning, info) lines about parameter names given to a node.
 
@@ -107,8 +131,8 @@ def unknown_parameters_report(names: Iterable[str]) -> tuple[str | None, str | N
     if unknown:
         hints = []
         for name in unknown:
-            close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
-            hints.append(f"{name} (did you mean {close[0]}?)" if close else name)
+            close = closest(name, known)
+            hints.append(f"{name} (did you mean {close}?)" if close else name)
         warning = ("unknown parameters, no diffdrive_odom node uses them (ignored): "
                    + ", ".join(hints))
     if ddc:

@@ -21,7 +21,19 @@ from diffdrive_odom.core.encoders import EncoderConfig
 from diffdrive_odom.core.errors import as_parameter_error
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.sim import SimConfig
-from diffdrive_odom.settings.params import ParameterError, ParamSpec, ParamValue, coerce_all
+from diffdrive_odom.settings.params import (
+    AT_LEAST_ONE,
+    COUNTER_BITS,
+    INT64_MAX,
+    NON_NEGATIVE,
+    POSITIVE,
+    SIGN,
+    ParameterError,
+    ParamSpec,
+    ParamValue,
+    Range,
+    coerce_all,
+)
 
 RADIANS = "radians"
 TICKS = "ticks"
@@ -30,56 +42,67 @@ JOINT_STATE_UNITS = (AUTO, RADIANS, TICKS)
 
 SIM_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("wheel_radius", "double", 0.033,
-              "Nominal wheel radius [m] (the robot's drawing; shared with the other nodes)."),
+              "Nominal wheel radius [m] (the robot's drawing; shared with the other nodes).",
+              range=POSITIVE),
     ParamSpec("wheel_separation", "double", 0.160,
-              "Nominal wheel separation [m] (shared with the other nodes)."),
+              "Nominal wheel separation [m] (shared with the other nodes).", range=POSITIVE),
     ParamSpec("true_left_wheel_radius", "double", 0.0,
-              "TRUE left wheel radius [m] the base moves with; 0 = wheel_radius."),
+              "TRUE left wheel radius [m] the base moves with; 0 = wheel_radius.",
+              range=NON_NEGATIVE),
     ParamSpec("true_right_wheel_radius", "double", 0.0,
-              "TRUE right wheel radius [m]; 0 = wheel_radius."),
+              "TRUE right wheel radius [m]; 0 = wheel_radius.", range=NON_NEGATIVE),
     ParamSpec("true_wheel_separation", "double", 0.0,
-              "TRUE wheel separation [m]; 0 = wheel_separation."),
+              "TRUE wheel separation [m]; 0 = wheel_separation.", range=NON_NEGATIVE),
     ParamSpec("left_wheel_sign", "integer", 1,
               "Hardware joint sign: -1 = the left joint counts (and turns) backwards "
-              "when the robot drives forward."),
+              "when the robot drives forward.", range=SIGN),
     ParamSpec("right_wheel_sign", "integer", 1,
-              "Hardware joint sign of the right joint (-1 = flipped)."),
+              "Hardware joint sign of the right joint (-1 = flipped).", range=SIGN),
     ParamSpec("left_wheel_names", "string_array", ["left_wheel_joint"],
               "Joint names of the left wheels, in wheel command order.", read_only=True),
     ParamSpec("right_wheel_names", "string_array", ["right_wheel_joint"],
               "Joint names of the right wheels (same count as left).", read_only=True),
     ParamSpec("ticks_per_revolution", "double", 0.0,
-              "Encoder counts per wheel turn; 0 = ideal encoder (no quantization)."),
+              "Encoder counts per wheel turn; 0 = ideal encoder (no quantization).",
+              range=NON_NEGATIVE),
     ParamSpec("encoder_counter_bits", "integer", 0,
-              "Width of the wrapping encoder counter (e.g. 16); 0 = no wrap."),
+              "Width of the wrapping encoder counter (e.g. 16); 0 = no wrap.",
+              range=COUNTER_BITS),
     ParamSpec("encoder_initial_count", "double", 0.0,
               "Counter value at start (e.g. 65530 to cross a 16-bit wrap at once)."),
     ParamSpec("joint_state_units", "string", AUTO,
               "Position units on joint_states: ticks, radians, or auto (ticks when "
               "ticks_per_revolution > 0).", read_only=True),
     ParamSpec("motor_time_constant", "double", 0.0,
-              "First-order motor response [s]; 0 = wheels follow commands at once."),
+              "First-order motor response [s]; 0 = wheels follow commands at once.",
+              range=NON_NEGATIVE),
     ParamSpec("slip_stddev", "double", 0.0,
               "Wheel slip [m]: std of one side's ground-arc error after 1 m rolled "
-              "(variance grows with distance; Carroll and Jha, sec. 2.3)."),
+              "(variance grows with distance; Carroll and Jha, sec. 2.3).",
+              range=NON_NEGATIVE),
     ParamSpec("random_seed", "integer", 0,
-              "Seed of the slip noise (same seed, same run).", read_only=True),
+              "Seed of the slip noise (same seed, same run).", read_only=True,
+              range=Range(0, INT64_MAX)),
     ParamSpec("command_timeout", "double", 0.5,
-              "No wheel command for this long [s, simulated] -> wheels stop; 0 = never."),
+              "No wheel command for this long [s, simulated] -> wheels stop; 0 = never.",
+              range=NON_NEGATIVE),
     ParamSpec("wheel_command_format", "string", FLOAT64_ARRAY,
               "Input on wheel_commands: float64_array (rad/s), joint_state (velocity by "
               "name, rad/s) or ticks_per_second (Float64MultiArray, counts/s).",
               read_only=True),
     ParamSpec("joint_state_rate", "double", 50.0,
               "joint_states and ground truth rate [Hz of simulated time], > 0; not "
-              "publish_rate, which is the odometry node's.", read_only=True),
+              "publish_rate, which is the odometry node's.", read_only=True,
+              range=Range(0.0, 2000.0, "> 0")),
     ParamSpec("physics_substeps", "integer", 10,
-              "Motion steps per published step (exactness with a motor lag)."),
+              "Motion steps per published step (exactness with a motor lag).",
+              range=AT_LEAST_ONE),
     ParamSpec("publish_clock", "bool", False,
               "Own the time: publish /clock and run at real_time_factor (run the other "
               "nodes with use_sim_time:=true).", read_only=True),
     ParamSpec("real_time_factor", "double", 1.0,
-              "Simulated seconds per wall second when publish_clock is true.", read_only=True),
+              "Simulated seconds per wall second when publish_clock is true.", read_only=True,
+              range=Range(0.0, 100.0, "> 0")),
     ParamSpec("world_frame_id", "string", "world", "Frame of ground_truth/odom."),
     ParamSpec("base_frame_id", "string", "base_link",
               "Child frame of ground_truth/odom (the robot)."),
@@ -157,6 +180,8 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
     rtf = v["real_time_factor"]
     if not (math.isfinite(rtf) and 0.0 < rtf <= 100.0):
         raise ParameterError("real_time_factor", f"must be > 0 and <= 100, got {rtf!r}")
+    if v["random_seed"] < 0:  # numpy's generator takes no negative seed
+        raise ParameterError("random_seed", f"must be >= 0, got {v['random_seed']!r}")
     for name in ("world_frame_id", "base_frame_id"):
         if not v[name].strip("/"):
             raise ParameterError(name, "must not be empty")
