@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from itertools import islice
 
@@ -288,6 +289,16 @@ class PoseUncertainty:
     def forget_twist(self) -> None:
         """Empty the twist window (the estimator forgot its rates)."""
         self._rates.clear()
+
+    @property
+    def rates(self) -> tuple[Matrix, ...]:
+        """The twist window: each step's rate covariance, oldest first."""
+        return tuple(self._rates)
+
+    def set_rates(self, rates: Sequence[Matrix]) -> None:
+        """Replace the twist window (a bulk integrator hands its steps back)."""
+        self._rates.clear()
+        self._rates.extend(rates)
 
     def propagate(
         self,

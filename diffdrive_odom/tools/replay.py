@@ -33,9 +33,10 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from diffdrive_odom.core.estimator import Reason
+from diffdrive_odom.core import fastlane
+from diffdrive_odom.core.estimator import Reason, Status
 from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.pipeline import PipelineStats, ReadingPipeline
+from diffdrive_odom.core.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.publication import Refusal, pipeline_publication
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import bagio, evaluate, progress, sinks
@@ -94,12 +95,22 @@ class ReplayStats:
         )
 
 
+def _stretch_out(stretch: fastlane.Stretch, sink: Callable[[Published], None]) -> None:
+    """The poses of a stretch the fast lane integrated, as the node would publish them."""
+    for stamp, log, pose, lin, ang, pcov, tcov in stretch.poses():
+        sink(Published(stamp, log, pose, lin, ang, Status.UPDATED, pcov, tcov))
+
+
 def replay_readings(
     readings: Iterable[bagio.JointReading],
     settings: OdometrySettings,
     sink: Callable[[Published], None] | None = None,
+    fast: bool = True,
 ) -> ReplayStats:
     """Feed readings through a fresh pipeline; the poses the node would publish go to ``sink``.
+
+    ``fast``: stretches where no rule can fire go through :mod:`diffdrive_odom.core.fastlane`
+    (the same result, proven by test/test_fastlane.py); False: every reading one by one.
 
     What is published is decided as in the node (:func:`pipeline_publication`): a pose
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,
@@ -109,9 +120,18 @@ def replay_readings(
     est = pipe.estimator
     stats = ReplayStats()
     start = time.perf_counter()
-    for r in readings:
-        # The bag's log time is the receive time: the node's rules on stamps apply alike.
-        outcome = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
+    # The bag's log time is the receive time: the node's rules on stamps apply alike.
+    items: Iterable[tuple[bagio.JointReading, Outcome] | fastlane.Stretch] = (
+        fastlane.lanes(pipe, readings, chunk=fastlane.CHUNK) if fast
+        else ((r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns))
+              for r in readings))
+    for item in items:
+        if isinstance(item, fastlane.Stretch):
+            stats.statuses[Status.UPDATED.value] += item.count
+            if sink is not None:
+                _stretch_out(item, sink)
+            continue
+        r, outcome = item
         if outcome.warning:
             stats.warnings.append(outcome.warning)
         verdict = outcome.verdict
