@@ -17,13 +17,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core import fastlane
+from diffdrive_odom.core import batch, fastlane
 from diffdrive_odom.core.fastcov import bulk_covariance
 from diffdrive_odom.core.integration import Pose2D, compose
 from diffdrive_odom.core.kinematics import Geometry, body_increment
@@ -160,7 +161,7 @@ def _settings(wheels: int, ticks: float, bits: int, rate: float, window: int, mo
     })
 
 
-def _both(readings: Sequence[fastlane.Reading], cfg: OdometrySettings, chunk: int,
+def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
           monkeypatch: pytest.MonkeyPatch) -> int:
     """Replay both ways, check they agree; how many readings the fast lane took in bulk."""
     monkeypatch.setattr(fastlane, "CHUNK", chunk)
@@ -195,7 +196,7 @@ def _both(readings: Sequence[fastlane.Reading], cfg: OdometrySettings, chunk: in
     return b.readings - scalar
 
 
-def _scalar_lane(readings: Sequence[fastlane.Reading], cfg: OdometrySettings, chunk: int
+def _scalar_lane(readings: Sequence[Any], cfg: OdometrySettings, chunk: int
                  ) -> tuple[int, list[tuple[int, str]]]:
     """Readings the fast lane left to the pipeline, and its warnings by reading index."""
     pipe = ReadingPipeline(cfg)
@@ -259,6 +260,20 @@ def test_every_event_kind_and_most_readings_in_bulk(monkeypatch: pytest.MonkeyPa
     cfg = _settings(2, 4096.0, 12, 0.0, 3, "propagated", "header")
     bulk = _both(readings, cfg, 256, monkeypatch)
     assert bulk > 0.8 * len(readings), (bulk, len(readings))
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_calibration_steps_in_both_lanes(monkeypatch: pytest.MonkeyPatch, seed: int) -> None:
+    """batch.wheel_steps (calibrate's decode-once path) through the lane, and without it."""
+    events = [(EVENTS[(seed * 5 + k) % len(EVENTS)], 50) for k in range(12)]
+    readings = _stream(seed, events, 2, 4096.0, 12)
+    cfg = _settings(2, 4096.0, 12, 0.0, 1, "propagated", "header")
+    fast = batch.wheel_steps(readings, cfg)  # type: ignore[arg-type]
+    monkeypatch.setattr(fastlane, "_bulk", lambda *args: None)  # every reading one by one
+    slow = batch.wheel_steps(readings, cfg)  # type: ignore[arg-type]
+    assert fast.segments == slow.segments and len(fast) > 0.5 * len(readings)
+    for name in ("stamp_ns", "segment", "dt", "d_left", "d_right"):
+        assert np.array_equal(getattr(fast, name), getattr(slow, name)), name
 
 
 BAGS = [(DATA / "optiodom" / run, OPTIODOM_PARAMS) for run in

@@ -54,15 +54,11 @@ MARGIN = 1.0 - 1e-9  # the plausibility limits, tightened: borderline steps go t
 
 
 class Reading(Protocol):
-    """One JointState with its log (receive) time (``bagio.JointReading`` is one)."""
+    """One JointState (``bagio.JointReading`` is one; its ``log_ns`` is the receive time)."""
 
     @property
     def stamp_ns(self) -> int:
         """Header stamp [ns]."""
-
-    @property
-    def log_ns(self) -> int:
-        """Receive time [ns] (0 or less: unknown)."""
 
     @property
     def names(self) -> Sequence[str]:
@@ -85,6 +81,9 @@ class Stretch:
     """Readings integrated in bulk: all ``updated``; the poses of those the gate passed."""
 
     count: int
+    # every reading's step (the estimator's last_increment after each): header stamps,
+    # dt, d_left, d_right, as core.batch.wheel_steps collects them
+    steps: tuple[npt.NDArray[np.int64], Array, Array, Array]
     stamp_ns: list[int]
     log_ns: list[int]
     pose: Array  # (published, 3): x, y, theta
@@ -114,6 +113,8 @@ class _Chunk:
     """A chunk's readings as arrays; row 0 of ``values`` / ``stamps`` is the reference."""
 
     values: Array  # (n + 1, wheels)
+    header: npt.NDArray[np.int64]  # (n,) header stamps
+    logs: npt.NDArray[np.int64]  # (n,) receive times (0: unknown)
     stamps: npt.NDArray[np.int64]  # (n + 1,) stamps as the pipeline uses them
     dt: Array
     d_left: Array
@@ -126,24 +127,26 @@ class _Chunk:
 
 def lanes(
     pipe: ReadingPipeline, readings: Iterable[R], check_clock: bool = True,
-    chunk: int = CHUNK,
+    chunk: int = CHUNK, receive: bool = True,
 ) -> Iterator[tuple[R, Outcome] | Stretch]:
     """Feed ``readings`` to ``pipe``: each reading's outcome, or a stretch done in bulk.
 
-    The readings' ``log_ns`` is their receive time, as ``replay`` feeds them;
-    ``check_clock`` as in :meth:`ReadingPipeline.feed`.
+    The readings' ``log_ns`` is their receive time, as ``replay`` feeds them (``receive``
+    False: not known, and readings need no ``log_ns``); ``check_clock`` as in
+    :meth:`ReadingPipeline.feed`.
     """
     lookup = JointLookup(pipe.settings.encoders)
     it = iter(readings)
     while block := list(islice(it, chunk)):
-        yield from _chunk_lanes(pipe, block, lookup, check_clock)
+        yield from _chunk_lanes(pipe, block, lookup, check_clock, receive)
         del block  # before the next is read: one chunk in memory, not two
 
 
 def _chunk_lanes(
-    pipe: ReadingPipeline, block: list[R], lookup: JointLookup, check_clock: bool
+    pipe: ReadingPipeline, block: list[R], lookup: JointLookup, check_clock: bool,
+    receive: bool,
 ) -> Iterator[tuple[R, Outcome] | Stretch]:
-    c = _arrays(pipe, block, lookup, check_clock)
+    c = _arrays(pipe, block, lookup, check_clock, receive)
     n = len(block)
     ends = np.append(np.flatnonzero(~c.plain), n)
     i = scalar_until = 0
@@ -154,23 +157,30 @@ def _chunk_lanes(
             if (ref is not None and not ref.from_velocity and ref.stamp_ns == c.stamps[i]
                     and ref.values == tuple(c.values[i].tolist())):
                 j = int(ends[np.searchsorted(ends, i)])
-                stretch = _bulk(pipe, state, block, c, i, j)
+                stretch = _bulk(pipe, state, c, i, j)
                 if stretch is not None:
                     yield stretch
                     i = j
                     continue
                 scalar_until = j  # something not finite: the pipeline says what
         r = block[i]
-        outcome = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns, check_clock)
+        outcome = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity,
+                            _log_ns(r) if receive else None, check_clock)
         yield r, outcome
         i += 1
         if outcome.warning and i < n:  # the driver's clock is named: no longer a reason
-            yield from _chunk_lanes(pipe, block[i:], lookup, check_clock)
+            yield from _chunk_lanes(pipe, block[i:], lookup, check_clock, receive)
             return
 
 
+def _log_ns(reading: Reading) -> int:
+    """The reading's receive time (``log_ns``; 0: it has none)."""
+    return int(getattr(reading, "log_ns", 0))
+
+
 def _arrays(
-    pipe: ReadingPipeline, block: Sequence[Reading], lookup: JointLookup, check_clock: bool
+    pipe: ReadingPipeline, block: Sequence[Reading], lookup: JointLookup, check_clock: bool,
+    receive: bool,
 ) -> _Chunk:
     """Decode a chunk into arrays and mark its plain readings (see the module's text)."""
     settings = pipe.settings
@@ -191,7 +201,8 @@ def _arrays(
     with np.errstate(all="ignore"):
         values = np.array([ref.values if usable and ref else bad, *rows], dtype=np.float64)
         header = np.array([r.stamp_ns for r in block], dtype=np.int64)
-        logs = np.array([r.log_ns for r in block], dtype=np.int64)
+        logs = (np.array([_log_ns(r) for r in block], dtype=np.int64) if receive
+                else np.zeros(len(block), dtype=np.int64))
         receive = settings.stamp_source is StampSource.RECEIVE_TIME
         used = np.where(logs > 0, logs, header) if receive else header
         stamps = np.concatenate(([ref.stamp_ns if usable and ref else 0], used))
@@ -223,7 +234,7 @@ def _arrays(
                & (np.abs(arcs[0]) <= MAX_STEP_ARC * MARGIN)
                & (np.abs(arcs[1]) <= MAX_STEP_ARC * MARGIN)
                & np.isfinite(ds / dt) & np.isfinite(dtheta / dt))
-    return _Chunk(values, stamps, dt, d_left, d_right, peak, ds, dtheta, ok)
+    return _Chunk(values, header, logs, stamps, dt, d_left, d_right, peak, ds, dtheta, ok)
 
 
 def _rolling(prior: Sequence[float], new: Array, size: int) -> tuple[Array, Array]:
@@ -252,7 +263,7 @@ def _gate(rate: float, last: int | None, stamps: list[int]) -> tuple[list[int], 
 
 
 def _bulk(
-    pipe: ReadingPipeline, state: Handover, block: Sequence[Reading], c: _Chunk, i: int, j: int
+    pipe: ReadingPipeline, state: Handover, c: _Chunk, i: int, j: int
 ) -> Stretch | None:
     """Integrate readings ``i..j-1`` of the chunk from ``state``; hand the end state back.
 
@@ -299,16 +310,17 @@ def _bulk(
     twist = np.column_stack((linear, angular))
     if not (np.isfinite(pose).all() and np.isfinite(twist).all()):
         return None
-    last = block[j - 1]
     k = j - 1
+    last_log = int(c.logs[k])
     ref = WheelReading(int(c.stamps[j]), tuple(c.values[j].tolist()), False,
-                       last.log_ns if last.log_ns > 0 else None)
+                       last_log if last_log > 0 else None)
     end = Handover(ref, Pose2D(float(x[-1]), float(y[-1]), thetas[-1]), windows, cov, sens,
                    rates, gate_last, state.clock_named)
     pipe.take_back(end, j - i, len(published),
                    WheelIncrement(float(c.dt[k]), float(c.d_left[k]), float(c.d_right[k]),
                                   float(c.peak[k])),
                    Step(float(c.dt[k]), float(c.ds[k]), float(c.dtheta[k])))
-    return Stretch(j - i, c.stamps[i + 1:j + 1][pub].tolist(),
-                   [block[i + k].log_ns for k in published], pose[pub], twist[pub],
+    return Stretch(j - i, (c.header[sl], dt, d_left, d_right),
+                   c.stamps[i + 1:j + 1][pub].tolist(), c.logs[sl][pub].tolist(),
+                   pose[pub], twist[pub],
                    pose_covs, twist_covs, static)
