@@ -26,6 +26,7 @@ setup(
     extras_require={
         "test": ["pytest", "hypothesis"],
         "tools": ["rosbags", "matplotlib", "scipy"],
+        "fleet": ["dask[distributed]"],  # replay / eval --dask ADDRESS
     },
     zip_safe=True,
     maintainer="diffdrive_odom maintainers",

@@ -32,6 +32,7 @@ import tempfile
 import time
 import tracemalloc
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -125,11 +126,11 @@ def bench_sizes(tmp: Path, sizes: list[int], slow_max: int, settings: OdometrySe
         bag = tmp / f"sizes{n}"
         _synthetic(bag, n)
         repeat = 3 if n <= 100_000 else 1
-        decode = _best(lambda b=bag: _rosbags_decode(b), repeat)
+        decode = _best(partial(_rosbags_decode, bag), repeat)
         out = tmp / f"sizes_out{n}"
-        cols = [_best(lambda b=bag, o=out: _replay_to(b, settings, o, to_bag=True), repeat),
-                _best(lambda b=bag, o=out: _replay_to(b, settings, o, to_bag=False), repeat)]
-        slow = (_best(lambda b=bag, o=out: _replay_to(b, settings, o, to_bag=True, fast=False), 1)
+        cols = [_best(partial(_replay_to, bag, settings, out, to_bag=True), repeat),
+                _best(partial(_replay_to, bag, settings, out, to_bag=False), repeat)]
+        slow = (_best(partial(_replay_to, bag, settings, out, to_bag=True, fast=False), 1)
                 if n <= slow_max else None)
         tracemalloc.start()
         _replay_to(bag, settings, out, to_bag=True)

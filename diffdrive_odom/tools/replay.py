@@ -39,7 +39,7 @@ from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.publication import Refusal, pipeline_publication
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import bagio, evaluate, progress, sinks
+from diffdrive_odom.tools import bagio, evaluate, fleet, progress, sinks
 from diffdrive_odom.tools.args import (
     add_param_arguments,
     fail,
@@ -165,7 +165,10 @@ def _parser() -> argparse.ArgumentParser:
         "the node would publish (odom + /tf) to a rosbag2 and/or CSV, and/or evaluate it.",
         formatter_class=HelpFormatter,
     )
-    ap.add_argument("bag", help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag")
+    ap.add_argument("bags", nargs="+", metavar="BAG",
+                    help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag; several: a fleet "
+                    "(each bag's outputs in the -o/--csv/--json/--plot directories, named "
+                    "after it, and one table at the end)")
     add_param_arguments(ap, required=True, file_help="the node's ROS 2 params YAML "
                         "(required; repeatable, later files win)")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bag")
@@ -192,6 +195,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="with --eval: write a PNG plot (default: none)")
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                     help="progress line on stderr (default: on a terminal, for long bags)")
+    fleet.add_fleet_arguments(ap)
     return ap
 
 
@@ -216,8 +220,29 @@ def _output_problem(args: argparse.Namespace) -> str | None:
 
 
 def main(argv: Sequence[str]) -> int:
-    """``diffdrive-odom replay``; exit 2 on a bad parameter, bag or output, or nothing to do."""
+    """``diffdrive-odom replay``; exit 2 on a bad parameter, bag or output, or nothing to do.
+
+    Several bags: each as one would be (:func:`run_bag`) on ``--jobs`` processes or a
+    ``--dask`` cluster; the exit status is then the number that failed.
+    """
     args = _parser().parse_args(list(argv))
+    if len(args.bags) == 1:
+        args.bag = args.bags[0]
+        return run_bag(args)
+    return _run_fleet(args)
+
+
+def _run_fleet(args: argparse.Namespace) -> int:
+    """Every bag through :func:`run_bag`, outputs named after the bag in the given directories."""
+    if not (args.output or args.csv or args.eval):
+        return _error("nothing to do: give -o OUT_DIR, --csv DIR and/or --eval")
+    done = fleet.run_fleet(args, run_bag, PREFIX, (("output", ""), ("csv", ".csv"),
+                                                   ("json", ".json"), ("plot", ".png")))
+    return _error(done) if isinstance(done, str) else done
+
+
+def run_bag(args: argparse.Namespace) -> int:
+    """One bag (``args.bag``) with the parsed flags: what ``replay BAG ...`` does."""
     settings = settings_from_args(args)
     if isinstance(settings, str):
         return _error(settings)
