@@ -92,6 +92,6 @@ def test_eval_fleet(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
                   str(tmp_path / "figures"), "--jobs", "2"])
     out, _ = capsys.readouterr()
     assert status == 1
-    for k, bag in enumerate(RUNS):
-        assert (tmp_path / "figures" / f"{bag.name}.json").read_bytes() == alone[k]
+    for k, run in enumerate(RUNS):
+        assert (tmp_path / "figures" / f"{run.name}.json").read_bytes() == alone[k]
     assert "2 of 3 bags done, 1 failed" in out
