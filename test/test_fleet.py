@@ -6,6 +6,7 @@ order is the order the bags were given, whatever finished first.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -95,3 +96,20 @@ def test_eval_fleet(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     for k, run in enumerate(RUNS):
         assert (tmp_path / "figures" / f"{run.name}.json").read_bytes() == alone[k]
     assert "2 of 3 bags done, 1 failed" in out
+
+
+def test_calibrate_decodes_its_bags_in_parallel(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """The same fit whatever the processes; every bag that fails is named, no fit made."""
+    nominal = ["-p", "wheel_radius:=0.042", "-p", "wheel_separation:=0.2", "--force"]
+    bags = [str(b) for b in RUNS]
+    outs = []
+    for jobs in ("1", "2"):
+        assert cli(["calibrate", *bags, *nominal, "--jobs", jobs]) == 0
+        outs.append(re.sub(r"[\d.]+ s\b", "", capsys.readouterr().out))  # time taken
+    assert outs[0] == outs[1] and "/**:" in outs[0]
+    missing = [str(tmp_path / "gone1"), str(tmp_path / "gone2")]
+    assert cli(["calibrate", bags[0], *missing, *nominal, "--jobs", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "2 of 3 bags failed, so no fit" in err
+    assert all(m in err for m in missing)

@@ -75,41 +75,52 @@ def _failed(bag: str, exc: BaseException) -> BagResult:
 def run_many(work: Work, jobs: Sequence[tuple[str, argparse.Namespace]], processes: int | None,
              dask: str | None) -> list[BagResult]:
     """Each ``(bag, args)`` through ``work``; results in the order given."""
+    done = map_calls(run_one, [(work, bag, a) for bag, a in jobs], processes, dask)
+    return [r if isinstance(r, BagResult) else _failed(bag, r)
+            for (bag, _), r in zip(jobs, done, strict=True)]
+
+
+def map_calls(fn: Callable[..., Any], calls: Sequence[tuple[Any, ...]], processes: int | None,
+              dask: str | None) -> list[Any]:
+    """``fn(*call)`` for each call, on processes or Dask; results (or the exception) in order.
+
+    ``fn`` and its arguments must pickle (a module-level function, plain data).
+    """
     if dask:
-        return _on_dask(work, jobs, dask)
+        return _on_dask(fn, calls, dask)
     workers = processes or os.cpu_count() or 1
-    if workers == 1 or len(jobs) == 1:
-        return [run_one(work, bag, a) for bag, a in jobs]
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
-        futures: list[Future[BagResult]] = [pool.submit(run_one, work, bag, a)
-                                            for bag, a in jobs]
-        results = []
-        for (bag, _), fut in zip(jobs, futures, strict=True):
-            try:
-                results.append(fut.result())
-            except Exception as exc:  # a worker that died (killed, out of memory)
-                results.append(_failed(bag, exc))
-        return results
+    if workers == 1 or len(calls) <= 1:
+        return [_call(fn, c) for c in calls]
+    with ProcessPoolExecutor(max_workers=min(workers, len(calls))) as pool:
+        futures: list[Future[Any]] = [pool.submit(fn, *c) for c in calls]
+        return [_result(f) for f in futures]
 
 
-def _on_dask(work: Work, jobs: Sequence[tuple[str, argparse.Namespace]],
-             address: str) -> list[BagResult]:
+def _call(fn: Callable[..., Any], call: tuple[Any, ...]) -> Any:
+    try:
+        return fn(*call)
+    except Exception as exc:
+        return exc
+
+
+def _result(future: Any) -> Any:
+    try:
+        return future.result()
+    except Exception as exc:  # the call's own, or a worker that died (killed, out of memory)
+        return exc
+
+
+def _on_dask(fn: Callable[..., Any], calls: Sequence[tuple[Any, ...]], address: str
+             ) -> list[Any]:
     try:
         from distributed import Client
     except ImportError as exc:
         raise FleetError("--dask needs dask.distributed: pip install "
                          "'diffdrive_odom[fleet]' (or dask[distributed])") from exc
-    results = []
     connect: Any = Client  # untyped library
     with connect(address) as client:
-        futures: list[Any] = [client.submit(run_one, work, bag, a, pure=False)
-                              for bag, a in jobs]
-        for (bag, _), fut in zip(jobs, futures, strict=True):
-            try:
-                results.append(fut.result())
-            except Exception as exc:
-                results.append(_failed(bag, exc))
-    return results
+        futures = [client.submit(fn, *c, pure=False) for c in calls]
+        return [_result(f) for f in futures]
 
 
 class FleetError(Exception):
