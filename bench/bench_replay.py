@@ -8,10 +8,11 @@ Rows per bag (readings/s, higher is better; ratios against "rosbags decode"):
   rosbags decode   every JointState deserialised by rosbags (the baseline)
   decode only      JointState -> JointReading in stamp order, as replay reads them
                    (the node's CDR decoder for rosbag2 bags, rosbags' for ROS 1)
-  replay           decode + the node's reading pipeline, nothing written
+  replay           decode + the node's reading pipeline (fast lane), nothing written
   replay -> bag    decode + pipeline + Odometry and /tf into an MCAP bag + CSV
 and, on the decoded readings held in memory:
-  step-by-step     OdometryEstimator.update per reading (the node's path)
+  step-by-step     the pipeline fed one reading at a time (the node's path)
+  fast lane        the same through core.fastlane (rule-free stretches in bulk)
   vectorised       wheel_steps (decode once) + integrate_steps (numpy)
   integrate only   integrate_steps alone: calibration's inner loop
 Memory: peak traced allocation of streaming replay -> bag on a synthetic bag and on
@@ -156,15 +157,17 @@ def bench_bag(name: str, bag: Path, settings: OdometrySettings, tmp: Path) -> No
         lambda: replay.replay_readings(bagio.read_joint_states(bag), settings))))
     rows.append(("replay -> bag + csv", _best(
         lambda: _replay_to_bag(bag, settings, tmp / f"{name}_out"), repeat=2)))
-    step = _best(lambda: replay.replay_readings(readings, settings))
+    step = _best(lambda: replay.replay_readings(readings, settings, fast=False))
     rows.append(("step-by-step (in memory)", step))
+    rows.append(("fast lane (in memory)", _best(
+        lambda: replay.replay_readings(readings, settings))))
     rows.append(("vectorised (in memory)", _best(lambda: batch.integrate_steps(
         batch.wheel_steps(readings, settings), settings.geometry))))
     steps = batch.wheel_steps(readings, settings)
     integrate = _best(lambda: batch.integrate_steps(steps, settings.geometry), repeat=20)
     rows.append(("integrate only (numpy)", integrate))
     # Agreement of the two paths (the test asserts < 1e-9 m).
-    end_step = replay.replay_readings(readings, settings).final_pose
+    end_step = replay.replay_readings(readings, settings, fast=False).final_pose
     end_vec = batch.final_pose(steps, settings.geometry)
     gap = float(np.hypot(end_step.x - end_vec.x, end_step.y - end_vec.y))
     print(f"\n{name}: {n} readings ({bag.name})")
