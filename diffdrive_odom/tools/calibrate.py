@@ -9,7 +9,8 @@ Readings are decoded with the odometry node's own parameters and pipeline
 (:func:`diffdrive_odom.core.batch.wheel_steps`), ground truth with ``eval``'s readers, so
 a bag that replays or evaluates also calibrates. The result is printed as a
 ``/**: ros__parameters:`` block with the node's own parameter names, to paste into
-its params file (``--yaml FILE`` also writes it).
+its params file (``--yaml FILE`` also writes it). The fit (scipy) and the bag reader
+(rosbags) are imported past the parsing, so ``--help`` works without the ``tools`` extra.
 """
 
 from __future__ import annotations
@@ -19,12 +20,12 @@ import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core import batch, calibration, crossval
-from diffdrive_odom.core.calibration import Fit
+from diffdrive_odom.core import batch
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.recorded_run import CalibrationError, Run, trajectory, values_of
 from diffdrive_odom.core.umbmark import Umbmark, reference_end, umbmark
@@ -35,7 +36,7 @@ from diffdrive_odom.core.uncertainty import (
 )
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.settings.params import yaml_text
-from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools import evaluate
 from diffdrive_odom.tools.args import (
     add_param_arguments,
     add_reference_arguments,
@@ -44,6 +45,10 @@ from diffdrive_odom.tools.args import (
     settings_from_args,
 )
 from diffdrive_odom.tools.cli import HelpFormatter
+
+if TYPE_CHECKING:  # scipy and rosbags (the ``tools`` extra) only where they are used
+    from diffdrive_odom.core import crossval
+    from diffdrive_odom.core.calibration import Fit
 
 PREFIX = "[calibrate]"
 
@@ -137,6 +142,8 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
 def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,
          reference: bool) -> Run:
     """Decode one bag into its wheel steps (and read its ground truth when asked)."""
+    from diffdrive_odom.tools import bagio
+
     ref = None
     if reference:
         topic = evaluate.reference_topic(bag, args.ground_truth, (args.topic,),
@@ -156,6 +163,8 @@ def main(argv: Sequence[str]) -> int:
     settings = settings_from_args(args)
     if isinstance(settings, str):
         return _error(settings)
+    from diffdrive_odom.tools import bagio
+
     try:
         if args.umbmark is not None:
             return _umbmark(args, settings)
@@ -171,6 +180,8 @@ def main(argv: Sequence[str]) -> int:
 def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
                    runs: Sequence[Run]) -> int:
     """Fit, check it on held-out runs, bootstrap its sigma; print (or refuse) the block."""
+    from diffdrive_odom.core import calibration, crossval
+
     nominal = settings.geometry
     result = calibration.fit(runs, nominal)
     verdict = crossval.check(crossval.held_out(runs, nominal)) if len(runs) >= 2 else None
@@ -267,6 +278,8 @@ def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None,
     ``covariance`` is the bootstrap's; the 1-sigma column adds ``drift`` of each value
     (:func:`crossval.with_drift`), what the value may move by in another session.
     """
+    from diffdrive_odom.core import calibration, crossval
+
     nominal = values_of(fit.nominal)
     lines = [f"calibrated from {len(fit.runs)} run(s): whole trajectory, {fit.samples} "
              f"samples, {fit.loss} loss, {fit.evaluations} evaluations, {fit.seconds:.2f} s",
