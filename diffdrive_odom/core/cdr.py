@@ -19,9 +19,13 @@ node and by replay's bag output.
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
 
 from diffdrive_odom.core.conversions import split_ns, yaw_to_quaternion
 
@@ -223,3 +227,63 @@ class TransformLayout:
         sec, nanosec = split_ns(stamp_ns)
         _, _, qz, qw = yaw_to_quaternion(yaw)
         return self.encode(sec, nanosec, x, y, qz, qw)
+
+
+def _filled(template: bytes | bytearray, n: int) -> npt.NDArray[np.uint8]:
+    """``n`` copies of a message's bytes, one row each, to fill in place."""
+    return np.tile(np.frombuffer(bytes(template), dtype=np.uint8), (n, 1))
+
+
+def _put(rows: npt.NDArray[np.uint8], at: int, dtype: str, values: npt.ArrayLike) -> None:
+    """Write one field (or a run of them, a 2-D ``values``) of every row at byte ``at``."""
+    col = np.ascontiguousarray(values, dtype=dtype)
+    width = col.itemsize * (col.shape[1] if col.ndim == 2 else 1)
+    rows[:, at:at + width] = col.reshape(len(rows), -1).view(np.uint8)
+
+
+def planar_fields(stamp_ns: Sequence[int], yaw: Sequence[float]) -> tuple[
+        npt.NDArray[np.int32], npt.NDArray[np.uint32], npt.NDArray[np.float64]]:
+    """sec, nanosec and the quaternion's (z, w) of many stamps and headings.
+
+    ``math.sin``/``math.cos`` one by one (not numpy's, whose last bit may differ), so
+    the bytes are those :meth:`OdometryLayout.planar` writes.
+    """
+    ns = np.asarray(stamp_ns, dtype=np.int64)
+    sec, nanosec = np.divmod(ns, 1_000_000_000)
+    half = [0.5 * t for t in yaw]
+    qzw = np.array([(math.sin(h), math.cos(h)) for h in half], dtype=np.float64).reshape(-1, 2)
+    return sec.astype(np.int32), nanosec.astype(np.uint32), qzw
+
+
+class BulkOdometry(OdometryLayout):
+    """:class:`OdometryLayout` for many messages at once: one row of bytes per message."""
+
+    def rows(self, stamp_ns: Sequence[int], pose: npt.NDArray[np.float64],
+             twist: npt.NDArray[np.float64], pose_cov: npt.NDArray[np.float64],
+             twist_cov: npt.NDArray[np.float64]) -> npt.NDArray[np.uint8]:
+        """(n, size) bytes: ``pose`` (n, 3) x, y, yaw; ``twist`` (n, 2); covariances (n, 36)."""
+        sec, nanosec, qzw = planar_fields(stamp_ns, pose[:, 2].tolist())
+        rows = _filled(self._buf, len(sec))
+        _put(rows, self._stamp, "<i4", sec)
+        _put(rows, self._stamp + 4, "<u4", nanosec)
+        _put(rows, self._xy, "<f8", pose[:, :2])
+        _put(rows, self._qzw, "<f8", qzw)
+        _put(rows, self._linear, "<f8", twist[:, 0])
+        _put(rows, self._angular, "<f8", twist[:, 1])
+        _put(rows, self._pose_cov, "<f8", pose_cov)
+        _put(rows, self._twist_cov, "<f8", twist_cov)
+        return rows
+
+
+class BulkTransform(TransformLayout):
+    """:class:`TransformLayout` for many messages at once: one row of bytes per message."""
+
+    def rows(self, stamp_ns: Sequence[int], pose: npt.NDArray[np.float64]) -> npt.NDArray[np.uint8]:
+        """(n, size) bytes of the transforms of ``pose`` (n, 3) x, y, yaw."""
+        sec, nanosec, qzw = planar_fields(stamp_ns, pose[:, 2].tolist())
+        rows = _filled(self._buf, len(sec))
+        _put(rows, self._stamp, "<i4", sec)
+        _put(rows, self._stamp + 4, "<u4", nanosec)
+        _put(rows, self._xy, "<f8", pose[:, :2])
+        _put(rows, self._qzw, "<f8", qzw)
+        return rows

@@ -43,15 +43,18 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
+import numpy as np
+import numpy.typing as npt
 from rosbags.convert.converter import is_same_wireformat, migrate_bytes
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import Connection
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import StoragePlugin
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from diffdrive_odom.core.cdr import JointStateDecoder
 from diffdrive_odom.core.conversions import split_ns, stamp_to_ns
+from diffdrive_odom.tools import bulkmcap
 from diffdrive_odom.tools.outputs import STORAGES as STORAGES
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -290,7 +293,7 @@ class BagWriter:
         if self.path.exists():
             raise BagError(f"{self.path} exists: remove it or choose another output")
         plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-        self._writer = Writer(self.path, version=9, storage_plugin=plugin)
+        self._writer = bulkmcap.FastWriter(self.path, version=9, storage_plugin=plugin)
         self.typestore = typestore()
         self._conns: dict[str, tuple[Connection, str]] = {}
         self.count = 0
@@ -331,6 +334,22 @@ class BagWriter:
         """Write already-serialized CDR bytes onto ``topic``."""
         self._writer.write(self._conns[topic][0], log_ns, data)
         self.count += 1
+
+    def write_rows(self, topics: Sequence[str], log_ns: npt.NDArray[np.int64],
+                   payloads: Sequence[npt.NDArray[np.uint8]]) -> None:
+        """Per row ``k``: ``payloads[j][k]`` (CDR bytes) onto ``topics[j]`` at ``log_ns[k]``.
+
+        The same bag as :meth:`write_cdr` once per message, in that order; MCAP in bulk
+        (:mod:`diffdrive_odom.tools.bulkmcap`), sqlite3 one by one.
+        """
+        conns = [self._conns[t][0] for t in topics]
+        if bulkmcap.supported(self._writer):
+            bulkmcap.write_rows(self._writer, conns, log_ns, payloads)
+        else:
+            for k, stamp in enumerate(log_ns.tolist()):
+                for conn, data in zip(conns, payloads, strict=True):
+                    self._writer.write(conn, stamp, data[k].tobytes())
+        self.count += len(log_ns) * len(topics)
 
 
 class CsvWriter:
@@ -373,6 +392,23 @@ class CsvWriter:
             (ns, seconds_text(ns), repr(x), repr(y), repr(yaw), repr(linear), repr(angular),
              status, *variances)
         )
+
+    def rows(self, ns: Sequence[int], columns: npt.NDArray[np.float64], status: str) -> None:
+        """Many rows at once, the text :meth:`row` writes.
+
+        ``columns`` (n, 8) holds x, y, yaw, linear, angular and the x, y, yaw
+        variances; ``status`` is a plain word (csv quotes nothing of such a row).
+        """
+        assert self._file is not None
+        if not len(ns):
+            return
+        secs = [f"{s}.{n:09d}" for s, n in (divmod(int(v), 1_000_000_000) for v in ns)]
+        cols = [map(repr, c) for c in columns.T.tolist()]
+        tail = f",{status}," if status.isidentifier() else None
+        assert tail is not None, status
+        lines = (f"{a},{b},{c},{d},{e},{f},{g}{tail}{h},{i},{j}\r\n"
+                 for a, b, c, d, e, f, g, h, i, j in zip(ns, secs, *cols, strict=True))
+        self._file.write("".join(lines))
 
 
 def seconds_text(ns: int) -> str:

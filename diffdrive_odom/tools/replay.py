@@ -102,6 +102,9 @@ class ReplayStats:
 
 def _stretch_out(stretch: fastlane.Stretch, sink: Callable[[Published], None]) -> None:
     """The poses of a stretch the fast lane integrated, as the node would publish them."""
+    if isinstance(sink, sinks.OutputSink):  # in bulk: the same bytes and text
+        sink.stretch(stretch)
+        return
     for stamp, log, pose, lin, ang, pcov, tcov in stretch.poses():
         sink(Published(stamp, log, pose, lin, ang, Status.UPDATED, pcov, tcov))
 

@@ -8,16 +8,19 @@ node would have sent.
 from __future__ import annotations
 
 from array import array
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
-from diffdrive_odom.core.cdr import OdometryLayout, TransformLayout
+from diffdrive_odom.core.cdr import BulkOdometry, BulkTransform
 from diffdrive_odom.core.estimator import Status
+from diffdrive_odom.core.fastlane import Stretch
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.metrics import Trajectory
+from diffdrive_odom.core.uncertainty import ZERO3, pose_message_covariance, twist_message_covariance
 from diffdrive_odom.settings.odometry import OdometrySettings
 
 if TYPE_CHECKING:  # the bag library only where a bag is read or written (``tools`` extra)
@@ -83,6 +86,85 @@ def keep_input(reader: AnyReader, writer: bagio.BagWriter, odom_topic: str) -> b
     return passthrough
 
 
+class OutputSink:
+    """Where each published pose goes: output bag, CSV table, ``--eval`` trajectory.
+
+    Called with one :class:`Published`; :meth:`stretch` takes a whole stretch of the
+    fast lane at once (the same bytes and text, built with numpy: writing one message
+    at a time cost more than the odometry). The bag's topics are registered by the caller.
+    """
+
+    def __init__(self, settings: OdometrySettings, writer: bagio.BagWriter | None,
+                 csv_out: bagio.CsvWriter | None, traj: PoseLog | None = None, *,
+                 odom_topic: str = "/odom", tf_topic: str = "/tf") -> None:
+        # The node's own byte layouts: the bag holds what the node would have published.
+        self.odom = BulkOdometry(settings.odom_frame_id, settings.base_frame_id)
+        self.transform = BulkTransform(settings.odom_frame_id, settings.base_frame_id)
+        self.tf = settings.enable_odom_tf
+        self.writer, self.csv_out, self.traj = writer, csv_out, traj
+        self.odom_topic, self.tf_topic = odom_topic, tf_topic
+
+    def __call__(self, p: Published) -> None:
+        """One pose."""
+        x, y, yaw = p.pose.x, p.pose.y, p.pose.theta
+        if self.writer is not None:
+            self.odom.covariance(p.pose_covariance, p.twist_covariance)
+            self.writer.write_cdr(self.odom_topic, p.log_ns, self.odom.planar(
+                p.stamp_ns, x, y, yaw, p.linear, p.angular))
+            if self.tf:
+                self.writer.write_cdr(self.tf_topic, p.log_ns,
+                                      self.transform.planar(p.stamp_ns, x, y, yaw))
+        if self.csv_out is not None:
+            self.csv_out.row(p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
+                             status=p.status.value, pose_covariance=p.pose_covariance)
+        if self.traj is not None:
+            self.traj.add(p)
+
+    def stretch(self, st: Stretch) -> None:
+        """Every pose of a fast-lane stretch (all ``updated``), as :meth:`__call__` one by one."""
+        n = len(st.stamp_ns)
+        if n == 0:
+            return
+        pcov, tcov = _covariances(st, n)
+        if self.writer is not None:
+            topics = [self.odom_topic]
+            payloads = [self.odom.rows(st.stamp_ns, st.pose, st.twist, pcov, tcov)]
+            if self.tf:
+                topics.append(self.tf_topic)
+                payloads.append(self.transform.rows(st.stamp_ns, st.pose))
+            self.writer.write_rows(topics, np.asarray(st.log_ns, dtype=np.int64), payloads)
+            # the layout keeps the last covariance, as the one-by-one path leaves it
+            self.odom.covariance(pcov[-1].tolist(), tcov[-1].tolist())
+        if self.csv_out is not None:
+            self.csv_out.rows(st.stamp_ns, np.column_stack(
+                (st.pose, st.twist, pcov[:, (0, 7, 35)])), Status.UPDATED.value)
+        if self.traj is not None:
+            self.traj.stamp_ns.extend(st.stamp_ns)
+            self.traj.xyz.extend(st.pose.ravel().tolist())
+
+
+# Entries of the 6x6 message matrices taken from the stretch's packed 3x3 / 2x2 ones
+# (uncertainty.pose_message_covariance / twist_message_covariance, the one definition).
+_POSE_AT = ((0, 0), (1, 1), (5, 2), (6, 1), (7, 3), (11, 4), (30, 2), (31, 4), (35, 5))
+_TWIST_AT = ((0, 0), (5, 1), (30, 1), (35, 2))
+
+
+def _covariances(st: Stretch, n: int) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(n, 36) pose and twist message covariances of a stretch's published poses."""
+    static_pose, static_twist = st.static
+    if st.pose_covariance is None or st.twist_covariance is None:
+        return (np.tile(np.asarray(static_pose, dtype=np.float64), (n, 1)),
+                np.tile(np.asarray(static_twist, dtype=np.float64), (n, 1)))
+    pose = np.tile(np.asarray(pose_message_covariance(ZERO3), dtype=np.float64), (n, 1))
+    twist = np.tile(np.asarray(twist_message_covariance(((0.0, 0.0), (0.0, 0.0))),
+                               dtype=np.float64), (n, 1))
+    for at, src in _POSE_AT:
+        pose[:, at] = st.pose_covariance[:, src]
+    for at, src in _TWIST_AT:
+        twist[:, at] = st.twist_covariance[:, src]
+    return pose, twist
+
+
 def output_sink(
     settings: OdometrySettings,
     writer: bagio.BagWriter | None,
@@ -91,28 +173,6 @@ def output_sink(
     *,
     odom_topic: str = "/odom",
     tf_topic: str = "/tf",
-) -> Callable[[Published], None]:
-    """Where each published pose goes: output bag, CSV table, ``--eval`` trajectory.
-
-    The bag's topics are registered by the caller.
-    """
-    # The node's own byte layouts: the bag holds what the node would have published.
-    odom = OdometryLayout(settings.odom_frame_id, settings.base_frame_id)
-    transform = TransformLayout(settings.odom_frame_id, settings.base_frame_id)
-    tf = settings.enable_odom_tf
-
-    def sink(p: Published) -> None:
-        x, y, yaw = p.pose.x, p.pose.y, p.pose.theta
-        if writer is not None:
-            odom.covariance(p.pose_covariance, p.twist_covariance)
-            writer.write_cdr(odom_topic, p.log_ns,
-                             odom.planar(p.stamp_ns, x, y, yaw, p.linear, p.angular))
-            if tf:
-                writer.write_cdr(tf_topic, p.log_ns, transform.planar(p.stamp_ns, x, y, yaw))
-        if csv_out is not None:
-            csv_out.row(p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
-                        status=p.status.value, pose_covariance=p.pose_covariance)
-        if traj is not None:
-            traj.add(p)
-
-    return sink
+) -> OutputSink:
+    """Where each published pose goes (:class:`OutputSink`); topics registered by the caller."""
+    return OutputSink(settings, writer, csv_out, traj, odom_topic=odom_topic, tf_topic=tf_topic)
