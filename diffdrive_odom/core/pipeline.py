@@ -25,6 +25,7 @@ from diffdrive_odom.core.estimator import (
     Status,
     Verdict,
 )
+from diffdrive_odom.core.gyro import GyroConfig, GyroHeading, SlipStats
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.stamps import ClockOffsetCheck, StampSource
 from diffdrive_odom.core.uncertainty import (
@@ -53,6 +54,7 @@ class OdometrySettings:
     twist_covariance_diagonal: tuple[float, ...]
     noise: NoiseModel | None  # None: covariance_model static (the diagonals above)
     stamp_source: StampSource = StampSource.HEADER
+    gyro: GyroConfig | None = None  # use_imu false: None (wheels only, as before)
 
 
 ZERO_STAMP = Verdict(
@@ -65,6 +67,9 @@ VELOCITY_ON = (
     "(ros2_control without a position state interface); odometry drifts faster this way"
 )
 VELOCITY_OFF = "wheel positions are available again: integrating positions"
+IMU_SILENT = ("IMU silent (no usable yaw rate within imu_timeout of a wheel step): wheels "
+              "only, the heading covariance grows with the wheels' model again")
+IMU_BACK = "IMU samples again: gyro-aided heading"
 
 
 @dataclass(frozen=True)
@@ -100,11 +105,31 @@ class PipelineStats:
     time_resets: int = 0
     last_usable_stamp_ns: int | None = None
     velocity_fallback: bool = False
+    gyro: GyroStats | None = None  # use_imu true only
 
     @property
     def dropped_total(self) -> int:
         """All dropped readings, whatever the reason."""
         return sum(self.dropped.values())
+
+
+@dataclass(frozen=True)
+class GyroStats:
+    """The gyro's part of the counters (``use_imu`` true).
+
+    ``samples``: IMU messages offered; ``dropped``: refused by code (``non_finite``,
+    ``saturated``, ``zero_stamp``, ``stale_stamp``, ``future_stamp``); ``silent``: the
+    last step was wheels only for want of samples; ``bias`` [rad/s] and its standard
+    deviation; ``zero_velocity_updates``: bias updates while standing still; ``slips``.
+    """
+
+    samples: int = 0
+    dropped: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    silent: bool = True
+    bias: float = 0.0
+    bias_stddev: float = 0.0
+    zero_velocity_updates: int = 0
+    slips: SlipStats = field(default_factory=SlipStats)
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,6 +193,47 @@ class ReadingPipeline:
         self._last_usable_ns: int | None = None
         self._velocity = False
         self._clock = ClockOffsetCheck()
+        self._gyro: GyroHeading | None = None
+        self._imu_samples = 0
+        self._imu_dropped: dict[str, int] = {}
+        self._imu_silent = False  # so a missing IMU is named at the first step
+        self._attach_gyro(settings)
+
+    def _attach_gyro(self, settings: OdometrySettings) -> None:
+        """Give the estimator the gyro's heading (``use_imu``), keeping its state if any."""
+        cfg = settings.gyro
+        if cfg is None:
+            self._gyro = None
+        elif self._gyro is None:
+            est = settings.estimator
+            self._gyro = GyroHeading(cfg, settings.noise, est.time_jump_threshold,
+                                     est.max_reading_gap)
+        else:
+            self._gyro.set_config(cfg)
+            self._gyro.noise = self._gyro.noise if settings.noise is None else settings.noise
+        self._estimator.heading = self._gyro
+        if self._gyro is not None:
+            self._gyro.wheel_stamp_ns = self._estimator.stamp_ns
+
+    @property
+    def gyro(self) -> GyroHeading | None:
+        """The gyro's state (bias, slips), None with ``use_imu`` false."""
+        return self._gyro
+
+    def feed_imu(self, stamp_ns: int, wx: float, wy: float, wz: float) -> str:
+        """Offer one IMU sample (angular velocity in the IMU's frame, header stamp).
+
+        Returns '' when kept, else the drop code (counted in ``stats.gyro.dropped``).
+        With ``use_imu`` false nothing happens ('').
+        """
+        gyro = self._gyro
+        if gyro is None:
+            return ""
+        self._imu_samples += 1
+        code = gyro.add(stamp_ns, wx, wy, wz)
+        if code:
+            self._imu_dropped[code] = self._imu_dropped.get(code, 0) + 1
+        return code
 
     @property
     def estimator(self) -> OdometryEstimator:
@@ -191,6 +257,9 @@ class ReadingPipeline:
             time_resets=self._time_resets,
             last_usable_stamp_ns=self._last_usable_ns,
             velocity_fallback=self._velocity,
+            gyro=None if (g := self._gyro) is None else GyroStats(
+                self._imu_samples, MappingProxyType(dict(self._imu_dropped)), g.silent,
+                g.bias, g.bias_variance ** 0.5, g.zero_velocity_updates, g.slips),
         )
 
     def feed(
@@ -225,6 +294,11 @@ class ReadingPipeline:
         dropped = verdict.dropped_code
         if dropped is not None:
             self._dropped[dropped] = self._dropped.get(dropped, 0) + verdict.count
+        gyro = self._gyro
+        if gyro is not None and self._estimator.stamp_ns is not None:
+            gyro.wheel_stamp_ns = max(gyro.wheel_stamp_ns or 0, self._estimator.stamp_ns)
+            if status is Status.TIME_RESET:
+                gyro.wheel_stamp_ns = self._estimator.stamp_ns
         if status in (Status.DROPPED, Status.HELD):
             return Outcome(verdict, False, "", warning, stamp_ns)
         self._last_usable_ns = stamp_ns
@@ -238,6 +312,9 @@ class ReadingPipeline:
         if self._estimator.from_velocity != self._velocity:
             self._velocity = not self._velocity
             note = VELOCITY_ON if self._velocity else VELOCITY_OFF
+        elif gyro is not None and verdict.has_new_pose and gyro.silent != self._imu_silent:
+            self._imu_silent = gyro.silent
+            note = IMU_SILENT if gyro.silent else IMU_BACK
         publish = verdict.has_new_pose and self._gate.due(stamp_ns)
         if publish:
             self._published += 1
@@ -285,6 +362,7 @@ class ReadingPipeline:
         else:
             self._estimator.set_geometry(settings.geometry)
             self._estimator.set_noise(settings.noise)
+        self._attach_gyro(settings)
 
 
 def _static_covariances(settings: OdometrySettings) -> tuple[list[float], list[float]]:

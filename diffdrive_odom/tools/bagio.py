@@ -57,6 +57,7 @@ from diffdrive_odom.core.cdr import JointStateDecoder
 from diffdrive_odom.core.conversions import split_ns, stamp_to_ns
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
+IMU = "sensor_msgs/msg/Imu"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 STORAGES = ("mcap", "sqlite3")
@@ -159,6 +160,17 @@ class JointReading:
     velocity: Sequence[float]
 
 
+@dataclass(frozen=True)
+class ImuSample:
+    """One Imu message's angular velocity (its own frame) and stamps (``use_imu``)."""
+
+    stamp_ns: int
+    log_ns: int
+    wx: float
+    wy: float
+    wz: float
+
+
 def _reading(msg: Any, log_ns: int) -> JointReading:
     return JointReading(
         stamp_to_ns(msg.header.stamp), log_ns, msg.name, msg.position, msg.velocity
@@ -208,25 +220,51 @@ def iter_joint_states(
     to it raw, in log time order, interleaved with the readings (``replay
     --keep-input`` copies them).
     """
+    for item in iter_sensor_readings(reader, topic, None, passthrough, window, jump_back_ns):
+        assert isinstance(item, JointReading)  # no IMU topic asked for
+        yield item
+
+
+def iter_sensor_readings(
+    reader: AnyReader,
+    topic: str = "/joint_states",
+    imu_topic: str | None = None,
+    passthrough: Passthrough | None = None,
+    window: int = REORDER_WINDOW,
+    jump_back_ns: int = 1_000_000_000,
+) -> Iterator[JointReading | ImuSample]:
+    """:func:`iter_joint_states`, with the Imu messages of ``imu_topic`` merged in.
+
+    Both go through the same reordering by header stamp, so a wheel reading comes
+    after the gyro samples up to its stamp, as a node waiting for them would see it.
+    """
     joints = connections_for(reader, topic, (JOINT_STATE,))
-    conns = reader.connections if passthrough is not None else joints
+    imus = [] if imu_topic is None else connections_for(reader, imu_topic, (IMU,))
+    conns = reader.connections if passthrough is not None else joints + imus
     joint_ids = {id(c) for c in joints}
+    imu_ids = {id(c) for c in imus}
     decode = _JointStates(reader)
-    heap: list[tuple[int, int, JointReading]] = []
+    heap: list[tuple[int, int, JointReading | ImuSample]] = []
     order = itertools.count()
     newest: int | None = None
     for conn, log_ns, raw in reader.messages(connections=conns):
+        item: JointReading | ImuSample
         if passthrough is not None:
             passthrough(conn, log_ns, raw)
-            if id(conn) not in joint_ids:
-                continue
-        reading = decode(raw, conn.msgtype, log_ns)
-        if newest is not None and reading.stamp_ns < newest - jump_back_ns:
+        if id(conn) in joint_ids:
+            item = decode(raw, conn.msgtype, log_ns)
+        elif id(conn) in imu_ids:
+            msg = reader.deserialize(raw, conn.msgtype)
+            w = msg.angular_velocity
+            item = ImuSample(stamp_to_ns(msg.header.stamp), log_ns, w.x, w.y, w.z)
+        else:
+            continue
+        if newest is not None and item.stamp_ns < newest - jump_back_ns:
             while heap:
                 yield heapq.heappop(heap)[2]
             newest = None
-        newest = reading.stamp_ns if newest is None else max(newest, reading.stamp_ns)
-        heapq.heappush(heap, (reading.stamp_ns, next(order), reading))
+        newest = item.stamp_ns if newest is None else max(newest, item.stamp_ns)
+        heapq.heappush(heap, (item.stamp_ns, next(order), item))
         if len(heap) > window:
             yield heapq.heappop(heap)[2]
     while heap:
