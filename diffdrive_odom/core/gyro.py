@@ -63,7 +63,7 @@ class GyroConfig:
     bias_random_walk: float = 2.0e-5  # rad/s/sqrt(s): how fast the bias wanders
     max_rate: float = 34.9  # rad/s: |yaw rate| at or above this is saturated (2000 deg/s)
     timeout: float = 0.5  # s without samples: wheels only
-    slip_sigmas: float = 3.0  # disagreement (in combined sigmas) that is a slip
+    slip_sigmas: float = 5.0  # disagreement (in combined sigmas) that is a slip
     zero_velocity_speed: float = 0.001  # m/s: both wheels slower = standing still
     slip_distance_from_other_wheel: bool = True
 
@@ -168,6 +168,7 @@ class GyroHeading:
         self._slipping = False
         self.silent = True  # no usable samples for the last step (or none yet)
         self.zero_velocity_updates = 0
+        self.steps = 0  # wheel steps asked about
 
     def set_config(self, config: GyroConfig) -> None:
         """New settings at runtime; the bias estimate carries on (its start value is for starts)."""
@@ -260,6 +261,7 @@ class GyroHeading:
              d_left: float, d_right: float, arcs: tuple[float, float]) -> GyroStep | None:
         """Heading (and distance) of the step ``t0 -> t1``; None: wheels only (IMU silent)."""
         self.wheel_stamp_ns = t1
+        self.steps += 1
         dt = (t1 - t0) * 1e-9
         if dt <= 0.0 or not self.covers(self._real if self._mark == t0 else t0, t1):
             self.silent = True

@@ -286,6 +286,8 @@ class ReadingPipeline:
                 warning = self._clock.check(stamp_ns, receive_ns)
         else:
             receive_ns = None
+        gyro = self._gyro
+        steps = 0 if gyro is None else gyro.steps
         verdict = (
             self._estimator.update(stamp_ns, names, position, velocity, receive_ns)
             if stamp_ns > 0 else ZERO_STAMP
@@ -294,7 +296,6 @@ class ReadingPipeline:
         dropped = verdict.dropped_code
         if dropped is not None:
             self._dropped[dropped] = self._dropped.get(dropped, 0) + verdict.count
-        gyro = self._gyro
         if gyro is not None and self._estimator.stamp_ns is not None:
             gyro.wheel_stamp_ns = max(gyro.wheel_stamp_ns or 0, self._estimator.stamp_ns)
             if status is Status.TIME_RESET:
@@ -312,7 +313,7 @@ class ReadingPipeline:
         if self._estimator.from_velocity != self._velocity:
             self._velocity = not self._velocity
             note = VELOCITY_ON if self._velocity else VELOCITY_OFF
-        elif gyro is not None and verdict.has_new_pose and gyro.silent != self._imu_silent:
+        elif gyro is not None and gyro.steps != steps and gyro.silent != self._imu_silent:
             self._imu_silent = gyro.silent
             note = IMU_SILENT if gyro.silent else IMU_BACK
         publish = verdict.has_new_pose and self._gate.due(stamp_ns)
