@@ -9,16 +9,19 @@ Odometry in Mobile Robots" (ICRA 1996).
 
 from __future__ import annotations
 
+import itertools
 import math
 import random
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 import pytest
-from oracle import arc
 
+from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.pipeline import IMU_BACK, IMU_SILENT, ReadingPipeline
-from diffdrive_odom.settings.odometry import odometry_settings
+from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
+
+from oracle import arc
 
 R, B = 0.05, 0.3
 NAMES = ("left_wheel_joint", "right_wheel_joint")
@@ -65,12 +68,12 @@ def events(d: Drive, seed: int = 1) -> Iterator[tuple[str, int, float, float]]:
     return iter(out)
 
 
-def settings(**values: object) -> object:
+def settings(**values: object) -> OdometrySettings:
     return odometry_settings({"wheel_radius": R, "wheel_separation": B, **values})
 
 
 def run(d: Drive, seed: int = 1, **values: object) -> tuple[ReadingPipeline, list[str]]:
-    pipe = ReadingPipeline(settings(**values))  # type: ignore[arg-type]
+    pipe = ReadingPipeline(settings(**values))
     notes = []
     for kind, stamp, a, b in events(d, seed):
         if kind == "i":
@@ -98,7 +101,7 @@ def test_use_imu_false_is_the_wheels_and_ignores_imu_samples() -> None:
     assert pipe.gyro is None and pipe.stats.gyro is None
     # The wheels' own belief: the slip's extra right arc turns the robot by R*extra/B.
     extra = R * _slip_angle(d, d.seconds)
-    x, y, th = truth(d)
+    th = truth(d)[2]
     assert abs(math.remainder(pipe.estimator.pose.theta - (th + extra / B), 2 * math.pi)) < 1e-9
 
 
@@ -178,8 +181,9 @@ def test_a_1khz_imu_gives_the_same_circle() -> None:
 
 def test_silent_imu_falls_back_to_wheels_without_a_jump_and_comes_back() -> None:
     d = Drive()
-    pipe = ReadingPipeline(settings(use_imu=True, imu_timeout=0.1))  # type: ignore[arg-type]
-    notes, poses = [], []
+    pipe = ReadingPipeline(settings(use_imu=True, imu_timeout=0.1))
+    notes: list[str] = []
+    poses: list[Pose2D] = []
     for kind, stamp, a, b in events(d):
         t = (stamp - T0) * 1e-9
         if kind == "i":
@@ -187,15 +191,16 @@ def test_silent_imu_falls_back_to_wheels_without_a_jump_and_comes_back() -> None
                 pipe.feed_imu(stamp, 0.0, 0.0, a)
             continue
         out = pipe.feed(stamp, NAMES, (a, b))
-        notes.append(out.note) if out.note else None
+        if out.note:
+            notes.append(out.note)
         poses.append(pipe.estimator.pose)
         if t == 5.0:
             g = pipe.stats.gyro
             assert g is not None and g.silent
     assert notes == [IMU_SILENT, IMU_BACK]
     step = d.v / d.wheel_hz
-    for a, b in zip(poses, poses[1:], strict=False):
-        assert math.hypot(b.x - a.x, b.y - a.y) <= step * (1 + 1e-9)  # no jump
+    for p, q in itertools.pairwise(poses):
+        assert math.hypot(q.x - p.x, q.y - p.y) <= step * (1 + 1e-9)  # no jump
     pos, head = error(pipe, d)
     assert pos < 1e-9 and head < 1e-9  # exact wheels, exact gyro: either is the truth
 
@@ -212,7 +217,7 @@ def test_bad_imu_samples_are_refused_counted_and_change_nothing(stamp: int, w: f
                                                                   code: str) -> None:
     d = Drive(seconds=1.0)
     clean, _ = run(d, use_imu=True)
-    pipe = ReadingPipeline(settings(use_imu=True))  # type: ignore[arg-type]
+    pipe = ReadingPipeline(settings(use_imu=True))
     for kind, s, a, b in events(d):
         if kind == "i":
             pipe.feed_imu(s, 0.0, 0.0, a)
@@ -228,7 +233,7 @@ def test_bad_imu_samples_are_refused_counted_and_change_nothing(stamp: int, w: f
 
 def test_an_upside_down_imu_is_one_value_away() -> None:
     d = Drive(slip=20.0)
-    pipe = ReadingPipeline(settings(use_imu=True,  # type: ignore[arg-type]
+    pipe = ReadingPipeline(settings(use_imu=True,
                                     imu_orientation=[math.pi, 0.0, 0.0]))
     for kind, s, a, b in events(d):
         if kind == "i":
@@ -243,7 +248,7 @@ def test_imu_samples_arriving_after_the_wheel_reading_are_caught_up() -> None:
     # Each wheel reading arrives before the IMU samples up to its stamp (the worst
     # order): the extrapolated part is replaced by the samples at the next step.
     d = Drive(w=0.3)
-    pipe = ReadingPipeline(settings(use_imu=True))  # type: ignore[arg-type]
+    pipe = ReadingPipeline(settings(use_imu=True))
     evs = sorted(events(d), key=lambda e: (e[1], e[0] == "i"))
     for kind, s, a, b in evs:
         if kind == "i":
