@@ -258,7 +258,8 @@ class ReadingPipeline:
             last_usable_stamp_ns=self._last_usable_ns,
             velocity_fallback=self._velocity,
             gyro=None if (g := self._gyro) is None else GyroStats(
-                self._imu_samples, MappingProxyType(dict(self._imu_dropped)), g.silent,
+                self._imu_samples, MappingProxyType(dict(self._imu_dropped)),
+                g.silent and g.steps > 0,
                 g.bias, g.bias_variance ** 0.5, g.zero_velocity_updates, g.slips),
         )
 

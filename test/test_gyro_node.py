@@ -1,0 +1,99 @@
+"""odometry_node with ``use_imu`` over real DDS: JointState and Imu in, odometry and
+/diagnostics out (issue 18; Borenstein and Feng, "Gyrodometry", ICRA 1996).
+
+The robot drives straight (both wheels 0.01 rad per 20 ms reading, r = 0.1 m) while
+the gyro says it does not turn; for 20 readings the right wheel spins 0.05 rad per
+reading more than it rolls. The wheels alone would turn 20 * 0.05 * 0.1 / 0.4 =
+0.25 rad; with the gyro the heading stays 0, the distance comes from the left wheel,
+and one slip event is reported. Then the IMU stops: WARN, wheels only, no jump.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import pytest
+from sensor_msgs.msg import Imu, JointState
+
+from diagutil import diagnosed
+from rosutil import (
+    GEOMETRY,
+    NAMES,
+    STEP_NS,
+    T0_NS,
+    listen,
+    ns_of,
+    send_first,
+    spin_for,
+    spin_until,
+    stamp,
+    wait_ready,
+    yaw,
+)
+
+pytestmark = [pytest.mark.dds, pytest.mark.process]
+
+SLIP = range(21, 41)  # readings whose right wheel spins 0.05 rad extra
+
+
+def reading(k: int) -> JointState:
+    msg = JointState()
+    msg.header.stamp = stamp(T0_NS + k * STEP_NS)
+    msg.name = list(NAMES)
+    extra = 0.05 * sum(1 for j in SLIP if j <= k)
+    msg.position = [0.01 * k, 0.01 * k + extra]
+    return msg
+
+
+def gyro(ns: int) -> Imu:
+    msg = Imu()
+    msg.header.stamp = stamp(ns)
+    msg.header.frame_id = "imu_link"
+    return msg  # angular_velocity 0: not turning
+
+
+def test_gyro_aided_node_names_the_slip_keeps_the_heading_and_falls_back() -> None:
+    with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true"]) as peer:
+        ex = peer.executor
+        joints = peer.node.create_publisher(JointState, "joint_states", 50)
+        imu = peer.node.create_publisher(Imu, "imu", 50)
+        sink = listen(peer.node, "odom")
+        wait_ready(ex, joints, sink)
+        assert spin_until(ex, lambda: imu.get_subscription_count() > 0, 15.0)
+        for ns in (T0_NS - 10_000_000, T0_NS):
+            imu.publish(gyro(ns))
+        send_first(ex, joints, sink, reading(0))
+        last = 60
+        for k in range(1, last + 1):
+            for ns in (T0_NS + k * STEP_NS - 10_000_000, T0_NS + k * STEP_NS):  # 100 Hz
+                imu.publish(gyro(ns))
+            spin_for(ex, 0.002)
+            joints.publish(reading(k))
+            spin_for(ex, 0.005)
+        want = T0_NS + last * STEP_NS
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == want for o in sink.odom),
+                          10.0)
+        end = next(o for o in sink.odom if ns_of(o.header.stamp) == want)
+        assert abs(yaw(end.pose.pose.orientation)) < 1e-9  # wheels alone: 0.25 rad
+        assert end.pose.pose.position.x == pytest.approx(last * 0.001, abs=1e-9)
+        slipped = peer.wait_for(lambda s: s.values.get("slip events") == "1", 10.0)
+        assert slipped.values["slip steps"] == str(len(SLIP))
+        assert float(slipped.values["last slip [stamp s]"]) == pytest.approx(
+            (T0_NS + SLIP[-1] * STEP_NS) * 1e-9)
+        assert slipped.values["imu"] == "gyro-aided"
+        # The IMU stops; the wheels go on for 1 s of stamps: wheels only, WARN, no jump.
+        for k in range(last + 1, last + 51):
+            joints.publish(reading(k))
+            spin_for(ex, 0.005)
+        silent = peer.wait_for(lambda s: "IMU silent" in s.message, 10.0)
+        assert silent.level == 1 and silent.values["imu"] == "silent (wheels only)"
+        want = T0_NS + (last + 50) * STEP_NS
+        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == want for o in sink.odom),
+                          10.0)
+        poses = sorted((ns_of(o.header.stamp), o.pose.pose.position.x, o.pose.pose.position.y)
+                       for o in sink.odom)
+        for (t0, x0, y0), (t1, x1, y1) in itertools.pairwise(poses):
+            # At most a reading's travel per reading interval: no jump at the switch.
+            steps = (t1 - t0) / STEP_NS
+            assert math.hypot(x1 - x0, y1 - y0) <= 0.001 * steps + 1e-9
