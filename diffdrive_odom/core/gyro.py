@@ -169,6 +169,8 @@ class GyroHeading:
         self.silent = True  # no usable samples for the last step (or none yet)
         self.zero_velocity_updates = 0
         self.steps = 0  # wheel steps asked about
+        self._geometry: Geometry | None = None
+        self._b: Matrix = ()
 
     def set_config(self, config: GyroConfig) -> None:
         """New settings at runtime; the bias estimate carries on (its start value is for starts)."""
@@ -281,7 +283,9 @@ class GyroHeading:
         var_white = cfg.noise_density ** 2 * dt
         g = raw - self.bias * dt
         var_g = var_white + self.bias_variance * dt * dt
-        b = wheel_jacobian(geometry)
+        if geometry is not self._geometry:
+            self._geometry, self._b = geometry, wheel_jacobian(geometry)
+        b = self._b
         noise = self.noise
         var_l, var_r = joint_variances(noise, geometry, d_left, d_right)
         rr, sr = noise.radius_stddev_ratio ** 2, noise.separation_stddev_ratio ** 2

@@ -132,9 +132,10 @@ class GyroStep:
     slip: bool
 
 
-def _outer3(u: Sequence[float], v: Sequence[float], scale: float) -> Matrix:
-    """``scale u v^T`` for 3-vectors (symmetric when ``u`` is ``v``)."""
-    return tuple(tuple(scale * a * b for b in v) for a in u)
+def _outer3(u: Sequence[float], scale: float) -> Matrix:
+    """``scale u u^T`` for a 3-vector."""
+    u0, u1, u2 = u[0] * scale, u[1] * scale, u[2] * scale
+    return _symmetric(u0 * u[0], u0 * u[1], u0 * u[2], u1 * u[1], u1 * u[2], u2 * u[2])
 
 
 def _times_vec(a: Matrix, v: tuple[float, float]) -> tuple[float, float, float]:
@@ -380,7 +381,7 @@ class PoseUncertainty:
         """
         if bias_variance < self.bias_variance:
             jb = self.bias_sensitivity
-            self.covariance = _add3(self.covariance, _outer3(jb, jb, self.bias_variance))
+            self.covariance = _add3(self.covariance, _outer3(jb, self.bias_variance))
             self.bias_sensitivity = ZERO_VEC
         self.bias_variance = bias_variance
         f_pose, f_step = compose_jacobians(pose_before, step.ds, step.dtheta)
@@ -389,13 +390,16 @@ class PoseUncertainty:
         self.covariance = _add3(
             _add3(_congruence3(f_pose, self.covariance),
                   _wheel_noise3(_times2x2(f_step, step.b), var_l, var_r)),
-            _outer3(fc, fc, step.var_gyro))
-        j, g = self.sensitivity, step.geometry
-        fg = tuple(tuple(f[0] * g[0][k] + f[1] * g[1][k] for k in range(3)) for f in f_step)
-        fj = ((1.0, 0.0, f_pose[0][2]), (0.0, 1.0, f_pose[1][2]), (0.0, 0.0, 1.0))
-        self.sensitivity = tuple(
-            tuple(sum(fj[i][m] * j[m][k] for m in range(3)) + fg[i][k] for k in range(3))
-            for i in range(3))
+            _outer3(fc, step.var_gyro))
+        (j0, j1, j2), ((g00, g01, g02), (g10, g11, g12)) = self.sensitivity, step.geometry
+        a, b = f_pose[0][2], f_pose[1][2]
+        (f00, f01), (f10, f11), (_, f21) = f_step
+        self.sensitivity = (  # F_pose J + F_step G, written out as _sensitivity_step
+            (j0[0] + a * j2[0] + f00 * g00 + f01 * g10, j0[1] + a * j2[1] + f00 * g01 + f01 * g11,
+             j0[2] + a * j2[2] + f00 * g02 + f01 * g12),
+            (j1[0] + b * j2[0] + f10 * g00 + f11 * g10, j1[1] + b * j2[1] + f10 * g01 + f11 * g11,
+             j1[2] + b * j2[2] + f10 * g02 + f11 * g12),
+            (j2[0] + f21 * g10, j2[1] + f21 * g11, j2[2] + f21 * g12))
         jb = _rotate_sensitivity(f_pose, self.bias_sensitivity)
         self.bias_sensitivity = (jb[0] + step.dt * fc[0], jb[1] + step.dt * fc[1],
                                  jb[2] + step.dt * fc[2])
@@ -422,7 +426,7 @@ class PoseUncertainty:
                                            model.separation_stddev_ratio))
         if self.bias_sensitivity is not ZERO_VEC:
             jb = self.bias_sensitivity
-            cov = _add3(cov, _outer3(jb, jb, self.bias_variance))
+            cov = _add3(cov, _outer3(jb, self.bias_variance))
         if self._quantum == 0.0:
             return cov
         _, at_heading = compose_jacobians(Pose2D(0.0, 0.0, pose.theta), 0.0, 0.0)

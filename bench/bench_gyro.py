@@ -1,0 +1,183 @@
+"""Gyrodometry (issue 18): wheels only vs gyro-aided on a slip scenario, and the CPU cost.
+
+    .venv/bin/python bench/bench_gyro.py [--quick]
+
+Scenario: a 2 m square driven three times (0.3 m/s straights, turns in place at
+0.5 rad/s) after standing 5 s; wheels read at 50 Hz, a gyro at 200 Hz with a bias of
+0.004 rad/s (not given: the start value is 0 +- 0.005) and white noise of 3e-4
+rad/s/sqrt(Hz). Four times per run one wheel (chosen at random) spins 8 rad/s more
+than it rolls for 0.4 s on a straight: slip the wheels cannot see. The truth is the
+commanded motion itself (constant twists: exact arcs), not any estimator's step.
+Everything goes through the node's :class:`ReadingPipeline` (Borenstein and Feng,
+"Gyrodometry: A New Method for Combining Data from Gyros and Odometry in Mobile
+Robots", ICRA 1996, for the rule).
+
+Modes: wheels only; the IMU's yaw replacing the wheels' (what turtlebot3_node's
+``use_imu`` does; here ``slip_threshold_sigmas`` tiny: every step takes the gyro);
+gyrodometry without and with the distance from the other wheel (the default).
+
+CPU: microseconds per message through the pipeline at 1 kHz JointState alone and
+with a 1 kHz Imu beside it (the core's cost; rclpy's message handling comes on top).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import random
+import time
+from dataclasses import dataclass
+
+from diffdrive_odom.core.pipeline import ReadingPipeline
+from diffdrive_odom.settings.odometry import odometry_settings
+
+R, B = 0.033, 0.16
+NAMES = ("left_wheel_joint", "right_wheel_joint")
+T0 = 1_000_000_000_000
+BIAS, DENSITY = 0.004, 3.0e-4
+V, W = 0.3, 0.5
+
+
+@dataclass(frozen=True)
+class Segment:
+    v: float
+    w: float
+    seconds: float
+
+
+def route() -> list[Segment]:
+    segs = [Segment(0.0, 0.0, 5.0)]
+    for _ in range(3 * 4):
+        segs += [Segment(V, 0.0, 2.0 / V), Segment(0.0, W, (math.pi / 2) / W)]
+    return segs
+
+
+def truth(segs: list[Segment]) -> tuple[float, float, float]:
+    x = y = th = 0.0
+    for s in segs:
+        ds, dth = s.v * s.seconds, s.w * s.seconds
+        if dth == 0.0:
+            x, y = x + ds * math.cos(th), y + ds * math.sin(th)
+        elif ds != 0.0:
+            rad = ds / dth
+            x += rad * (math.sin(th + dth) - math.sin(th))
+            y -= rad * (math.cos(th + dth) - math.cos(th))
+        th += dth
+    return x, y, th
+
+
+def state_at(segs: list[Segment], t: float) -> tuple[float, float, float]:
+    """(left joint angle, right joint angle, yaw rate) of the commanded motion at ``t``."""
+    left = right = 0.0
+    for s in segs:
+        span = min(t, s.seconds)
+        left += (s.v - 0.5 * s.w * B) / R * span
+        right += (s.v + 0.5 * s.w * B) / R * span
+        if t <= s.seconds:
+            return left, right, s.w
+        t -= s.seconds
+    return left, right, 0.0
+
+
+def scenario(seed: int, wheel_hz: int = 50, imu_hz: int = 200
+             ) -> tuple[list[tuple[int, str, float, float]], tuple[float, float, float]]:
+    rng = random.Random(seed)
+    segs = route()
+    total = sum(s.seconds for s in segs)
+    starts, t = [], 0.0
+    for s in segs:
+        if s.v > 0.0:
+            starts.append(t)
+        t += s.seconds
+    slips = [(t0 + rng.uniform(0.5, 2.0 / V - 1.0), rng.choice((0, 1)))
+             for t0 in rng.sample(starts, 4)]
+
+    def extra(t: float, side: int) -> float:
+        return sum(8.0 * max(0.0, min(t, a + 0.4) - a) for a, s in slips if s == side)
+
+    events: list[tuple[int, str, float, float]] = []
+    for k in range(round(total * wheel_hz) + 1):
+        t = k / wheel_hz
+        left, right, _ = state_at(segs, t)
+        events.append((T0 + round(t * 1e9), "j", left + extra(t, 0), right + extra(t, 1)))
+    sigma = DENSITY * math.sqrt(imu_hz)
+    for k in range(round(total * imu_hz) + 1):
+        t = k / imu_hz
+        events.append((T0 + round(t * 1e9), "i", state_at(segs, t)[2] + BIAS
+                       + rng.gauss(0.0, sigma), 0.0))
+    events.sort()  # an IMU sample ("i") before the wheel reading ("j") of its stamp
+    return events, truth(segs)
+
+
+MODES: dict[str, dict[str, object]] = {
+    "wheels only": {"use_imu": False},
+    "IMU yaw replaces wheels'": {"use_imu": True, "slip_threshold_sigmas": 1e-12,
+                                 "slip_distance_from_other_wheel": False},
+    "gyrodometry, mean distance": {"use_imu": True, "slip_distance_from_other_wheel": False},
+    "gyrodometry (default)": {"use_imu": True},
+}
+
+
+def run(events: list[tuple[int, str, float, float]], values: dict[str, object]
+        ) -> tuple[ReadingPipeline, float]:
+    pipe = ReadingPipeline(odometry_settings({"wheel_radius": R, "wheel_separation": B,
+                                              "gyro_noise_density": DENSITY, **values}))
+    start = time.perf_counter()
+    for stamp, kind, a, b in events:
+        if kind == "i":
+            pipe.feed_imu(stamp, 0.0, 0.0, a)
+        else:
+            pipe.feed(stamp, NAMES, (a, b))
+    return pipe, time.perf_counter() - start
+
+
+def accuracy(seeds: int) -> None:
+    print(f"Slip scenario: 3 x 2 m square, 4 slips of 0.4 s, gyro bias {BIAS} rad/s, "
+          f"{seeds} seeds")
+    print(f"{'mode':28s} {'pos err mean [m]':>17s} {'max':>7s} {'yaw err mean [rad]':>19s} "
+          f"{'max':>7s} {'slip events':>12s}")
+    results: dict[str, list[tuple[float, float, int]]] = {m: [] for m in MODES}
+    for seed in range(seeds):
+        events, (x, y, th) = scenario(seed)
+        for mode, values in MODES.items():
+            pipe, _ = run(events, values)
+            p = pipe.estimator.pose
+            g = pipe.stats.gyro
+            results[mode].append((math.hypot(p.x - x, p.y - y),
+                                  abs(math.remainder(p.theta - th, 2 * math.pi)),
+                                  0 if g is None else g.slips.events))
+    for mode, rows in results.items():
+        pos = [r[0] for r in rows]
+        yaw = [r[1] for r in rows]
+        ev = sum(r[2] for r in rows) / len(rows)
+        print(f"{mode:28s} {sum(pos) / len(pos):17.4f} {max(pos):7.4f} "
+              f"{sum(yaw) / len(yaw):19.4f} {max(yaw):7.4f} {ev:12.1f}")
+
+
+def cpu(seconds: float) -> None:
+    segs = route()
+    n = round(seconds * 1000)
+    joints = []
+    for k in range(n):
+        left, right, _ = state_at(segs, 5.0 + k / 1000)
+        joints.append((T0 + k * 1_000_000, "j", left, right))
+    imu = [(T0 + k * 1_000_000, "i", 0.0, 0.0) for k in range(n)]
+    both = sorted(joints + imu)
+    _, wheels = run(joints, {"use_imu": False})
+    _, gyro = run(both, {"use_imu": True})
+    print(f"\nCPU through the pipeline, {seconds:g} s of messages at 1 kHz:")
+    print(f"  wheels only (1 kHz JointState):          {wheels / n * 1e6:7.1f} us per reading")
+    print(f"  gyro-aided (1 kHz JointState + 1 kHz Imu): {gyro / n * 1e6:7.1f} us per reading "
+          f"+ its IMU sample ({gyro / wheels:.2f} x)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="3 seeds, 2 s of CPU timing")
+    args = ap.parse_args()
+    accuracy(3 if args.quick else 20)
+    cpu(2.0 if args.quick else 20.0)
+
+
+if __name__ == "__main__":
+    main()
