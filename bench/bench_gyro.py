@@ -16,6 +16,9 @@ Modes: wheels only; the IMU's yaw replacing the wheels' (what turtlebot3_node's
 ``use_imu`` does; here ``slip_threshold_sigmas`` tiny: every step takes the gyro);
 gyrodometry without and with the distance from the other wheel (the default).
 
+The simulated TurtleBot3 bag of test/data (fuse tutorials): final error of both modes
+against Gazebo's own /odom (``--plot PNG``: the README's figure).
+
 CPU: microseconds per message through the pipeline at 1 kHz JointState alone and
 with a 1 kHz Imu beside it (the core's cost; rclpy's message handling comes on top).
 """
@@ -171,11 +174,74 @@ def cpu(seconds: float) -> None:
           f"+ its IMU sample ({gyro / wheels:.2f} x)")
 
 
+def turtlebot3(plot: str | None) -> None:
+    """The simulated TurtleBot3 bag of test/data: final error against Gazebo's /odom."""
+    from pathlib import Path
+
+    from rosbags.highlevel import AnyReader
+
+    from diffdrive_odom.tools import bagio, replay
+    from diffdrive_odom.tools.sinks import Published
+
+    bag = Path(__file__).resolve().parent.parent / "test" / "data" / "turtlebot3_sim" / \
+        "turtlebot3.bag"
+    if not bag.exists():
+        print("\n(no test/data/turtlebot3_sim: TurtleBot3 figures skipped)")
+        return
+    gt = []
+    with AnyReader([bag]) as reader:
+        for conn, _, raw in reader.messages([c for c in reader.connections
+                                             if c.topic == "/odom"]):
+            m = reader.deserialize(raw, conn.msgtype)
+            q = m.pose.pose.orientation
+            gt.append((m.pose.pose.position.x, m.pose.pose.position.y,
+                       math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y**2 + q.z**2))))
+    x0, y0, t0 = gt[0]
+    c, s = math.cos(t0), math.sin(t0)
+    truth = [(c * (x - x0) + s * (y - y0), -s * (x - x0) + c * (y - y0), t - t0)
+             for x, y, t in gt]
+    print("\nSimulated TurtleBot3 bag (its wheels slip), final error against Gazebo's /odom:")
+    tracks = {}
+    for mode in ("wheels only", "gyrodometry (default)"):
+        values = {"wheel_radius": 0.033, "wheel_separation": 0.287,
+                  "left_wheel_names": ["wheel_left_joint"],
+                  "right_wheel_names": ["wheel_right_joint"], **MODES[mode]}
+        out: list[Published] = []
+        with bagio.open_bag(bag) as reader:
+            items = list(bagio.iter_sensor_readings(
+                reader, "/joint_states", "/imu" if values["use_imu"] else None))
+        replay.replay_readings(items, odometry_settings(values), out.append)
+        end = out[-1].pose
+        x, y, th = truth[-1]
+        print(f"  {mode:28s} {math.hypot(end.x - x, end.y - y):.3f} m, "
+              f"{abs(math.remainder(end.theta - th, 2 * math.pi)):.4f} rad")
+        tracks[mode] = ([p.pose.x for p in out], [p.pose.y for p in out])
+    if plot:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(6, 5))
+        ax.plot([p[0] for p in truth], [p[1] for p in truth], "k-", label="Gazebo (truth)")
+        for (mode, (xs, ys)), style in zip(tracks.items(), ("r--", "b-"), strict=True):
+            ax.plot(xs, ys, style, label=mode)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_title("Simulated TurtleBot3 with slipping wheels")
+        ax.legend()
+        fig.savefig(plot, dpi=90, bbox_inches="tight")
+        print(f"  plot: {plot}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="3 seeds, 2 s of CPU timing")
+    ap.add_argument("--plot", metavar="PNG", help="plot the TurtleBot3 bag's trajectories")
     args = ap.parse_args()
     accuracy(3 if args.quick else 20)
+    turtlebot3(args.plot)
     cpu(2.0 if args.quick else 20.0)
 
 

@@ -273,3 +273,80 @@ def test_bad_gyro_parameters_are_named(name: str, value: object) -> None:
     with pytest.raises(ParameterError) as err:
         settings(use_imu=True, **{name: value})
     assert err.value.name == name
+
+
+# --- consistency: final-pose NEES in the gyro mode ---------------------------------------
+
+
+def _chi2_band(dof: int) -> tuple[float, float]:
+    """Two-sided 95 % quantiles of chi2(dof) (Wilson-Hilferty, as test_uncertainty)."""
+    c = 2.0 / (9.0 * dof)
+    z = 1.959963984540054
+    return dof * (1.0 - c - z * math.sqrt(c)) ** 3, dof * (1.0 - c + z * math.sqrt(c)) ** 3
+
+
+ROUTE = [(2.0, 0.4, 0.0), (2.0, 0.3, 0.8), (1.0, 0.0, -1.5), (2.0, 0.3, -0.6), (1.5, 0.4, 0.0)]
+
+
+def _gyro_nees(runs: int, k: float, nd: float, sb: float, model_nd: float) -> list[float]:
+    """Final-pose NEES with wheel noise ``k`` [m], gyro white noise ``nd`` and a bias
+    drawn per run (sigma ``sb``); the truth integrates the true ground arcs with the
+    oracle's textbook arc, the gyro measures their true heading rate.
+
+    The truth's rate jumps at every wheel step (each step's own noise); the gyro's
+    samples are interpolated linearly, which smears a jump over one sample interval.
+    At 500 Hz (10 samples per step) that is well below the gyro's noise; at 200 Hz it
+    is not and the mean NEES reads about 3.3-3.5 (the test data's artefact, not the
+    model's: 10 samples give 2.84 over 200 runs).
+    """
+    import numpy as np
+
+    wheel_hz, imu_per_step = 50, 10
+    dt = 1.0 / wheel_hz
+    out = []
+    for run in range(runs):
+        rng = np.random.default_rng(run)
+        bias = sb * rng.standard_normal()
+        pipe = ReadingPipeline(settings(
+            use_imu=True, wheel_noise_k_left=k, wheel_noise_k_right=k,
+            wheel_radius_stddev_ratio=0.0, wheel_separation_stddev_ratio=0.0,
+            gyro_noise_density=model_nd, gyro_bias_stddev=sb, gyro_bias_random_walk=0.0))
+        truth: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        left = right = 0.0
+        step = 0
+        sigma = nd * math.sqrt(wheel_hz * imu_per_step)
+        pipe.feed_imu(T0 - 5_000_000, 0.0, 0.0, bias + sigma * rng.standard_normal())
+        pipe.feed(T0, NAMES, (0.0, 0.0))
+        for seconds, v, w in ROUTE:
+            d_l, d_r = (v - 0.5 * w * B) * dt, (v + 0.5 * w * B) * dt  # commanded arcs
+            for _ in range(round(seconds * wheel_hz)):
+                s_l = d_l + math.sqrt(k * abs(d_l)) * rng.standard_normal()
+                s_r = d_r + math.sqrt(k * abs(d_r)) * rng.standard_normal()
+                truth = arc(0.5 * (s_l + s_r), (s_r - s_l) / B, truth)
+                rate = (s_r - s_l) / B / dt
+                for j in range(imu_per_step):
+                    ns = T0 + round((step + j / imu_per_step) * dt * 1e9)
+                    pipe.feed_imu(ns, 0.0, 0.0, rate + bias + sigma * rng.standard_normal())
+                step += 1
+                left, right = left + d_l / R, right + d_r / R
+                pipe.feed(T0 + round(step * dt * 1e9), NAMES, (left, right))
+        p = pipe.estimator.pose
+        cov = pipe.covariances()[0]
+        m = np.array([[cov[0], cov[1], cov[5]], [cov[6], cov[7], cov[11]],
+                      [cov[30], cov[31], cov[35]]])
+        e = np.array([p.x - truth[0], p.y - truth[1],
+                      math.remainder(p.theta - truth[2], 2 * math.pi)])
+        out.append(float(e @ np.linalg.solve(m, e)))
+    return out
+
+
+def test_nees_of_the_final_pose_in_the_gyro_mode_is_inside_the_95_percent_bounds() -> None:
+    runs = 120
+    nees = _gyro_nees(runs, 1e-5, 1e-3, 0.005, 1e-3)
+    low, high = _chi2_band(3 * runs)
+    print(f"gyro-mode NEES over {runs} runs: mean {sum(nees) / runs:.3f}, band "
+          f"[{low / runs:.3f}, {high / runs:.3f}]")
+    assert low <= sum(nees) <= high, sum(nees) / runs
+    # The same runs with a model that believes the gyro ten times better: overconfident.
+    worse = _gyro_nees(40, 1e-5, 1e-2, 0.005, 1e-3)
+    assert sum(worse) > _chi2_band(3 * 40)[1], sum(worse) / 40
