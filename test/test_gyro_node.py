@@ -97,3 +97,57 @@ def test_gyro_aided_node_names_the_slip_keeps_the_heading_and_falls_back() -> No
             # At most a reading's travel per reading interval: no jump at the switch.
             steps = (t1 - t0) / STEP_NS
             assert math.hypot(x1 - x0, y1 - y0) <= 0.001 * steps + 1e-9
+
+
+def test_sim_node_gyro_and_scripted_slip_through_the_gyro_aided_node() -> None:
+    """sim_node (gyro at 100 Hz, the right wheel spinning 10 rad/s extra from 2 s to
+    2.5 s of its time) and odometry_node with use_imu, driven straight: the wheels
+    alone would turn 10 * 0.5 * 0.033 / 0.16 = 1.03 rad; the gyro-aided odometry stays
+    with sim_node's ground truth."""
+    from nav_msgs.msg import Odometry
+    from std_msgs.msg import Float64MultiArray
+
+    from rosutil import node_process, ros_test_node
+
+    sim_args = ["--ros-args", "-p", "imu_rate:=100.0", "-p", "slip_events:=right 6.0 0.5 10"]
+    odom_args = ["--ros-args", "-p", "wheel_radius:=0.033", "-p", "wheel_separation:=0.16",
+                 "-p", "use_imu:=true"]
+    with node_process("sim_node", sim_args) as sim, \
+            node_process("odometry_node", odom_args) as odom, \
+            ros_test_node() as (node, ex):
+        truth: list[Odometry] = []
+        est: list[Odometry] = []
+        joints: dict[int, JointState] = {}
+        node.create_subscription(Odometry, "ground_truth/odom", truth.append, 50)
+        node.create_subscription(JointState, "joint_states",
+                                 lambda m: joints.__setitem__(ns_of(m.header.stamp), m), 50)
+        node.create_subscription(Odometry, "odom", est.append, 50)
+        cmd = node.create_publisher(Float64MultiArray, "wheel_commands", 10)
+        assert spin_until(ex, lambda: bool(truth) and bool(est), 20.0), "no output"
+        first = ns_of(truth[0].header.stamp)
+        while ns_of(truth[-1].header.stamp) - first < 9_000_000_000:
+            cmd.publish(Float64MultiArray(data=[5.0, 5.0]))
+            spin_for(ex, 0.05)
+            assert sim.poll() is None and odom.poll() is None
+        cmd.publish(Float64MultiArray(data=[0.0, 0.0]))
+        spin_for(ex, 0.3)
+    by_stamp = {ns_of(t.header.stamp): t for t in truth}
+    pairs = [(o, by_stamp[ns_of(o.header.stamp)]) for o in est
+             if ns_of(o.header.stamp) in by_stamp]
+    assert pairs
+    o, t = pairs[-1]
+    # The odometry starts where the sim was at its first reading: compare motion since.
+    o0, t0 = pairs[0]
+    # The slip happened in between: the wheels alone would have turned about 1 rad.
+    j0, j1 = joints[ns_of(o0.header.stamp)], joints[ns_of(o.header.stamp)]
+    wheel_turn = ((j1.position[1] - j0.position[1]) - (j1.position[0] - j0.position[0])) \
+        * 0.033 / 0.16
+    assert wheel_turn == pytest.approx(10 * 0.5 * 0.033 / 0.16, rel=1e-6)
+    d_yaw_est = yaw(o.pose.pose.orientation) - yaw(o0.pose.pose.orientation)
+    d_yaw_true = yaw(t.pose.pose.orientation) - yaw(t0.pose.pose.orientation)
+    assert abs(math.remainder(d_yaw_est - d_yaw_true, 2 * math.pi)) < 0.05  # wheels: 1.03
+    dist_est = math.hypot(o.pose.pose.position.x - o0.pose.pose.position.x,
+                          o.pose.pose.position.y - o0.pose.pose.position.y)
+    dist_true = math.hypot(t.pose.pose.position.x - t0.pose.pose.position.x,
+                           t.pose.pose.position.y - t0.pose.pose.position.y)
+    assert dist_true > 0.2 and abs(dist_est - dist_true) < 0.02
