@@ -350,3 +350,39 @@ def test_nees_of_the_final_pose_in_the_gyro_mode_is_inside_the_95_percent_bounds
     # The same runs with a model that believes the gyro ten times better: overconfident.
     worse = _gyro_nees(40, 1e-5, 1e-2, 0.005, 1e-3)
     assert sum(worse) > _chi2_band(3 * 40)[1], sum(worse) / 40
+
+
+def test_runtime_parameter_changes_keep_the_gyro_and_its_bias() -> None:
+    """A change of a gyro parameter, or one that rebuilds the estimator, keeps the bias
+    estimate, the pose and the gyro-aided heading (no jump, the slip still caught)."""
+    import dataclasses
+
+    d = Drive(slip=20.0)
+    pipe = ReadingPipeline(settings(use_imu=True))
+    changed = False
+    for kind, s, a, b in events(d):
+        if kind == "i":
+            pipe.feed_imu(s, 0.0, 0.0, a)
+            continue
+        pipe.feed(s, NAMES, (a, b))
+        if not changed and s >= T0 + 2_000_000_000:
+            gyro = pipe.gyro
+            assert gyro is not None
+            gyro.bias = 1e-12  # a value only the estimate itself could carry on
+            old = pipe.settings
+            cov = pipe.covariances()[0]
+            new_gyro = dataclasses.replace(old.gyro, timeout=0.2)  # type: ignore[type-var]
+            pipe.reconfigure(dataclasses.replace(
+                old, gyro=new_gyro,
+                estimator=dataclasses.replace(old.estimator, max_wheel_speed=300.0)))
+            assert pipe.gyro is gyro and gyro.config.timeout == 0.2 and gyro.bias == 1e-12
+            assert pipe.estimator.heading is gyro
+            assert pipe.covariances()[0] == cov  # the bias's share of it included
+            changed = True
+    g = pipe.stats.gyro
+    assert g is not None and g.slips.events == 1
+    pos, head = error(pipe, d)
+    # A rebuilt estimator takes the next reading as its reference (the wheels' units may
+    # have changed): that one step's turn and travel are not integrated, nothing else.
+    assert head == pytest.approx(d.w / d.wheel_hz, abs=1e-9)
+    assert pos < d.v / d.wheel_hz

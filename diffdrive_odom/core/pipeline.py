@@ -361,6 +361,9 @@ class ReadingPipeline:
             if before.uncertainty is not None and self._estimator.uncertainty is not None:
                 self._estimator.uncertainty.covariance = before.uncertainty.covariance
                 self._estimator.uncertainty.sensitivity = before.uncertainty.sensitivity
+                self._estimator.uncertainty.bias_sensitivity = \
+                    before.uncertainty.bias_sensitivity
+                self._estimator.uncertainty.bias_variance = before.uncertainty.bias_variance
         else:
             self._estimator.set_geometry(settings.geometry)
             self._estimator.set_noise(settings.noise)

@@ -299,6 +299,8 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
     with ExitStack() as stack:
         reader = stack.enter_context(bagio.open_bag(args.bag))
         total = bagio.count_messages(reader, args.topic)
+        if settings.gyro is not None:  # the IMU's samples pass through the progress too
+            total += bagio.count_messages(reader, args.imu_topic)
         writer = None
         if args.output:
             staged = stack.enter_context(bagio.staged(args.output))
