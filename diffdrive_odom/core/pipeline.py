@@ -7,7 +7,9 @@ negative stamp is dropped (output is stamped with the measurement time, so an
 unstamped reading cannot be placed); the estimator decides (decode, stale stamps,
 time reset, gap, speed check, integration); the ``publish_rate`` gate decides whether
 the pose goes out. The outcome and a set of counters come back, so the node logs,
-replay summarises and diagnostics report from the same numbers. Pure Python.
+replay summarises and diagnostics report from the same numbers. With ``use_imu`` the
+IMU's samples come in through :meth:`ReadingPipeline.feed_imu` and the estimator takes
+each step's heading from :mod:`diffdrive_odom.core.gyro` (gyrodometry). Pure Python.
 """
 
 from __future__ import annotations

@@ -55,6 +55,7 @@ their rates: those get :data:`UNOBSERVED_VARIANCE` (large and finite, as
 robot_localization expects of a 2D sensor). Lateral velocity ``vy`` is zero by the
 rolling constraint, so the model gives it no variance. The twist covariance has no geometry
 term (not modelled: at the default ratios it is a few tenths of a percent of the speed).
+With a gyro (``use_imu``, :mod:`diffdrive_odom.core.gyro`) a step goes through propagate_gyro.
 """
 
 from __future__ import annotations

@@ -210,16 +210,7 @@ def iter_joint_states(
     window: int = REORDER_WINDOW,
     jump_back_ns: int = 1_000_000_000,
 ) -> Iterator[JointReading]:
-    """JointState readings of an open reader, in header stamp order, streaming.
-
-    A stamp more than ``jump_back_ns`` behind the newest one seen is a new run (a bag
-    recorded from a looped play, a restarted simulation): everything before it comes
-    out first, so two runs are never merged by the reordering.
-
-    With ``passthrough``, every message of the bag (JointState included) is also handed
-    to it raw, in log time order, interleaved with the readings (``replay
-    --keep-input`` copies them).
-    """
+    """JointState readings of an open reader, in header stamp order, streaming."""
     for item in iter_sensor_readings(reader, topic, None, passthrough, window, jump_back_ns):
         assert isinstance(item, JointReading)  # no IMU topic asked for
         yield item
@@ -233,16 +224,18 @@ def iter_sensor_readings(
     window: int = REORDER_WINDOW,
     jump_back_ns: int = 1_000_000_000,
 ) -> Iterator[JointReading | ImuSample]:
-    """:func:`iter_joint_states`, with the Imu messages of ``imu_topic`` merged in.
+    """JointState readings (and Imu samples of ``imu_topic``) by header stamp, streaming.
 
-    Both go through the same reordering by header stamp, so a wheel reading comes
-    after the gyro samples up to its stamp, as a node waiting for them would see it.
+    Both go through one reordering by stamp, so a wheel reading comes after the gyro
+    samples up to its stamp. A stamp more than ``jump_back_ns`` behind the newest seen
+    is a new run (a looped play, a restarted simulation): everything before it comes
+    out first, so two runs are never merged. With ``passthrough``, every message of the
+    bag is also handed to it raw, in log time order (``replay --keep-input``).
     """
     joints = connections_for(reader, topic, (JOINT_STATE,))
     imus = [] if imu_topic is None else connections_for(reader, imu_topic, (IMU,))
     conns = reader.connections if passthrough is not None else joints + imus
-    joint_ids = {id(c) for c in joints}
-    imu_ids = {id(c) for c in imus}
+    joint_ids, imu_ids = {id(c) for c in joints}, {id(c) for c in imus}
     decode = _JointStates(reader)
     heap: list[tuple[int, int, JointReading | ImuSample]] = []
     order = itertools.count()
@@ -254,8 +247,7 @@ def iter_sensor_readings(
         if id(conn) in joint_ids:
             item = decode(raw, conn.msgtype, log_ns)
         elif id(conn) in imu_ids:
-            msg = reader.deserialize(raw, conn.msgtype)
-            w = msg.angular_velocity
+            w = (msg := reader.deserialize(raw, conn.msgtype)).angular_velocity
             item = ImuSample(stamp_to_ns(msg.header.stamp), log_ns, w.x, w.y, w.z)
         else:
             continue
