@@ -386,3 +386,23 @@ def test_runtime_parameter_changes_keep_the_gyro_and_its_bias() -> None:
     # have changed): that one step's turn and travel are not integrated, nothing else.
     assert head == pytest.approx(d.w / d.wheel_hz, abs=1e-9)
     assert pos < d.v / d.wheel_hz
+
+
+def test_a_bag_played_in_a_loop_restarts_the_gyro_with_the_wheels() -> None:
+    """Both clocks jump back 10 s (a looped play): the wheels restart at the origin
+    (time_reset) and the gyro's samples of the new run are taken, none of the old run's
+    kept: the second run ends on the circle as exactly as the first."""
+    d = Drive(slip=20.0)
+    evs = list(events(d))
+    pipe = ReadingPipeline(settings(use_imu=True))
+    for _ in range(2):
+        for kind, s, a, b in evs:
+            if kind == "i":
+                assert pipe.feed_imu(s, 0.0, 0.0, a) == ""
+            else:
+                pipe.feed(s, NAMES, (a, b))
+        pos, head = error(pipe, d)
+        assert pos < 1e-9 and head < 1e-9
+    assert pipe.stats.time_resets == 1
+    g = pipe.stats.gyro
+    assert g is not None and g.slips.events == 2 and not g.dropped
