@@ -23,7 +23,13 @@ from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from diffdrive_odom.core.cdr import JointArrays, JointStateDecoder, OdometryLayout, TransformLayout
+from diffdrive_odom.core.cdr import (
+    JointArrays,
+    JointStateDecoder,
+    OdometryLayout,
+    TransformLayout,
+    decode_imu,
+)
 from diffdrive_odom.core.diagnostics import (
     RateMeter,
     ReadingHealth,
@@ -75,7 +81,7 @@ class OdometryEndpoints:
         )
         # use_imu is read-only: the subscription exists for the node's whole life or not.
         self._imu_sub = None if settings.gyro is None else node.create_subscription(
-            Imu, "imu", self._on_imu, SENSOR_IN_QOS)
+            Imu, "imu", self._on_imu, SENSOR_IN_QOS, raw=True)
         self._reset_srv = node.create_service(Trigger, "~/reset_odometry", self._on_reset)
         # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
         # and a missing clock is one of the mistakes this warning is for.
@@ -152,15 +158,31 @@ class OdometryEndpoints:
             gyro=stats.gyro,
         ))
 
-    def _on_imu(self, msg: Imu) -> None:
-        """One gyro sample to the pipeline; a refused one is named (throttled per reason)."""
-        stamp = msg.header.stamp
-        w = msg.angular_velocity
-        code = self._pipeline.feed_imu(stamp.sec * 1_000_000_000 + stamp.nanosec, w.x, w.y, w.z)
+    def _on_imu(self, raw: bytes) -> None:
+        """One gyro sample to the pipeline; a refused one is named (throttled per reason).
+
+        Decoded from its bytes (:func:`decode_imu`); rclpy's deserialisation takes what
+        that leaves (big-endian senders).
+        """
+        try:
+            got = decode_imu(raw)
+        except ValueError:
+            got = None
+        if got is None:
+            try:
+                msg = deserialize_message(raw, Imu)
+            except Exception as exc:  # whatever rclpy raises for bytes it cannot read
+                self._throttle.warning("imu_undecodable", f"imu message dropped: its "
+                                       f"{len(raw)} bytes are not an Imu ({exc})")
+                return
+            w = msg.angular_velocity
+            got = (msg.header.stamp.sec, msg.header.stamp.nanosec, w.x, w.y, w.z)
+        sec, nanosec, wx, wy, wz = got
+        code = self._pipeline.feed_imu(sec * 1_000_000_000 + nanosec, wx, wy, wz)
         if code:
             self._throttle.warning(f"imu_{code}", f"imu sample dropped [{code}]: stamp "
-                                   f"{stamp.sec}.{stamp.nanosec:09d}, angular_velocity "
-                                   f"({w.x:.6g}, {w.y:.6g}, {w.z:.6g}) rad/s")
+                                   f"{sec}.{nanosec:09d}, angular_velocity "
+                                   f"({wx:.6g}, {wy:.6g}, {wz:.6g}) rad/s")
 
     def _on_joint_state(self, raw: bytes) -> None:
         self._last_rx = t = time.monotonic()
