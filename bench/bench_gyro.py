@@ -20,7 +20,8 @@ The simulated TurtleBot3 bag of test/data (fuse tutorials): final error of both 
 against Gazebo's own /odom (``--plot PNG``: the README's figure).
 
 CPU: microseconds per message through the pipeline at 1 kHz JointState alone and
-with a 1 kHz Imu beside it (the core's cost; rclpy's message handling comes on top).
+with a 1 kHz Imu beside it (the core's cost); ``--live``: the real ``odometry_node``
+over DDS at the same rates, its process's CPU per JointState.
 """
 
 from __future__ import annotations
@@ -235,14 +236,100 @@ def turtlebot3(plot: str | None) -> None:
         print(f"  plot: {plot}")
 
 
+def _cpu_s(pid: int) -> float:
+    """utime + stime [s] of a process (fields 14 and 15 of /proc/<pid>/stat)."""
+    import os
+
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def live(seconds: float) -> None:
+    """The real odometry_node over DDS: its CPU per JointState at 1 kHz, wheels only and
+    with a 1 kHz Imu beside it (publisher in this process, the node's own /proc time)."""
+    import os
+    import random as rnd
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import rclpy
+    from rclpy.context import Context
+    from sensor_msgs.msg import Imu, JointState
+
+    from diffdrive_odom.core.conversions import ns_to_stamp
+
+    exe = str(Path(sys.executable).parent / "odometry_node")
+    env = {**os.environ, "ROS_DOMAIN_ID": str(rnd.randint(150, 200)),
+           "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+    print(f"\nodometry_node over DDS, {seconds:g} s at 1 kHz (CPU of the node's process):")
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        node = rclpy.create_node("bench_gyro_pub", context=ctx)
+        js_pub = node.create_publisher(JointState, "joint_states", 100)
+        imu_pub = node.create_publisher(Imu, "imu", 100)
+        base: float | None = None
+        for use_imu in (False, True):
+            proc = subprocess.Popen([exe, "--ros-args", "-p", f"wheel_radius:={R}", "-p",
+                                     f"wheel_separation:={B}", "-p",
+                                     f"use_imu:={str(use_imu).lower()}"],
+                                    env=env, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL)
+            try:
+                deadline = time.monotonic() + 20.0
+                while js_pub.get_subscription_count() == 0 or (
+                        use_imu and imu_pub.get_subscription_count() == 0):
+                    if time.monotonic() > deadline:
+                        raise RuntimeError("odometry_node never subscribed")
+                    time.sleep(0.05)
+                time.sleep(1.0)  # let the node settle after start-up
+                js, imu = JointState(), Imu()
+                js.name = list(NAMES)
+                n = round(seconds * 1000)
+                t0 = time.time_ns()
+                cpu0 = _cpu_s(proc.pid)
+                start = time.monotonic()
+                for k in range(n):
+                    stamp = t0 + k * 1_000_000
+                    if use_imu:
+                        ns_to_stamp(stamp, imu.header.stamp)
+                        imu.angular_velocity.z = 0.1
+                        imu_pub.publish(imu)
+                    ns_to_stamp(stamp, js.header.stamp)
+                    js.position = [k * 0.01, k * 0.0101]
+                    js_pub.publish(js)
+                    wait = start + (k + 1) / 1000 - time.monotonic()
+                    if wait > 0:
+                        time.sleep(wait)
+                time.sleep(0.5)  # what is queued gets handled
+                used = _cpu_s(proc.pid) - cpu0
+            finally:
+                proc.terminate()
+                proc.wait(timeout=10)
+            per = used / n * 1e6
+            label = "gyro-aided (+ 1 kHz Imu)" if use_imu else "wheels only"
+            ratio = f" ({per / base:.2f} x)" if base else ""
+            print(f"  {label:26s} {per:7.1f} us CPU per JointState{ratio}")
+            base = base or per
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="3 seeds, 2 s of CPU timing")
     ap.add_argument("--plot", metavar="PNG", help="plot the TurtleBot3 bag's trajectories")
+    ap.add_argument("--live", action="store_true",
+                    help="also the real node over DDS at 1 kHz (needs rclpy)")
     args = ap.parse_args()
     accuracy(3 if args.quick else 20)
     turtlebot3(args.plot)
     cpu(2.0 if args.quick else 20.0)
+    if args.live:
+        live(3.0 if args.quick else 10.0)
 
 
 if __name__ == "__main__":
