@@ -406,3 +406,22 @@ def test_a_bag_played_in_a_loop_restarts_the_gyro_with_the_wheels() -> None:
     assert pipe.stats.time_resets == 1
     g = pipe.stats.gyro
     assert g is not None and g.slips.events == 2 and not g.dropped
+
+
+def test_a_robot_turned_by_hand_with_wheels_still_is_a_slip_not_a_bias() -> None:
+    """Wheels still, the gyro says 0.5 rad/s for 1 s (someone turns the robot): the
+    heading follows the gyro, one slip event, and the bias estimate stays put."""
+    d = Drive(v=0.0, w=0.0, seconds=3.0)
+    pipe = ReadingPipeline(settings(use_imu=True))
+    for kind, s, a, b in events(d):
+        t = (s - T0) * 1e-9
+        if kind == "i":
+            pipe.feed_imu(s, 0.0, 0.0, 0.5 if 1.0 < t <= 2.0 else 0.0)
+        else:
+            pipe.feed(s, NAMES, (a, b))
+    g = pipe.stats.gyro
+    assert g is not None and g.slips.events == 1
+    # Linear interpolation between the samples at 1.0 s (0) and 1.005 s (0.5) and
+    # likewise at 2 s: 0.5 * (1 s - 5 ms) + 2 * 0.5 * 0.5 * 5 ms = 0.5 rad exactly.
+    assert pipe.estimator.pose.theta == pytest.approx(0.5, abs=1e-12)
+    assert abs(g.bias) < 1e-9 and g.zero_velocity_updates > 0

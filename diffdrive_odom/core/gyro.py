@@ -277,9 +277,6 @@ class GyroHeading:
         s_l, s_r = arcs
         sep = geometry.separation
         ds_w, dth_w = 0.5 * (s_l + s_r), (s_r - s_l) / sep
-        still = max(abs(s_l), abs(s_r)) <= cfg.zero_velocity_speed * dt
-        if still and measured:
-            self._zero_velocity_update(raw / dt, dt)
         var_white = cfg.noise_density ** 2 * dt
         g = raw - self.bias * dt
         var_g = var_white + self.bias_variance * dt * dt
@@ -294,6 +291,9 @@ class GyroHeading:
         diff = g - dth_w
         slip = diff * diff > cfg.slip_sigmas ** 2 * (var_w + var_g)
         self._count_slip(slip, t1, abs(diff))
+        if measured and not slip and max(abs(s_l), abs(s_r)) <= cfg.zero_velocity_speed * dt:
+            # Standing still and the gyro agrees (a robot turned by hand is no bias).
+            self._zero_velocity_update(raw / dt, dt)
         geo_ds = (0.5 * s_l, 0.5 * s_r, 0.0)
         geo_th = (-s_l / sep, s_r / sep, -dth_w)
         if not slip:
