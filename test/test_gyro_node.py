@@ -100,6 +100,7 @@ def test_gyro_aided_node_names_the_slip_keeps_the_heading_and_falls_back() -> No
             assert math.hypot(x1 - x0, y1 - y0) <= 0.001 * steps + 1e-9
 
 
+@pytest.mark.slow  # 9 s of the sim's time on the wall clock
 def test_sim_node_gyro_and_scripted_slip_through_the_gyro_aided_node() -> None:
     """sim_node (gyro at 100 Hz, the right wheel spinning 10 rad/s extra from 2 s to
     2.5 s of its time) and odometry_node with use_imu, driven straight: the wheels
