@@ -1,6 +1,8 @@
 # The two commands a newcomer needs: `make demo` and `make test`. Both build .venv first.
 SHELL := /bin/bash
 VENV ?= .venv
+# The interpreter the venv is made from (3.10-3.12): make VENV=.venv312 PYTHON=python3.12 demo
+PYTHON ?= python3
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.diffdrive_odom-installed
 # ROS 2 launch + launch_ros (not on PyPI) where CI keeps them beside the clone; a clone
@@ -14,7 +16,7 @@ PIP_QUIET := 2>&1 | grep -v '^WARNING: Location' || true
 venv: $(STAMP) $(if $(wildcard $(SHARED_LAUNCH)/install.sh),$(LAUNCH_STAMP))
 
 $(STAMP): requirements.txt setup.py setup.cfg package.xml scripts/build_tf2_msgs.sh
-	test -x $(PY) || python3 -m venv $(VENV)
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip $(PIP_QUIET)
 	set -o pipefail; $(PY) -m pip install -q -r requirements.txt 2>&1 | { grep -v '^WARNING: Location' || true; }
 	bash scripts/build_tf2_msgs.sh $(VENV)
@@ -26,8 +28,9 @@ $(LAUNCH_STAMP): $(STAMP) $(SHARED_LAUNCH)/install.sh
 	bash $(SHARED_LAUNCH)/install.sh $(VENV)
 	touch $(LAUNCH_STAMP)
 
+# DEMO_ARGS: the demo's options, e.g. DEMO_ARGS="--short --output /tmp/demo" (CI on 3.12).
 demo: venv
-	$(VENV)/bin/diffdrive-odom demo
+	$(VENV)/bin/diffdrive-odom demo $(DEMO_ARGS)
 
 # Tiers (markers in setup.cfg): test = everything (CI): all but the `serial` tests on two
 # xdist workers (each its own DDS domain), then those alone; test-fast = the pure tier (no

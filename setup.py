@@ -22,10 +22,15 @@ setup(
     ],
     package_data={PACKAGE: ["data/*", "data/**/*"]},
     include_package_data=True,
-    install_requires=["setuptools", "numpy"],
+    # rclpy and the messages come from ROS (apt, or the ros-jazzy-* wheels), tf2_msgs
+    # too (scripts/build_tf2_msgs.sh where no apt): not PyPI requirements.
+    install_requires=["setuptools", "numpy", "pyyaml"],
     extras_require={
-        "test": ["pytest", "hypothesis"],
+        # The bag tools (replay, eval, calibrate, play) and the demo's report and plot.
         "tools": ["rosbags", "matplotlib", "scipy"],
+        # The test suite (`colcon test` runs it as pytest): the tools plus the test tools.
+        "test": ["pytest", "pytest-timeout", "hypothesis", "mcap-ros2-support",
+                 "rosbags", "matplotlib", "scipy"],
     },
     zip_safe=True,
     maintainer="diffdrive_odom maintainers",

@@ -18,8 +18,10 @@ Prints:
    leave-one-experiment-out within a kind (LOEO) final position error (start aligned,
    mean / worst), ATE and relative error per metre, beside the paper's figures where
    known (quoted from the project README and issue 16, not from the paper's text);
-3. the bootstrap sigma and its coverage: how often another experiment's fit of the
-   same robot lies within the printed 1 (2) sigma;
+3. the printed sigma (bootstrap over runs + a drift between sessions chosen on the June
+   2020 experiments) and its coverage: how often another experiment's fit of the same
+   robot lies within the printed 1 (2) sigma, on pairs that did not choose the drift,
+   before (bootstrap alone) and after;
 4. final-pose NEES on real runs: the defaults chosen on the June sessions and judged on
    the others, and calibrated values held out. The NEES compares odometry with the
    motion capture, so the reference's own error (the tracked point is not exactly the
@@ -51,6 +53,7 @@ from diffdrive_odom.core.uncertainty import (
     DEFAULT_K,
     DEFAULT_RADIUS_STDDEV_RATIO,
     DEFAULT_SEPARATION_STDDEV_RATIO,
+    SESSION_DRIFT_RATIO,
     geometry_term,
 )
 from diffdrive_odom.settings.odometry import odometry_settings
@@ -213,8 +216,14 @@ def per_experiment(data: Sequence[Data]) -> None:
           "training squares; no LORO: one square per direction)")
 
 
+def june(group: str) -> bool:
+    """An experiment of the June 2020 sessions (its name starts ddmmyy)."""
+    return group.split("/")[1][2:6] == "0620"
+
+
 def coverage(data: Sequence[Data]) -> dict[str, tuple[Geometry, np.ndarray | None]]:
-    print("\n== 3. Bootstrap sigma over runs (20 resamples) and its coverage ==")
+    print("\n== 3. Bootstrap over runs (20 resamples) + drift between sessions: the printed "
+          "sigma and its coverage held out ==")
     fits: dict[str, tuple[Geometry, np.ndarray | None]] = {}
     for g in dict.fromkeys(d.group for d in data):
         runs = [d.run for d in data if d.group == g]
@@ -222,25 +231,51 @@ def coverage(data: Sequence[Data]) -> dict[str, tuple[Geometry, np.ndarray | Non
         cov = crossval.bootstrap(runs, NOMINAL)
         fits[g] = (geo, cov)
         v = values_of(geo)
-        sig = "fewer than 3 runs: none" if cov is None else " ".join(
-            f"{s:.5f}" for s in np.sqrt(np.diag(cov)))
+        sig = "fewer than 3 runs: none" if cov is None else "bootstrap " + " ".join(
+            f"{s:.5f}" for s in np.sqrt(np.diag(cov))) + ", printed " + " ".join(
+            f"{s:.5f}" for s in np.sqrt(np.diag(crossval.with_drift(v, cov))))
         print(f"{g:24s} r_L {v[0]:.5f} r_R {v[1]:.5f} b {v[2]:.5f}  1-sigma {sig}")
-    z_kind, z_all = [], []
-    names = [g for g, (_, c) in fits.items() if c is not None]
-    for i, a in enumerate(names):
-        for b in names[i + 1:]:
-            (ga, ca), (gb, cb) = fits[a], fits[b]
-            assert ca is not None and cb is not None
-            z = np.abs(values_of(ga) - values_of(gb)) / np.sqrt(np.diag(ca) + np.diag(cb))
-            z_all.append(z)
-            if a.split("/")[0] == b.split("/")[0]:
-                z_kind.append(z)
-    for label, zs in (("same kind", z_kind), ("any two", z_all)):
-        if zs:
-            z = np.array(zs)
-            print(f"experiment pairs, {label}: |z| < 1 for {100 * np.mean(z < 1):.0f} % "
-                  f"(68 % if the sigma covered), |z| < 2 for {100 * np.mean(z < 2):.0f} % "
-                  f"(95 %), of {z.size} differences")
+    est = {g: (values_of(geo), c) for g, (geo, c) in fits.items() if c is not None}
+    names = list(est)
+    sets = {"June": [g for g in names if june(g)], "Dec/Jan": [g for g in names if not june(g)]}
+    chosen: dict[str, float | None] = {}
+    for label, gs in sets.items():
+        dates = sorted({g.split("/")[1][:6] for g in gs})
+        r = None if len(gs) < 2 else crossval.drift_ratio([est[g][0] for g in gs],
+                                                          [est[g][1] for g in gs])
+        chosen[label] = r
+        ratio = "-" if r is None else f"{100 * r:.3f} %"
+        print(f"drift ratio chosen on the {label} experiments ({len(gs)}, recorded on "
+              f"{', '.join(dates) or '-'} ddmmyy): {ratio}")
+    print(f"printed (SESSION_DRIFT_RATIO, chosen on June): "
+          f"{100 * SESSION_DRIFT_RATIO:.3f} %")
+    pairs = {"June-June (chose the term)": [(a, b) for a in sets["June"] for b in sets["June"]
+                                            if a < b],
+             "Dec/Jan-Dec/Jan (held out)": [(a, b) for a in sets["Dec/Jan"]
+                                            for b in sets["Dec/Jan"] if a < b],
+             "fit in June, judged Dec/Jan (held out)": [(a, b) for a in sets["June"]
+                                                        for b in sets["Dec/Jan"]],
+             "same kind, any session": [(a, b) for a in names for b in names
+                                        if a < b and a.split("/")[0] == b.split("/")[0]],
+             "any two": [(a, b) for a in names for b in names if a < b]}
+    ratios = {"bootstrap only (before)": 0.0,
+              "+ drift chosen on June (printed)": SESSION_DRIFT_RATIO,
+              "+ drift chosen on Dec/Jan": chosen["Dec/Jan"]}
+    print("|z| = |fit A - fit B| / sqrt(A's printed sigma^2 + B's bootstrap sigma^2), per "
+          "value (r_L, r_R, b); % within 1 (2) sigma, 68 (95) % if it covers:")
+    print(f"{'pairs of experiments':40s} {'n':>3s}" + "".join(f"{k:>34s}" for k in ratios))
+    for label, ps in pairs.items():
+        if not ps:
+            continue
+        line = f"{label:40s} {3 * len(ps):3d}"
+        for r in ratios.values():
+            if r is None:
+                line += f"{'-':>34s}"
+                continue
+            z = np.array([crossval.pair_z(est[a][0], crossval.with_drift(*est[a], r), *est[b])
+                          for a, b in ps])
+            line += f"{100 * np.mean(z < 1):25.0f} % / {100 * np.mean(z < 2):3.0f} %"
+        print(line)
     return fits
 
 
@@ -338,6 +373,7 @@ def nees_section(data: Sequence[Data], quick: bool) -> None:
     # Calibrated, held out: geometry and bootstrap ratios from the other experiments
     # of the kind (the bag squares: from the 12 training squares).
     held: dict[str, tuple[Terms, float, float]] = {}
+    before: dict[str, tuple[float, float]] = {}
     for g in dict.fromkeys(d.group for d in data):
         mine = [d for d in data if d.group == g]
         others = [d.run for d in data if d.kind == mine[0].kind and d.group != g
@@ -347,15 +383,22 @@ def nees_section(data: Sequence[Data], quick: bool) -> None:
         geo = fitter()(others)
         cov = crossval.bootstrap(others, NOMINAL)
         assert cov is not None
-        sr, sb = crossval.stddev_ratios(values_of(geo), cov)
+        sr, sb = crossval.stddev_ratios(values_of(geo), crossval.with_drift(values_of(geo),
+                                                                             cov))
+        br, bb = crossval.stddev_ratios(values_of(geo), cov)
         print(f"  LOEO {g}: fitted on {len(others)} runs, printed ratios radius "
-              f"{100 * sr:.3f} %, separation {100 * sb:.3f} %")
+              f"{100 * sr:.3f} %, separation {100 * sb:.3f} % (bootstrap alone "
+              f"{100 * br:.3f} %, {100 * bb:.3f} %)")
         for d in mine:
             held[d.run.name] = (terms(d, geo), sr, sb)
+            before[d.run.name] = (br, bb)
     ds = [d for d in data if d.run.name in held]
-    for label, ref in (("calibrated LOEO (held out), k default", True),
+    for label, ref in (("calibrated LOEO (held out), k default, printed ratios", True),
                        ("the same without the reference error", False)):
         verdict(label, by_group(ds, partial(_held_nees, held, d_k, ref)))
+    boot = {n: (t, *before[n]) for n, (t, _, _) in held.items()}
+    verdict("the same with the bootstrap-only ratios (before)",
+            by_group(ds, partial(_held_nees, boot, d_k, True)))
 
 
 def _held_nees(held: dict[str, tuple[Terms, float, float]], k: float, reference: bool,

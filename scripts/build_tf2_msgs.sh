@@ -3,6 +3,8 @@
 # Why: PyPI has no tf2 wheels, but /tf needs tf2_msgs/TFMessage. On a robot it comes
 # from apt and this script is never needed; it only runs where `import tf2_msgs` fails.
 set -euo pipefail
+# No silent exit: whatever fails says where (make would only print "Error 1").
+trap 'echo "build_tf2_msgs.sh: failed (exit $?) at line $LINENO: $BASH_COMMAND" >&2' ERR
 VENV=${1:?usage: build_tf2_msgs.sh VENV_DIR}
 VENV=$(cd "$VENV" && pwd)
 PY="$VENV/bin/python"
@@ -18,11 +20,23 @@ echo "building tf2_msgs into $VENV (no tf2 wheels on PyPI)"
   ros-jazzy-python-cmake-module catkin-pkg cmake ninja 2>&1 | grep -v "^WARNING: Location" || true
 PYINC=$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
 NPINC=$("$PY" -c 'import numpy; print(numpy.get_include())')
-# The wheels' CMake exports hard-code the wheel builder's interpreter paths.
-grep -rl --include='*.cmake' -e '/opt/python/cp311-cp311' "$VENV/share" 2>/dev/null | while read -r f; do
-  sed -i -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#$NPINC#g" \
-         -e "s#/opt/python/cp311-cp311/include/python3.11#$PYINC#g" "$f"
-done
+# The wheels' CMake exports hard-code the wheel builder's interpreter paths, one per
+# Python: /opt/python/cp311-cp311/... in the 3.11 wheels, cp312-cp312 in the 3.12 ones.
+# Point the include directories at this venv's; any other builder path left is an error
+# (a new wheel layout), named here rather than as a CMake failure later.
+BUILDER='/opt/python/cp[0-9]+-cp[0-9]+'
+mapfile -t EXPORTS < <(grep -rlE --include='*.cmake' "$BUILDER" "$VENV/share" 2>/dev/null || true)
+if [ "${#EXPORTS[@]}" -gt 0 ]; then
+  sed -i -E -e "s#$BUILDER/lib/python3\.[0-9]+/site-packages/numpy/_?core/include#$NPINC#g" \
+            -e "s#$BUILDER/include/python3\.[0-9]+#$PYINC#g" "${EXPORTS[@]}"
+fi
+LEFT=$(grep -rhoE --include='*.cmake' "$BUILDER[^\";) ]*" "$VENV/share" 2>/dev/null | sort -u || true)
+if [ -n "$LEFT" ]; then
+  echo "build_tf2_msgs.sh: the ROS wheels' CMake files in $VENV/share name build paths" \
+       "this script does not know how to replace:" >&2
+  echo "$LEFT" | head -5 >&2
+  exit 1
+fi
 SRC=$(mktemp -d)
 trap 'rm -rf "$SRC"' EXIT
 mkdir -p "$SRC/tf2_msgs/msg"
@@ -57,7 +71,8 @@ CM
 export AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH"
 "$VENV/bin/cmake" -S "$SRC/tf2_msgs" -B "$SRC/build" -G Ninja \
   -DCMAKE_INSTALL_PREFIX="$VENV" -DPython3_EXECUTABLE="$PY" -DBUILD_TESTING=OFF >"$SRC/cmake.log" 2>&1 \
-  || { cat "$SRC/cmake.log"; exit 1; }
-"$VENV/bin/cmake" --build "$SRC/build" >"$SRC/build.log" 2>&1 || { tail -50 "$SRC/build.log"; exit 1; }
+  || { echo "build_tf2_msgs.sh: configuring tf2_msgs failed:" >&2; cat "$SRC/cmake.log" >&2; exit 1; }
+"$VENV/bin/cmake" --build "$SRC/build" >"$SRC/build.log" 2>&1 \
+  || { echo "build_tf2_msgs.sh: building tf2_msgs failed:" >&2; tail -50 "$SRC/build.log" >&2; exit 1; }
 "$VENV/bin/cmake" --install "$SRC/build" >/dev/null
 "$PY" -c 'import tf2_msgs.msg; print("tf2_msgs OK")'

@@ -38,6 +38,7 @@ def test_accuracy_bench_prints_its_table() -> None:
     assert len(rows) == 4 * 2, out
 
 
+@pytest.mark.slow
 def test_live_bench_prints_its_table() -> None:
     """Every system carries the messages at 100 Hz. Its input is best effort, as a
     driver's joint_states are, so one lost under a loaded CI machine is the bench's
@@ -66,6 +67,7 @@ def test_core_bench_prints_its_table() -> None:
         assert row and float(row.group(1)) > 0.0 and float(row.group(2)) > 0.0, out
 
 
+@pytest.mark.slow
 def test_soak_bench_samples_memory_and_cpu() -> None:
     """A 20 s soak at 1 kHz: samples every 2 s and a verdict on growth. The verdict is
     the bench's figure (machine noise can move 20 s of CPU), not asserted here; that it

@@ -38,3 +38,6 @@ def test_calibration_bench_quick_prints_every_section() -> None:
     nominal, loro = (float(v) for v in row.groups())
     assert loro < nominal, out
     assert re.search(r"^calibrated LOEO \(held out\).* runs mean", out, re.M), out
+    # the printed sigma's coverage, before (bootstrap alone) and after (+ session drift)
+    assert re.search(r"^fit in June, judged Dec/Jan \(held out\)\s+\d+(\s+\d+ % /\s+\d+ %){2}",
+                     out, re.M), out

@@ -316,6 +316,29 @@ def test_bootstrap_ratios_go_into_a_block_the_node_accepts() -> None:
     assert 0.0 < ratios[0] < 0.01 and 0.0 < ratios[1] < 0.02
 
 
+def test_fit_report_prints_the_bootstrap_and_the_sigma_with_the_session_drift() -> None:
+    """The 1-sigma column is sqrt(bootstrap^2 + (drift * value)^2), named on one line;
+    --session-drift 0 leaves the bootstrap alone."""
+    from diffdrive_odom.tools.calibrate import fit_report
+
+    fit = calibration.fit(_optiodom_runs(), Geometry(0.042, 0.2))
+    boot = np.array([3e-5, 4e-5, 5e-4])
+    cov = np.diag(boot**2)
+    for drift in (0.0019, 0.0):
+        text = fit_report(fit, cov, drift)
+        rows = [ln.split() for ln in text.splitlines() if ln.startswith(("left wheel",
+                                                                          "right wheel",
+                                                                          "wheel separation"))]
+        assert len(rows) == 3, text
+        for row, b, v in zip(rows, boot, fit.values, strict=True):
+            assert float(row[-2]) == pytest.approx(b, abs=1e-6)
+            assert float(row[-1]) == pytest.approx(math.hypot(b, drift * v), abs=1e-6)
+        assert (f"drift between sessions of {100 * drift:.2f} % of each value "
+                "(--session-drift)") in text
+        assert "1-sigma: covers the geometry on other days" in text
+    assert "1-sigma: not given: it needs 3 or more runs" in fit_report(fit, None)
+
+
 def test_cli_umbmark_from_topic_and_from_typed_end_points(
     capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -346,6 +369,8 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
     (["/no/such/bag", *NOMINAL_ARGS], "/no/such/bag"),
     ([str(OPTIODOM / CW_RUN), "--window", "0.25", *NOMINAL_ARGS], "--window"),
     ([str(OPTIODOM / CW_RUN), "--no-mount", *NOMINAL_ARGS], "--no-mount"),
+    ([str(OPTIODOM / CW_RUN), "--session-drift", "-0.01", *NOMINAL_ARGS], "--session-drift"),
+    ([str(OPTIODOM / CW_RUN), "--session-drift", "nan", *NOMINAL_ARGS], "--session-drift"),
     (["--umbmark", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN), *NOMINAL_ARGS], "--side"),
     (["--umbmark", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN), "--side", "1.7",
       "--cw-end", "1,2", "--ccw-end", "x", *NOMINAL_ARGS], "--ccw-end"),

@@ -87,9 +87,9 @@ def test_every_subcommand_help_shows_every_default(command: str) -> None:
     for action in parser._actions:
         default = action.default
         if (default is argparse.SUPPRESS or not action.option_strings or action.nargs == 0
-                or action.required
+                or action.required or action.help == argparse.SUPPRESS
                 or default in ([], ())):
-            continue  # positionals, required, flags, repeatables: no default to show
+            continue  # positionals, required, flags, repeatables, hidden: no default to show
         if default is None:
             # no value to print: the help text must say what happens instead
             assert "default" in (action.help or ""), action.option_strings

@@ -326,9 +326,12 @@ def test_propagated_covariance_grows_along_a_drive_and_replay_writes_the_same(
     ``diffdrive-odom replay`` of the same readings writes the same matrices.
     """
     r, b, k = 0.05, 0.3, 2e-5
+    # The wheel-noise part alone (the geometry term has its own closed forms in
+    # test_uncertainty): with the geometry's standard deviations at 0.
     params = write_params(tmp_path / "p.yaml", {
         "wheel_radius": r, "wheel_separation": b,
-        "wheel_noise_k_left": k, "wheel_noise_k_right": k})
+        "wheel_noise_k_left": k, "wheel_noise_k_right": k,
+        "wheel_radius_stddev_ratio": 0.0, "wheel_separation_stddev_ratio": 0.0})
     per_step, steps = 0.4, 40  # 2 cm per reading, 0.8 m
     with node_process("odometry_node", ["--ros-args", "--params-file", str(params)]) as proc, \
             ros_test_node() as (node, ex):

@@ -20,7 +20,7 @@ from sensor_msgs.msg import JointState
 
 from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until, wait_matched
 
-pytestmark = [pytest.mark.dds, pytest.mark.process]
+pytestmark = [pytest.mark.dds, pytest.mark.process, pytest.mark.slow]
 
 RUNS: dict[str, float | None] = {
     # run: distance of nominal wheel odometry from ground truth at the end [m], where an

@@ -140,6 +140,7 @@ def signal_mix(terms: int, ints: int, rng: random.Random) -> list[signal.Signals
     return sigs
 
 
+@pytest.mark.slow
 def test_odometry_node_stops_within_a_second_of_sigterm_or_sigint_during_a_burst() -> None:
     """50 SIGTERM and 50 SIGINT trials, ten processes started at a time."""
     rng = random.Random(20261201)

@@ -13,6 +13,16 @@ same robot would give, run-to-run differences included, which the Jacobian of on
 fit does not see. Fewer than 3 runs give no sigma (with 2, every resample is one of the
 two runs or both: the spread says nothing); a resample of fewer than 2 distinct runs is
 skipped (one spin on the spot does not determine the separation alone).
+
+A bootstrap over one session's runs cannot see what changes between sessions (tyres,
+floor, the kind of motion), and the geometry a user fits is applied on other days.
+The printed sigma therefore adds, in quadrature, a drift between sessions of
+``SESSION_DRIFT_RATIO`` of each value (chosen on the OptiOdom robot's June 2020
+experiments by :func:`drift_ratio`, checked on the December 2020 / January 2021 ones:
+``bench/bench_calibration.py``) (:func:`with_drift`): sigma^2 = sigma_bootstrap^2
++ (ratio * value)^2. The ratio is a method-of-moments estimate over pairs of
+experiments (:func:`drift_ratio`; DerSimonian and Laird, "Meta-analysis in clinical
+trials", the between-study variance): what their fits differ by beyond both bootstraps.
 """
 
 from __future__ import annotations
@@ -27,6 +37,7 @@ from diffdrive_odom.core import calibration
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.metrics import Metrics
 from diffdrive_odom.core.recorded_run import Run, values_of
+from diffdrive_odom.core.uncertainty import SESSION_DRIFT_RATIO
 
 FloatArray = npt.NDArray[np.float64]
 Fitter = Callable[[Sequence[Run]], Geometry]
@@ -140,3 +151,46 @@ def stddev_ratios(values: FloatArray, covariance: FloatArray) -> tuple[float, fl
     """
     rel = np.sqrt(np.diag(covariance)) / values
     return float(max(rel[0], rel[1])), float(rel[2])
+
+
+def with_drift(values: FloatArray, covariance: FloatArray,
+               ratio: float = SESSION_DRIFT_RATIO) -> FloatArray:
+    """The printed covariance: the bootstrap's plus ``(ratio * value)^2`` on the diagonal.
+
+    The drift of each value between sessions is taken independent (its cause differs:
+    each tyre's wear, the contact patches' width on another floor).
+    """
+    return np.asarray(covariance + np.diag((ratio * np.asarray(values)) ** 2),
+                      dtype=np.float64)
+
+
+def drift_ratio(values: Sequence[FloatArray], covariances: Sequence[FloatArray]) -> float:
+    """Relative drift between experiments beyond their own sigmas (method of moments).
+
+    Over every pair (a, b) and parameter: ((v_a - v_b) / mean)^2 - (s_a / v_a)^2 -
+    (s_b / v_b)^2 estimates ratio^2; the mean over all of them, floored at 0, is
+    returned as a ratio. One ratio for all three values: three experiments give too few
+    pairs for one each.
+    """
+    terms: list[float] = []
+    for i in range(len(values)):
+        for j in range(i + 1, len(values)):
+            va, vb = np.asarray(values[i]), np.asarray(values[j])
+            rel = (va - vb) / ((va + vb) / 2)
+            own = (np.diag(covariances[i]) / va ** 2) + (np.diag(covariances[j]) / vb ** 2)
+            terms += (rel ** 2 - own).tolist()
+    if not terms:
+        raise ValueError("drift_ratio needs two or more experiments")
+    return float(np.sqrt(max(0.0, float(np.mean(terms)))))
+
+
+def pair_z(values_a: FloatArray, printed_a: FloatArray, values_b: FloatArray,
+           covariance_b: FloatArray) -> FloatArray:
+    """|v_a - v_b| in units of a's printed sigma with b's own (bootstrap) sigma added.
+
+    How the printed sigma is checked: b is another experiment's fit, its geometry up to
+    its own noise; if a's sigma covers b's geometry, |z| < 1 about 68 % of the time.
+    """
+    diff = np.abs(np.asarray(values_a) - np.asarray(values_b))
+    return np.asarray(diff / np.sqrt(np.diag(printed_a) + np.diag(covariance_b)),
+                      dtype=np.float64)

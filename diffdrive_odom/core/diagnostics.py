@@ -1,4 +1,4 @@
-"""Health reports for ``/diagnostics``: levels, rate meters and the two nodes' verdicts.
+"""Health reports for ``/diagnostics``: levels, rate meters and each node's verdict.
 
 Pure Python (no rclpy, no messages) so the verdicts are unit-tested from plain
 numbers; :class:`diffdrive_odom.ros.diagnostics.DiagnosticsPublisher` turns a
@@ -390,6 +390,66 @@ def follower_report(now: FollowerHealth, before: FollowerHealth | None = None) -
         ("speed error [m/s]", f"{_finite(now.speed_error_mps):.4f}"),
         ("steps near singular (total)", str(now.near_singular)),
         ("steps omega limited (total)", str(now.limited)),
+        *_counts("dropped", now.dropped, dropped),
+    ]
+    return Report(level, message, tuple(values))
+
+
+# --- sim_node ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SimHealth:
+    """A snapshot of the simulated base; counters are cumulative since the start.
+
+    ``command_age_s`` is in simulated seconds (the sim's watchdog runs on its own time);
+    ``step_rate_hz`` counts the joint_states published per wall second against
+    ``expected_step_hz`` (``joint_state_rate``, times ``real_time_factor`` when the sim
+    owns the clock): a machine too slow for the asked real-time factor shows there.
+    ``dropped`` counts the wheel commands refused, by reason.
+    """
+
+    state: CommandState
+    command_age_s: float | None
+    last_command_moving: bool
+    command_rate_hz: float
+    step_rate_hz: float
+    expected_step_hz: float
+    timeout_s: float
+    sim_time_s: float
+    distance_m: float
+    dropped: Mapping[str, int]
+
+
+def sim_report(now: SimHealth, before: SimHealth | None = None) -> Report:
+    """The simulated base's health; ``before`` is the previous report's snapshot."""
+    problems: list[tuple[Level, str]] = []
+    if now.state is CommandState.TIMED_OUT and now.last_command_moving:
+        problems.append((Level.WARN, "stopped by the watchdog: no wheel command for "
+                                     f"{_finite(now.command_age_s or 0.0):.1f} s while moving"))
+    dropped = _since(now.dropped, before.dropped if before else None)
+    if any(dropped.values()):
+        problems.append((Level.WARN, f"dropped {sum(dropped.values())} wheel commands "
+                                     f"({_by_reason(dropped)})"))
+    step_rate = _finite(now.step_rate_hz)
+    if step_rate < MIN_OUTPUT_FRACTION * now.expected_step_hz:
+        problems.append((Level.WARN, f"simulating at {step_rate:.1f} steps/s, expected "
+                                     f"{now.expected_step_hz:g} (too slow for the asked rate)"))
+    ok = {CommandState.NEVER: "idle: never commanded",
+          CommandState.COMMANDING: "following wheel commands",
+          CommandState.TIMED_OUT: "idle: wheel commands timed out, wheels stopped"}[now.state]
+    level, message = _verdict(problems, ok)
+    values = [
+        ("state", now.state.value),
+        ("command age [s]", _seconds(None if now.command_age_s is None
+                                     else _finite(now.command_age_s))),
+        ("command_timeout [s]", f"{now.timeout_s:g}"),
+        ("last command moving", "true" if now.last_command_moving else "false"),
+        ("command rate [Hz]", f"{_finite(now.command_rate_hz):.1f}"),
+        ("step rate [Hz]", f"{step_rate:.1f}"),
+        ("expected step rate [Hz]", f"{now.expected_step_hz:g}"),
+        ("simulated time [s]", f"{_finite(now.sim_time_s):.3f}"),
+        ("distance [m]", f"{_finite(now.distance_m):.3f}"),
         *_counts("dropped", now.dropped, dropped),
     ]
     return Report(level, message, tuple(values))

@@ -10,17 +10,17 @@ stamp interval.
 
 from __future__ import annotations
 
-import enum
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from diffdrive_odom.core.compat import StrEnum
 from diffdrive_odom.core.errors import ConfigError
 
 TWO_PI = 2.0 * math.pi
 
 
-class Reason(enum.StrEnum):
+class Reason(StrEnum):
     """Stable short keys for what happened to a reading, beside the human text.
 
     Counters and diagnostics key on these, so wording can improve without breaking

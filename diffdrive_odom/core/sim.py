@@ -277,6 +277,11 @@ class DiffDriveSim:
         return self._state.twist
 
     @property
+    def last_command_ns(self) -> int | None:
+        """Simulated time of the last wheel command (None: never commanded)."""
+        return self._state.last_command_ns
+
+    @property
     def distance(self) -> float:
         """Path length driven on the ground [m]."""
         return self._state.distance

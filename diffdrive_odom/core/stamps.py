@@ -15,7 +15,7 @@ measurement time is then lost, transport delay and jitter included).
 
 from __future__ import annotations
 
-import enum
+from diffdrive_odom.core.compat import StrEnum
 
 # s between a reading's stamp and its receive time beyond which the driver's clock is
 # named. Transport takes milliseconds; a TF lookup at a stamp a second off the rest of
@@ -24,7 +24,7 @@ import enum
 CLOCK_OFFSET_WARN_S = 1.0
 
 
-class StampSource(enum.StrEnum):
+class StampSource(StrEnum):
     """The ``stamp_source`` parameter's values."""
 
     HEADER = "header"  # the JointState's header stamp: the measurement time (default)

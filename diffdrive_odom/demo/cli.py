@@ -10,7 +10,7 @@ from pathlib import Path
 from types import FrameType
 
 from diffdrive_odom.core import routes
-from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cli import HelpFormatter, invocation
 
 from .settings import DEFAULT_PARAMS, PROGRAM, ROUTES, DemoError, DemoOptions, parse_override
 
@@ -101,5 +101,5 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     finally:
         signal.signal(signal.SIGTERM, previous)
-    print(result.table())
+    print(result.table(invocation()))
     return 0

@@ -12,7 +12,10 @@ everything into a rosbag2 (raw CDR as received, so every reader can decode it).
 The child processes are :mod:`.children`, this process's node :mod:`.recorder`. Every
 resource is held by an ExitStack: the child processes are stopped and the ROS context
 and bag are closed when the demo ends, fails (a constructor included) or is
-interrupted.
+interrupted. Everything is written into a hidden directory beside ``--output`` and
+moved into place only when the run has finished (:func:`diffdrive_odom.tools.outputs.staged`),
+so a failed or interrupted demo leaves no partial output, and a previous one stays
+until a new one replaces it.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from diffdrive_odom.settings.params import ParamValue
+from diffdrive_odom.tools.outputs import staged
 
 from . import report
 from .children import Children
@@ -137,18 +141,27 @@ def _drive(waiter: _Waiter, opts: DemoOptions, look_ahead: float,
 
 
 def run(opts: DemoOptions) -> DemoResult:
-    """Start the nodes, drive the squares, record, calibrate, plot; everything released."""
+    """Start the nodes, drive the squares, record, calibrate, plot; everything released.
+
+    Written into a staging directory, moved to ``opts.output`` (replacing a previous
+    demo's, which :func:`check_options` made sure it is) only once all went well.
+    """
     check_options(opts)
     settings = load_settings(opts)
-    output = opts.output
-    output.mkdir(parents=True, exist_ok=True)
+    opts.output.parent.mkdir(parents=True, exist_ok=True)
+    with staged(opts.output) as output:
+        output.mkdir()
+        result = _run(opts, settings, output)
+        if opts.output.exists():  # a previous demo's (check_output): replaced now
+            shutil.rmtree(opts.output)
+    return result
+
+
+def _run(opts: DemoOptions, settings: Settings, output: Path) -> DemoResult:
+    """The run, writing into ``output`` (the staging directory)."""
     logs = output / "logs"
-    logs.mkdir(exist_ok=True)
+    logs.mkdir()
     bag_path = output / "bag" if opts.write_bag else None
-    if bag_path is not None and bag_path.exists():
-        if not (bag_path / "metadata.yaml").exists():
-            raise DemoError(f"{bag_path} exists and is not a bag: remove it or choose --output")
-        shutil.rmtree(bag_path)
 
     domain = opts.domain_id if opts.domain_id is not None else random.randint(1, 100)
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain),
@@ -172,11 +185,15 @@ def run(opts: DemoOptions) -> DemoResult:
         squares = _drive(waiter, opts, settings.follower.gains.look_ahead,
                          wall0 + opts.timeout)
     wall = time.monotonic() - wall0
-    return _evaluate(opts, settings, recorder, squares, wall, bag_path)
+    return _evaluate(opts, settings, recorder, squares, wall, output)
 
 
 def _evaluate(opts: DemoOptions, s: Settings, recorder: Recorder, squares: Sequence[Square],
-              wall: float, bag: Path | None) -> DemoResult:
+              wall: float, output: Path) -> DemoResult:
+    """Calibrate, plot and write results.json into ``output``.
+
+    The paths the result names are where they will be: under ``opts.output``.
+    """
     rec = recorder.recording(squares)
     rows, paths = report.calibrate_rows(rec, s.odometry, s.sim.config.geometry, opts.side)
     truth = rec.truth
@@ -187,11 +204,10 @@ def _evaluate(opts: DemoOptions, s: Settings, recorder: Recorder, squares: Seque
         if inside.any():
             off_path = max(off_path, float(report.distance_to_polyline(
                 xy[inside], sq.points).max()))
-    plot_path = opts.output / "trajectory.png"
     if opts.write_plot:
         from .plot import plot
 
-        plot(plot_path, truth, paths, [sq.points for sq in squares],
+        plot(output / "trajectory.png", truth, paths, [sq.points for sq in squares],
              f"{opts.route}: the follower drives on odometry; the truth drifts")
     distance = float(truth.path_length()[-1]) if len(truth) else 0.0
     result = DemoResult(
@@ -202,9 +218,9 @@ def _evaluate(opts: DemoOptions, s: Settings, recorder: Recorder, squares: Seque
         rows=rows, cross_track_odom_m=rec.cross_track_odom_m,
         cross_track_truth_m=off_path, squares=tuple(squares),
         messages=dict(recorder.counts),
-        bag=str(bag) if bag is not None else None,
-        plot=str(plot_path) if opts.write_plot else None,
+        bag=str(opts.output / "bag") if opts.write_bag else None,
+        plot=str(opts.output / "trajectory.png") if opts.write_plot else None,
     )
-    (opts.output / "results.json").write_text(
+    (output / "results.json").write_text(
         json.dumps(result.as_dict(), indent=2) + "\n", encoding="utf-8")
     return result

@@ -138,8 +138,11 @@ class DemoResult:
             "messages": self.messages, "bag": self.bag, "plot": self.plot,
         }
 
-    def table(self) -> str:
-        """The table the demo prints: each geometry's values and its error at the end."""
+    def table(self, program: str = "diffdrive-odom") -> str:
+        """The table the demo prints: each geometry's values and its error at the end.
+
+        ``program``: how to run diffdrive-odom from here, for the closing hint.
+        """
         true = self.rows[TRUE].geometry
 
         def value(v: float, t: float) -> str:
@@ -175,7 +178,7 @@ class DemoResult:
         if self.plot:
             lines.append(f"plot: {self.plot}")
         if self.bag:
-            lines.append(f"bag:  {self.bag}  (try: diffdrive-odom eval {self.bag})")
+            lines.append(f"bag:  {self.bag}  (try: {program} eval {self.bag})")
         return "\n".join(lines)
 
 

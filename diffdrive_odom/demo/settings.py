@@ -114,6 +114,29 @@ def check_options(opts: DemoOptions) -> None:
     for flag, value in (("--linear", opts.speed), ("--angular", opts.max_angular)):
         if not (math.isfinite(value) and value > 0.0):
             raise DemoError(f"{flag} must be > 0, got {value}")
+    check_output(opts.output)
+
+
+# What a demo writes into its output directory: one holding only these is a previous
+# demo's, which a new run replaces once it has finished.
+OUTPUT_NAMES = frozenset({"logs", "bag", "params.yaml", "results.json", "trajectory.png"})
+
+
+def check_output(output: Path) -> None:
+    """Refuse an ``--output`` a finished run could not replace.
+
+    That is anything but a directory holding a previous demo's files (or nothing): a
+    user's own files are never deleted.
+    """
+    if not output.exists():
+        return
+    if not output.is_dir():
+        raise DemoError(f"--output {output}: exists and is not a directory")
+    foreign = sorted(p.name for p in output.iterdir() if p.name not in OUTPUT_NAMES)
+    if foreign:
+        raise DemoError(f"--output {output}: holds {', '.join(foreign[:3])}"
+                        f"{', ...' if len(foreign) > 3 else ''}, not a demo's output: "
+                        "choose another --output (a finished run replaces a previous one)")
 
 
 def follower_values(opts: DemoOptions) -> dict[str, ParamValue]:

@@ -21,7 +21,6 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
-from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom.core.cdr import (
     JointArrays,
@@ -65,6 +64,10 @@ class OdometryEndpoints:
     """
 
     def __init__(self, node: Node, values: dict[str, ParamValue]) -> None:
+        # Here, not at the top: tf2_msgs is no PyPI package, and --help must work without
+        # it (runtime.run turns its absence into one line saying how to get it).
+        from tf2_msgs.msg import TFMessage
+
         self._node = node
         settings = self._build(values)
         self._settings = settings

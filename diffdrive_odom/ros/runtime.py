@@ -21,6 +21,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 
+from diffdrive_odom.core.dependencies import missing_text
 from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE, ParameterError
 
 
@@ -56,6 +57,12 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
             node = node_factory()
         except ParameterError as err:
             print(f"[{_program()}] {err}", file=sys.stderr)
+            return 2
+        except ModuleNotFoundError as err:  # an optional dependency (tf2_msgs): one line
+            line = missing_text(err.name, _program())
+            if line is None:
+                raise
+            print(line, file=sys.stderr)
             return 2
         executor.add_node(node)
         try:

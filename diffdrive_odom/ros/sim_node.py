@@ -13,6 +13,11 @@ in fixed steps of simulated time, ``real_time_factor`` times faster than the wal
 and publishes ``/clock`` so the other nodes (``use_sim_time:=true``) and the stamps
 agree. A slow machine then slows the simulated world down instead of making it
 jerky: every step is exactly ``1 / joint_state_rate`` simulated seconds.
+
+Like the other nodes it reports its health on ``/diagnostics`` (status
+"sim_node: simulation", :func:`diffdrive_odom.core.diagnostics.sim_report`): the step
+and command rates, the age of the last wheel command and the watchdog's state, the
+wheel commands it refused.
 """
 
 from __future__ import annotations
@@ -31,9 +36,18 @@ from std_msgs.msg import Float64MultiArray
 
 from diffdrive_odom.core.cmd_vel_pipeline import JOINT_STATE, TICKS_PER_SECOND
 from diffdrive_odom.core.conversions import ns_to_stamp, yaw_to_quaternion
+from diffdrive_odom.core.diagnostics import (
+    CommandState,
+    RateMeter,
+    Report,
+    Reporter,
+    SimHealth,
+    sim_report,
+)
 from diffdrive_odom.core.encoders import EncoderConfig, JointLookup
 from diffdrive_odom.core.sim import TWO_PI, DiffDriveSim
 from diffdrive_odom.core.throttle import WARN_THROTTLE_S
+from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, qos
 from diffdrive_odom.ros.runtime import run
@@ -63,6 +77,12 @@ class SimNode(Node):
         self._step_ns = round(1e9 / s.joint_state_rate)
         self._start_ns = time.time_ns()  # the simulated clock starts at the wall time
         self._last_clock_ns: int | None = None
+        started = time.monotonic()
+        self._steps = RateMeter(start=started)
+        self._commands = RateMeter(start=started)
+        self._last_moving = False
+        self._dropped: dict[str, int] = {}
+        self._reporter = Reporter(sim_report)
 
         self._joint_pub = self.create_publisher(
             JointState, "joint_states", RELIABLE_OUT_QOS)
@@ -95,7 +115,25 @@ class SimNode(Node):
             f"joint_states in {s.joint_state_units} at {s.joint_state_rate:g} Hz"
             + (f", /clock at {s.real_time_factor:g}x real time" if s.publish_clock else "")
         )
+        self._diagnostics = DiagnosticsPublisher(self, "simulation", self._diagnose)
         self._publish(self._start_ns)
+
+    def _diagnose(self) -> Report:
+        """The /diagnostics status: rates, the last command's age, the watchdog, drops."""
+        s, sim, now = self._settings, self._sim, time.monotonic()
+        timeout = s.config.command_timeout
+        last = sim.last_command_ns
+        age = None if last is None else (sim.time_ns - last) * 1e-9
+        state = (CommandState.NEVER if age is None else
+                 CommandState.TIMED_OUT if timeout > 0.0 and age >= timeout else
+                 CommandState.COMMANDING)
+        return self._reporter(SimHealth(
+            state=state, command_age_s=age, last_command_moving=self._last_moving,
+            command_rate_hz=self._commands.rate(now), step_rate_hz=self._steps.rate(now),
+            expected_step_hz=s.joint_state_rate * (s.real_time_factor if s.publish_clock
+                                                   else 1.0),
+            timeout_s=timeout, sim_time_s=sim.time_ns * 1e-9, distance_m=sim.distance,
+            dropped=dict(self._dropped)))
 
     # --- parameters -------------------------------------------------------------
 
@@ -113,18 +151,25 @@ class SimNode(Node):
     def _warn(self, text: str) -> None:
         self._log.warning(text, throttle_duration_sec=WARN_THROTTLE_S)
 
+    def _drop(self, code: str, text: str) -> None:
+        """Refuse a wheel command: counted for /diagnostics, a throttled warning."""
+        self._dropped[code] = self._dropped.get(code, 0) + 1
+        self._warn(text)
+
     def _command(self, rates: list[float]) -> None:
         if not all(math.isfinite(r) for r in rates):
-            self._warn("wheel command with NaN/inf dropped")
+            self._drop("non_finite", "wheel command with NaN/inf dropped")
             return
         self._sim.command(rates)
+        self._commands.add(time.monotonic())
+        self._last_moving = any(r != 0.0 for r in rates)
 
     def _on_array_command(self, msg: Float64MultiArray) -> None:
         data = list(msg.data)
         n = self._sim.config.joints
         if len(data) != n:
-            self._warn(f"wheel command with {len(data)} values dropped: expected {n} "
-                       f"({', '.join(self._settings.wheel_names)})")
+            self._drop("bad_array", f"wheel command with {len(data)} values dropped: "
+                       f"expected {n} ({', '.join(self._settings.wheel_names)})")
             return
         if self._settings.wheel_command_format == TICKS_PER_SECOND:
             scale = TWO_PI / self._sim.config.ticks_per_revolution
@@ -134,11 +179,11 @@ class SimNode(Node):
     def _on_joint_command(self, msg: JointState) -> None:
         idx = self._lookup.indices(msg.name)
         if idx is None:
-            self._warn("wheel command JointState lacks a wheel joint: dropped")
+            self._drop("missing_joint", "wheel command JointState lacks a wheel joint: dropped")
             return
-        if len(msg.velocity) < len(msg.name):
-            self._warn(f"wheel command JointState has {len(msg.velocity)} velocities for "
-                       f"{len(msg.name)} names: dropped")
+        if len(msg.velocity) != len(msg.name):
+            self._drop("bad_array", f"wheel command JointState has {len(msg.velocity)} "
+                       f"velocities for {len(msg.name)} names: dropped")
             return
         self._command([float(msg.velocity[i]) for i in idx])
 
@@ -187,6 +232,7 @@ class SimNode(Node):
     # --- output -----------------------------------------------------------------
 
     def _publish(self, stamp_ns: int) -> None:
+        self._steps.add(time.monotonic())
         s, sim = self._settings, self._sim
         js = JointState()
         ns_to_stamp(stamp_ns, js.header.stamp)

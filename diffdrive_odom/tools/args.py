@@ -17,7 +17,7 @@ from typing import Any
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
 from diffdrive_odom.settings.params import ParameterError, ParamSource, resolve_parameters
 from diffdrive_odom.settings.registry import unknown_parameters_report
-from diffdrive_odom.tools import bagio
+from diffdrive_odom.tools.outputs import output_problem
 
 NODE_NAME = "odometry_node"
 DEFAULT_REFERENCE = "/ground_truth/pose"  # the ground-truth topic looked for first
@@ -98,7 +98,7 @@ def outputs_problem(*outputs: tuple[str, str | None]) -> str | None:
     Checked before any work, so a typo in an output path costs nothing.
     """
     for flag, path in outputs:
-        problem = bagio.output_problem(path, flag) if path else None
+        problem = output_problem(path, flag) if path else None
         if problem:
             return problem
     return None

@@ -37,10 +37,7 @@ import csv
 import functools
 import heapq
 import itertools
-import os
-import shutil
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -55,12 +52,12 @@ from rosbags.typesys.store import Typestore
 
 from diffdrive_odom.core.cdr import JointStateDecoder
 from diffdrive_odom.core.conversions import split_ns, stamp_to_ns
+from diffdrive_odom.tools.outputs import STORAGES as STORAGES
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 IMU = "sensor_msgs/msg/Imu"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
-STORAGES = ("mcap", "sqlite3")
 CSV_COLUMNS = ("stamp_ns", "time", "x", "y", "yaw", "linear", "angular", "status",
                "var_x", "var_y", "var_yaw")
 # Readings displaced further than this many messages from stamp order still come out,
@@ -111,23 +108,6 @@ def open_bag(path: str | Path) -> AnyReader:
         return _Reader([p], default_typestore=typestore())
     except _NOT_A_BAG as err:
         raise BagError(f"{p}: not a readable bag ({err})") from err
-
-
-def output_problem(path: str | Path, flag: str) -> str | None:
-    """Why ``path`` cannot be written (one line naming ``flag``), or None.
-
-    Checked before the work starts, so a long replay does not end in a traceback
-    over a typo in ``--plot``.
-    """
-    p = Path(path)
-    parent = p.parent if str(p.parent) else Path(".")
-    if p.is_dir():
-        return f"{flag} {p}: is a directory"
-    if not parent.is_dir():
-        return f"{flag} {p}: directory {parent} does not exist"
-    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
-        return f"{flag} {p}: not writable"
-    return None
 
 
 def connections_for(
@@ -274,25 +254,6 @@ def read_joint_states(
 def count_messages(reader: AnyReader, topic: str) -> int:
     """Messages on ``topic`` according to the bag's index (no decoding)."""
     return sum(c.msgcount for c in reader.connections if c.topic == topic)
-
-
-@contextmanager
-def staged(path: str | Path) -> Iterator[Path]:
-    """Where to write ``path``: its name in a hidden sibling directory, moved on success.
-
-    On any exception (Ctrl-C included) the staging directory is removed, so a failed
-    run never leaves a half-written output under the name the user asked for. Same
-    file system, so the move is a rename; same name, so a bag's storage file inside
-    (``NAME_0.mcap``) is named as if written in place.
-    """
-    final = Path(path)
-    stage = final.parent / f".{final.name}.partial-{os.getpid()}"
-    stage.mkdir()
-    try:
-        yield stage / final.name
-        os.replace(stage / final.name, final)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
 
 
 # --- ROS 1 -> ROS 2 -------------------------------------------------------------------

@@ -9,7 +9,8 @@ Readings are decoded with the odometry node's own parameters and pipeline
 (:func:`diffdrive_odom.core.batch.wheel_steps`), ground truth with ``eval``'s readers, so
 a bag that replays or evaluates also calibrates. The result is printed as a
 ``/**: ros__parameters:`` block with the node's own parameter names, to paste into
-its params file (``--yaml FILE`` also writes it).
+its params file (``--yaml FILE`` also writes it). The fit (scipy) and the bag reader
+(rosbags) are imported past the parsing, so ``--help`` works without the ``tools`` extra.
 """
 
 from __future__ import annotations
@@ -19,22 +20,23 @@ import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core import batch, calibration, crossval
-from diffdrive_odom.core.calibration import Fit
+from diffdrive_odom.core import batch
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.recorded_run import CalibrationError, Run, trajectory, values_of
 from diffdrive_odom.core.umbmark import Umbmark, reference_end, umbmark
 from diffdrive_odom.core.uncertainty import (
     DEFAULT_RADIUS_STDDEV_RATIO,
     DEFAULT_SEPARATION_STDDEV_RATIO,
+    SESSION_DRIFT_RATIO,
 )
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.settings.params import yaml_text
-from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools import evaluate
 from diffdrive_odom.tools.args import (
     add_param_arguments,
     add_reference_arguments,
@@ -43,6 +45,10 @@ from diffdrive_odom.tools.args import (
     settings_from_args,
 )
 from diffdrive_odom.tools.cli import HelpFormatter
+
+if TYPE_CHECKING:  # scipy and rosbags (the ``tools`` extra) only where they are used
+    from diffdrive_odom.core import crossval
+    from diffdrive_odom.core.calibration import Fit
 
 PREFIX = "[calibrate]"
 
@@ -78,6 +84,11 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--force", action="store_true",
                     help="print the params block even when the calibrated geometry does not "
                     "beat the nominal one on held-out runs (default: refused, exit 1)")
+    ap.add_argument("--session-drift", type=float, default=SESSION_DRIFT_RATIO, metavar="RATIO",
+                    help="relative 1-sigma drift of the radii and separation between recording "
+                    "sessions (tyres, floor), added in quadrature to the bootstrap sigma: what "
+                    "the printed sigma covers on other days (chosen on the OptiOdom robot, "
+                    "README 'Calibration'; 0: the bootstrap alone)")
     ap.add_argument("--window", default=None, help=argparse.SUPPRESS)  # refused: see below
     ap.add_argument("--no-mount", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--yaml", metavar="FILE",
@@ -112,6 +123,8 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
             return "give one or more BAGs, or --umbmark CW_BAG CCW_BAG --side L"
         if args.side is not None or args.cw_end or args.ccw_end:
             return "--side/--cw-end/--ccw-end need --umbmark"
+        if not (math.isfinite(args.session_drift) and 0.0 <= args.session_drift < 1.0):
+            return f"--session-drift: give a ratio in [0, 1), got {args.session_drift!r}"
         if args.window is not None or args.no_mount:
             return ("--window/--no-mount are gone: the fit uses the whole trajectory with the "
                     "reference's start yaw as its only nuisance (offset from the axle and "
@@ -129,6 +142,8 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
 def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,
          reference: bool) -> Run:
     """Decode one bag into its wheel steps (and read its ground truth when asked)."""
+    from diffdrive_odom.tools import bagio
+
     ref = None
     if reference:
         topic = evaluate.reference_topic(bag, args.ground_truth, (args.topic,),
@@ -148,6 +163,8 @@ def main(argv: Sequence[str]) -> int:
     settings = settings_from_args(args)
     if isinstance(settings, str):
         return _error(settings)
+    from diffdrive_odom.tools import bagio
+
     try:
         if args.umbmark is not None:
             return _umbmark(args, settings)
@@ -163,17 +180,21 @@ def main(argv: Sequence[str]) -> int:
 def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
                    runs: Sequence[Run]) -> int:
     """Fit, check it on held-out runs, bootstrap its sigma; print (or refuse) the block."""
+    from diffdrive_odom.core import calibration, crossval
+
     nominal = settings.geometry
     result = calibration.fit(runs, nominal)
     verdict = crossval.check(crossval.held_out(runs, nominal)) if len(runs) >= 2 else None
     covariance = crossval.bootstrap(runs, nominal)
-    ratios = None if covariance is None else crossval.stddev_ratios(result.values, covariance)
+    printed = None if covariance is None else crossval.with_drift(result.values, covariance,
+                                                                  args.session_drift)
+    ratios = None if printed is None else crossval.stddev_ratios(result.values, printed)
     refused = verdict is not None and not verdict.better
     print(check_line(verdict, len(runs), refused and args.force))
     text = params_block(result.geometry, ratios, f"least squares on {len(runs)} run(s)")
     if args.plot:
         plot(result, runs, args.plot)
-    print(fit_report(result, covariance))
+    print(fit_report(result, covariance, args.session_drift))
     if refused and not args.force:
         print(f"{PREFIX} no params block: the nominal geometry did better on held-out runs "
               "(--force prints it anyway)")
@@ -242,29 +263,43 @@ def params_block(geometry: Geometry, ratios: tuple[float, float] | None, how: st
         f"    wheel_separation_multiplier: {_num(geometry.wheel_separation_multiplier)}",
     ]
     if ratios is not None:
-        lines += [f"    wheel_radius_stddev_ratio: {_num(ratios[0])}  # bootstrap 1-sigma, "
-                  f"relative (default {DEFAULT_RADIUS_STDDEV_RATIO:g})",
+        lines += [f"    wheel_radius_stddev_ratio: {_num(ratios[0])}  # printed 1-sigma "
+                  f"(bootstrap + session drift), relative (default "
+                  f"{DEFAULT_RADIUS_STDDEV_RATIO:g})",
                   f"    wheel_separation_stddev_ratio: {_num(ratios[1])}  # (default "
                   f"{DEFAULT_SEPARATION_STDDEV_RATIO:g})"]
     return "\n".join(lines) + "\n"
 
 
-def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None) -> str:
-    """Human lines: values with bootstrap sigma, what is fixed, per-run errors."""
+def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None,
+               drift: float = SESSION_DRIFT_RATIO) -> str:
+    """Human lines: values with their sigma, what is fixed, per-run errors.
+
+    ``covariance`` is the bootstrap's; the 1-sigma column adds ``drift`` of each value
+    (:func:`crossval.with_drift`), what the value may move by in another session.
+    """
+    from diffdrive_odom.core import calibration, crossval
+
     nominal = values_of(fit.nominal)
     lines = [f"calibrated from {len(fit.runs)} run(s): whole trajectory, {fit.samples} "
              f"samples, {fit.loss} loss, {fit.evaluations} evaluations, {fit.seconds:.2f} s",
-             f"{'':22s} {'nominal':>10s} {'fitted':>10s} {'1-sigma':>10s}"]
-    std = None if covariance is None else np.sqrt(np.diag(covariance))
+             f"{'':22s} {'nominal':>10s} {'fitted':>10s} {'bootstrap':>10s} {'1-sigma':>10s}"]
+    boot = None if covariance is None else np.sqrt(np.diag(covariance))
+    std = None if covariance is None else np.sqrt(np.diag(
+        crossval.with_drift(fit.values, covariance, drift)))
     for i, (name, n, v) in enumerate(zip(("left wheel radius [m]", "right wheel radius [m]",
                                           "wheel separation [m]"), nominal, fit.values,
                                          strict=True)):
-        sigma = "-" if std is None else f"{std[i]:.6f}"
-        lines.append(f"{name:22s} {n:10.6f} {v:10.6f} {sigma:>10s}")
-    lines.append("1-sigma: bootstrap over runs, " + (
-        f"{crossval.BOOTSTRAP_RUNS} resamples" if std is not None else
-        f"not given: it needs {crossval.MIN_RUNS_FOR_SIGMA} or more runs; the node's default "
-        "stddev ratios stay"))
+        b, sigma = ("-", "-") if boot is None or std is None else (f"{boot[i]:.6f}",
+                                                                    f"{std[i]:.6f}")
+        lines.append(f"{name:22s} {n:10.6f} {v:10.6f} {b:>10s} {sigma:>10s}")
+    lines.append(
+        f"1-sigma: covers the geometry on other days: bootstrap over runs "
+        f"({crossval.BOOTSTRAP_RUNS} resamples) and a drift between sessions of "
+        f"{100 * drift:.2f} % of each value (--session-drift), in quadrature"
+        if std is not None else
+        f"1-sigma: not given: it needs {crossval.MIN_RUNS_FOR_SIGMA} or more runs; the "
+        "node's default stddev ratios stay")
     lines.append(f"fitted nuisance: the reference's yaw about the start "
                  f"{math.degrees(fit.start_yaw):+.3f} deg")
     for what, value, why in calibration.FIXED:

@@ -1,7 +1,10 @@
 """``diffdrive-odom``: one entry point for the tools, each in its own module.
 
 Subcommands are imported only when used, so ``diffdrive-odom eval`` does not pay
-for rclpy and ``diffdrive-odom play`` does not pay for matplotlib.
+for rclpy and ``diffdrive-odom play`` does not pay for matplotlib. Each imports its
+optional dependencies (the ``tools`` extra: rosbags, scipy, matplotlib) only past its
+argument parsing, so ``--help`` works on a plain install; one missing at run time is
+one line naming the extra (:mod:`diffdrive_odom.core.dependencies`), exit 2.
 """
 
 from __future__ import annotations
@@ -9,11 +12,14 @@ from __future__ import annotations
 import argparse
 import difflib
 import importlib
+import shutil
 import sys
 from collections.abc import Sequence
 from importlib import metadata
 from pathlib import Path
 from xml.etree import ElementTree
+
+from diffdrive_odom.core.dependencies import missing_text
 
 PROGRAM = "diffdrive-odom"
 PACKAGE = "diffdrive_odom"
@@ -74,6 +80,25 @@ def version() -> str:
     return "unknown"
 
 
+def invocation() -> str:
+    """How to run ``diffdrive-odom`` from here, for the hints the tools print.
+
+    The bare name when the shell finds this very script; else its path (relative to
+    the working directory when inside it), e.g. ``.venv/bin/diffdrive-odom`` after
+    ``make demo``, whose venv is not on PATH.
+    """
+    script = Path(sys.executable).parent / PROGRAM
+    found = shutil.which(PROGRAM)
+    if found is not None and (not script.exists() or Path(found).resolve() == script.resolve()):
+        return PROGRAM
+    if not script.exists():
+        return PROGRAM
+    try:
+        return str(script.relative_to(Path.cwd()))
+    except ValueError:
+        return str(script)
+
+
 def usage() -> str:
     """The command list, as ``--help`` prints it."""
     lines = [f"usage: {PROGRAM} [--version] {{{','.join(COMMANDS)}}} ...", ""]
@@ -100,8 +125,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROGRAM}: unknown command '{args[0]}' (commands: {', '.join(COMMANDS)})"
               f"{hint}", file=sys.stderr)
         return 2
-    module = importlib.import_module(COMMANDS[args[0]][0])
-    return int(module.main(args[1:]) or 0)
+    try:
+        module = importlib.import_module(COMMANDS[args[0]][0])
+        return int(module.main(args[1:]) or 0)
+    except ModuleNotFoundError as err:
+        line = missing_text(err.name, f"{PROGRAM} {args[0]}")
+        if line is None:
+            raise
+        print(line, file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

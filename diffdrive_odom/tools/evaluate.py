@@ -30,7 +30,6 @@ from diffdrive_odom.core.metrics import (
     path_length,
     relative_errors,
 )
-from diffdrive_odom.tools import bagio
 from diffdrive_odom.tools.args import (
     DEFAULT_REFERENCE,
     add_reference_arguments,
@@ -45,12 +44,13 @@ __all__ = [
     "read_trajectory", "reference_topic", "relative_errors", "report",
 ]
 
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 POSE_TYPES = (
     "geometry_msgs/msg/PoseStamped",
     "geometry_msgs/msg/PoseWithCovarianceStamped",
     "nav_msgs/msg/Odometry",
     "geometry_msgs/msg/TransformStamped",
-    bagio.TF_MESSAGE,
+    TF_MESSAGE,
 )
 
 
@@ -85,6 +85,8 @@ def reference_topic(
     """
     if requested is not None:
         return requested
+    from diffdrive_odom.tools import bagio  # the bag library only now: --help needs none
+
     with bagio.open_bag(bag) as reader:
         posed: list[str] = sorted(
             {str(c.topic) for c in reader.connections if c.msgtype in POSE_TYPES}
@@ -113,21 +115,23 @@ def read_trajectory(
     ``notify`` told); with several, BagError names them and ``frame_flag``, the
     option that chooses one.
     """
+    from diffdrive_odom.tools import bagio
+
     by_child: dict[str, tuple[list[int], list[float], list[float], list[float]]] = {}
     seen: set[str] = set()
     with bagio.open_bag(bag) as reader:
         conns = bagio.connections_for(reader, topic, POSE_TYPES)
         for conn, _, raw in reader.messages(connections=conns):
             msg: Any = reader.deserialize(raw, conn.msgtype)
-            items = list(msg.transforms) if conn.msgtype == bagio.TF_MESSAGE else [msg]
+            items = list(msg.transforms) if conn.msgtype == TF_MESSAGE else [msg]
             for item in items:
                 key = ""  # every pose of a topic that is not a TFMessage
-                if conn.msgtype in (bagio.TF_MESSAGE, "geometry_msgs/msg/TransformStamped"):
+                if conn.msgtype in (TF_MESSAGE, "geometry_msgs/msg/TransformStamped"):
                     child = str(item.child_frame_id).lstrip("/")
                     seen.add(child)
                     if child_frame is not None and child != child_frame.lstrip("/"):
                         continue
-                    key = child if conn.msgtype == bagio.TF_MESSAGE else ""
+                    key = child if conn.msgtype == TF_MESSAGE else ""
                     p, q = _pose_of(item, "geometry_msgs/msg/TransformStamped")
                 else:
                     p, q = _pose_of(item, conn.msgtype)
@@ -207,15 +211,19 @@ def report(
 ) -> None:
     """Write JSON and PNG when asked, then print the table.
 
-    Files first: a closed pipe on stdout must not lose them.
+    Files first: a closed pipe on stdout must not lose them. Without matplotlib (the
+    ``tools`` extra) the table is still printed, then the ModuleNotFoundError goes on
+    to the command's one line naming the extra.
     """
     if json_path:
         figures = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                    for k, v in metrics.as_dict().items()}
         Path(json_path).write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
-    if plot_path:
-        plot(est, ref, plot_path, labels)
-    print(metrics.table())
+    try:
+        if plot_path:
+            plot(est, ref, plot_path, labels)
+    finally:
+        print(metrics.table())
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -260,12 +268,21 @@ def main(argv: Sequence[str]) -> int:
     def notify(text: str) -> None:
         print(f"{PREFIX} {text}", file=sys.stderr)
 
+    from diffdrive_odom.tools import bagio  # past the parsing: --help needs no bag library
+
     ref_bag = args.reference_bag or args.bag
     try:
         est = read_trajectory(args.bag, args.odom, args.odom_child_frame,
                               "--odom-child-frame", notify)
         exclude = [args.odom] if ref_bag == args.bag else []
-        gt = reference_topic(ref_bag, args.ground_truth, exclude, notify)
+        try:
+            gt = reference_topic(ref_bag, args.ground_truth, exclude, notify)
+        except bagio.BagError as err:
+            if args.reference_bag is not None or args.ground_truth is not None:
+                raise
+            # The usual case: the output of replay, which holds only the odometry.
+            raise bagio.BagError(f"{err}. A bag written by replay holds no ground truth: "
+                                 "give the bag it replayed as --reference-bag BAG") from None
         ref = read_trajectory(ref_bag, gt, args.child_frame, "--child-frame", notify)
         metrics = evaluate(est, ref, args.segment_length, args.max_gap)
         report(metrics, est, ref, args.json, args.plot, (args.odom, gt))

@@ -17,14 +17,16 @@ import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
-
-from rosbags.interfaces import Connection
+from typing import TYPE_CHECKING, Any
 
 from diffdrive_odom.core.conversions import split_ns
 from diffdrive_odom.ros.messages import message_class
-from diffdrive_odom.tools import bagio
 from diffdrive_odom.tools.cli import HelpFormatter
+
+if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
+    from rosbags.interfaces import Connection
+
+    from diffdrive_odom.tools import bagio
 
 CLOCK_QOS_DEPTH = 1
 
@@ -87,6 +89,8 @@ def main(argv: Sequence[str]) -> int:
             print(f"[play] --remap expects FROM:=TO, got {item!r}", file=sys.stderr)
             return 2
         remap[src] = dst
+    from diffdrive_odom.tools import bagio
+
     try:
         reader = bagio.open_bag(args.bag)
         reader.open()
@@ -106,6 +110,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     from rosgraph_msgs.msg import Clock
 
     from diffdrive_odom.ros import qos as ros_qos
+    from diffdrive_odom.tools import bagio
 
     conns: list[Connection] = [
         c for c in reader.connections if args.topics is None or c.topic in args.topics

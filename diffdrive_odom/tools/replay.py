@@ -32,13 +32,14 @@ from collections.abc import Callable, Iterable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from diffdrive_odom.core.estimator import Reason
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.pipeline import PipelineStats, ReadingPipeline
 from diffdrive_odom.core.publication import Refusal, pipeline_publication
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import bagio, evaluate, progress, sinks
+from diffdrive_odom.tools import evaluate, progress, sinks
 from diffdrive_odom.tools.args import (
     add_param_arguments,
     fail,
@@ -47,7 +48,11 @@ from diffdrive_odom.tools.args import (
     settings_from_args,
 )
 from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.outputs import STORAGES, staged
 from diffdrive_odom.tools.sinks import Published
+
+if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
+    from diffdrive_odom.tools import bagio
 
 __all__ = ["Published", "ReplayStats", "load_settings", "main", "replay_readings"]
 
@@ -173,7 +178,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="Imu topic in the bag, read when the parameters set use_imu")
     ap.add_argument("-o", "--output", metavar="OUT_BAG",
                     help="output rosbag2 directory, must not exist (default: none)")
-    ap.add_argument("--storage", choices=bagio.STORAGES, default="mcap",
+    ap.add_argument("--storage", choices=STORAGES, default="mcap",
                     help="storage of the output bag")
     ap.add_argument("--odom-topic", default="/odom", help="odometry topic in the output bag")
     ap.add_argument("--tf-topic", default="/tf", help="transform topic in the output bag")
@@ -226,6 +231,8 @@ def main(argv: Sequence[str]) -> int:
     problem = _output_problem(args)
     if problem:
         return _error(problem)
+    from diffdrive_odom.tools import bagio
+
     ref: evaluate.Trajectory | None = None
     gt_topic = ""
     if args.eval:  # the reference first: a wrong topic must not cost a whole replay
@@ -295,6 +302,8 @@ def _remove_outputs(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, sinks.PoseLog]:
     """Replay into staged outputs; they get their names only if the whole replay worked."""
+    from diffdrive_odom.tools import bagio
+
     traj = sinks.PoseLog()
     with ExitStack() as stack:
         reader = stack.enter_context(bagio.open_bag(args.bag))
@@ -303,12 +312,12 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
             total += bagio.count_messages(reader, args.imu_topic)
         writer = None
         if args.output:
-            staged = stack.enter_context(bagio.staged(args.output))
-            writer = stack.enter_context(bagio.BagWriter(staged, args.storage))
+            path = stack.enter_context(staged(args.output))
+            writer = stack.enter_context(bagio.BagWriter(path, args.storage))
         csv_out = None
         if args.csv:
             csv_out = stack.enter_context(bagio.CsvWriter(stack.enter_context(
-                bagio.staged(args.csv))))
+                staged(args.csv))))
         passthrough = None
         if writer is not None:
             writer.add_topic(args.odom_topic, bagio.ODOMETRY)

@@ -10,17 +10,21 @@ from __future__ import annotations
 from array import array
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from rosbags.highlevel import AnyReader
-from rosbags.interfaces import Connection
 
 from diffdrive_odom.core.cdr import OdometryLayout, TransformLayout
 from diffdrive_odom.core.estimator import Status
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.metrics import Trajectory
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import bagio
+
+if TYPE_CHECKING:  # the bag library only where a bag is read or written (``tools`` extra)
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import Connection
+
+    from diffdrive_odom.tools import bagio
 
 
 @dataclass
@@ -59,6 +63,8 @@ class PoseLog:
 
 def keep_input(reader: AnyReader, writer: bagio.BagWriter, odom_topic: str) -> bagio.Passthrough:
     """Copy every input message (converted to CDR) into the output bag as it streams by."""
+    from diffdrive_odom.tools import bagio
+
     convert = bagio.CdrConverter(reader)
     for conn in reader.connections:
         if conn.topic == odom_topic:

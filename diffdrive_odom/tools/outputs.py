@@ -1,0 +1,52 @@
+"""The tools' output files: checked before the work, written under their name only at the end.
+
+Pure standard library (no bag library), so the argument checks of every command and
+the demo's output directory work on an install without the ``tools`` extra.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+STORAGES = ("mcap", "sqlite3")  # rosbag2 storages an output bag can be written in
+
+
+def output_problem(path: str | Path, flag: str) -> str | None:
+    """Why ``path`` cannot be written (one line naming ``flag``), or None.
+
+    Checked before the work starts, so a long replay does not end in a traceback
+    over a typo in ``--plot``.
+    """
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    if p.is_dir():
+        return f"{flag} {p}: is a directory"
+    if not parent.is_dir():
+        return f"{flag} {p}: directory {parent} does not exist"
+    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        return f"{flag} {p}: not writable"
+    return None
+
+
+@contextmanager
+def staged(path: str | Path) -> Iterator[Path]:
+    """Where to write ``path``: its name in a hidden sibling directory, moved on success.
+
+    On any exception (Ctrl-C included) the staging directory is removed, so a failed
+    run never leaves a half-written output under the name the user asked for. Same
+    file system, so the move is a rename; same name, so a bag's storage file inside
+    (``NAME_0.mcap``) is named as if written in place. A directory already at ``path``
+    is replaced only if empty (``os.replace``'s rule); the caller decides before.
+    """
+    final = Path(path)
+    stage = final.parent / f".{final.name}.partial-{os.getpid()}"
+    stage.mkdir()
+    try:
+        yield stage / final.name
+        os.replace(stage / final.name, final)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
