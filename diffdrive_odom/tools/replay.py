@@ -125,6 +125,8 @@ def replay_readings(
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,
     so nothing is built or checked (the estimator alone, as the benchmarks time it).
     """
+    from diffdrive_odom.tools import bagio  # rosbags: only where bags are read (plain install)
+
     pipe = ReadingPipeline(settings)
     est = pipe.estimator
     stats = ReplayStats()
