@@ -31,6 +31,7 @@ setup(
         # The test suite (`colcon test` runs it as pytest): the tools plus the test tools.
         "test": ["pytest", "pytest-timeout", "hypothesis", "mcap-ros2-support",
                  "rosbags", "matplotlib", "scipy"],
+        "fleet": ["dask[distributed]"],  # replay / eval --dask ADDRESS
     },
     zip_safe=True,
     maintainer="diffdrive_odom maintainers",

@@ -8,14 +8,20 @@ Rows per bag (readings/s, higher is better; ratios against "rosbags decode"):
   rosbags decode   every JointState deserialised by rosbags (the baseline)
   decode only      JointState -> JointReading in stamp order, as replay reads them
                    (the node's CDR decoder for rosbag2 bags, rosbags' for ROS 1)
-  replay           decode + the node's reading pipeline, nothing written
+  replay           decode + the node's reading pipeline (fast lane), nothing written
   replay -> bag    decode + pipeline + Odometry and /tf into an MCAP bag + CSV
 and, on the decoded readings held in memory:
-  step-by-step     OdometryEstimator.update per reading (the node's path)
+  step-by-step     the pipeline fed one reading at a time (the node's path)
+  fast lane        the same through core.fastlane (rule-free stretches in bulk)
   vectorised       wheel_steps (decode once) + integrate_steps (numpy)
   integrate only   integrate_steps alone: calibration's inner loop
 Memory: peak traced allocation of streaming replay -> bag on a synthetic bag and on
 one four times longer.
+
+Sizes (issue 19): synthetic bags of 1e4, 1e5 and 1e6 readings (``--sizes``), side by
+side: rosbags' decode-only, replay -> bag and replay -> CSV through the fast lane
+(:mod:`diffdrive_odom.core.fastlane`), replay -> bag one reading at a time (up to
+``--slow-max`` readings), and the peak traced allocation of replay -> bag.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ import tempfile
 import time
 import tracemalloc
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -93,6 +100,51 @@ def _replay_to_bag(bag: Path, settings: OdometrySettings, out: Path) -> None:
                                sinks.output_sink(settings, w, table))
 
 
+def _replay_to(bag: Path, settings: OdometrySettings, out: Path, *, to_bag: bool,
+               fast: bool = True) -> None:
+    """``replay BAG -o OUT`` (``to_bag``) or ``replay BAG --csv OUT.csv``, one output."""
+    shutil.rmtree(out, ignore_errors=True)
+    out.with_suffix(".csv").unlink(missing_ok=True)
+    if to_bag:
+        with bagio.BagWriter(out) as w:
+            w.add_topic("/odom", bagio.ODOMETRY)
+            w.add_topic("/tf", bagio.TF_MESSAGE)
+            replay.replay_readings(bagio.read_joint_states(bag), settings,
+                                   sinks.output_sink(settings, w, None), fast=fast)
+    else:
+        with bagio.CsvWriter(out.with_suffix(".csv")) as table:
+            replay.replay_readings(bagio.read_joint_states(bag), settings,
+                                   sinks.output_sink(settings, None, table), fast=fast)
+
+
+def bench_sizes(tmp: Path, sizes: list[int], slow_max: int, settings: OdometrySettings) -> None:
+    """Replay -> bag / CSV against rosbags' decode-only, by bag size, memory beside."""
+    print("\nreplay by bag size (synthetic rosbag2 mcap; readings/s, ratio to rosbags "
+          "decode-only; peak = traced allocation of replay -> bag)")
+    print(f"  {'readings':>9s} {'rosbags decode':>15s} {'-> bag (lane)':>21s} "
+          f"{'-> CSV (lane)':>21s} {'-> bag (1 by 1)':>21s} {'peak MB':>8s}")
+    for n in sizes:
+        bag = tmp / f"sizes{n}"
+        _synthetic(bag, n)
+        repeat = 3 if n <= 100_000 else 1
+        decode = _best(partial(_rosbags_decode, bag), repeat)
+        out = tmp / f"sizes_out{n}"
+        cols = [_best(partial(_replay_to, bag, settings, out, to_bag=True), repeat),
+                _best(partial(_replay_to, bag, settings, out, to_bag=False), repeat)]
+        slow = (_best(partial(_replay_to, bag, settings, out, to_bag=True, fast=False), 1)
+                if n <= slow_max else None)
+        tracemalloc.start()
+        _replay_to(bag, settings, out, to_bag=True)
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        cells = [f"{n / s:11,.0f} ({decode / s:4.2f}x)" for s in cols]
+        cells.append(f"{n / slow:11,.0f} ({decode / slow:4.2f}x)" if slow else f"{'-':>21s}")
+        print(f"  {n:9d} {n / decode:15,.0f} " + " ".join(f"{c:>21s}" for c in cells)
+              + f" {peak / 1e6:8.2f}")
+        shutil.rmtree(bag, ignore_errors=True)
+        shutil.rmtree(out, ignore_errors=True)
+
+
 def bench_bag(name: str, bag: Path, settings: OdometrySettings, tmp: Path) -> None:
     readings = list(bagio.read_joint_states(bag))
     n = len(readings)
@@ -105,15 +157,17 @@ def bench_bag(name: str, bag: Path, settings: OdometrySettings, tmp: Path) -> No
         lambda: replay.replay_readings(bagio.read_joint_states(bag), settings))))
     rows.append(("replay -> bag + csv", _best(
         lambda: _replay_to_bag(bag, settings, tmp / f"{name}_out"), repeat=2)))
-    step = _best(lambda: replay.replay_readings(readings, settings))
+    step = _best(lambda: replay.replay_readings(readings, settings, fast=False))
     rows.append(("step-by-step (in memory)", step))
+    rows.append(("fast lane (in memory)", _best(
+        lambda: replay.replay_readings(readings, settings))))
     rows.append(("vectorised (in memory)", _best(lambda: batch.integrate_steps(
         batch.wheel_steps(readings, settings), settings.geometry))))
     steps = batch.wheel_steps(readings, settings)
     integrate = _best(lambda: batch.integrate_steps(steps, settings.geometry), repeat=20)
     rows.append(("integrate only (numpy)", integrate))
     # Agreement of the two paths (the test asserts < 1e-9 m).
-    end_step = replay.replay_readings(readings, settings).final_pose
+    end_step = replay.replay_readings(readings, settings, fast=False).final_pose
     end_vec = batch.final_pose(steps, settings.geometry)
     gap = float(np.hypot(end_step.x - end_vec.x, end_step.y - end_vec.y))
     print(f"\n{name}: {n} readings ({bag.name})")
@@ -144,6 +198,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     ap.add_argument("--long", type=int, default=20_000,
                     help="readings of the synthetic bag (the memory check uses 4x too)")
+    ap.add_argument("--sizes", type=int, nargs="*", default=[10_000, 100_000, 1_000_000],
+                    help="synthetic bag sizes for the by-size table (none: skip it)")
+    ap.add_argument("--slow-max", type=int, default=100_000,
+                    help="largest bag also replayed one reading at a time")
+    ap.add_argument("--only-sizes", action="store_true", help="only the by-size table")
     args = ap.parse_args()
     optiodom = odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
     tb3 = odometry_settings({"wheel_radius": 0.033, "wheel_separation": 0.287,
@@ -152,6 +211,10 @@ def main() -> int:
     synth = odometry_settings({"wheel_radius": 0.05, "wheel_separation": 0.3})
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
+        if args.sizes:
+            bench_sizes(tmp, args.sizes, args.slow_max, synth)
+        if args.only_sizes:
+            return 0
         long_bag = tmp / f"synthetic{args.long}"
         _synthetic(long_bag, args.long)
         bench_bag("OptiOdom run-04 (rosbag2 mcap)",

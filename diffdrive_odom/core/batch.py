@@ -21,6 +21,7 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
+from diffdrive_odom.core import fastlane
 from diffdrive_odom.core.estimator import Reason, Status
 from diffdrive_odom.core.integration import Pose2D, integrate_batch
 from diffdrive_odom.core.kinematics import Geometry, body_increment
@@ -78,9 +79,19 @@ def wheel_steps(readings: Iterable[Reading], settings: OdometrySettings) -> Whee
     stamps, dts, lefts, rights, segs = array("q"), array("d"), array("d"), array("d"), array("q")
     segments = 0
     trial_start = 0  # steps before the timeline on trial (estimator.on_trial) began
-    for r in readings:
-        on_trial = est.on_trial
-        verdict = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity).verdict
+    on_trial = False
+    # The fast lane (core.fastlane): its stretches are plain steps, never on trial.
+    for item in fastlane.lanes(pipe, readings, receive=False):
+        if isinstance(item, fastlane.Stretch):
+            header, dt, left, right = item.steps
+            stamps.extend(header.tolist())
+            dts.extend(dt.tolist())
+            lefts.extend(left.tolist())
+            rights.extend(right.tolist())
+            segs.extend([segments - 1] * item.count)
+            continue
+        r, outcome = item
+        verdict = outcome.verdict
         status = verdict.status
         if on_trial != est.on_trial:
             if not on_trial:  # this reading's step starts the trial
@@ -98,6 +109,7 @@ def wheel_steps(readings: Iterable[Reading], settings: OdometrySettings) -> Whee
             segs.append(segments - 1)
         elif status is Status.TIME_RESET or (status is Status.REFERENCE and segments == 0):
             segments += 1
+        on_trial = est.on_trial
     return WheelSteps(
         np.frombuffer(stamps, dtype=np.int64).copy(),
         np.frombuffer(dts, dtype=np.float64).copy(),

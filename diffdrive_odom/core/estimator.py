@@ -236,6 +236,29 @@ class OdometryEstimator:
         self._stale = None
         self._trial = None
 
+    def handover(self) -> WheelReading | None:
+        """The reference if no rule has anything pending (held, stale, trial), else None.
+
+        Only then may a bulk integrator (:mod:`diffdrive_odom.core.fastlane`) carry on.
+        """
+        pending = self._held is not None or self._stale is not None or self._trial is not None
+        return None if pending else self._reference
+
+    def twist_windows(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The rolling means' windows (linear, angular), oldest first."""
+        return tuple(self._linear_mean.values), tuple(self._angular_mean.values)
+
+    def take_over(self, reference: WheelReading, pose: Pose2D,
+                  windows: tuple[Sequence[float], Sequence[float]], inc: WheelIncrement,
+                  step: Step) -> None:
+        """Install what a bulk integrator reached, as if its readings had been fed here."""
+        self._reference, self.pose, self.last_increment, self.last_step = (
+            reference, pose, inc, step)
+        for mean, values in zip((self._linear_mean, self._angular_mean), windows, strict=True):
+            mean.values.clear()
+            mean.values.extend(values)
+        self.linear, self.angular = (math.fsum(w) / len(w) for w in windows)
+
     def update(
         self,
         stamp_ns: int,

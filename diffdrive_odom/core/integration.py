@@ -59,6 +59,14 @@ def sinc_derivative(x: float) -> float:
     return (math.cos(x) - math.sin(x) / x) / x
 
 
+def sinc_derivative_array(x: Array) -> Array:
+    """Element-wise :func:`sinc_derivative` for arrays (the same series near 0)."""
+    x2 = x * x
+    series = x * (-1.0 / 3.0 + x2 * (1.0 / 30.0 - x2 / 840.0))
+    safe = np.where(np.abs(x) < 1e-3, 1.0, x)
+    return np.where(np.abs(x) < 1e-3, series, (np.cos(safe) - np.sin(safe) / safe) / safe)
+
+
 @dataclass(frozen=True)
 class Pose2D:
     """Planar pose; ``theta`` is kept in (-pi, pi] so precision never decays."""

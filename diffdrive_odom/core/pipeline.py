@@ -19,18 +19,21 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 from diffdrive_odom.core.conversions import covariance_matrix
-from diffdrive_odom.core.encoders import EncoderConfig
+from diffdrive_odom.core.encoders import EncoderConfig, WheelIncrement, WheelReading
 from diffdrive_odom.core.estimator import (
     EstimatorConfig,
     OdometryEstimator,
     Reason,
     Status,
+    Step,
     Verdict,
 )
 from diffdrive_odom.core.gyro import GyroConfig, GyroHeading, SlipStats
+from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.stamps import ClockOffsetCheck, StampSource
 from diffdrive_odom.core.uncertainty import (
+    Matrix,
     NoiseModel,
     pose_message_covariance,
     twist_message_covariance,
@@ -174,6 +177,28 @@ class PublishGate:
         if ok:
             self.last_ns = stamp_ns
         return ok
+
+
+@dataclass(frozen=True)
+class Handover:
+    """The pipeline's state where a bulk integrator takes over or hands back.
+
+    :mod:`diffdrive_odom.core.fastlane` integrates stretches where no rule can fire
+    from here and hands the state it reached back (:meth:`ReadingPipeline.take_back`),
+    so the next reading meets the pipeline exactly as if every reading had been fed.
+    ``reference`` is None while a rule has something pending (a held reading, stale
+    stamps, a timeline on trial): then no stretch may start. ``covariance``,
+    ``sensitivity`` and ``rates`` are the propagated model's (empty when static).
+    """
+
+    reference: WheelReading | None
+    pose: Pose2D
+    windows: tuple[tuple[float, ...], tuple[float, ...]]
+    covariance: Matrix
+    sensitivity: Matrix
+    rates: tuple[Matrix, ...]
+    gate_last_ns: int | None
+    clock_named: bool
 
 
 class ReadingPipeline:
@@ -323,6 +348,33 @@ class ReadingPipeline:
         if publish:
             self._published += 1
         return Outcome(verdict, publish, note, warning, stamp_ns)
+
+    def handover(self) -> Handover:
+        """The state a bulk integrator starts from (see :class:`Handover`)."""
+        est, unc = self._estimator, self._estimator.uncertainty
+        return Handover(
+            est.handover(), est.pose, est.twist_windows(),
+            () if unc is None else unc.covariance, () if unc is None else unc.sensitivity,
+            () if unc is None else unc.rates, self._gate.last_ns,
+            self._clock.offset_ns is not None)
+
+    def take_back(self, state: Handover, readings: int, published: int,
+                  inc: WheelIncrement, step: Step) -> None:
+        """Install the state a bulk integrator reached after ``readings`` updates.
+
+        ``state.reference``: the last of them; ``inc``, ``step``: its step; ``published``:
+        how many of them passed the gate. Counters go on as if each had been fed.
+        """
+        assert state.reference is not None
+        est, unc = self._estimator, self._estimator.uncertainty
+        est.take_over(state.reference, state.pose, state.windows, inc, step)
+        if unc is not None:
+            unc.covariance, unc.sensitivity = state.covariance, state.sensitivity
+            unc.set_rates(state.rates)
+        self._gate.last_ns = state.gate_last_ns
+        self._readings += readings
+        self._published += published
+        self._last_usable_ns = state.reference.stamp_ns
 
     def covariances(self) -> tuple[list[float], list[float]]:
         """Pose and twist covariance (6x6 row-major) of the current estimate.

@@ -341,6 +341,16 @@ class PoseUncertainty:
         """Empty the twist window (the estimator forgot its rates)."""
         self._rates.clear()
 
+    @property
+    def rates(self) -> tuple[Matrix, ...]:
+        """The twist window: each step's rate covariance, oldest first."""
+        return tuple(self._rates)
+
+    def set_rates(self, rates: Sequence[Matrix]) -> None:
+        """Replace the twist window (a bulk integrator hands its steps back)."""
+        self._rates.clear()
+        self._rates.extend(rates)
+
     def propagate(
         self,
         pose_before: Pose2D,

@@ -36,7 +36,7 @@ from diffdrive_odom.core.uncertainty import (
 )
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.settings.params import yaml_text
-from diffdrive_odom.tools import evaluate
+from diffdrive_odom.tools import evaluate, fleet
 from diffdrive_odom.tools.args import (
     add_param_arguments,
     add_reference_arguments,
@@ -76,6 +76,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--ccw-end", default=None, metavar="X,Y",
                     help="with --umbmark: the same for the CCW square (default: from the "
                     "ground-truth topic)")
+    fleet.add_fleet_arguments(ap)
     add_param_arguments(ap, required=False, file_help="the node's ROS 2 params YAML: nominal "
                         "geometry, joint names, encoders (repeatable, later files win; default: "
                         "none, but this or -p must give wheel_radius and wheel_separation)")
@@ -154,6 +155,28 @@ def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,
     return Run(Path(bag).name, steps, ref)
 
 
+def _decode_all(args: argparse.Namespace, settings: OdometrySettings) -> list[Run] | str:
+    """Every bag decoded, on ``--jobs`` processes or a ``--dask`` cluster, in the order given.
+
+    The fit is joint, so it is not made on what is left: every bag that failed is named
+    (the one line returned), not only the first.
+    """
+    if args.jobs is not None and args.jobs < 1:
+        return f"--jobs must be >= 1, got {args.jobs}"
+    calls = [(bag, settings, args, True) for bag in args.bags]
+    try:
+        done = fleet.map_calls(_run, calls, args.jobs, args.dask)
+    except fleet.FleetError as err:
+        return str(err)
+    bad = [(bag, r) for bag, r in zip(args.bags, done, strict=True) if isinstance(r, Exception)]
+    if len(bad) == 1:
+        return str(bad[0][1])  # the error names its bag
+    if bad:
+        return (f"{len(bad)} of {len(done)} bags failed, so no fit: "
+                + "; ".join(f"{bag}: {err}" for bag, err in bad))
+    return done
+
+
 def main(argv: Sequence[str]) -> int:
     """``diffdrive-odom calibrate``; exit 2 with one line for a bad bag, topic or option."""
     args = _parser().parse_args(list(argv))
@@ -168,7 +191,9 @@ def main(argv: Sequence[str]) -> int:
     try:
         if args.umbmark is not None:
             return _umbmark(args, settings)
-        runs = [_run(bag, settings, args, True) for bag in args.bags]
+        runs = _decode_all(args, settings)
+        if isinstance(runs, str):
+            return _error(runs)
         return _least_squares(args, settings, runs)
     except (bagio.BagError, CalibrationError) as err:
         return _error(str(err))

@@ -30,6 +30,7 @@ from diffdrive_odom.core.metrics import (
     path_length,
     relative_errors,
 )
+from diffdrive_odom.tools import fleet
 from diffdrive_odom.tools.args import (
     DEFAULT_REFERENCE,
     add_reference_arguments,
@@ -232,7 +233,9 @@ def _parser() -> argparse.ArgumentParser:
         description="Compare odometry with ground truth recorded in a bag.",
         formatter_class=HelpFormatter,
     )
-    ap.add_argument("bag", help="bag with the odometry (and, by default, the ground truth)")
+    ap.add_argument("bags", nargs="+", metavar="BAG",
+                    help="bag with the odometry (and, by default, the ground truth); several: "
+                    "a fleet (--json/--plot then name directories; one table at the end)")
     ap.add_argument("--odom", default="/odom", metavar="TOPIC",
                     help="odometry topic (any pose type, or /tf)")
     ap.add_argument("--odom-child-frame", default=None, metavar="FRAME",
@@ -248,6 +251,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--json", metavar="FILE",
                     help="write the figures as JSON (default: not written)")
     ap.add_argument("--plot", metavar="FILE", help="write a PNG plot (default: not written)")
+    fleet.add_fleet_arguments(ap)
     return ap
 
 
@@ -257,8 +261,24 @@ def output_problem(json_path: str | None, plot_path: str | None) -> str | None:
 
 
 def main(argv: Sequence[str]) -> int:
-    """``diffdrive-odom eval``; exit 2 when a topic, bag or output path cannot be used."""
+    """``diffdrive-odom eval``; exit 2 when a topic, bag or output path cannot be used.
+
+    Several bags: each as one would be (:func:`run_bag`), on ``--jobs`` processes or a
+    ``--dask`` cluster; the exit status is then the number that failed.
+    """
     args = _parser().parse_args(list(argv))
+    if len(args.bags) == 1:
+        args.bag = args.bags[0]
+        return run_bag(args)
+    if args.reference_bag:
+        return fail(PREFIX, "--reference-bag takes one odometry bag (each of several bags "
+                    "holds its own reference)")
+    done = fleet.run_fleet(args, run_bag, PREFIX, (("json", ".json"), ("plot", ".png")))
+    return fail(PREFIX, done) if isinstance(done, str) else done
+
+
+def run_bag(args: argparse.Namespace) -> int:
+    """One bag (``args.bag``) with the parsed flags: what ``eval BAG ...`` does."""
     if not (args.segment_length > 0 and args.max_gap > 0):
         return fail(PREFIX, "--segment-length and --max-gap must be > 0")
     problem = output_problem(args.json, args.plot)

@@ -28,18 +28,19 @@ import argparse
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from diffdrive_odom.core.estimator import Reason
+from diffdrive_odom.core import fastlane
+from diffdrive_odom.core.estimator import Reason, Status
 from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.pipeline import PipelineStats, ReadingPipeline
+from diffdrive_odom.core.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.publication import Refusal, pipeline_publication
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import evaluate, progress, sinks
+from diffdrive_odom.tools import evaluate, fleet, progress, sinks
 from diffdrive_odom.tools.args import (
     add_param_arguments,
     fail,
@@ -114,12 +115,22 @@ class ReplayStats:
                 + (", IMU silent at the end" if g.silent else ""))
 
 
+def _stretch_out(stretch: fastlane.Stretch, sink: Callable[[Published], None]) -> None:
+    """The poses of a stretch the fast lane integrated, as the node would publish them."""
+    for stamp, log, pose, lin, ang, pcov, tcov in stretch.poses():
+        sink(Published(stamp, log, pose, lin, ang, Status.UPDATED, pcov, tcov))
+
+
 def replay_readings(
     readings: Iterable[bagio.JointReading | bagio.ImuSample],
     settings: OdometrySettings,
     sink: Callable[[Published], None] | None = None,
+    fast: bool = True,
 ) -> ReplayStats:
     """Feed readings through a fresh pipeline; the poses the node would publish go to ``sink``.
+
+    ``fast``: stretches where no rule can fire go through :mod:`diffdrive_odom.core.fastlane`
+    (the same result, proven by test/test_fastlane.py); False: every reading one by one.
 
     What is published is decided as in the node (:func:`pipeline_publication`): a pose
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,
@@ -131,12 +142,27 @@ def replay_readings(
     est = pipe.estimator
     stats = ReplayStats()
     start = time.perf_counter()
-    for r in readings:
-        if isinstance(r, bagio.ImuSample):  # use_imu: the gyro's samples, as the node's
-            pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz)
+    # The bag's log time is the receive time: the node's rules on stamps apply alike.
+    def one_by_one(
+        rs: Iterable[bagio.JointReading | bagio.ImuSample],
+    ) -> Iterator[tuple[bagio.JointReading, Outcome]]:
+        for r in rs:
+            if isinstance(r, bagio.ImuSample):  # use_imu: the gyro's samples, as the node's
+                pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz)
+                continue
+            yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
+
+    # With the gyro every step's heading is decided per reading: no lane in bulk.
+    items: Iterable[tuple[bagio.JointReading, Outcome] | fastlane.Stretch] = (
+        fastlane.lanes(pipe, readings, chunk=fastlane.CHUNK)  # type: ignore[arg-type]
+        if fast and settings.gyro is None else one_by_one(readings))
+    for item in items:
+        if isinstance(item, fastlane.Stretch):
+            stats.statuses[Status.UPDATED.value] += item.count
+            if sink is not None:
+                _stretch_out(item, sink)
             continue
-        # The bag's log time is the receive time: the node's rules on stamps apply alike.
-        outcome = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
+        r, outcome = item
         if outcome.warning:
             stats.warnings.append(outcome.warning)
         if outcome.note:
@@ -172,7 +198,10 @@ def _parser() -> argparse.ArgumentParser:
         "the node would publish (odom + /tf) to a rosbag2 and/or CSV, and/or evaluate it.",
         formatter_class=HelpFormatter,
     )
-    ap.add_argument("bag", help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag")
+    ap.add_argument("bags", nargs="+", metavar="BAG",
+                    help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag; several: a fleet "
+                    "(each bag's outputs in the -o/--csv/--json/--plot directories, named "
+                    "after it, and one table at the end)")
     add_param_arguments(ap, required=True, file_help="the node's ROS 2 params YAML "
                         "(required; repeatable, later files win)")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bag")
@@ -201,6 +230,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="with --eval: write a PNG plot (default: none)")
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                     help="progress line on stderr (default: on a terminal, for long bags)")
+    fleet.add_fleet_arguments(ap)
     return ap
 
 
@@ -225,8 +255,29 @@ def _output_problem(args: argparse.Namespace) -> str | None:
 
 
 def main(argv: Sequence[str]) -> int:
-    """``diffdrive-odom replay``; exit 2 on a bad parameter, bag or output, or nothing to do."""
+    """``diffdrive-odom replay``; exit 2 on a bad parameter, bag or output, or nothing to do.
+
+    Several bags: each as one would be (:func:`run_bag`) on ``--jobs`` processes or a
+    ``--dask`` cluster; the exit status is then the number that failed.
+    """
     args = _parser().parse_args(list(argv))
+    if len(args.bags) == 1:
+        args.bag = args.bags[0]
+        return run_bag(args)
+    return _run_fleet(args)
+
+
+def _run_fleet(args: argparse.Namespace) -> int:
+    """Every bag through :func:`run_bag`, outputs named after the bag in the given directories."""
+    if not (args.output or args.csv or args.eval):
+        return _error("nothing to do: give -o OUT_DIR, --csv DIR and/or --eval")
+    done = fleet.run_fleet(args, run_bag, PREFIX, (("output", ""), ("csv", ".csv"),
+                                                   ("json", ".json"), ("plot", ".png")))
+    return _error(done) if isinstance(done, str) else done
+
+
+def run_bag(args: argparse.Namespace) -> int:
+    """One bag (``args.bag``) with the parsed flags: what ``replay BAG ...`` does."""
     settings = settings_from_args(args)
     if isinstance(settings, str):
         return _error(settings)
