@@ -78,3 +78,13 @@ def test_soak_bench_samples_memory_and_cpu() -> None:
     sent = re.search(r"^messages: (\d+) sent, (\d+) lost", out, re.M)
     assert sent and int(sent.group(1)) == 20_000 and int(sent.group(2)) <= 200, out
     assert re.search(r"^verdict: (no growth|GROWTH)$", out, re.M), out
+
+
+def test_gyro_bench_prints_its_table() -> None:
+    """Gyrodometry's point, checked where it cannot depend on the machine: on the slip
+    scenario the default mode ends closer than the wheels alone (issue 18)."""
+    out = run_bench("bench_gyro.py", 120)
+    rows = {m: float(re.search(rf"^{re.escape(m)}\s+(\S+)", out, re.M).group(1))  # type: ignore[union-attr]
+            for m in ("wheels only", "gyrodometry (default)")}
+    assert rows["gyrodometry (default)"] < 0.1 * rows["wheels only"], out
+    assert "us per reading" in out

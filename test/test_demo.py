@@ -45,7 +45,8 @@ SHARED = DOC["/**"]["ros__parameters"]
 TRUE = DOC["sim_node"]["ros__parameters"]
 R, B, TPR = SHARED["wheel_radius"], SHARED["wheel_separation"], SHARED["ticks_per_revolution"]
 CORNER = 0.25  # the follower's default fillet radius [m]
-EXACT = ["--sim-param", "slip_stddev:=0.0"]
+# No random slip, no scripted slip (the shipped file's slip_events are for the gyro rows).
+EXACT = ["--sim-param", "slip_stddev:=0.0", "--sim-param", "slip_events:="]
 NODES = 4
 
 
@@ -245,6 +246,32 @@ def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(
     assert ev.returncode == 0, ev.stderr
     assert "/ground_truth/odom" in ev.stderr
     assert "final position error" in ev.stdout
+
+
+def test_gyro_aided_replay_ends_closer_to_the_truth_than_wheels_only_through_a_slip(
+        tmp_path: Path) -> None:
+    """One scripted slip in the CW square: the right wheel spins 1.5 rad/s more for 1 s.
+
+    Wheel odometry turns by r * 1.5 rad / b = 0.25 rad that the robot never turned
+    (the follower then steers the real robot off by as much); the gyro-aided replay
+    takes the heading from the gyro and finds the slip. The route starts about 7-11 s
+    of simulated time after the sim, so 14 s is inside the 1 m CW square.
+    """
+    _, res = run_demo(tmp_path, "--no-bag", "--no-plot", "--sim-param", "slip_stddev:=0.0",
+                      "--sim-param", "slip_events:=right 14 1 1.5")
+    rows = res["rows"]
+    wheels, gyro = rows["wheels"], rows["gyro"]
+    turned = R * 1.5 / B
+    # Wheels only: the slip's heading and the geometry's (r_right +0.2 %, b +1 %: 0.05 rad
+    # at most over 7 m, see the test above) in the heading error.
+    assert abs(wheels["final_heading_error_rad"]) > turned - 0.06, rows
+    assert abs(gyro["final_heading_error_rad"]) < 0.03, rows
+    assert gyro["final_position_error_m"] < wheels["final_position_error_m"], rows
+    # The node's own odometry is the wheels-only replay (same readings, same pipeline).
+    assert abs(wheels["final_position_error_m"]
+               - rows["nominal"]["final_position_error_m"]) < 0.005, rows
+    big = [e for e in res["slip_events"] if e["size_rad"] > 0.01]
+    assert sum(e["size_rad"] for e in big) == pytest.approx(turned, rel=0.15), big
 
 
 def dense(points: np.ndarray[Any, Any], step: float = 0.005) -> np.ndarray[Any, Any]:

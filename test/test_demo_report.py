@@ -15,7 +15,20 @@ import yaml
 
 from diffdrive_odom.core.metrics import Trajectory
 from diffdrive_odom.demo import report, settings
-from diffdrive_odom.demo.report import FIT, NOMINAL, TRUE, UMBMARK, DemoResult, Row, Square
+from diffdrive_odom.demo.report import (
+    FIT,
+    GYRO,
+    NOMINAL,
+    TRUE,
+    UMBMARK,
+    WHEELS,
+    DemoResult,
+    ImuReading,
+    JointSample,
+    Recording,
+    Row,
+    Square,
+)
 from diffdrive_odom.demo.settings import DemoError, DemoOptions
 
 
@@ -80,10 +93,13 @@ def _result(plot: str | None = None) -> DemoResult:
         return Row((left, right, sep), err, -err, (0.0, 0.0, 0.0))
 
     rows = {NOMINAL: row(0.05, 0.05, 0.30, 0.5), FIT: row(0.05, 0.0501, 0.303, 0.001),
-            UMBMARK: row(0.04995, 0.05005, 0.3027, 0.002), TRUE: row(0.05, 0.0501, 0.303, 0.0)}
+            UMBMARK: row(0.04995, 0.05005, 0.3027, 0.002), TRUE: row(0.05, 0.0501, 0.303, 0.0),
+            WHEELS: row(0.05, 0.05, 0.30, 0.5), GYRO: row(0.05, 0.05, 0.30, 0.02)}
     sq = (Square(True, ((0.1, 0.0), (1.0, 0.0)), 0, 10), Square(False, ((0.1, 0.0),), 10, 20))
+    # Two events 0.4 s apart are one slip of 0.1 rad; a single tick at a standstill none.
+    slips = ((2_000_000_000, 0.06), (2_400_000_000, 0.04), (9_000_000_000, 0.0003))
     return DemoResult("umbmark", 4.0, 32.0, 100.0, 25.0, (0.0, 0.0, 0.0), rows, 0.05, 0.2,
-                      sq, {"/odom": 3}, None, plot)
+                      sq, {"/odom": 3}, None, plot, slips)
 
 
 def test_the_table_shows_every_row_against_the_true_geometry() -> None:
@@ -97,11 +113,15 @@ def test_the_table_shows_every_row_against_the_true_geometry() -> None:
     assert f"{math.degrees(-0.5):.3f} deg" in nominal
     assert "+0.00%" in lines[report.LABELS[TRUE]]
     assert "CW then CCW" in text and "5.0 cm" in text and "20.0 cm" in text
+    assert "0.0200 m" in lines[report.LABELS[GYRO]]
+    # The slip line: one slip (two events 0.4 s apart), 2 s into the route, 0.1 rad.
+    assert "found 1, at 2.0 s (5.7 deg) into the route" in text, text
 
 
 def test_results_json_round_trips() -> None:
     d = json.loads(json.dumps(_result().as_dict()))
-    assert set(d["rows"]) == {NOMINAL, FIT, UMBMARK, TRUE}
+    assert set(d["rows"]) == {NOMINAL, FIT, UMBMARK, TRUE, WHEELS, GYRO}
+    assert d["slip_events"][1] == {"stamp_ns": 2_400_000_000, "size_rad": 0.04}
     assert d["rows"][FIT]["right_radius"] == 0.0501
     assert d["squares"][0]["clockwise"] is True and d["squares"][1]["start_ns"] == 10
     assert d["follower"]["max_distance_truth_to_path_m"] == 0.2
@@ -115,5 +135,101 @@ def test_the_plot_is_written(tmp_path: Path) -> None:
     path = tmp_path / "p.png"
     from diffdrive_odom.demo.plot import plot
 
-    plot(path, truth, {NOMINAL: odom, FIT: truth}, [[(0.0, 0.0), (1.0, 0.0)]], "t")
+    plot(path, truth, {NOMINAL: odom, FIT: truth, GYRO: truth}, [[(0.0, 0.0), (1.0, 0.0)]],
+         "t", [(2 * 10**9, 0.1)])
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_slip_events_close_together_are_one_slip_and_single_ticks_none() -> None:
+    second = 1_000_000_000
+    events = [(5 * second, 0.05), (2 * second, 0.02), (2 * second + second // 2, 0.03),
+              (3 * second + second // 10, 0.01), (9 * second, 0.0003)]
+    # 2.0, 2.5 and 3.1 s: each within 1 s of the previous, one slip of 0.06 rad.
+    assert report.slip_bursts(events) == [(2 * second, pytest.approx(0.06)),
+                                          (5 * second, 0.05)]
+    assert report.slip_bursts(events, least=0.0)[-1] == (9 * second, 0.0003)
+
+
+def test_settings_run_the_node_wheels_only_and_replay_it_with_the_gyro() -> None:
+    s = settings.load_settings(DemoOptions())
+    assert s.odometry.gyro is None  # the live node: wheels only
+    assert s.gyro_odometry.gyro is not None  # the replay: use_imu with the file's values
+    assert s.gyro_odometry.geometry == s.odometry.geometry
+    assert s.sim.imu_rate > 0.0 and s.sim.config.slip_events  # the sim's gyro and slips
+    assert settings.BAG_TOPICS["/imu"] == "sensor_msgs/msg/Imu"
+
+
+# A straight run (closed form: the truth is x = V t, heading 0) with the demo's robot:
+# 1 s standing, then both wheels at V / r; from SLIP_T for 0.5 s the right encoder
+# counts SPIN rad/s more than the wheel rolls. A gyro at 100 Hz reads the true yaw rate
+# (0) plus a bias the zero-velocity updates find while standing.
+V, R_WHEEL, B_WHEEL, TPR = 0.4, 0.05, 0.30, 4096.0
+SLIP_T, SLIP_S, SPIN, BIAS, END = 2.0, 0.5, 1.2, 0.004, 4.0
+T0 = 1_000_000_000_000
+
+
+def _straight_with_slip() -> Recording:
+    def moving(t: float) -> float:
+        return max(0.0, t - 1.0)
+
+    def extra(t: float) -> float:
+        return SPIN * min(max(0.0, t - SLIP_T), SLIP_S)
+
+    readings, truth_t, truth_x = [], [], []
+    for k in range(int(END * 50) + 1):
+        t = k / 50
+        left = moving(t) * V / R_WHEEL
+        right = left + extra(t)
+        stamp = T0 + round(t * 1e9)
+        readings.append(JointSample(stamp, ("left_wheel_joint", "right_wheel_joint"),
+                                    (left * TPR / (2 * math.pi), right * TPR / (2 * math.pi)),
+                                    ()))
+        truth_t.append(stamp)
+        truth_x.append(V * moving(t))
+    imu = tuple(ImuReading(T0 + k * 10_000_000, 0.0, 0.0, BIAS) for k in range(int(END * 100) + 1))
+    truth = Trajectory.from_arrays(truth_t, truth_x, [0.0] * len(truth_x), [0.0] * len(truth_x))
+    return Recording(tuple(readings), truth, truth, (), 0.0, imu)
+
+
+def test_the_gyro_aided_replay_keeps_the_heading_through_a_wheel_slip() -> None:
+    s = settings.load_settings(DemoOptions())
+    rec = _straight_with_slip()
+    rows, paths, slips = report.replay_rows(rec, s.odometry, s.gyro_odometry)
+    # Wheels only: the extra right arc r SPIN SLIP_S over b turns the odometry by 0.1 rad
+    # that the robot never turned (to the encoder tick).
+    turned = R_WHEEL * SPIN * SLIP_S / B_WHEEL
+    tick = 2 * math.pi / TPR * R_WHEEL / B_WHEEL
+    assert abs(rows[WHEELS].heading_rad - turned) < 2 * tick, rows[WHEELS]
+    # ... and lands off to the left by about the heading times the distance after it.
+    after = V * (END - SLIP_T - SLIP_S)
+    assert rows[WHEELS].position_m > 0.8 * turned * after
+    # The gyro's heading: the bias found standing still; the distance: the other wheel.
+    assert abs(rows[GYRO].heading_rad) < 0.003, rows[GYRO]
+    assert rows[GYRO].position_m < 0.005, rows[GYRO]
+    assert set(paths) == {WHEELS, GYRO}
+    # One slip, where it began, of the heading the wheels got wrong.
+    (start, size), = report.slip_bursts(slips)
+    assert abs((start - T0) * 1e-9 - SLIP_T) <= 0.04
+    assert abs(size - turned) < 0.1 * turned
+
+
+def test_without_imu_samples_only_the_wheels_replay() -> None:
+    s = settings.load_settings(DemoOptions())
+    rec = _straight_with_slip()
+    rows, _, slips = report.replay_rows(
+        Recording(rec.joint_states, rec.truth, rec.truth, (), 0.0), s.odometry, s.gyro_odometry)
+    assert set(rows) == {WHEELS} and slips == ()
+
+
+def test_readings_heard_before_the_ground_truth_are_left_out() -> None:
+    """The recorder may match /joint_states before /ground_truth/odom: that is no failure."""
+    s = settings.load_settings(DemoOptions())
+    rec = _straight_with_slip()
+    late = Trajectory.from_arrays(rec.truth.stamp_ns[25:], rec.truth.x[25:], rec.truth.y[25:],
+                                  rec.truth.yaw[25:])  # from 0.5 s on
+    cut = Recording(rec.joint_states, late, late, (), 0.0, rec.imu)
+    rows, _ = report.calibrate_rows(cut, s.odometry, s.sim.config.geometry, 1.0)
+    assert set(rows) == {NOMINAL, FIT, TRUE}
+    replayed, paths, _ = report.replay_rows(cut, s.odometry, s.gyro_odometry)
+    assert paths[WHEELS].stamp_ns[0] == late.stamp_ns[0]
+    assert replayed[GYRO].position_m < 0.005

@@ -262,6 +262,22 @@ def test_every_event_kind_and_most_readings_in_bulk(monkeypatch: pytest.MonkeyPa
     assert bulk > 0.8 * len(readings), (bulk, len(readings))
 
 
+def test_with_the_gyro_nothing_goes_in_bulk_and_the_lanes_agree(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """use_imu: each step's heading is the gyro's decision, so the lane takes nothing in bulk
+    (here with no IMU sample at all: the pipeline's silent-IMU rule, reading by reading)."""
+    readings = _stream(7, [(e, 60) for e in EVENTS], 2, 4096.0, 12)
+    cfg = odometry_settings({
+        "wheel_radius": 0.05, "wheel_separation": 0.3, "ticks_per_revolution": 4096.0,
+        "encoder_counter_bits": 12, "left_wheel_names": ["l0", "l1"],
+        "right_wheel_names": ["r0", "r1"], "max_wheel_speed": 30.0, "use_imu": True})
+    assert cfg.gyro is not None
+    assert _both(readings, cfg, 256, monkeypatch) == 0
+    pipe = ReadingPipeline(cfg)
+    assert not any(isinstance(item, fastlane.Stretch)
+                   for item in fastlane.lanes(pipe, readings, chunk=256))
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_calibration_steps_in_both_lanes(monkeypatch: pytest.MonkeyPatch, seed: int) -> None:
     """batch.wheel_steps (calibrate's decode-once path) through the lane, and without it."""

@@ -1,4 +1,4 @@
-"""CDR bytes of the three messages the odometry node handles per reading.
+"""CDR bytes of the messages the odometry node handles per reading (and Imu's rates).
 
 Why: in the running node, turning a JointState's bytes into rclpy objects and an
 Odometry and a TFMessage back into bytes cost more Python work than the odometry
@@ -124,6 +124,34 @@ class JointStateDecoder:
         if fmt is None:
             fmt = self._arrays[count] = struct.Struct(f"<{count}d")
         return fmt.unpack_from(buf, off), off + 8 * count
+
+
+_RATES = struct.Struct("<3d")
+# After the header: orientation (4 doubles) and its covariance (9) before the rates,
+# then the rates' covariance (9), linear_acceleration (3) and its covariance (9).
+_TO_RATES, _AFTER_RATES = 8 * 13, 8 * (3 + 9 + 3 + 9)
+
+
+def decode_imu(buf: bytes) -> tuple[int, int, float, float, float] | None:
+    """sensor_msgs/Imu bytes -> (sec, nanosec, wx, wy, wz); None if not little-endian CDR.
+
+    ``use_imu`` takes only the stamp and the angular velocity: at 1 kHz rclpy's object
+    (with its three covariance arrays) costs several times the gyro's own work.
+    Raises ValueError if the bytes end early.
+    """
+    if buf[:2] != CDR_LE[:2]:
+        return None
+    try:
+        sec, nanosec = _STAMP.unpack_from(buf, _ORIGIN)
+        off = _ORIGIN + 8
+        off += 4 + _U32.unpack_from(buf, off)[0]  # header.frame_id: skipped
+        off = _align(off, 8) + _TO_RATES
+        if off + _AFTER_RATES > len(buf):
+            raise ValueError(f"Imu bytes end early: {len(buf)} bytes")
+        wx, wy, wz = _RATES.unpack_from(buf, off)
+    except struct.error as exc:
+        raise ValueError(f"Imu bytes end early: {exc}") from None
+    return sec, nanosec, wx, wy, wz
 
 
 class _Layout:

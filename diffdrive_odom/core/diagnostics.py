@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from enum import Enum, IntEnum
 from typing import Generic, TypeVar
 
+from diffdrive_odom.core.pipeline import GyroStats
+
 H = TypeVar("H")
 
 
@@ -164,6 +166,7 @@ class ReadingHealth:
     gap_reanchors: int = 0
     time_resets: int = 0
     velocity_fallback: bool = False
+    gyro: GyroStats | None = None  # use_imu true: the gyro's counters and slip events
 
 
 def odometry_report(
@@ -198,10 +201,12 @@ def odometry_report(
         problems.append((Level.WARN, f"{gap_reanchors} re-anchors after a gap"))
     if time_resets:
         problems.append((Level.WARN, f"{time_resets} time resets (stamp jumped back)"))
+    gyro_values = _gyro(now.gyro, before.gyro if before else None, problems)
     if since is None and not problems:
         ok = "starting: waiting for the first reading"
     else:
         ok = "integrating wheel velocities" if now.velocity_fallback else "integrating"
+        ok += ", gyro-aided" if now.gyro is not None else ""
     level, message = _verdict(problems, ok)
     values = [
         ("reading rate [Hz]", f"{_finite(now.reading_rate_hz):.1f}"),
@@ -213,8 +218,40 @@ def odometry_report(
         ("velocity fallback", "true" if now.velocity_fallback else "false"),
         ("stale after [s]", f"{t.stale_after_s:g}"),
         ("error after [s]", f"{t.error_after_s:g}"),
+        *gyro_values,
     ]
     return Report(level, message, tuple(values))
+
+
+def _gyro(now: GyroStats | None, before: GyroStats | None,
+          problems: list[tuple[Level, str]]) -> list[tuple[str, str]]:
+    """The gyro's values (``use_imu``); WARN while it is silent or after refused samples.
+
+    A slip is what the gyro is for, not a fault: counted and named, not warned of.
+    """
+    if now is None:
+        return []
+    if now.silent:
+        problems.append((Level.WARN, "IMU silent: wheels only"))
+    dropped = _since(now.dropped, before.dropped if before else None)
+    if any(dropped.values()):
+        problems.append((Level.WARN, f"dropped {sum(dropped.values())} IMU samples "
+                                     f"({_by_reason(dropped)})"))
+    s = now.slips
+    last = "never" if s.last_stamp_ns is None else f"{s.last_stamp_ns * 1e-9:.3f}"
+    return [
+        ("imu", "silent (wheels only)" if now.silent else "gyro-aided"),
+        ("imu samples", str(now.samples)),
+        *_counts("imu dropped", now.dropped, dropped),
+        ("slip events", str(s.events)),
+        ("slip steps", str(s.steps)),
+        ("last slip [stamp s]", last),
+        ("last slip size [rad]", f"{_finite(s.last_size):.6f}"),
+        ("slip heading total [rad]", f"{_finite(s.total_size):.6f}"),
+        ("gyro bias [rad/s]", f"{_finite(now.bias):.6g}"),
+        ("gyro bias stddev [rad/s]", f"{_finite(now.bias_stddev):.6g}"),
+        ("zero-velocity updates", str(now.zero_velocity_updates)),
+    ]
 
 
 # --- cmd_vel_node --------------------------------------------------------------------

@@ -60,6 +60,7 @@ from diffdrive_odom.core.encoders import (
     Reason as Reason,  # re-exported: verdicts carry its codes
 )
 from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.gyro import GyroHeading
 from diffdrive_odom.core.integration import Pose2D, compose
 from diffdrive_odom.core.kinematics import Geometry, body_from_arcs, wheel_arcs
 from diffdrive_odom.core.timeline import ON_TRIAL, UPDATED, Trial
@@ -174,6 +175,8 @@ class OdometryEstimator:
         # (covariance_model static: the caller publishes fixed diagonals).
         self.uncertainty: PoseUncertainty | None = None
         self.set_noise(noise)
+        # Gyrodometry (``use_imu``): the heading of each step, None = wheels only.
+        self.heading: GyroHeading | None = None
 
     @property
     def stamp_ns(self) -> int | None:
@@ -380,7 +383,8 @@ class OdometryEstimator:
         if rate is not inc:
             rate_arcs = wheel_arcs(self.geometry, rate.d_left, rate.d_right)
             why = why or self._implausible(rate, rate_arcs)
-        if not why and not self._integrate(inc, arcs, rate, rate_arcs):
+        if not why and not self._integrate(inc, arcs, rate, rate_arcs,
+                                           ref.stamp_ns, reading.stamp_ns):
             why = "its integration is not a finite number"
         if why:
             return Verdict(Status.REANCHORED, Reason.TOO_FAST, f"{why}; step skipped")
@@ -412,24 +416,38 @@ class OdometryEstimator:
         arcs: tuple[float, float],
         rate: WheelIncrement,
         rate_arcs: tuple[float, float],
+        t0_ns: int,
+        t1_ns: int,
     ) -> bool:
         """Apply the step ``inc``, the twist from ``rate``; False if it cannot be applied.
 
-        ``arcs``, ``rate_arcs``: their wheel arcs. Nothing changes when pose, twist or
-        step would not be finite: no state is NaN.
+        ``arcs``, ``rate_arcs``: their wheel arcs; ``t0_ns``, ``t1_ns``: the step's
+        stamps (the gyro's interval). Nothing changes when pose, twist or step would
+        not be finite: no state is NaN.
         """
         ds, dtheta = body_from_arcs(self.geometry, *arcs)
         rate_ds, rate_dtheta = (
             (ds, dtheta) if rate_arcs is arcs else body_from_arcs(self.geometry, *rate_arcs)
         )
         linear, angular = rate_ds / rate.dt, rate_dtheta / rate.dt
+        gyro = None
+        if self.heading is not None:
+            gyro = self.heading.step(self.geometry, t0_ns, t1_ns, inc.d_left, inc.d_right, arcs)
+            if gyro is not None:
+                ds, dtheta = gyro.ds, gyro.dtheta
+                angular = dtheta / inc.dt
+                linear = ds / inc.dt if gyro.slip else linear
         isfinite = math.isfinite
         if not (isfinite(ds) and isfinite(dtheta) and isfinite(linear) and isfinite(angular)):
             return False
         pose = compose(self.pose, ds, dtheta)
         if not (isfinite(pose.x) and isfinite(pose.y) and isfinite(pose.theta)):
             return False
-        if self.uncertainty is not None:
+        if self.uncertainty is not None and gyro is not None and self.heading is not None:
+            self.uncertainty.propagate_gyro(
+                self.pose, gyro, d_left=inc.d_left, d_right=inc.d_right,
+                geometry=self.geometry, bias_variance=self.heading.bias_variance)
+        elif self.uncertainty is not None:
             self.uncertainty.propagate(
                 self.pose, self.geometry, ds=ds, dtheta=dtheta,
                 d_left=inc.d_left, d_right=inc.d_right, dt=inc.dt)

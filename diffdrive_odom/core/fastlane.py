@@ -234,6 +234,8 @@ def _arrays(
                & (np.abs(arcs[0]) <= MAX_STEP_ARC * MARGIN)
                & (np.abs(arcs[1]) <= MAX_STEP_ARC * MARGIN)
                & np.isfinite(ds / dt) & np.isfinite(dtheta / dt))
+    if settings.gyro is not None:  # use_imu: each step's heading is decided per reading
+        ok[:] = False
     return _Chunk(values, header, logs, stamps, dt, d_left, d_right, peak, ds, dtheta, ok)
 
 

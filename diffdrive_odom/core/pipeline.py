@@ -7,7 +7,9 @@ negative stamp is dropped (output is stamped with the measurement time, so an
 unstamped reading cannot be placed); the estimator decides (decode, stale stamps,
 time reset, gap, speed check, integration); the ``publish_rate`` gate decides whether
 the pose goes out. The outcome and a set of counters come back, so the node logs,
-replay summarises and diagnostics report from the same numbers. Pure Python.
+replay summarises and diagnostics report from the same numbers. With ``use_imu`` the
+IMU's samples come in through :meth:`ReadingPipeline.feed_imu` and the estimator takes
+each step's heading from :mod:`diffdrive_odom.core.gyro` (gyrodometry). Pure Python.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from diffdrive_odom.core.estimator import (
     Step,
     Verdict,
 )
+from diffdrive_odom.core.gyro import GyroConfig, GyroHeading, SlipStats
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.stamps import ClockOffsetCheck, StampSource
@@ -56,6 +59,7 @@ class OdometrySettings:
     twist_covariance_diagonal: tuple[float, ...]
     noise: NoiseModel | None  # None: covariance_model static (the diagonals above)
     stamp_source: StampSource = StampSource.HEADER
+    gyro: GyroConfig | None = None  # use_imu false: None (wheels only, as before)
 
 
 ZERO_STAMP = Verdict(
@@ -68,6 +72,9 @@ VELOCITY_ON = (
     "(ros2_control without a position state interface); odometry drifts faster this way"
 )
 VELOCITY_OFF = "wheel positions are available again: integrating positions"
+IMU_SILENT = ("IMU silent (no usable yaw rate within imu_timeout of a wheel step): wheels "
+              "only, the heading covariance grows with the wheels' model again")
+IMU_BACK = "IMU samples again: gyro-aided heading"
 
 
 @dataclass(frozen=True)
@@ -103,11 +110,31 @@ class PipelineStats:
     time_resets: int = 0
     last_usable_stamp_ns: int | None = None
     velocity_fallback: bool = False
+    gyro: GyroStats | None = None  # use_imu true only
 
     @property
     def dropped_total(self) -> int:
         """All dropped readings, whatever the reason."""
         return sum(self.dropped.values())
+
+
+@dataclass(frozen=True)
+class GyroStats:
+    """The gyro's part of the counters (``use_imu`` true).
+
+    ``samples``: IMU messages offered; ``dropped``: refused by code (``non_finite``,
+    ``saturated``, ``zero_stamp``, ``stale_stamp``, ``future_stamp``); ``silent``: the
+    last step was wheels only for want of samples; ``bias`` [rad/s] and its standard
+    deviation; ``zero_velocity_updates``: bias updates while standing still; ``slips``.
+    """
+
+    samples: int = 0
+    dropped: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    silent: bool = True
+    bias: float = 0.0
+    bias_stddev: float = 0.0
+    zero_velocity_updates: int = 0
+    slips: SlipStats = field(default_factory=SlipStats)
 
 
 @dataclass(frozen=True, slots=True)
@@ -193,6 +220,47 @@ class ReadingPipeline:
         self._last_usable_ns: int | None = None
         self._velocity = False
         self._clock = ClockOffsetCheck()
+        self._gyro: GyroHeading | None = None
+        self._imu_samples = 0
+        self._imu_dropped: dict[str, int] = {}
+        self._imu_silent = False  # so a missing IMU is named at the first step
+        self._attach_gyro(settings)
+
+    def _attach_gyro(self, settings: OdometrySettings) -> None:
+        """Give the estimator the gyro's heading (``use_imu``), keeping its state if any."""
+        cfg = settings.gyro
+        if cfg is None:
+            self._gyro = None
+        elif self._gyro is None:
+            est = settings.estimator
+            self._gyro = GyroHeading(cfg, settings.noise, est.time_jump_threshold,
+                                     est.max_reading_gap)
+        else:
+            self._gyro.set_config(cfg)
+            self._gyro.noise = self._gyro.noise if settings.noise is None else settings.noise
+        self._estimator.heading = self._gyro
+        if self._gyro is not None:
+            self._gyro.wheel_stamp_ns = self._estimator.stamp_ns
+
+    @property
+    def gyro(self) -> GyroHeading | None:
+        """The gyro's state (bias, slips), None with ``use_imu`` false."""
+        return self._gyro
+
+    def feed_imu(self, stamp_ns: int, wx: float, wy: float, wz: float) -> str:
+        """Offer one IMU sample (angular velocity in the IMU's frame, header stamp).
+
+        Returns '' when kept, else the drop code (counted in ``stats.gyro.dropped``).
+        With ``use_imu`` false nothing happens ('').
+        """
+        gyro = self._gyro
+        if gyro is None:
+            return ""
+        self._imu_samples += 1
+        code = gyro.add(stamp_ns, wx, wy, wz)
+        if code:
+            self._imu_dropped[code] = self._imu_dropped.get(code, 0) + 1
+        return code
 
     @property
     def estimator(self) -> OdometryEstimator:
@@ -216,6 +284,10 @@ class ReadingPipeline:
             time_resets=self._time_resets,
             last_usable_stamp_ns=self._last_usable_ns,
             velocity_fallback=self._velocity,
+            gyro=None if (g := self._gyro) is None else GyroStats(
+                self._imu_samples, MappingProxyType(dict(self._imu_dropped)),
+                g.silent and g.steps > 0,
+                g.bias, g.bias_variance ** 0.5, g.zero_velocity_updates, g.slips),
         )
 
     def feed(
@@ -242,6 +314,8 @@ class ReadingPipeline:
                 warning = self._clock.check(stamp_ns, receive_ns)
         else:
             receive_ns = None
+        gyro = self._gyro
+        steps = 0 if gyro is None else gyro.steps
         verdict = (
             self._estimator.update(stamp_ns, names, position, velocity, receive_ns)
             if stamp_ns > 0 else ZERO_STAMP
@@ -250,6 +324,10 @@ class ReadingPipeline:
         dropped = verdict.dropped_code
         if dropped is not None:
             self._dropped[dropped] = self._dropped.get(dropped, 0) + verdict.count
+        if gyro is not None and self._estimator.stamp_ns is not None:
+            gyro.wheel_stamp_ns = max(gyro.wheel_stamp_ns or 0, self._estimator.stamp_ns)
+            if status is Status.TIME_RESET:
+                gyro.wheel_stamp_ns = self._estimator.stamp_ns
         if status in (Status.DROPPED, Status.HELD):
             return Outcome(verdict, False, "", warning, stamp_ns)
         self._last_usable_ns = stamp_ns
@@ -263,6 +341,9 @@ class ReadingPipeline:
         if self._estimator.from_velocity != self._velocity:
             self._velocity = not self._velocity
             note = VELOCITY_ON if self._velocity else VELOCITY_OFF
+        elif gyro is not None and gyro.steps != steps and gyro.silent != self._imu_silent:
+            self._imu_silent = gyro.silent
+            note = IMU_SILENT if gyro.silent else IMU_BACK
         publish = verdict.has_new_pose and self._gate.due(stamp_ns)
         if publish:
             self._published += 1
@@ -334,9 +415,13 @@ class ReadingPipeline:
             if before.uncertainty is not None and self._estimator.uncertainty is not None:
                 self._estimator.uncertainty.covariance = before.uncertainty.covariance
                 self._estimator.uncertainty.sensitivity = before.uncertainty.sensitivity
+                self._estimator.uncertainty.bias_sensitivity = \
+                    before.uncertainty.bias_sensitivity
+                self._estimator.uncertainty.bias_variance = before.uncertainty.bias_variance
         else:
             self._estimator.set_geometry(settings.geometry)
             self._estimator.set_noise(settings.noise)
+        self._attach_gyro(settings)
 
 
 def _static_covariances(settings: OdometrySettings) -> tuple[list[float], list[float]]:

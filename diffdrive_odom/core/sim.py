@@ -49,6 +49,26 @@ class SimConfigError(ConfigError):
 
 
 @dataclass(frozen=True)
+class SlipEvent:
+    """A scripted slip: one side's wheels spin ``rate`` rad/s more than they roll.
+
+    From ``start`` for ``duration`` seconds of simulated time the encoders of ``side``
+    ("left" or "right") count the extra turn; the ground (the true pose) does not see
+    it: a wheel spinning on a smooth patch.
+    """
+
+    side: str
+    start: float
+    duration: float
+    rate: float
+
+    def extra(self, t0: float, t1: float) -> float:
+        """Extra joint angle [rad] over simulated ``[t0, t1]`` seconds."""
+        a, b = max(t0, self.start), min(t1, self.start + self.duration)
+        return self.rate * (b - a) if b > a else 0.0
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """The simulated robot's physics and sensors."""
 
@@ -62,6 +82,9 @@ class SimConfig:
     command_timeout: float = 0.5  # s without a command -> stop; 0 = never
     substeps: int = 1  # motion steps per advance() call (only matters with a motor lag)
     seed: int = 0
+    slip_events: tuple[SlipEvent, ...] = ()
+    gyro_bias: float = 0.0  # rad/s added to the simulated gyro's yaw rate
+    gyro_noise_density: float = 0.0  # rad/s/sqrt(Hz) of its white noise
 
     def __post_init__(self) -> None:
         if not isinstance(self.wheels_per_side, int) or self.wheels_per_side < 1:
@@ -83,6 +106,16 @@ class SimConfig:
             raise SimConfigError("encoder_initial_count", "must be finite")
         if not isinstance(self.substeps, int) or self.substeps < 1:
             raise SimConfigError("substeps", f"must be >= 1, got {self.substeps!r}")
+        for e in self.slip_events:
+            if e.side not in ("left", "right") or not (
+                    math.isfinite(e.start) and e.start >= 0.0 and math.isfinite(e.duration)
+                    and e.duration > 0.0 and math.isfinite(e.rate)):
+                raise SimConfigError("slip_events", f"cannot use {e!r}: side left or right, "
+                                     "start >= 0, duration > 0, a finite rate")
+        if not math.isfinite(self.gyro_bias):
+            raise SimConfigError("sim_gyro_bias", "must be finite")
+        if not (math.isfinite(self.gyro_noise_density) and self.gyro_noise_density >= 0.0):
+            raise SimConfigError("sim_gyro_noise_density", "must be finite and >= 0")
 
     @property
     def joints(self) -> int:
@@ -122,6 +155,8 @@ class DiffDriveSim:
         self._rate: Array = np.zeros(n)  # joint rates now [rad/s]
         self._angle: Array = np.zeros(n)  # true joint angles [rad], continuous
         self._state = _State()
+        # The gyro's own stream, so turning it on does not change the slip noise's.
+        self._gyro_rng = np.random.default_rng([config.seed, 1])
 
     def reconfigure(self, config: SimConfig) -> None:
         """New physics/sensors from now on; pose, wheel angles and rates carry on."""
@@ -182,6 +217,15 @@ class DiffDriveSim:
             self._rate = target.copy()
         self._angle += d_angle
         n = cfg.wheels_per_side
+        if cfg.slip_events:  # the encoders see the spin, the ground does not
+            t0 = self._state.time_ns * 1e-9
+            for e in cfg.slip_events:
+                extra = e.extra(t0, t0 + dt)
+                if extra:
+                    joints = self._angle[:n] if e.side == "left" else self._angle[n:]
+                    sign = (cfg.geometry.left_wheel_sign if e.side == "left"
+                            else cfg.geometry.right_wheel_sign)
+                    joints += sign * extra
         d_left = float(np.mean(d_angle[:n]))
         d_right = float(np.mean(d_angle[n:]))
         if cfg.slip_stddev > 0.0:
@@ -203,6 +247,19 @@ class DiffDriveSim:
         return left, right
 
     # -- outputs ------------------------------------------------------------------
+
+    def gyro(self, sample_rate: float) -> float:
+        """A gyro's yaw rate [rad/s] now: the true one, plus bias and white noise.
+
+        The noise of one sample read at ``sample_rate`` Hz is ``density * sqrt(rate)``
+        (a rate noise density integrated over the sample's bandwidth).
+        """
+        cfg = self.config
+        noise = 0.0
+        if cfg.gyro_noise_density > 0.0:
+            sigma = cfg.gyro_noise_density * math.sqrt(sample_rate)
+            noise = sigma * float(self._gyro_rng.standard_normal())
+        return self._state.twist.angular + cfg.gyro_bias + noise
 
     @property
     def time_ns(self) -> int:

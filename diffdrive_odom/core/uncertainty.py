@@ -55,6 +55,7 @@ their rates: those get :data:`UNOBSERVED_VARIANCE` (large and finite, as
 robot_localization expects of a 2D sensor). Lateral velocity ``vy`` is zero by the
 rolling constraint, so the model gives it no variance. The twist covariance has no geometry
 term (not modelled: at the default ratios it is a few tenths of a percent of the speed).
+With a gyro (``use_imu``, :mod:`diffdrive_odom.core.gyro`) a step goes through propagate_gyro.
 """
 
 from __future__ import annotations
@@ -113,6 +114,46 @@ class NoiseModel:
             if (isinstance(value, bool) or not isinstance(value, (int, float))
                     or not math.isfinite(value) or value < 0.0):
                 raise UncertaintyConfigError(field, f"must be finite and >= 0, got {value!r}")
+
+
+ZERO_VEC = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True, slots=True)
+class GyroStep:
+    """One gyrodometry step (:mod:`diffdrive_odom.core.gyro`) and how its errors enter.
+
+    ``(ds, dtheta) = B d + c g``: ``d`` the joint increments (the wheel model's
+    variance), ``g`` the gyro's angle (white variance ``var_gyro``, plus ``dt`` times
+    the bias error); ``geometry`` = d(ds, dtheta)/d(ln r_l, ln r_r, ln b).
+    """
+
+    ds: float
+    dtheta: float
+    b: Matrix  # 2x2
+    c: tuple[float, float]
+    var_gyro: float
+    dt: float
+    geometry: Matrix  # 2x3
+    slip: bool
+
+
+def _outer3(u: Sequence[float], scale: float) -> Matrix:
+    """``scale u u^T`` for a 3-vector."""
+    u0, u1, u2 = u[0] * scale, u[1] * scale, u[2] * scale
+    return _symmetric(u0 * u[0], u0 * u[1], u0 * u[2], u1 * u[1], u1 * u[2], u2 * u[2])
+
+
+def _times_vec(a: Matrix, v: tuple[float, float]) -> tuple[float, float, float]:
+    """``A v`` for a 3x2 ``A``."""
+    return (a[0][0] * v[0] + a[0][1] * v[1], a[1][0] * v[0] + a[1][1] * v[1],
+            a[2][0] * v[0] + a[2][1] * v[1])
+
+
+def _rotate_sensitivity(f_pose: Matrix, j: tuple[float, float, float]
+                        ) -> tuple[float, float, float]:
+    """``F_pose j`` for ``F_pose = [[1, 0, a], [0, 1, b], [0, 0, 1]]``."""
+    return (j[0] + f_pose[0][2] * j[2], j[1] + f_pose[1][2] * j[2], j[2])
 
 
 def _add3(a: Matrix, b: Matrix) -> Matrix:
@@ -284,11 +325,16 @@ class PoseUncertainty:
         self._rates: deque[Matrix] = deque(maxlen=window)
         self._geometry: Geometry | None = None
         self._b: Matrix = ()
+        # Gyro mode: d pose / d(gyro bias) since the bias variance last shrank, and that
+        # variance (the bias is one draw over that stretch, as the geometry above).
+        self.bias_sensitivity: tuple[float, float, float] = ZERO_VEC
+        self.bias_variance = 0.0
 
     def reset(self) -> None:
         """Back to the start value (a reset or restart of the odometry); twist forgotten."""
         self.covariance = self.start
         self.sensitivity = ZERO3
+        self.bias_sensitivity = ZERO_VEC
         self.forget_twist()
 
     def forget_twist(self) -> None:
@@ -325,9 +371,61 @@ class PoseUncertainty:
         )
         self.sensitivity = _sensitivity_step(self.sensitivity, f_pose, f_step, ds, dtheta,
                                              geometry.separation)
+        if self.bias_sensitivity is not ZERO_VEC:
+            self.bias_sensitivity = _rotate_sensitivity(f_pose, self.bias_sensitivity)
         q = 2.0 * self._quantum  # the step's two readings
         scale = 1.0 / (dt * dt)
         self._rates.append(_wheel_noise2(b, (var_l + q) * scale, (var_r + q) * scale))
+
+    def propagate_gyro(
+        self,
+        pose_before: Pose2D,
+        step: GyroStep,
+        *,
+        d_left: float,
+        d_right: float,
+        geometry: Geometry,
+        bias_variance: float,
+    ) -> None:
+        """One CIR step whose ``(ds, dtheta) = B d + c g`` (:mod:`diffdrive_odom.core.gyro`).
+
+        The wheels' noise enters through ``B``, the gyro's white noise through ``c``
+        (heading variance ``noise_density^2 dt`` per step instead of the wheels'), its
+        bias error through the sensitivity ``dt f_step c`` carried like the geometry's.
+        When a zero-velocity update shrank the bias variance, the stretch before is
+        folded into ``P`` with the variance it had (its error is done) and starts over.
+        """
+        if bias_variance < self.bias_variance:
+            jb = self.bias_sensitivity
+            self.covariance = _add3(self.covariance, _outer3(jb, self.bias_variance))
+            self.bias_sensitivity = ZERO_VEC
+        self.bias_variance = bias_variance
+        f_pose, f_step = compose_jacobians(pose_before, step.ds, step.dtheta)
+        var_l, var_r = joint_variances(self.model, geometry, d_left, d_right)
+        fc = _times_vec(f_step, step.c)
+        self.covariance = _add3(
+            _add3(_congruence3(f_pose, self.covariance),
+                  _wheel_noise3(_times2x2(f_step, step.b), var_l, var_r)),
+            _outer3(fc, step.var_gyro))
+        (j0, j1, j2), ((g00, g01, g02), (g10, g11, g12)) = self.sensitivity, step.geometry
+        a, b = f_pose[0][2], f_pose[1][2]
+        (f00, f01), (f10, f11), (_, f21) = f_step
+        self.sensitivity = (  # F_pose J + F_step G, written out as _sensitivity_step
+            (j0[0] + a * j2[0] + f00 * g00 + f01 * g10, j0[1] + a * j2[1] + f00 * g01 + f01 * g11,
+             j0[2] + a * j2[2] + f00 * g02 + f01 * g12),
+            (j1[0] + b * j2[0] + f10 * g00 + f11 * g10, j1[1] + b * j2[1] + f10 * g01 + f11 * g11,
+             j1[2] + b * j2[2] + f10 * g02 + f11 * g12),
+            (j2[0] + f21 * g10, j2[1] + f21 * g11, j2[2] + f21 * g12))
+        jb = _rotate_sensitivity(f_pose, self.bias_sensitivity)
+        self.bias_sensitivity = (jb[0] + step.dt * fc[0], jb[1] + step.dt * fc[1],
+                                 jb[2] + step.dt * fc[2])
+        q = 2.0 * self._quantum
+        scale = 1.0 / (step.dt * step.dt)
+        (c0, c1) = step.c
+        (t00, t01), (_, t11) = _wheel_noise2(step.b, (var_l + q) * scale, (var_r + q) * scale)
+        vg = step.var_gyro * scale + bias_variance
+        self._rates.append(((t00 + c0 * c0 * vg, t01 + c0 * c1 * vg),
+                            (t01 + c0 * c1 * vg, t11 + c1 * c1 * vg)))
 
     def _wheel_jacobian(self, geometry: Geometry) -> Matrix:
         """:func:`wheel_jacobian`, kept while the geometry object stays the same."""
@@ -342,6 +440,9 @@ class PoseUncertainty:
         if model.radius_stddev_ratio or model.separation_stddev_ratio:
             cov = _add3(cov, geometry_term(self.sensitivity, model.radius_stddev_ratio,
                                            model.separation_stddev_ratio))
+        if self.bias_sensitivity is not ZERO_VEC:
+            jb = self.bias_sensitivity
+            cov = _add3(cov, _outer3(jb, self.bias_variance))
         if self._quantum == 0.0:
             return cov
         _, at_heading = compose_jacobians(Pose2D(0.0, 0.0, pose.theta), 0.0, 0.0)

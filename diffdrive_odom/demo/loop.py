@@ -196,6 +196,9 @@ def _evaluate(opts: DemoOptions, s: Settings, recorder: Recorder, squares: Seque
     """
     rec = recorder.recording(squares)
     rows, paths = report.calibrate_rows(rec, s.odometry, s.sim.config.geometry, opts.side)
+    replayed, replay_paths, slips = report.replay_rows(rec, s.odometry, s.gyro_odometry)
+    rows.update(replayed)
+    paths.update(replay_paths)
     truth = rec.truth
     xy = np.column_stack((truth.x, truth.y))
     off_path = 0.0
@@ -208,7 +211,8 @@ def _evaluate(opts: DemoOptions, s: Settings, recorder: Recorder, squares: Seque
         from .plot import plot
 
         plot(output / "trajectory.png", truth, paths, [sq.points for sq in squares],
-             f"{opts.route}: the follower drives on odometry; the truth drifts")
+             f"{opts.route}: the follower drives on wheel odometry; the truth drifts",
+             slips)
     distance = float(truth.path_length()[-1]) if len(truth) else 0.0
     result = DemoResult(
         route=opts.route, side_m=opts.side, distance_m=distance,
@@ -220,6 +224,7 @@ def _evaluate(opts: DemoOptions, s: Settings, recorder: Recorder, squares: Seque
         messages=dict(recorder.counts),
         bag=str(opts.output / "bag") if opts.write_bag else None,
         plot=str(opts.output / "trajectory.png") if opts.write_plot else None,
+        slips=slips,
     )
     (output / "results.json").write_text(
         json.dumps(result.as_dict(), indent=2) + "\n", encoding="utf-8")

@@ -1,4 +1,7 @@
-"""The demo's picture: commanded path, belief, truth, calibrated odometry; drift over distance.
+"""The demo's picture: commanded path, belief, truth, calibrated and gyro-aided odometry.
+
+Left the paths (the slip events the gyro found marked on the truth), right the drift
+over distance.
 
 Pure matplotlib (Agg), imported only when a plot is written.
 """
@@ -12,19 +15,26 @@ from pathlib import Path
 from diffdrive_odom.core.metrics import Trajectory, match, path_length
 from diffdrive_odom.core.paths import Point
 
-from .report import FIT, NOMINAL, UMBMARK
+from .report import FIT, GYRO, NOMINAL, UMBMARK, slip_bursts
 
-# key -> colour, line style, legend label
+# key -> colour, line style, legend label. The wheels-only replay is not drawn: it is
+# the nominal line (the node's own odometry) to the encoder tick.
 STYLES = {
-    NOMINAL: ("tab:red", "-", "odometry, nominal geometry (what the robot believes)"),
-    FIT: ("tab:green", "--", "odometry re-integrated, calibrated (fit)"),
-    UMBMARK: ("tab:blue", ":", "odometry re-integrated, calibrated (UMBmark)"),
+    NOMINAL: ("tab:red", "-", "wheel odometry, nominal geometry (what the robot believes)"),
+    FIT: ("tab:green", "--", "wheel odometry re-integrated, calibrated (fit)"),
+    UMBMARK: ("tab:blue", ":", "wheel odometry re-integrated, calibrated (UMBmark)"),
+    GYRO: ("tab:purple", "-", "gyro-aided odometry (replay, use_imu; nominal geometry)"),
 }
 
 
 def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
-         commanded: Sequence[Sequence[Point]], title: str) -> None:
-    """Where the robot was told to go, believed it went, really went; the gap growing."""
+         commanded: Sequence[Sequence[Point]], title: str,
+         slips: Sequence[tuple[int, float]] = ()) -> None:
+    """Where the robot was told to go, believed it went, really went; the gap growing.
+
+    ``slips``: the slip events, (stamp, size) (:func:`.report.slip_bursts` of them marked
+    on the truth and on the distance axis).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -44,6 +54,12 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
         if key in odometry:
             traj = odometry[key]
             ax1.plot(traj.x, traj.y, style, color=color, lw=1.3, label=label)
+    marks = [t for t, _ in slip_bursts(slips)]
+    if marks and len(truth):
+        at = np.clip(np.searchsorted(truth.stamp_ns, np.asarray(marks, dtype=np.int64)),
+                     0, len(truth) - 1)
+        ax1.plot(truth.x[at], truth.y[at], "*", color="tab:orange", ms=14, mec="black",
+                 mew=0.6, zorder=5, label="wheel slip (found by the gyro-aided odometry)")
     ax1.plot([0.0], [0.0], "o", color="black", ms=8, label="start (both squares)")
     nominal = odometry[NOMINAL]
     tx, ty = float(truth.x[-1]), float(truth.y[-1])
@@ -60,7 +76,7 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
     ax1.set_xlabel("x [m]")
     ax1.set_ylabel("y [m]")
     ax1.grid(True, alpha=0.3)
-    ax1.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), fontsize=8.5, ncol=1)
+    ax1.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), fontsize=8.5, ncol=1)
     ax1.set_title(title)
 
     top = 0.0
@@ -72,20 +88,27 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
         top = max(top, float(err.max()))
         ax2.plot(path_length(m.ref[:, :2]), err, style, color=color, lw=1.5,
                  label=label.split(" (")[0] if key == NOMINAL else label)
-    ax2.set_ylim(0.0, 2.2 * top if top > 0.0 else 1.0)  # room above for legend and text
+    if marks and len(truth):
+        travelled = np.interp(np.asarray(marks, dtype=np.float64),
+                              truth.stamp_ns.astype(np.float64), truth.path_length())
+        for i, d in enumerate(travelled):
+            ax2.axvline(float(d), color="tab:orange", lw=1.0, ls="-.",
+                        label="wheel slip" if i == 0 else None)
+    ax2.set_ylim(0.0, 1.7 * top if top > 0.0 else 1.0)  # room above for the legend
     ax2.set_xlabel("distance driven [m]")
     ax2.set_ylabel("position error of odometry [m]")
     ax2.set_title("odometry drift: distance between belief and truth")
     ax2.grid(True, alpha=0.3)
     ax2.legend(loc="upper left", fontsize=8.5)
-    ax2.text(0.02, 0.80,
-             "The follower keeps the robot on the path as its odometry\n"
-             "sees it; wheel radii or track width slightly off the\n"
-             "drawing bend every step the same way, so the real path\n"
-             "drifts off. Calibrating from this very run (fit to the\n"
-             "ground truth, or UMBmark from where the squares ended)\n"
-             "removes that systematic part; slip and encoder ticks\n"
-             "leave a small random part.",
+    ax2.text(0.0, -0.16,
+             "The follower keeps the robot on the path as its wheel odometry sees it;\n"
+             "wheel radii or track width slightly off the drawing bend every step the\n"
+             "same way, so the real path drifts off. Calibrating from this very run (fit\n"
+             "to the ground truth, or UMBmark from where the squares ended) removes that\n"
+             "systematic part. A wheel spinning for a moment turns wheel odometry by what\n"
+             "the robot never turned (and calibration takes it for geometry); gyro-aided\n"
+             "odometry takes those steps' heading from the gyro (Borenstein and Feng's\n"
+             "gyrodometry) and its distance from the other wheel: far closer to the truth.",
              transform=ax2.transAxes, ha="left", va="top", fontsize=8.5,
              bbox={"boxstyle": "round", "facecolor": "white", "alpha": 0.9})
     fig.tight_layout()

@@ -19,7 +19,7 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, Float64
 
 from diffdrive_odom.core.conversions import quaternion_to_yaw, stamp_to_ns
@@ -28,7 +28,7 @@ from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.tools import bagio
 
-from .report import JointSample, PoseSeries, Recording, Square
+from .report import ImuReading, JointSample, PoseSeries, Recording, Square
 from .settings import BAG_TOPICS, FOLLOWER
 
 RECORD_QOS = qos(1000, reliable=True)
@@ -58,6 +58,7 @@ class Recorder:
         self.now_ns: int | None = None
         self.odom, self.truth = PoseSeries(), PoseSeries()
         self.joint_states: list[JointSample] = []
+        self.imu: list[ImuReading] = []
         self.counts: dict[str, int] = dict.fromkeys(self.topics, 0)
         self.done_true = self.done_false = 0
         self.cross_track_max = 0.0
@@ -119,6 +120,10 @@ class Recorder:
             self.joint_states.append(JointSample(
                 stamp_to_ns(js.header.stamp), tuple(js.name),
                 tuple(js.position), tuple(js.velocity)))
+        elif topic == "/imu":
+            imu = deserialize_message(raw, Imu)
+            w = imu.angular_velocity
+            self.imu.append(ImuReading(stamp_to_ns(imu.header.stamp), w.x, w.y, w.z))
         elif topic in ("/odom", "/ground_truth/odom"):
             msg = deserialize_message(raw, Odometry)
             series = self.odom if topic == "/odom" else self.truth
@@ -165,4 +170,5 @@ class Recorder:
     def recording(self, squares: Sequence[Square]) -> Recording:
         """What was heard, for :mod:`.report`."""
         return Recording(tuple(self.joint_states), self.odom.trajectory(),
-                         self.truth.trajectory(), tuple(squares), self.cross_track_max)
+                         self.truth.trajectory(), tuple(squares), self.cross_track_max,
+                         tuple(self.imu))

@@ -5,6 +5,11 @@ the package's own calibration (:mod:`diffdrive_odom.core.calibration`: the whole
 fit against the sim's ground truth, and Borenstein and Feng's UMBmark from the two
 squares' end poses), each geometry is re-integrated through the batch path
 (:mod:`diffdrive_odom.core.batch`, the estimator's own step) and compared with the truth.
+The recorded readings are also replayed through the node's
+:class:`~diffdrive_odom.core.pipeline.ReadingPipeline` twice, wheels only and with the
+recorded gyro (``use_imu``, Borenstein and Feng, "Gyrodometry: A New Method for Combining
+Data from Gyros and Odometry in Mobile Robots"), so the sim's scripted wheel slip shows
+what the gyro saves.
 """
 
 from __future__ import annotations
@@ -18,9 +23,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from diffdrive_odom.core import batch, calibration
+from diffdrive_odom.core.estimator import Status
 from diffdrive_odom.core.kinematics import Geometry
 from diffdrive_odom.core.metrics import Trajectory, evaluate
 from diffdrive_odom.core.paths import Point
+from diffdrive_odom.core.pipeline import ReadingPipeline
 from diffdrive_odom.core.recorded_run import CalibrationError, Run, trajectory, with_values
 from diffdrive_odom.core.umbmark import reference_end, umbmark
 from diffdrive_odom.settings.odometry import OdometrySettings
@@ -29,11 +36,15 @@ from .settings import DemoError
 
 # Table rows, in the order printed; the keys of ``results.json``'s "rows".
 NOMINAL, FIT, UMBMARK, TRUE = "nominal", "fit", "umbmark", "true"
+WHEELS, GYRO = "wheels", "gyro"  # the replays: nominal geometry, without and with the gyro
+MIN_SLIP_RAD = math.radians(0.5)  # smaller slips are not named in the table or the plot
 LABELS = {
     NOMINAL: "nominal (odometry_node as run)",
     FIT: "calibrated: fit to ground truth",
     UMBMARK: "calibrated: UMBmark end poses",
     TRUE: "true geometry (the sim's)",
+    WHEELS: "replay: wheels only",
+    GYRO: "replay: gyro-aided (use_imu)",
 }
 
 
@@ -44,6 +55,15 @@ class JointSample(NamedTuple):
     names: tuple[str, ...]
     position: tuple[float, ...]
     velocity: tuple[float, ...]
+
+
+class ImuReading(NamedTuple):
+    """One recorded Imu's stamp and angular velocity (its own frame), as ``feed_imu`` takes it."""
+
+    stamp_ns: int
+    wx: float
+    wy: float
+    wz: float
 
 
 @dataclass
@@ -86,6 +106,7 @@ class Recording:
     truth: Trajectory
     squares: tuple[Square, ...]
     cross_track_odom_m: float  # largest |e1| the follower reported (on odometry)
+    imu: tuple[ImuReading, ...] = ()  # the sim's gyro (empty: imu_rate 0)
 
 
 @dataclass(frozen=True)
@@ -116,13 +137,15 @@ class DemoResult:
     sim_seconds: float
     wall_seconds: float
     truth_final_pose: tuple[float, float, float]
-    rows: dict[str, Row]  # NOMINAL, FIT, TRUE and, with both squares, UMBMARK
+    rows: dict[str, Row]  # NOMINAL, FIT, TRUE, WHEELS; with both squares UMBMARK; GYRO
     cross_track_odom_m: float
     cross_track_truth_m: float
     squares: tuple[Square, ...]
     messages: dict[str, int]
     bag: str | None
     plot: str | None
+    # The slip events the gyro-aided replay found: (stamp of the first step, size [rad]).
+    slips: tuple[tuple[int, float], ...] = ()
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -136,6 +159,7 @@ class DemoResult:
             "squares": [{"clockwise": s.clockwise, "points": [list(p) for p in s.points],
                          "start_ns": s.start_ns, "end_ns": s.end_ns} for s in self.squares],
             "messages": self.messages, "bag": self.bag, "plot": self.plot,
+            "slip_events": [{"stamp_ns": t, "size_rad": a} for t, a in self.slips],
         }
 
     def table(self, program: str = "diffdrive-odom") -> str:
@@ -161,7 +185,7 @@ class DemoResult:
             f"{'geometry':<32} {'r_left [m]':>17} {'r_right [m]':>17} {'b [m]':>17} "
             f"{'final position error':>21} {'heading error':>14}",
         ]
-        for key in (NOMINAL, FIT, UMBMARK, TRUE):
+        for key in (NOMINAL, FIT, UMBMARK, TRUE, WHEELS, GYRO):
             row = self.rows.get(key)
             if row is None:
                 continue
@@ -173,6 +197,19 @@ class DemoResult:
                 f"{math.degrees(row.heading_rad):>10.3f} deg")
         lines.append("(percentages: against the sim's true geometry; UMBmark keeps the "
                      "nominal mean wheel radius, a closed square cannot see the scale)")
+        if GYRO in self.rows:
+            t0 = self.squares[0].start_ns
+            bursts = slip_bursts(self.slips)
+            at = ", ".join(f"{(t - t0) * 1e-9:.1f} s ({math.degrees(a):.1f} deg)"
+                           for t, a in bursts)
+            lines += [
+                f"wheel slip over {math.degrees(MIN_SLIP_RAD):g} deg: the gyro-aided "
+                f"replay found {len(bursts)}" + (f", at {at} into the route" if at else "")
+                + "; slip inflates the nominal and calibrated rows",
+                "(the fit and UMBmark take its heading for geometry). Replays: the recorded "
+                "readings through the node's pipeline with the nominal geometry; the live "
+                "odometry_node ran wheels only.",
+            ]
         if self.plot or self.bag:
             lines.append("")
         if self.plot:
@@ -211,6 +248,17 @@ def distance_to_polyline(xy: np.ndarray[Any, Any], points: Sequence[Point]) -> n
     return best
 
 
+def _within_truth(rec: Recording) -> list[JointSample]:
+    """The readings by stamp from the truth's first one on.
+
+    The recorder may hear the encoders a moment before the ground truth (each topic
+    is matched on its own): odometry started earlier could not be compared from its
+    start.
+    """
+    t0 = int(rec.truth.stamp_ns[0]) if len(rec.truth) else 0
+    return sorted((r for r in rec.joint_states if r.stamp_ns >= t0), key=lambda r: r.stamp_ns)
+
+
 def calibrate_rows(rec: Recording, odo: OdometrySettings, true: Geometry,
                    side: float) -> tuple[dict[str, Row], dict[str, Trajectory]]:
     """Calibrate from the run: each geometry's row and its re-integrated trajectory.
@@ -221,7 +269,7 @@ def calibrate_rows(rec: Recording, odo: OdometrySettings, true: Geometry,
     if len(rec.odom) < 2 or len(rec.truth) < 2 or len(rec.joint_states) < 3:
         raise DemoError("too little data to evaluate")
     nominal = odo.geometry
-    readings = sorted(rec.joint_states, key=lambda r: r.stamp_ns)
+    readings = _within_truth(rec)
     whole = _run("demo", readings, odo, rec.truth)
     try:
         fitted = calibration.fit([whole], nominal, figures=False).geometry
@@ -246,3 +294,83 @@ def calibrate_rows(rec: Recording, odo: OdometrySettings, true: Geometry,
     rows = {k: _row(nominal if k == NOMINAL else found[k], t, rec.truth)
             for k, t in paths.items()}
     return rows, paths
+
+
+def slip_bursts(slips: Sequence[tuple[int, float]], within_ns: int = 1_000_000_000,
+                least: float = MIN_SLIP_RAD) -> list[tuple[int, float]]:
+    """Slip events as a reader counts slips: (start, size [rad]), the small ones left out.
+
+    Events less than ``within_ns`` after the previous one are one slip (sizes added):
+    a wheel spinning for a second is one slip, though the per-step decision may find
+    a few runs of slipping steps in it (steps whose spin is within the noise are fused,
+    not counted). Slips under ``least`` are left out: at a standstill the decision
+    also flags a single encoder tick (0.3 mrad here), which is no wheel spinning.
+    """
+    bursts: list[tuple[int, float]] = []
+    last: int | None = None
+    for t, size in sorted(slips):
+        if last is not None and t - last < within_ns:
+            bursts[-1] = (bursts[-1][0], bursts[-1][1] + size)
+        else:
+            bursts.append((t, size))
+        last = t
+    return [b for b in bursts if b[1] >= least]
+
+
+def replay(readings: Sequence[JointSample], odo: OdometrySettings,
+           imu: Sequence[ImuReading] = ()
+           ) -> tuple[Trajectory, tuple[tuple[int, float], ...]]:
+    """The recorded readings through the node's pipeline: its pose after each, and slips.
+
+    With ``odo.gyro`` set (``use_imu``) the IMU samples go in through
+    :meth:`ReadingPipeline.feed_imu` in stamp order, each before a wheel reading of the
+    same or a later stamp (as replay's merge by stamp feeds them). Returns the pose
+    after every reading the estimator used, and each slip event the gyrodometry found
+    (the stamp of its first step, the heading the wheels got wrong over it [rad]).
+    """
+    pipe = ReadingPipeline(odo)
+    events: list[tuple[int, int, JointSample | ImuReading]] = [
+        (s.stamp_ns, 0, s) for s in imu] if odo.gyro is not None else []
+    events += [(r.stamp_ns, 1, r) for r in readings]
+    events.sort(key=lambda e: (e[0], e[1]))
+    stamps: list[int] = []
+    poses: list[tuple[float, float, float]] = []
+    slips: list[tuple[int, float]] = []
+    for _, _, item in events:
+        if isinstance(item, ImuReading):
+            pipe.feed_imu(item.stamp_ns, item.wx, item.wy, item.wz)
+            continue
+        gyro = pipe.gyro
+        before = None if gyro is None else gyro.slips
+        verdict = pipe.feed(item.stamp_ns, item.names, item.position, item.velocity).verdict
+        if verdict.status in (Status.DROPPED, Status.HELD):
+            continue
+        if gyro is not None and before is not None and gyro.slips.steps > before.steps:
+            if gyro.slips.events > before.events:  # a new event: its first step
+                slips.append((item.stamp_ns, gyro.slips.last_size))
+            else:  # the event goes on: its size so far
+                slips[-1] = (slips[-1][0], gyro.slips.last_size)
+        p = pipe.estimator.pose
+        stamps.append(item.stamp_ns)
+        poses.append((p.x, p.y, p.theta))
+    if len(stamps) < 2:
+        raise DemoError("too little data to replay")
+    x, y, th = zip(*poses, strict=True)
+    return Trajectory.from_arrays(stamps, x, y, th), tuple(slips)
+
+
+def replay_rows(rec: Recording, odo: OdometrySettings, gyro: OdometrySettings
+                ) -> tuple[dict[str, Row], dict[str, Trajectory], tuple[tuple[int, float], ...]]:
+    """The wheels-only and (with IMU samples recorded) gyro-aided replays' rows and paths.
+
+    ``gyro``: the node's settings with ``use_imu`` true. Returns the rows, the
+    trajectories and the slip events the gyro-aided replay found.
+    """
+    readings = _within_truth(rec)
+    wheels, _ = replay(readings, odo)
+    paths = {WHEELS: wheels}
+    slips: tuple[tuple[int, float], ...] = ()
+    if rec.imu and gyro.gyro is not None:
+        paths[GYRO], slips = replay(readings, gyro, rec.imu)
+    rows = {k: _row(odo.geometry, t, rec.truth) for k, t in paths.items()}
+    return rows, paths, slips

@@ -33,6 +33,7 @@ FOLLOWER = "path_follower_node"
 # replay, play, calibrate) read them from the bag.
 BAG_TOPICS: dict[str, str] = {
     "/joint_states": "sensor_msgs/msg/JointState",
+    "/imu": "sensor_msgs/msg/Imu",  # the sim's gyro (imu_rate): the gyro-aided replay's
     "/odom": "nav_msgs/msg/Odometry",
     "/ground_truth/odom": "nav_msgs/msg/Odometry",
     "/tf": "tf2_msgs/msg/TFMessage",
@@ -82,11 +83,18 @@ class DemoOptions:
 
 @dataclass(frozen=True)
 class Settings:
-    """The three nodes' settings as the run's params file gives them."""
+    """The three nodes' settings as the run's params file gives them.
+
+    ``gyro_odometry``: the odometry node's settings with ``use_imu`` true (its gyro
+    parameters from the same section), for the gyro-aided replay; the live node runs
+    as the file says (the demo's: wheels only, so the follower steers on what slip does
+    to wheel odometry).
+    """
 
     odometry: OdometrySettings
     sim: SimSettings
     follower: FollowerSettings
+    gyro_odometry: OdometrySettings
 
 
 def parse_override(text: str) -> tuple[str, str]:
@@ -149,7 +157,9 @@ def follower_values(opts: DemoOptions) -> dict[str, ParamValue]:
 def load_settings(opts: DemoOptions) -> Settings:
     """The odometry node's, the sim's and the follower's settings (file + overrides)."""
     try:
-        odo = odometry_settings(load_params_file(opts.params_file, "odometry_node"))
+        odo_values = load_params_file(opts.params_file, "odometry_node")
+        odo = odometry_settings(odo_values)
+        gyro = odometry_settings({**odo_values, "use_imu": True})
         sim_values = load_params_file(opts.params_file, "sim_node")
         sim_values.update({k: yaml_value(v) for k, v in opts.sim_overrides.items()})
         sim = sim_settings(sim_values)
@@ -159,7 +169,7 @@ def load_settings(opts: DemoOptions) -> Settings:
         fol = follower_settings(fol_values)
     except (ParameterError, OSError, yaml.YAMLError) as err:
         raise DemoError(f"{opts.params_file}: {err}") from err
-    return Settings(odo, sim, fol)
+    return Settings(odo, sim, fol, gyro)
 
 
 def write_run_params(source: Path, changes: dict[str, dict[str, ParamValue]],

@@ -19,10 +19,16 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
 
-from diffdrive_odom.core.cdr import JointArrays, JointStateDecoder, OdometryLayout, TransformLayout
+from diffdrive_odom.core.cdr import (
+    JointArrays,
+    JointStateDecoder,
+    OdometryLayout,
+    TransformLayout,
+    decode_imu,
+)
 from diffdrive_odom.core.diagnostics import (
     RateMeter,
     ReadingHealth,
@@ -31,7 +37,7 @@ from diffdrive_odom.core.diagnostics import (
     odometry_report,
 )
 from diffdrive_odom.core.estimator import Status
-from diffdrive_odom.core.pipeline import Outcome, ReadingPipeline
+from diffdrive_odom.core.pipeline import IMU_SILENT, Outcome, ReadingPipeline
 from diffdrive_odom.core.publication import Publication, Refusal, pipeline_publication
 from diffdrive_odom.core.throttle import KeyedThrottle
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
@@ -76,6 +82,9 @@ class OdometryEndpoints:
         self._sub = node.create_subscription(
             JointState, "joint_states", self._on_joint_state, SENSOR_IN_QOS, raw=True
         )
+        # use_imu is read-only: the subscription exists for the node's whole life or not.
+        self._imu_sub = None if settings.gyro is None else node.create_subscription(
+            Imu, "imu", self._on_imu, SENSOR_IN_QOS, raw=True)
         self._reset_srv = node.create_service(Trigger, "~/reset_odometry", self._on_reset)
         # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
         # and a missing clock is one of the mistakes this warning is for.
@@ -103,6 +112,8 @@ class OdometryEndpoints:
         node.destroy_timer(self._input_timer)
         node.destroy_service(self._reset_srv)
         node.destroy_subscription(self._sub)
+        if self._imu_sub is not None:
+            node.destroy_subscription(self._imu_sub)
         destroy_publisher(node, self._tf_pub)
         destroy_publisher(node, self._odom_pub)
 
@@ -147,7 +158,34 @@ class OdometryEndpoints:
             gap_reanchors=stats.gap_reanchors,
             time_resets=stats.time_resets,
             velocity_fallback=stats.velocity_fallback,
+            gyro=stats.gyro,
         ))
+
+    def _on_imu(self, raw: bytes) -> None:
+        """One gyro sample to the pipeline; a refused one is named (throttled per reason).
+
+        Decoded from its bytes (:func:`decode_imu`); rclpy's deserialisation takes what
+        that leaves (big-endian senders).
+        """
+        try:
+            got = decode_imu(raw)
+        except ValueError:
+            got = None
+        if got is None:
+            try:
+                msg = deserialize_message(raw, Imu)
+            except Exception as exc:  # whatever rclpy raises for bytes it cannot read
+                self._throttle.warning("imu_undecodable", f"imu message dropped: its "
+                                       f"{len(raw)} bytes are not an Imu ({exc})")
+                return
+            w = msg.angular_velocity
+            got = (msg.header.stamp.sec, msg.header.stamp.nanosec, w.x, w.y, w.z)
+        sec, nanosec, wx, wy, wz = got
+        code = self._pipeline.feed_imu(sec * 1_000_000_000 + nanosec, wx, wy, wz)
+        if code:
+            self._throttle.warning(f"imu_{code}", f"imu sample dropped [{code}]: stamp "
+                                   f"{sec}.{nanosec:09d}, angular_velocity "
+                                   f"({wx:.6g}, {wy:.6g}, {wz:.6g}) rad/s")
 
     def _on_joint_state(self, raw: bytes) -> None:
         self._last_rx = t = time.monotonic()
@@ -189,7 +227,9 @@ class OdometryEndpoints:
 
     def _report(self, outcome: Outcome) -> None:
         verdict = outcome.verdict
-        if outcome.note:
+        if outcome.note == IMU_SILENT:  # says it once per switch, as the WARN in diagnostics
+            self._node.get_logger().warning(outcome.note)
+        elif outcome.note:
             self._throttle.info("input_mode", outcome.note)
         if outcome.warning:  # said once by the pipeline
             self._node.get_logger().warning(outcome.warning)

@@ -3,7 +3,9 @@
 Thin rclpy shell around :class:`diffdrive_odom.core.sim.DiffDriveSim`: it takes the
 cmd_vel node's wheel commands, steps the simulation at a fixed rate and publishes
 what a real base's driver would (``joint_states``, header-stamped, radians or
-ticks) plus what only a simulator knows: the true pose on ``ground_truth/odom``.
+ticks; with ``imu_rate`` a gyro on ``imu``: true yaw rate, bias, white noise) plus
+what only a simulator knows: the true pose on ``ground_truth/odom``. Scripted
+``slip_events`` make a wheel spin without moving the ground.
 
 Time: by default the node follows its own clock (wall time, or ``/clock`` when run
 with ``use_sim_time``). With ``publish_clock`` it owns the time instead: it advances
@@ -29,7 +31,7 @@ from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray
 
 from diffdrive_odom.core.cmd_vel_pipeline import JOINT_STATE, TICKS_PER_SECOND
@@ -87,6 +89,10 @@ class SimNode(Node):
         self._truth_pub = self.create_publisher(
             Odometry, "ground_truth/odom", RELIABLE_OUT_QOS)
         self._clock_pub: Any = None
+        self._imu_pub: Any = None
+        self._imu_per_step = max(1, round(s.imu_rate / s.joint_state_rate))
+        if s.imu_rate > 0.0:  # read-only: on or off for the node's life
+            self._imu_pub = self.create_publisher(Imu, "imu", RELIABLE_OUT_QOS)
         if s.publish_clock:
             self._clock_pub = self.create_publisher(ClockMsg, "/clock", CLOCK_QOS)
         if s.wheel_command_format == JOINT_STATE:
@@ -183,9 +189,27 @@ class SimNode(Node):
 
     # --- time -------------------------------------------------------------------
 
+    def _advance(self, dt_ns: int, end_ns: int) -> None:
+        """Move the simulation to ``end_ns``; with an IMU, a gyro sample per piece."""
+        if self._imu_pub is None:
+            self._sim.advance(dt_ns)
+            return
+        n = self._imu_per_step
+        rate = n * 1e9 / dt_ns
+        for i in range(n):
+            piece = dt_ns * (i + 1) // n - dt_ns * i // n
+            self._sim.advance(piece)
+            msg = Imu()
+            ns_to_stamp(end_ns - dt_ns + dt_ns * (i + 1) // n, msg.header.stamp)
+            msg.header.frame_id = self._settings.imu_frame_id
+            msg.orientation_covariance[0] = -1.0  # no orientation (REP-145)
+            msg.linear_acceleration_covariance[0] = -1.0
+            msg.angular_velocity.z = self._sim.gyro(rate)
+            self._imu_pub.publish(msg)
+
     def _on_sim_tick(self) -> None:
         """publish_clock: one fixed step of simulated time."""
-        self._sim.advance(self._step_ns)
+        self._advance(self._step_ns, self._start_ns + self._sim.time_ns + self._step_ns)
         now_ns = self._start_ns + self._sim.time_ns
         clock = ClockMsg()
         ns_to_stamp(now_ns, clock.clock)
@@ -202,7 +226,7 @@ class SimNode(Node):
         if dt > MAX_STEP_NS:
             self._warn(f"clock jumped {dt * 1e-9:.3f} s: simulating {MAX_STEP_NS * 1e-9:g} s")
             dt = MAX_STEP_NS
-        self._sim.advance(dt)
+        self._advance(dt, now_ns)
         self._publish(now_ns)
 
     # --- output -----------------------------------------------------------------

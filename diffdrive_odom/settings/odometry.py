@@ -12,6 +12,7 @@ from typing import Any
 
 from diffdrive_odom.core.errors import as_parameter_error
 from diffdrive_odom.core.estimator import EstimatorConfig
+from diffdrive_odom.core.gyro import GyroConfig
 from diffdrive_odom.core.pipeline import OdometrySettings as OdometrySettings
 from diffdrive_odom.core.stamps import StampSource
 from diffdrive_odom.core.uncertainty import (
@@ -23,12 +24,52 @@ from diffdrive_odom.core.uncertainty import (
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, build_encoders, build_geometry
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
+    INF,
     NON_NEGATIVE,
+    POSITIVE,
     POSITIVE_OR_INF,
     ParameterError,
     ParamSpec,
     ParamValue,
+    Range,
     coerce_all,
+)
+
+_G = GyroConfig()
+GYRO_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("use_imu", "bool", False,
+              "Gyrodometry: subscribe sensor_msgs/Imu on 'imu'; the wheels give distance, "
+              "their heading is checked against the gyro's (slip) and fused with it.",
+              read_only=True),
+    ParamSpec("imu_orientation", "double_array", list(_G.orientation),
+              "Roll, pitch, yaw [rad] of the IMU's frame in the base frame (the mounting; "
+              "upside down: [3.14159265, 0, 0])."),
+    ParamSpec("gyro_noise_density", "double", _G.noise_density,
+              "Gyro white noise [rad/s/sqrt(Hz)] (its datasheet's rate noise density); "
+              "the heading variance grows by its square times the time.", range=POSITIVE),
+    ParamSpec("gyro_bias", "double", _G.bias,
+              "Start value of the yaw-rate bias estimate [rad/s] (updated while standing "
+              "still).", range=Range(-INF, INF, "finite")),
+    ParamSpec("gyro_bias_stddev", "double", _G.bias_stddev,
+              "1-sigma uncertainty of gyro_bias [rad/s] at the start.", range=NON_NEGATIVE),
+    ParamSpec("gyro_bias_random_walk", "double", _G.bias_random_walk,
+              "How fast the bias wanders [rad/s/sqrt(s)]: its variance grows by the square "
+              "per second.", range=NON_NEGATIVE),
+    ParamSpec("gyro_max_rate", "double", _G.max_rate,
+              "An angular rate at or above this [rad/s] is saturated: the sample is "
+              "refused (2000 deg/s by default).", range=POSITIVE),
+    ParamSpec("imu_timeout", "double", _G.timeout,
+              "No IMU sample for this long [s] over a wheel step: wheels only (WARN) "
+              "until samples come again.", range=POSITIVE),
+    ParamSpec("slip_threshold_sigmas", "double", _G.slip_sigmas,
+              "Wheel and gyro heading changes differing by more than this many combined "
+              "sigmas: a slip (the gyro's heading is used).", range=POSITIVE),
+    ParamSpec("zero_velocity_speed", "double", _G.zero_velocity_speed,
+              "Both wheels slower than this [m/s] over a step: standing still, the gyro's "
+              "mean rate updates its bias.", range=NON_NEGATIVE),
+    ParamSpec("slip_distance_from_other_wheel", "bool", _G.slip_distance_from_other_wheel,
+              "On a slip, take the distance from the wheel with the shorter arc and the "
+              "gyro (the spinning wheel read more than it rolled)."),
 )
 
 ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
@@ -85,6 +126,7 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "continues from it, it is the new reference, no motion integrated (driver "
               "restart), else it is dropped (future_stamp); .inf = off.",
               range=POSITIVE_OR_INF),
+    *GYRO_PARAMS,
 )
 
 
@@ -174,4 +216,23 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
             "twist_covariance_diagonal", v["twist_covariance_diagonal"]),
         noise=_noise_model(v),
         stamp_source=_stamp_source(v["stamp_source"]),
+        gyro=_gyro_config(v),
     )
+
+
+def _gyro_config(v: Mapping[str, Any]) -> GyroConfig | None:
+    """The gyro's settings with ``use_imu`` true (checked even when false), else None."""
+    orientation = v["imu_orientation"]
+    if len(orientation) != 3:
+        raise ParameterError("imu_orientation",
+                             f"needs 3 values (roll, pitch, yaw), got {len(orientation)}")
+    with as_parameter_error():
+        cfg = GyroConfig(
+            orientation=(orientation[0], orientation[1], orientation[2]),
+            noise_density=v["gyro_noise_density"], bias=v["gyro_bias"],
+            bias_stddev=v["gyro_bias_stddev"], bias_random_walk=v["gyro_bias_random_walk"],
+            max_rate=v["gyro_max_rate"], timeout=v["imu_timeout"],
+            slip_sigmas=v["slip_threshold_sigmas"],
+            zero_velocity_speed=v["zero_velocity_speed"],
+            slip_distance_from_other_wheel=v["slip_distance_from_other_wheel"])
+    return cfg if v["use_imu"] else None

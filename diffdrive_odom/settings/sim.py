@@ -20,10 +20,11 @@ from diffdrive_odom.core.cmd_vel_pipeline import (
 from diffdrive_odom.core.encoders import EncoderConfig
 from diffdrive_odom.core.errors import as_parameter_error
 from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.sim import SimConfig
+from diffdrive_odom.core.sim import SimConfig, SlipEvent
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
     COUNTER_BITS,
+    INF,
     INT64_MAX,
     NON_NEGATIVE,
     POSITIVE,
@@ -103,6 +104,22 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("real_time_factor", "double", 1.0,
               "Simulated seconds per wall second when publish_clock is true.", read_only=True,
               range=Range(0.0, 100.0, "> 0")),
+    ParamSpec("imu_rate", "double", 0.0,
+              "Simulated gyro on imu (sensor_msgs/Imu) [Hz]: samples per joint_states "
+              "reading = round(imu_rate / joint_state_rate), at least 1; 0 = no imu.",
+              read_only=True, range=NON_NEGATIVE),
+    ParamSpec("imu_frame_id", "string", "base_link",
+              "Frame of the simulated Imu (mounted as the base: z up)."),
+    ParamSpec("sim_gyro_bias", "double", 0.0,
+              "Bias [rad/s] the simulated gyro adds to the true yaw rate.",
+              range=Range(-INF, INF, "finite")),
+    ParamSpec("sim_gyro_noise_density", "double", 0.0,
+              "White noise of the simulated gyro [rad/s/sqrt(Hz)].", range=NON_NEGATIVE),
+    ParamSpec("slip_events", "string", "",
+              "Scripted wheel slip: 'SIDE START DURATION RATE' entries separated by ';', "
+              "e.g. 'right 5 1 15; left 9 0.5 10': from 5 s for 1 s the right encoders "
+              "count 15 rad/s more than the wheel rolls (the ground does not move for it); "
+              "empty = none."),
     ParamSpec("world_frame_id", "string", "world", "Frame of ground_truth/odom."),
     ParamSpec("base_frame_id", "string", "base_link",
               "Child frame of ground_truth/odom (the robot)."),
@@ -123,6 +140,8 @@ class SimSettings:
     real_time_factor: float
     world_frame_id: str
     base_frame_id: str
+    imu_rate: float = 0.0
+    imu_frame_id: str = "base_link"
 
     @property
     def wheel_names(self) -> tuple[str, ...]:
@@ -182,7 +201,9 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
         raise ParameterError("real_time_factor", f"must be > 0 and <= 100, got {rtf!r}")
     if v["random_seed"] < 0:  # numpy's generator takes no negative seed
         raise ParameterError("random_seed", f"must be >= 0, got {v['random_seed']!r}")
-    for name in ("world_frame_id", "base_frame_id"):
+    if not math.isfinite(v["imu_rate"]) or v["imu_rate"] < 0.0:
+        raise ParameterError("imu_rate", f"must be finite and >= 0, got {v['imu_rate']!r}")
+    for name in ("world_frame_id", "base_frame_id", "imu_frame_id"):
         if not v[name].strip("/"):
             raise ParameterError(name, "must not be empty")
     with as_parameter_error(rename={"substeps": "physics_substeps"}):
@@ -197,6 +218,9 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
             command_timeout=v["command_timeout"],
             substeps=v["physics_substeps"],
             seed=v["random_seed"],
+            slip_events=_slip_events(v["slip_events"]),
+            gyro_bias=v["sim_gyro_bias"],
+            gyro_noise_density=v["sim_gyro_noise_density"],
         )
     return SimSettings(
         config=config,
@@ -209,4 +233,20 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
         real_time_factor=rtf,
         world_frame_id=v["world_frame_id"],
         base_frame_id=v["base_frame_id"],
+        imu_rate=v["imu_rate"],
+        imu_frame_id=v["imu_frame_id"],
     )
+
+
+def _slip_events(value: str) -> tuple[SlipEvent, ...]:
+    """``slip_events`` entries 'SIDE START DURATION RATE', or ParameterError naming it."""
+    events = []
+    for text in filter(None, (t.strip() for t in value.split(";"))):
+        parts = text.split()
+        try:
+            side, start, duration, rate = parts[0], *(float(p) for p in parts[1:])
+        except (ValueError, IndexError, TypeError):
+            raise ParameterError("slip_events", f"{text!r}: expected 'SIDE START DURATION "
+                                                "RATE', e.g. 'right 5 1 15'") from None
+        events.append(SlipEvent(side, start, duration, rate))
+    return tuple(events)

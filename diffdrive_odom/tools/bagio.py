@@ -58,6 +58,7 @@ from diffdrive_odom.tools import bulkmcap
 from diffdrive_odom.tools.outputs import STORAGES as STORAGES
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
+IMU = "sensor_msgs/msg/Imu"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 CSV_COLUMNS = ("stamp_ns", "time", "x", "y", "yaw", "linear", "angular", "status",
@@ -142,6 +143,17 @@ class JointReading:
     velocity: Sequence[float]
 
 
+@dataclass(frozen=True)
+class ImuSample:
+    """One Imu message's angular velocity (its own frame) and stamps (``use_imu``)."""
+
+    stamp_ns: int
+    log_ns: int
+    wx: float
+    wy: float
+    wz: float
+
+
 def _reading(msg: Any, log_ns: int) -> JointReading:
     return JointReading(
         stamp_to_ns(msg.header.stamp), log_ns, msg.name, msg.position, msg.velocity
@@ -181,35 +193,53 @@ def iter_joint_states(
     window: int = REORDER_WINDOW,
     jump_back_ns: int = 1_000_000_000,
 ) -> Iterator[JointReading]:
-    """JointState readings of an open reader, in header stamp order, streaming.
+    """JointState readings of an open reader, in header stamp order, streaming."""
+    for item in iter_sensor_readings(reader, topic, None, passthrough, window, jump_back_ns):
+        assert isinstance(item, JointReading)  # no IMU topic asked for
+        yield item
 
-    A stamp more than ``jump_back_ns`` behind the newest one seen is a new run (a bag
-    recorded from a looped play, a restarted simulation): everything before it comes
-    out first, so two runs are never merged by the reordering.
 
-    With ``passthrough``, every message of the bag (JointState included) is also handed
-    to it raw, in log time order, interleaved with the readings (``replay
-    --keep-input`` copies them).
+def iter_sensor_readings(
+    reader: AnyReader,
+    topic: str = "/joint_states",
+    imu_topic: str | None = None,
+    passthrough: Passthrough | None = None,
+    window: int = REORDER_WINDOW,
+    jump_back_ns: int = 1_000_000_000,
+) -> Iterator[JointReading | ImuSample]:
+    """JointState readings (and Imu samples of ``imu_topic``) by header stamp, streaming.
+
+    Both go through one reordering by stamp, so a wheel reading comes after the gyro
+    samples up to its stamp. A stamp more than ``jump_back_ns`` behind the newest seen
+    is a new run (a looped play, a restarted simulation): everything before it comes
+    out first, so two runs are never merged. With ``passthrough``, every message of the
+    bag is also handed to it raw, in log time order (``replay --keep-input``).
     """
     joints = connections_for(reader, topic, (JOINT_STATE,))
-    conns = reader.connections if passthrough is not None else joints
-    joint_ids = {id(c) for c in joints}
+    imus = [] if imu_topic is None else connections_for(reader, imu_topic, (IMU,))
+    conns = reader.connections if passthrough is not None else joints + imus
+    joint_ids, imu_ids = {id(c) for c in joints}, {id(c) for c in imus}
     decode = _JointStates(reader)
-    heap: list[tuple[int, int, JointReading]] = []
+    heap: list[tuple[int, int, JointReading | ImuSample]] = []
     order = itertools.count()
     newest: int | None = None
     for conn, log_ns, raw in reader.messages(connections=conns):
+        item: JointReading | ImuSample
         if passthrough is not None:
             passthrough(conn, log_ns, raw)
-            if id(conn) not in joint_ids:
-                continue
-        reading = decode(raw, conn.msgtype, log_ns)
-        if newest is not None and reading.stamp_ns < newest - jump_back_ns:
+        if id(conn) in joint_ids:
+            item = decode(raw, conn.msgtype, log_ns)
+        elif id(conn) in imu_ids:
+            w = (msg := reader.deserialize(raw, conn.msgtype)).angular_velocity
+            item = ImuSample(stamp_to_ns(msg.header.stamp), log_ns, w.x, w.y, w.z)
+        else:
+            continue
+        if newest is not None and item.stamp_ns < newest - jump_back_ns:
             while heap:
                 yield heapq.heappop(heap)[2]
             newest = None
-        newest = reading.stamp_ns if newest is None else max(newest, reading.stamp_ns)
-        heapq.heappush(heap, (reading.stamp_ns, next(order), reading))
+        newest = item.stamp_ns if newest is None else max(newest, item.stamp_ns)
+        heapq.heappush(heap, (item.stamp_ns, next(order), item))
         if len(heap) > window:
             yield heapq.heappop(heap)[2]
     while heap:

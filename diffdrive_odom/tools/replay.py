@@ -28,7 +28,7 @@ import argparse
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -78,6 +78,7 @@ class ReplayStats:
     examples: dict[str, str] = field(default_factory=dict)
     refused: Counter[str] = field(default_factory=Counter)
     warnings: list[str] = field(default_factory=list)  # the pipeline's one-off warnings
+    notes: Counter[str] = field(default_factory=Counter)  # input mode / IMU switches
     final_pose: Pose2D = field(default_factory=Pose2D)
     final_stamp_ns: int | None = None
     seconds: float = 0.0
@@ -97,7 +98,21 @@ class ReplayStats:
             f"{self.readings} readings ({counts}) -> {self.published} poses in "
             f"{self.seconds:.2f} s ({rate:,.0f} readings/s); final pose x={p.x:.6f} m "
             f"y={p.y:.6f} m yaw={p.theta:.6f} rad"
-        )
+        ) + self._gyro_summary()
+
+    def _gyro_summary(self) -> str:
+        """The gyro's part of the summary line (``use_imu``), '' otherwise."""
+        g = self.pipeline.gyro
+        if g is None:
+            return ""
+        s = g.slips
+        dropped = sum(g.dropped.values())
+        last = "" if s.last_stamp_ns is None else (
+            f", last at {s.last_stamp_ns * 1e-9:.3f} s ({s.last_size:.4f} rad)")
+        return (f"; gyro: {g.samples} IMU samples ({dropped} dropped), {s.events} slip "
+                f"events over {s.steps} steps ({s.total_size:.4f} rad){last}, bias "
+                f"{g.bias:.6f} +- {g.bias_stddev:.6f} rad/s"
+                + (", IMU silent at the end" if g.silent else ""))
 
 
 def _stretch_out(stretch: fastlane.Stretch, sink: Callable[[Published], None]) -> None:
@@ -110,7 +125,7 @@ def _stretch_out(stretch: fastlane.Stretch, sink: Callable[[Published], None]) -
 
 
 def replay_readings(
-    readings: Iterable[bagio.JointReading],
+    readings: Iterable[bagio.JointReading | bagio.ImuSample],
     settings: OdometrySettings,
     sink: Callable[[Published], None] | None = None,
     fast: bool = True,
@@ -124,15 +139,26 @@ def replay_readings(
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,
     so nothing is built or checked (the estimator alone, as the benchmarks time it).
     """
+    from diffdrive_odom.tools import bagio  # rosbags: only where bags are read (plain install)
+
     pipe = ReadingPipeline(settings)
     est = pipe.estimator
     stats = ReplayStats()
     start = time.perf_counter()
     # The bag's log time is the receive time: the node's rules on stamps apply alike.
+    def one_by_one(
+        rs: Iterable[bagio.JointReading | bagio.ImuSample],
+    ) -> Iterator[tuple[bagio.JointReading, Outcome]]:
+        for r in rs:
+            if isinstance(r, bagio.ImuSample):  # use_imu: the gyro's samples, as the node's
+                pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz)
+                continue
+            yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
+
+    # With the gyro every step's heading is decided per reading: no lane in bulk.
     items: Iterable[tuple[bagio.JointReading, Outcome] | fastlane.Stretch] = (
-        fastlane.lanes(pipe, readings, chunk=fastlane.CHUNK) if fast
-        else ((r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns))
-              for r in readings))
+        fastlane.lanes(pipe, readings, chunk=fastlane.CHUNK)  # type: ignore[arg-type]
+        if fast and settings.gyro is None else one_by_one(readings))
     for item in items:
         if isinstance(item, fastlane.Stretch):
             stats.statuses[Status.UPDATED.value] += item.count
@@ -142,6 +168,8 @@ def replay_readings(
         r, outcome = item
         if outcome.warning:
             stats.warnings.append(outcome.warning)
+        if outcome.note:
+            stats.notes[outcome.note] += 1
         verdict = outcome.verdict
         stats.statuses[verdict.status.value] += 1
         if verdict.code not in (Reason.UPDATED, Reason.FIRST):
@@ -180,6 +208,8 @@ def _parser() -> argparse.ArgumentParser:
     add_param_arguments(ap, required=True, file_help="the node's ROS 2 params YAML "
                         "(required; repeatable, later files win)")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bag")
+    ap.add_argument("--imu-topic", default="/imu",
+                    help="Imu topic in the bag, read when the parameters set use_imu")
     ap.add_argument("-o", "--output", metavar="OUT_BAG",
                     help="output rosbag2 directory, must not exist (default: none)")
     ap.add_argument("--storage", choices=STORAGES, default="mcap",
@@ -288,6 +318,8 @@ def run_bag(args: argparse.Namespace) -> int:
     print(stats.summary())
     for warning in stats.warnings:
         print(f"{PREFIX} {warning}", file=sys.stderr)
+    for note, count in stats.notes.items():
+        print(f"{PREFIX} {count} x {note}", file=sys.stderr)
     for code, count in stats.reasons.most_common(5):
         print(f"  {count} x {code}: {stats.examples[code]}", file=sys.stderr)
     for reason, count in stats.refused.most_common():  # the node's warning, counted
@@ -332,6 +364,8 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
     with ExitStack() as stack:
         reader = stack.enter_context(bagio.open_bag(args.bag))
         total = bagio.count_messages(reader, args.topic)
+        if settings.gyro is not None:  # the IMU's samples pass through the progress too
+            total += bagio.count_messages(reader, args.imu_topic)
         writer = None
         if args.output:
             path = stack.enter_context(staged(args.output))
@@ -347,8 +381,8 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
                 writer.add_topic(args.tf_topic, bagio.TF_MESSAGE)
             if args.keep_input:
                 passthrough = sinks.keep_input(reader, writer, args.odom_topic)
-        readings: Iterable[bagio.JointReading] = bagio.iter_joint_states(
-            reader, args.topic, passthrough,
+        readings: Iterable[bagio.JointReading | bagio.ImuSample] = bagio.iter_sensor_readings(
+            reader, args.topic, None if settings.gyro is None else args.imu_topic, passthrough,
             jump_back_ns=int(settings.estimator.time_jump_threshold * 1e9))
         if progress.wanted(args.progress, total):
             readings = progress.progress(readings, total, PREFIX)
