@@ -98,6 +98,21 @@ def bulk_covariance(
     window: int, start: tuple[Matrix, Matrix, tuple[Matrix, ...]],
     steps: tuple[Array, Array, Array, Array, Array], before: Array, after: Array,
 ) -> tuple[Array, Matrix, Matrix, Array, tuple[Matrix, ...]] | None:
+    """:func:`_bulk_covariance` with numpy's overflow warnings off.
+
+    A covariance that overflows is an outcome here (None: not finite, refused as the
+    scalar path refuses its inf), not a fault.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _bulk_covariance(model, geometry, ticks_per_revolution, wheels_per_side,
+                                window, start, steps, before, after)
+
+
+def _bulk_covariance(
+    model: NoiseModel, geometry: Geometry, ticks_per_revolution: float, wheels_per_side: int,
+    window: int, start: tuple[Matrix, Matrix, tuple[Matrix, ...]],
+    steps: tuple[Array, Array, Array, Array, Array], before: Array, after: Array,
+) -> tuple[Array, Matrix, Matrix, Array, tuple[Matrix, ...]] | None:
     """What :class:`PoseUncertainty` holds and publishes after each of many steps.
 
     ``start``: ``(P, J, twist window)``; ``steps``: ``dt, ds, dtheta, d_left, d_right``;
