@@ -6,15 +6,13 @@ import math
 
 import pytest
 
+from diffdrive_odom.core.base_diagnostics import CommandHealth, CommandState, cmd_vel_report
 from diffdrive_odom.core.diagnostics import (
-    CommandHealth,
-    CommandState,
     Level,
     RateMeter,
     ReadingHealth,
     ReadingThresholds,
     Reporter,
-    cmd_vel_report,
     odometry_report,
 )
 from diffdrive_odom.core.kinematics import Geometry

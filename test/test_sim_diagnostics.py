@@ -11,7 +11,8 @@ import time
 import pytest
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.core.diagnostics import CommandState, Level, SimHealth, sim_report
+from diffdrive_odom.core.base_diagnostics import CommandState, SimHealth, sim_report
+from diffdrive_odom.core.diagnostics import Level
 
 import diagutil
 from diagutil import assert_finite

@@ -17,7 +17,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from enum import Enum, IntEnum
+from enum import IntEnum
 from typing import Generic, TypeVar
 
 from diffdrive_odom.core.pipeline import GyroStats
@@ -79,33 +79,36 @@ class RateMeter:
         return len(times) / span  # monotonic times: none is later than now
 
 
-def _seconds(value: float | None) -> str:
+def seconds_text(value: float | None) -> str:
+    """A time for a report: seconds with ms, or "never"."""
     return "never" if value is None else f"{value:.3f}"
 
 
-def _finite(value: float) -> float:
+def finite(value: float) -> float:
     """Reports never carry NaN/inf (a bad input must not poison the monitor)."""
     return value if math.isfinite(value) else 0.0
 
 
-def _since(now: Mapping[str, int], before: Mapping[str, int] | None) -> dict[str, int]:
+def increase_since(now: Mapping[str, int], before: Mapping[str, int] | None) -> dict[str, int]:
     """Per-key increase since the previous report (all of it at the first report)."""
     return {k: v - (before.get(k, 0) if before is not None else 0) for k, v in now.items()}
 
 
-def _counts(label: str, totals: Mapping[str, int], recent: Mapping[str, int]
+def count_values(label: str, totals: Mapping[str, int], recent: Mapping[str, int]
             ) -> list[tuple[str, str]]:
+    """A counter's report rows: its total, its increase, and each reason's total."""
     values = [(f"{label} (total)", str(sum(totals.values()))),
               (f"{label} since last report", str(sum(recent.values())))]
     values += [(f"{label}: {k}", str(v)) for k, v in totals.items()]
     return values
 
 
-def _by_reason(counts: Mapping[str, int]) -> str:
+def by_reason_text(counts: Mapping[str, int]) -> str:
+    """The non-zero counts of a report message, by reason."""
     return ", ".join(f"{k} {v}" for k, v in counts.items() if v)
 
 
-def _verdict(problems: list[tuple[Level, str]], ok_message: str) -> tuple[Level, str]:
+def worst_verdict(problems: list[tuple[Level, str]], ok_message: str) -> tuple[Level, str]:
     """The worst level; the message lists the problems, worst first."""
     if not problems:
         return Level.OK, ok_message
@@ -185,10 +188,10 @@ def odometry_report(
         problems.append((Level.ERROR, f"no reading for {since:.1f} s"))
     elif since >= t.stale_after_s:
         problems.append((Level.WARN, f"stale: no reading for {since:.2f} s"))
-    dropped = _since(now.dropped, before.dropped if before else None)
+    dropped = increase_since(now.dropped, before.dropped if before else None)
     if any(dropped.values()):
         problems.append((Level.WARN, f"dropped {sum(dropped.values())} readings "
-                                     f"({_by_reason(dropped)})"))
+                                     f"({by_reason_text(dropped)})"))
     def recent(count: Callable[[ReadingHealth], int]) -> int:
         return count(now) - (count(before) if before is not None else 0)
 
@@ -207,11 +210,11 @@ def odometry_report(
     else:
         ok = "integrating wheel velocities" if now.velocity_fallback else "integrating"
         ok += ", gyro-aided" if now.gyro is not None else ""
-    level, message = _verdict(problems, ok)
+    level, message = worst_verdict(problems, ok)
     values = [
-        ("reading rate [Hz]", f"{_finite(now.reading_rate_hz):.1f}"),
-        ("last reading [s ago]", _seconds(since)),
-        *_counts("dropped", now.dropped, dropped),
+        ("reading rate [Hz]", f"{finite(now.reading_rate_hz):.1f}"),
+        ("last reading [s ago]", seconds_text(since)),
+        *count_values("dropped", now.dropped, dropped),
         ("re-anchors (implausible step)", str(now.reanchors)),
         ("re-anchors after a gap", str(now.gap_reanchors)),
         ("time resets", str(now.time_resets)),
@@ -233,223 +236,22 @@ def _gyro(now: GyroStats | None, before: GyroStats | None,
         return []
     if now.silent:
         problems.append((Level.WARN, "IMU silent: wheels only"))
-    dropped = _since(now.dropped, before.dropped if before else None)
+    dropped = increase_since(now.dropped, before.dropped if before else None)
     if any(dropped.values()):
         problems.append((Level.WARN, f"dropped {sum(dropped.values())} IMU samples "
-                                     f"({_by_reason(dropped)})"))
+                                     f"({by_reason_text(dropped)})"))
     s = now.slips
     last = "never" if s.last_stamp_ns is None else f"{s.last_stamp_ns * 1e-9:.3f}"
     return [
         ("imu", "silent (wheels only)" if now.silent else "gyro-aided"),
         ("imu samples", str(now.samples)),
-        *_counts("imu dropped", now.dropped, dropped),
+        *count_values("imu dropped", now.dropped, dropped),
         ("slip events", str(s.events)),
         ("slip steps", str(s.steps)),
         ("last slip [stamp s]", last),
-        ("last slip size [rad]", f"{_finite(s.last_size):.6f}"),
-        ("slip heading total [rad]", f"{_finite(s.total_size):.6f}"),
-        ("gyro bias [rad/s]", f"{_finite(now.bias):.6g}"),
-        ("gyro bias stddev [rad/s]", f"{_finite(now.bias_stddev):.6g}"),
+        ("last slip size [rad]", f"{finite(s.last_size):.6f}"),
+        ("slip heading total [rad]", f"{finite(s.total_size):.6f}"),
+        ("gyro bias [rad/s]", f"{finite(now.bias):.6g}"),
+        ("gyro bias stddev [rad/s]", f"{finite(now.bias_stddev):.6g}"),
         ("zero-velocity updates", str(now.zero_velocity_updates)),
     ]
-
-
-# --- cmd_vel_node --------------------------------------------------------------------
-
-
-class CommandState(Enum):
-    """What the watchdog lets through: the values are what the report shows."""
-
-    NEVER = "never commanded"
-    COMMANDING = "commanding"
-    TIMED_OUT = "timed out"
-
-
-@dataclass(frozen=True)
-class CommandHealth:
-    """A snapshot of the cmd_vel node; counters are cumulative since the start.
-
-    ``limited`` counts the commands whose following was changed by each limit (a
-    command counts once per limit); ``dropped`` the commands refused, by reason
-    ("non_finite", "stale_stamp", "implausible"). ``last_command_moving`` says whether the last
-    accepted command asked for motion: a watchdog stop then means the sender went
-    silent mid-motion.
-    """
-
-    state: CommandState
-    command_age_s: float | None
-    last_command_moving: bool
-    limited: Mapping[str, int]
-    dropped: Mapping[str, int]
-    command_rate_hz: float
-    output_rate_hz: float
-    expected_output_hz: float
-    timeout_s: float
-
-
-# Below this fraction of wheel_command_rate the heartbeat drivers watch is late.
-MIN_OUTPUT_FRACTION = 0.5
-
-
-def cmd_vel_report(now: CommandHealth, before: CommandHealth | None = None) -> Report:
-    """The cmd_vel node's health; ``before`` is the previous report's snapshot."""
-    problems: list[tuple[Level, str]] = []
-    if now.state is CommandState.TIMED_OUT and now.last_command_moving:
-        problems.append((Level.WARN, f"stopped by the watchdog: no command for "
-                                     f"{_finite(now.command_age_s or 0.0):.1f} s while moving"))
-    dropped = _since(now.dropped, before.dropped if before else None)
-    if any(dropped.values()):
-        problems.append((Level.WARN, f"dropped {sum(dropped.values())} commands "
-                                     f"({_by_reason(dropped)})"))
-    out_rate = _finite(now.output_rate_hz)
-    if out_rate < MIN_OUTPUT_FRACTION * now.expected_output_hz:
-        problems.append((Level.WARN, f"wheel commands at {out_rate:.1f} Hz, "
-                                     f"expected {now.expected_output_hz:g} Hz"))
-    limited = _since(now.limited, before.limited if before else None)
-    if now.state is CommandState.COMMANDING:
-        ok = "commanding" + (f" (limited: {_by_reason(limited)})" if any(limited.values())
-                             else "")
-    elif now.state is CommandState.TIMED_OUT:
-        ok = "idle: timed out, publishing zeros"
-    else:
-        ok = "never commanded: publishing zeros"
-    level, message = _verdict(problems, ok)
-    values = [
-        ("state", now.state.value),
-        ("command age [s]", _seconds(None if now.command_age_s is None
-                                     else _finite(now.command_age_s))),
-        ("cmd_vel_timeout [s]", f"{now.timeout_s:g}"),
-        ("last command moving", "true" if now.last_command_moving else "false"),
-        ("command rate [Hz]", f"{_finite(now.command_rate_hz):.1f}"),
-        ("output rate [Hz]", f"{out_rate:.1f}"),
-        ("expected output rate [Hz]", f"{now.expected_output_hz:g}"),
-        *_counts("limited", now.limited, limited),
-        *_counts("dropped", now.dropped, dropped),
-    ]
-    return Report(level, message, tuple(values))
-
-
-# --- path_follower_node --------------------------------------------------------------
-
-
-class FollowerState(Enum):
-    """What the path follower is doing: the values are what the report shows."""
-
-    NO_PATH = "no path"
-    WAITING = "waiting for odometry"
-    FOLLOWING = "following"
-    DONE = "done"
-
-
-@dataclass(frozen=True)
-class FollowerHealth:
-    """A snapshot of the path follower; counters are cumulative since the start.
-
-    ``dropped`` counts refused input by reason ("non_finite_odom", "bad_path",
-    "path_frame"); ``near_singular`` and ``limited`` the control steps where the law
-    had to be bounded (heading across the path, omega clipped).
-    """
-
-    state: FollowerState
-    odom_age_s: float | None
-    cross_track_error_m: float
-    progress_m: float
-    path_length_m: float
-    speed_error_mps: float
-    dropped: Mapping[str, int]
-    near_singular: int
-    limited: int
-    stale_after_s: float = 0.5
-
-
-def follower_report(now: FollowerHealth, before: FollowerHealth | None = None) -> Report:
-    """The path follower's health; ``before`` is the previous report's snapshot."""
-    problems: list[tuple[Level, str]] = []
-    age = now.odom_age_s
-    if now.state is FollowerState.FOLLOWING and age is not None and age >= now.stale_after_s:
-        problems.append((Level.WARN, f"no odometry for {_finite(age):.2f} s while following"))
-    dropped = _since(now.dropped, before.dropped if before else None)
-    if any(dropped.values()):
-        problems.append((Level.WARN, f"dropped {sum(dropped.values())} messages "
-                                     f"({_by_reason(dropped)})"))
-    singular = now.near_singular - (before.near_singular if before else 0)
-    if singular:
-        problems.append((Level.WARN, f"{singular} steps heading across the path "
-                                     "(law bounded)"))
-    ok = now.state.value
-    if now.state is FollowerState.FOLLOWING:
-        ok += f": cross-track {_finite(now.cross_track_error_m):+.3f} m"
-    level, message = _verdict(problems, ok)
-    length = now.path_length_m
-    values = [
-        ("state", now.state.value),
-        ("odometry age [s]", _seconds(None if age is None else _finite(age))),
-        ("cross-track error [m]", f"{_finite(now.cross_track_error_m):.4f}"),
-        ("progress [m]", f"{_finite(now.progress_m):.3f}"),
-        ("path length [m]", "endless" if math.isinf(length) else f"{_finite(length):.3f}"),
-        ("speed error [m/s]", f"{_finite(now.speed_error_mps):.4f}"),
-        ("steps near singular (total)", str(now.near_singular)),
-        ("steps omega limited (total)", str(now.limited)),
-        *_counts("dropped", now.dropped, dropped),
-    ]
-    return Report(level, message, tuple(values))
-
-
-# --- sim_node ------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class SimHealth:
-    """A snapshot of the simulated base; counters are cumulative since the start.
-
-    ``command_age_s`` is in simulated seconds (the sim's watchdog runs on its own time);
-    ``step_rate_hz`` counts the joint_states published per wall second against
-    ``expected_step_hz`` (``joint_state_rate``, times ``real_time_factor`` when the sim
-    owns the clock): a machine too slow for the asked real-time factor shows there.
-    ``dropped`` counts the wheel commands refused, by reason.
-    """
-
-    state: CommandState
-    command_age_s: float | None
-    last_command_moving: bool
-    command_rate_hz: float
-    step_rate_hz: float
-    expected_step_hz: float
-    timeout_s: float
-    sim_time_s: float
-    distance_m: float
-    dropped: Mapping[str, int]
-
-
-def sim_report(now: SimHealth, before: SimHealth | None = None) -> Report:
-    """The simulated base's health; ``before`` is the previous report's snapshot."""
-    problems: list[tuple[Level, str]] = []
-    if now.state is CommandState.TIMED_OUT and now.last_command_moving:
-        problems.append((Level.WARN, "stopped by the watchdog: no wheel command for "
-                                     f"{_finite(now.command_age_s or 0.0):.1f} s while moving"))
-    dropped = _since(now.dropped, before.dropped if before else None)
-    if any(dropped.values()):
-        problems.append((Level.WARN, f"dropped {sum(dropped.values())} wheel commands "
-                                     f"({_by_reason(dropped)})"))
-    step_rate = _finite(now.step_rate_hz)
-    if step_rate < MIN_OUTPUT_FRACTION * now.expected_step_hz:
-        problems.append((Level.WARN, f"simulating at {step_rate:.1f} steps/s, expected "
-                                     f"{now.expected_step_hz:g} (too slow for the asked rate)"))
-    ok = {CommandState.NEVER: "idle: never commanded",
-          CommandState.COMMANDING: "following wheel commands",
-          CommandState.TIMED_OUT: "idle: wheel commands timed out, wheels stopped"}[now.state]
-    level, message = _verdict(problems, ok)
-    values = [
-        ("state", now.state.value),
-        ("command age [s]", _seconds(None if now.command_age_s is None
-                                     else _finite(now.command_age_s))),
-        ("command_timeout [s]", f"{now.timeout_s:g}"),
-        ("last command moving", "true" if now.last_command_moving else "false"),
-        ("command rate [Hz]", f"{_finite(now.command_rate_hz):.1f}"),
-        ("step rate [Hz]", f"{step_rate:.1f}"),
-        ("expected step rate [Hz]", f"{now.expected_step_hz:g}"),
-        ("simulated time [s]", f"{_finite(now.sim_time_s):.3f}"),
-        ("distance [m]", f"{_finite(now.distance_m):.3f}"),
-        *_counts("dropped", now.dropped, dropped),
-    ]
-    return Report(level, message, tuple(values))

@@ -35,8 +35,8 @@ import numpy.typing as npt
 
 from diffdrive_odom.core.integration import sinc_derivative_array
 from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.mat3 import Matrix
 from diffdrive_odom.core.uncertainty import (
-    Matrix,
     NoiseModel,
     quantization_variance,
     wheel_jacobian,

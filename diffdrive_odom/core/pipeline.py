@@ -31,9 +31,9 @@ from diffdrive_odom.core.estimator import (
 from diffdrive_odom.core.gyro import GyroConfig, GyroHeading, SlipStats
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.mat3 import Matrix
 from diffdrive_odom.core.stamps import ClockOffsetCheck, StampSource
 from diffdrive_odom.core.uncertainty import (
-    Matrix,
     NoiseModel,
     pose_message_covariance,
     twist_message_covariance,

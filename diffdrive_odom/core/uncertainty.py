@@ -69,8 +69,18 @@ from itertools import islice
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.integration import Pose2D, compose_jacobians
 from diffdrive_odom.core.kinematics import Geometry, body_increment
-
-Matrix = tuple[tuple[float, ...], ...]
+from diffdrive_odom.core.mat3 import (
+    Matrix,
+    add3,
+    congruence3,
+    outer3,
+    rotate_sensitivity,
+    symmetric,
+    times2x2,
+    times_vec,
+    wheel_noise2,
+    wheel_noise3,
+)
 
 UNOBSERVED_VARIANCE = 1.0e6
 # Defaults for an uncalibrated robot: wheel-travel noise k [m] (a side's arc off by 1 mm,
@@ -138,96 +148,6 @@ class GyroStep:
     slip: bool
 
 
-def _outer3(u: Sequence[float], scale: float) -> Matrix:
-    """``scale u u^T`` for a 3-vector."""
-    u0, u1, u2 = u[0] * scale, u[1] * scale, u[2] * scale
-    return _symmetric(u0 * u[0], u0 * u[1], u0 * u[2], u1 * u[1], u1 * u[2], u2 * u[2])
-
-
-def _times_vec(a: Matrix, v: tuple[float, float]) -> tuple[float, float, float]:
-    """``A v`` for a 3x2 ``A``."""
-    return (a[0][0] * v[0] + a[0][1] * v[1], a[1][0] * v[0] + a[1][1] * v[1],
-            a[2][0] * v[0] + a[2][1] * v[1])
-
-
-def _rotate_sensitivity(f_pose: Matrix, j: tuple[float, float, float]
-                        ) -> tuple[float, float, float]:
-    """``F_pose j`` for ``F_pose = [[1, 0, a], [0, 1, b], [0, 0, 1]]``."""
-    return (j[0] + f_pose[0][2] * j[2], j[1] + f_pose[1][2] * j[2], j[2])
-
-
-def _add3(a: Matrix, b: Matrix) -> Matrix:
-    """``A + B`` for 3x3 matrices (written out, as :func:`_congruence3`)."""
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
-    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
-    return ((a00 + b00, a01 + b01, a02 + b02),
-            (a10 + b10, a11 + b11, a12 + b12),
-            (a20 + b20, a21 + b21, a22 + b22))
-
-
-def _times2x2(a: Matrix, b: Matrix) -> Matrix:
-    """``A B`` for a 3x2 ``A`` and a 2x2 ``B``."""
-    (a00, a01), (a10, a11), (a20, a21) = a
-    (b00, b01), (b10, b11) = b
-    return ((a00 * b00 + a01 * b10, a00 * b01 + a01 * b11),
-            (a10 * b00 + a11 * b10, a10 * b01 + a11 * b11),
-            (a20 * b00 + a21 * b10, a20 * b01 + a21 * b11))
-
-
-def _symmetric(m00: float, m01: float, m02: float, m11: float, m12: float,
-               m22: float) -> Matrix:
-    return ((m00, m01, m02), (m01, m11, m12), (m02, m12, m22))
-
-
-def _congruence3(j: Matrix, m: Matrix) -> Matrix:
-    """``J M J^T`` for 3x3 ``J`` and symmetric ``M``, symmetric by construction.
-
-    Written out: it runs once per reading, and on 3x3 matrices numpy's or a loop's
-    overhead costs several times the arithmetic.
-    """
-    (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = j
-    (m00, m01, m02), (_, m11, m12), (_, _, m22) = m
-    # rows of J M
-    a00 = j00 * m00 + j01 * m01 + j02 * m02
-    a01 = j00 * m01 + j01 * m11 + j02 * m12
-    a02 = j00 * m02 + j01 * m12 + j02 * m22
-    a10 = j10 * m00 + j11 * m01 + j12 * m02
-    a11 = j10 * m01 + j11 * m11 + j12 * m12
-    a12 = j10 * m02 + j11 * m12 + j12 * m22
-    a20 = j20 * m00 + j21 * m01 + j22 * m02
-    a21 = j20 * m01 + j21 * m11 + j22 * m12
-    a22 = j20 * m02 + j21 * m12 + j22 * m22
-    return _symmetric(
-        a00 * j00 + a01 * j01 + a02 * j02,
-        a00 * j10 + a01 * j11 + a02 * j12,
-        a00 * j20 + a01 * j21 + a02 * j22,
-        a10 * j10 + a11 * j11 + a12 * j12,
-        a10 * j20 + a11 * j21 + a12 * j22,
-        a20 * j20 + a21 * j21 + a22 * j22,
-    )
-
-
-def _wheel_noise3(g: Matrix, var_l: float, var_r: float) -> Matrix:
-    """``G diag(var_l, var_r) G^T`` for a 3x2 ``G``."""
-    (g00, g01), (g10, g11), (g20, g21) = g
-    return _symmetric(
-        g00 * g00 * var_l + g01 * g01 * var_r,
-        g00 * g10 * var_l + g01 * g11 * var_r,
-        g00 * g20 * var_l + g01 * g21 * var_r,
-        g10 * g10 * var_l + g11 * g11 * var_r,
-        g10 * g20 * var_l + g11 * g21 * var_r,
-        g20 * g20 * var_l + g21 * g21 * var_r,
-    )
-
-
-def _wheel_noise2(b: Matrix, var_l: float, var_r: float) -> Matrix:
-    """``B diag(var_l, var_r) B^T`` for a 2x2 ``B``."""
-    (b00, b01), (b10, b11) = b
-    cross = b00 * b10 * var_l + b01 * b11 * var_r
-    return ((b00 * b00 * var_l + b01 * b01 * var_r, cross),
-            (cross, b10 * b10 * var_l + b11 * b11 * var_r))
-
-
 def _sensitivity_step(j: Matrix, f_pose: Matrix, f_step: Matrix, ds: float, dtheta: float,
                       separation: float) -> Matrix:
     """``F_pose J + F_step G``: the pose's sensitivity to the relative geometry errors."""
@@ -249,7 +169,7 @@ def geometry_term(j: Matrix, radius_ratio: float, separation_ratio: float) -> Ma
     """``J S J^T`` with ``S = diag(radius_ratio^2, radius_ratio^2, separation_ratio^2)``."""
     vr, vb = radius_ratio * radius_ratio, separation_ratio * separation_ratio
     (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = j
-    return _symmetric(
+    return symmetric(
         vr * (j00 * j00 + j01 * j01) + vb * j02 * j02,
         vr * (j00 * j10 + j01 * j11) + vb * j02 * j12,
         vr * (j00 * j20 + j01 * j21) + vb * j02 * j22,
@@ -366,16 +286,16 @@ class PoseUncertainty:
         f_pose, f_step = compose_jacobians(pose_before, ds, dtheta)
         b = self._wheel_jacobian(geometry)
         var_l, var_r = joint_variances(self.model, geometry, d_left, d_right)
-        self.covariance = _add3(
-            _congruence3(f_pose, self.covariance), _wheel_noise3(_times2x2(f_step, b), var_l, var_r)
+        self.covariance = add3(
+            congruence3(f_pose, self.covariance), wheel_noise3(times2x2(f_step, b), var_l, var_r)
         )
         self.sensitivity = _sensitivity_step(self.sensitivity, f_pose, f_step, ds, dtheta,
                                              geometry.separation)
         if self.bias_sensitivity is not ZERO_VEC:
-            self.bias_sensitivity = _rotate_sensitivity(f_pose, self.bias_sensitivity)
+            self.bias_sensitivity = rotate_sensitivity(f_pose, self.bias_sensitivity)
         q = 2.0 * self._quantum  # the step's two readings
         scale = 1.0 / (dt * dt)
-        self._rates.append(_wheel_noise2(b, (var_l + q) * scale, (var_r + q) * scale))
+        self._rates.append(wheel_noise2(b, (var_l + q) * scale, (var_r + q) * scale))
 
     def propagate_gyro(
         self,
@@ -397,16 +317,16 @@ class PoseUncertainty:
         """
         if bias_variance < self.bias_variance:
             jb = self.bias_sensitivity
-            self.covariance = _add3(self.covariance, _outer3(jb, self.bias_variance))
+            self.covariance = add3(self.covariance, outer3(jb, self.bias_variance))
             self.bias_sensitivity = ZERO_VEC
         self.bias_variance = bias_variance
         f_pose, f_step = compose_jacobians(pose_before, step.ds, step.dtheta)
         var_l, var_r = joint_variances(self.model, geometry, d_left, d_right)
-        fc = _times_vec(f_step, step.c)
-        self.covariance = _add3(
-            _add3(_congruence3(f_pose, self.covariance),
-                  _wheel_noise3(_times2x2(f_step, step.b), var_l, var_r)),
-            _outer3(fc, step.var_gyro))
+        fc = times_vec(f_step, step.c)
+        self.covariance = add3(
+            add3(congruence3(f_pose, self.covariance),
+                  wheel_noise3(times2x2(f_step, step.b), var_l, var_r)),
+            outer3(fc, step.var_gyro))
         (j0, j1, j2), ((g00, g01, g02), (g10, g11, g12)) = self.sensitivity, step.geometry
         a, b = f_pose[0][2], f_pose[1][2]
         (f00, f01), (f10, f11), (_, f21) = f_step
@@ -416,13 +336,13 @@ class PoseUncertainty:
             (j1[0] + b * j2[0] + f10 * g00 + f11 * g10, j1[1] + b * j2[1] + f10 * g01 + f11 * g11,
              j1[2] + b * j2[2] + f10 * g02 + f11 * g12),
             (j2[0] + f21 * g10, j2[1] + f21 * g11, j2[2] + f21 * g12))
-        jb = _rotate_sensitivity(f_pose, self.bias_sensitivity)
+        jb = rotate_sensitivity(f_pose, self.bias_sensitivity)
         self.bias_sensitivity = (jb[0] + step.dt * fc[0], jb[1] + step.dt * fc[1],
                                  jb[2] + step.dt * fc[2])
         q = 2.0 * self._quantum
         scale = 1.0 / (step.dt * step.dt)
         (c0, c1) = step.c
-        (t00, t01), (_, t11) = _wheel_noise2(step.b, (var_l + q) * scale, (var_r + q) * scale)
+        (t00, t01), (_, t11) = wheel_noise2(step.b, (var_l + q) * scale, (var_r + q) * scale)
         vg = step.var_gyro * scale + bias_variance
         self._rates.append(((t00 + c0 * c0 * vg, t01 + c0 * c1 * vg),
                             (t01 + c0 * c1 * vg, t11 + c1 * c1 * vg)))
@@ -438,17 +358,17 @@ class PoseUncertainty:
         model = self.model
         cov = self.covariance
         if model.radius_stddev_ratio or model.separation_stddev_ratio:
-            cov = _add3(cov, geometry_term(self.sensitivity, model.radius_stddev_ratio,
+            cov = add3(cov, geometry_term(self.sensitivity, model.radius_stddev_ratio,
                                            model.separation_stddev_ratio))
         if self.bias_sensitivity is not ZERO_VEC:
             jb = self.bias_sensitivity
-            cov = _add3(cov, _outer3(jb, self.bias_variance))
+            cov = add3(cov, outer3(jb, self.bias_variance))
         if self._quantum == 0.0:
             return cov
         _, at_heading = compose_jacobians(Pose2D(0.0, 0.0, pose.theta), 0.0, 0.0)
-        w = _times2x2(at_heading, self._wheel_jacobian(geometry))
+        w = times2x2(at_heading, self._wheel_jacobian(geometry))
         q = 2.0 * self._quantum  # the reference and the current reading
-        return _add3(cov, _wheel_noise3(w, q, q))
+        return add3(cov, wheel_noise3(w, q, q))
 
     def twist_covariance(self) -> Matrix:
         """Covariance of the rolling-mean twist (vx, wz); zero before a step is integrated."""

@@ -20,16 +20,10 @@ from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from diffdrive_odom.core.base_diagnostics import CommandHealth, CommandState, cmd_vel_report
 from diffdrive_odom.core.cmd_vel_pipeline import CommandPipeline, Tick
 from diffdrive_odom.core.conversions import stamp_to_ns
-from diffdrive_odom.core.diagnostics import (
-    CommandHealth,
-    CommandState,
-    RateMeter,
-    Report,
-    Reporter,
-    cmd_vel_report,
-)
+from diffdrive_odom.core.diagnostics import RateMeter, Report, Reporter
 from diffdrive_odom.core.throttle import WARN_THROTTLE_S, KeyedThrottle
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare

@@ -21,14 +21,9 @@ from rclpy.clock_type import ClockType
 from rclpy.node import Node
 from std_msgs.msg import Bool, Float64
 
+from diffdrive_odom.core.base_diagnostics import FollowerHealth, FollowerState, follower_report
 from diffdrive_odom.core.conversions import quaternion_to_yaw, stamp_to_ns
-from diffdrive_odom.core.diagnostics import (
-    FollowerHealth,
-    FollowerState,
-    Report,
-    Reporter,
-    follower_report,
-)
+from diffdrive_odom.core.diagnostics import Report, Reporter
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.path_following import Command, PathFollower

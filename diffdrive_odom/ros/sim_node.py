@@ -15,7 +15,7 @@ agree. A slow machine then slows the simulated world down instead of making it
 jerky: every step is exactly ``1 / joint_state_rate`` simulated seconds.
 
 Like the other nodes it reports its health on ``/diagnostics`` (status
-"sim_node: simulation", :func:`diffdrive_odom.core.diagnostics.sim_report`): the step
+"sim_node: simulation", :func:`diffdrive_odom.core.base_diagnostics.sim_report`): the step
 and command rates, the age of the last wheel command and the watchdog's state, the
 wheel commands it refused.
 """
@@ -34,16 +34,10 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray
 
+from diffdrive_odom.core.base_diagnostics import CommandState, SimHealth, sim_report
 from diffdrive_odom.core.cmd_vel_pipeline import JOINT_STATE, TICKS_PER_SECOND
 from diffdrive_odom.core.conversions import ns_to_stamp, yaw_to_quaternion
-from diffdrive_odom.core.diagnostics import (
-    CommandState,
-    RateMeter,
-    Report,
-    Reporter,
-    SimHealth,
-    sim_report,
-)
+from diffdrive_odom.core.diagnostics import RateMeter, Report, Reporter
 from diffdrive_odom.core.encoders import EncoderConfig, JointLookup
 from diffdrive_odom.core.sim import TWO_PI, DiffDriveSim
 from diffdrive_odom.core.throttle import WARN_THROTTLE_S
