@@ -14,9 +14,8 @@ fitting loop. The step's math stays in those two functions.
 from __future__ import annotations
 
 from array import array
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -32,24 +31,6 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 
-class Reading(Protocol):
-    """One JointState as the estimator takes it (``bagio.JointReading`` is one)."""
-
-    @property
-    def stamp_ns(self) -> int:
-        """Header stamp (measurement time) [ns]."""
-
-    @property
-    def names(self) -> Sequence[str]:
-        """Joint names, in the order of the arrays."""
-
-    @property
-    def position(self) -> Sequence[float]:
-        """Joint angles [rad] (may be empty: velocities are integrated instead)."""
-
-    @property
-    def velocity(self) -> Sequence[float]:
-        """Joint rates [rad/s]."""
 
 
 @dataclass(frozen=True)
@@ -72,7 +53,7 @@ class WheelSteps:
         return len(self.dt)
 
 
-def wheel_steps(readings: Iterable[Reading], settings: OdometrySettings) -> WheelSteps:
+def wheel_steps(readings: Iterable[fastlane.Reading], settings: OdometrySettings) -> WheelSteps:
     """Decode readings once into the steps the estimator integrates (as the pipeline decides)."""
     pipe = ReadingPipeline(settings)
     est = pipe.estimator

@@ -54,23 +54,26 @@ MARGIN = 1.0 - 1e-9  # the plausibility limits, tightened: borderline steps go t
 
 
 class Reading(Protocol):
-    """One JointState (``bagio.JointReading`` is one; its ``log_ns`` is the receive time)."""
+    """One JointState as the estimator takes it (``bagio.JointReading`` is one).
+
+    Replay's readings also carry ``log_ns``, the receive time (read where present).
+    """
 
     @property
     def stamp_ns(self) -> int:
-        """Header stamp [ns]."""
+        """Header stamp (measurement time) [ns]."""
 
     @property
     def names(self) -> Sequence[str]:
-        """Joint names."""
+        """Joint names, in the order of the arrays."""
 
     @property
     def position(self) -> Sequence[float]:
-        """Joint positions."""
+        """Joint angles [rad] (may be empty: velocities are integrated instead)."""
 
     @property
     def velocity(self) -> Sequence[float]:
-        """Joint velocities."""
+        """Joint rates [rad/s]."""
 
 
 R = TypeVar("R", bound=Reading)

@@ -49,7 +49,7 @@ LABELS = {
 
 
 class JointSample(NamedTuple):
-    """One recorded JointState, as the batch path reads it (``batch.Reading``)."""
+    """One recorded JointState, as the batch path reads it (``fastlane.Reading``)."""
 
     stamp_ns: int
     names: tuple[str, ...]
