@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from types import FrameType
 
 from diffdrive_odom.core import routes
 from diffdrive_odom.tools.cli import HelpFormatter, invocation
 
+from . import interrupts
 from .settings import DEFAULT_PARAMS, PROGRAM, ROUTES, DemoError, DemoOptions, parse_override
 
 SHORT_SIDE = 1.0
@@ -54,10 +53,6 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _on_sigterm(signum: int, frame: FrameType | None) -> None:
-    raise KeyboardInterrupt
-
-
 def options(args: argparse.Namespace) -> DemoOptions:
     """The parsed command line as run options (DemoError for a bad one)."""
     route = "umbmark" if args.short else args.route
@@ -76,7 +71,6 @@ def options(args: argparse.Namespace) -> DemoOptions:
 def main(argv: Sequence[str] | None = None) -> int:
     """``diffdrive-odom demo``: 0 on success, 1 if the run failed, 2 on bad options."""
     args = _parser().parse_args(list(sys.argv[1:] if argv is None else argv))
-    from .loop import run
     from .settings import check_options, load_settings
 
     try:
@@ -86,20 +80,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     except DemoError as err:
         print(f"[{PROGRAM}] {err}", file=sys.stderr)
         return 2
-    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    return _run(opts)
+
+
+def _run(opts: DemoOptions) -> int:
+    """The run itself: Ctrl-C or SIGTERM stop it cleanly (exit 130, every node stopped)."""
+    from .loop import run
+
     try:
-        kinds = " then ".join("CW" if cw else "CCW" for cw in opts.squares)
-        print(f"[{PROGRAM}] driving {opts.route} ({opts.side:g} m squares, {kinds}) with "
-              f"path_follower_node at {opts.speed:g} m/s, {opts.real_time_factor:g}x real "
-              "time...", flush=True)
-        result = run(opts)
+        with interrupts.handled():
+            kinds = " then ".join("CW" if cw else "CCW" for cw in opts.squares)
+            print(f"[{PROGRAM}] driving {opts.route} ({opts.side:g} m squares, {kinds}) with "
+                  f"path_follower_node at {opts.speed:g} m/s, {opts.real_time_factor:g}x "
+                  "real time...", flush=True)
+            result = run(opts)
     except DemoError as err:
         print(f"[{PROGRAM}] failed: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"[{PROGRAM}] interrupted; every node stopped", file=sys.stderr)
         return 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     print(result.table(invocation()))
     return 0

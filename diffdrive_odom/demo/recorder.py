@@ -28,6 +28,7 @@ from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.tools import bagio
 
+from . import interrupts
 from .report import ImuReading, JointSample, PoseSeries, Recording, Square
 from .settings import BAG_TOPICS, FOLLOWER
 
@@ -98,8 +99,12 @@ class Recorder:
         self.writer = None
 
     def spin_once(self, timeout: float) -> None:
-        """Handle what arrived (or wait up to ``timeout`` seconds)."""
-        self.executor.spin_once(timeout_sec=timeout)
+        """Handle what arrived (or wait up to ``timeout`` seconds).
+
+        A Ctrl-C meanwhile is raised once the spin is over (:mod:`.interrupts`).
+        """
+        with interrupts.deferred():
+            self.executor.spin_once(timeout_sec=timeout)
 
     def _on_clock(self, msg: ClockMsg) -> None:
         self.now_ns = stamp_to_ns(msg.clock)
