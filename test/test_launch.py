@@ -28,7 +28,6 @@ from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter_client import AsyncParameterClient
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -38,6 +37,7 @@ from rosutil import (
     STEP_NS,
     T0_NS,
     listen,
+    node_parameters,
     ros_test_node,
     send_first,
     spin_until,
@@ -284,14 +284,9 @@ def example_robot() -> tuple[float, float]:
 
 def get_parameters(node: Node, ex: SingleThreadedExecutor, target: str,
                    names: list[str]) -> list[Any]:
-    client = AsyncParameterClient(node, target)
-    assert client.wait_for_services(timeout_sec=20.0), f"{target} has no parameter services"
-    future = client.get_parameters(names)
-    assert spin_until(ex, future.done, 10.0)
-    result = future.result()
-    assert result is not None
-    values = [v.bool_value if v.type == 1 else v.double_value for v in result.values]
-    return values
+    """The values of ``names`` on ``target``, asked again until answered (rosutil)."""
+    values = node_parameters(node, ex, target, names)
+    return [values[n] for n in names]
 
 
 def check_odometry(node: Node, ex: SingleThreadedExecutor, joint_topic: str) -> None:
