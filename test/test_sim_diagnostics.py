@@ -16,7 +16,7 @@ from diffdrive_odom.core.diagnostics import Level
 
 import diagutil
 from diagutil import assert_finite
-from rosutil import spin_for, spin_until
+from rosutil import handshake, spin_for, spin_until
 
 NAME = "sim_node: simulation"
 
@@ -75,6 +75,8 @@ def test_sim_node_publishes_its_health_on_diagnostics() -> None:
         assert abs(float(steady.values["step rate [Hz]"]) - 50.0) < 10.0, steady.values
         pub = peer.node.create_publisher(Float64MultiArray, "wheel_commands", 10)
         assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0, 15.0)
+        # The sim must have matched our writer too before the one malformed command.
+        handshake(peer.node, peer.executor, "/sim_node")
         pub.publish(Float64MultiArray(data=[1.0, 1.0, 1.0]))  # three values for two wheels
         warned = peer.wait_for(lambda s: s.name == NAME and s.level == 1)
         assert warned.message == "dropped 1 wheel commands (bad_array 1)", warned
