@@ -85,6 +85,9 @@ def test_ticks_wrap_shuffled_names_sign_flip_and_nonzero_start() -> None:
         assert spin_until(
             ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom), 10.0
         ), f"no odom for the last reading ({len(sink.odom)} received)"
+        # /tf goes out right after odom, on its own topic: wait for it as well.
+        spin_until(ex, lambda: any(ns_of(t.header.stamp) == last_ns
+                                   for m in sink.tf for t in m.transforms), 10.0)
 
     s_left = r * steps * left_inc * 2 * math.pi / tpr
     s_right = r * steps * (-right_inc) * 2 * math.pi / tpr
