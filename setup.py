@@ -27,10 +27,10 @@ setup(
     install_requires=["setuptools", "numpy", "pyyaml"],
     extras_require={
         # The bag tools (replay, eval, calibrate, play) and the demo's report and plot.
-        "tools": ["rosbags", "matplotlib", "scipy"],
+        "tools": ["rosbags", "orjson", "matplotlib", "scipy"],
         # The test suite (`colcon test` runs it as pytest): the tools plus the test tools.
         "test": ["pytest", "pytest-timeout", "hypothesis", "mcap-ros2-support",
-                 "rosbags", "matplotlib", "scipy"],
+                 "rosbags", "orjson", "matplotlib", "scipy"],
         "fleet": ["dask[distributed]"],  # replay / eval --dask ADDRESS
     },
     zip_safe=True,

@@ -6,8 +6,9 @@ vectorised path next to the step-by-step estimator, in one run.
 Rows per bag (readings/s, higher is better; ratios against "rosbags decode"):
   read only        iterate the bag's raw JointState records (no deserialization)
   rosbags decode   every JointState deserialised by rosbags (the baseline)
-  decode only      JointState -> JointReading in stamp order, as replay reads them
-                   (the node's CDR decoder for rosbag2 bags, rosbags' for ROS 1)
+  decode only      JointState -> readings in stamp order, as replay reads them (runs
+                   of alike rosbag2 messages as blocks by numpy, else the node's CDR
+                   decoder; rosbags' for ROS 1)
   replay           decode + the node's reading pipeline (fast lane), nothing written
   replay -> bag    decode + pipeline + Odometry and /tf into an MCAP bag + CSV
 and, on the decoded readings held in memory:
@@ -42,6 +43,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from diffdrive_odom.core import batch  # noqa: E402
+from diffdrive_odom.core.readings import count  # noqa: E402
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings  # noqa: E402
 from diffdrive_odom.tools import bagio, replay, sinks  # noqa: E402
 
@@ -96,7 +98,7 @@ def _replay_to_bag(bag: Path, settings: OdometrySettings, out: Path) -> None:
     with bagio.BagWriter(out) as w, bagio.CsvWriter(out.with_suffix(".csv")) as table:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
-        replay.replay_readings(bagio.read_joint_states(bag), settings,
+        replay.replay_readings(bagio.read_joint_blocks(bag), settings,
                                sinks.output_sink(settings, w, table))
 
 
@@ -109,11 +111,11 @@ def _replay_to(bag: Path, settings: OdometrySettings, out: Path, *, to_bag: bool
         with bagio.BagWriter(out) as w:
             w.add_topic("/odom", bagio.ODOMETRY)
             w.add_topic("/tf", bagio.TF_MESSAGE)
-            replay.replay_readings(bagio.read_joint_states(bag), settings,
+            replay.replay_readings(bagio.read_joint_blocks(bag), settings,
                                    sinks.output_sink(settings, w, None), fast=fast)
     else:
         with bagio.CsvWriter(out.with_suffix(".csv")) as table:
-            replay.replay_readings(bagio.read_joint_states(bag), settings,
+            replay.replay_readings(bagio.read_joint_blocks(bag), settings,
                                    sinks.output_sink(settings, None, table), fast=fast)
 
 
@@ -152,9 +154,9 @@ def bench_bag(name: str, bag: Path, settings: OdometrySettings, tmp: Path) -> No
     rows.append(("read only", _best(lambda: _read_only(bag))))
     decode = _best(lambda: _rosbags_decode(bag))
     rows.append(("rosbags decode", decode))
-    rows.append(("decode only", _best(lambda: sum(1 for _ in bagio.read_joint_states(bag)))))
+    rows.append(("decode only", _best(lambda: sum(map(count, bagio.read_joint_blocks(bag))))))
     rows.append(("replay", _best(
-        lambda: replay.replay_readings(bagio.read_joint_states(bag), settings))))
+        lambda: replay.replay_readings(bagio.read_joint_blocks(bag), settings))))
     rows.append(("replay -> bag + csv", _best(
         lambda: _replay_to_bag(bag, settings, tmp / f"{name}_out"), repeat=2)))
     step = _best(lambda: replay.replay_readings(readings, settings, fast=False))

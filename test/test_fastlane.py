@@ -29,6 +29,7 @@ from diffdrive_odom.core.fastcov import bulk_covariance
 from diffdrive_odom.core.integration import Pose2D, compose
 from diffdrive_odom.core.kinematics import Geometry, body_increment
 from diffdrive_odom.core.pipeline import ReadingPipeline
+from diffdrive_odom.core.readings import JointBlock, JointReading
 from diffdrive_odom.core.uncertainty import NoiseModel, PoseUncertainty, pose_message_covariance
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
 from diffdrive_odom.tools import bagio, replay
@@ -169,6 +170,23 @@ def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
     fast: list[replay.Published] = []
     a = replay.replay_readings(readings, cfg, slow.append, fast=False)  # type: ignore[arg-type]
     b = replay.replay_readings(readings, cfg, fast.append, fast=True)  # type: ignore[arg-type]
+    _agree(a, b, slow, fast)
+    # The same stream with its alike runs as JointBlocks (as bagio.iter_joint_blocks
+    # gives them): the same again, though stretches now start elsewhere.
+    blocked: list[replay.Published] = []
+    _agree(a, replay.replay_readings(_blocks(readings, chunk), cfg, blocked.append, fast=True),
+           slow, blocked)
+    scalar, warned = _scalar_lane(readings, cfg, chunk)
+    pipe = ReadingPipeline(cfg)
+    assert warned == [(k, w) for k, r in enumerate(readings)
+                      if (w := pipe.feed(r.stamp_ns, r.names, r.position, r.velocity,
+                                         r.log_ns).warning)]  # named at the same reading
+    return b.readings - scalar
+
+
+def _agree(a: replay.ReplayStats, b: replay.ReplayStats, slow: list[replay.Published],
+           fast: list[replay.Published]) -> None:
+    """Replay ``b`` (and what it published) is replay ``a``'s, to the issue's bounds."""
     for field in ("readings", "published", "statuses", "reasons", "examples", "refused",
                   "warnings", "final_stamp_ns"):
         assert getattr(a, field) == getattr(b, field), field
@@ -188,12 +206,33 @@ def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
                        (s.twist_covariance, f.twist_covariance)):
             x, y = np.asarray(cs), np.asarray(cf)
             assert np.all(np.abs(x - y) <= 1e-9 * np.abs(x).max()), (x, y)
-    scalar, warned = _scalar_lane(readings, cfg, chunk)
-    pipe = ReadingPipeline(cfg)
-    assert warned == [(k, w) for k, r in enumerate(readings)
-                      if (w := pipe.feed(r.stamp_ns, r.names, r.position, r.velocity,
-                                         r.log_ns).warning)]  # named at the same reading
-    return b.readings - scalar
+
+
+def _blocks(readings: Sequence[Any], cut: int) -> list[JointReading | JointBlock]:
+    """Runs of readings alike in names and array lengths as blocks of up to ``cut + 3``."""
+    out: list[JointReading | JointBlock] = []
+    run: list[Any] = []
+
+    def close() -> None:
+        if len(run) > 1:
+            out.append(JointBlock(
+                np.array([r.stamp_ns for r in run], dtype=np.int64),
+                np.array([r.log_ns for r in run], dtype=np.int64), tuple(run[0].names),
+                np.array([r.position for r in run], dtype=np.float64).reshape(len(run), -1),
+                np.array([r.velocity for r in run], dtype=np.float64).reshape(len(run), -1)))
+        else:
+            out.extend(JointReading(r.stamp_ns, r.log_ns, tuple(r.names), tuple(r.position),
+                                    tuple(r.velocity)) for r in run)
+        run.clear()
+
+    for r in readings:
+        if run and (tuple(r.names) != tuple(run[0].names) or len(run) > cut + 2
+                    or (len(r.position), len(r.velocity)) != (len(run[0].position),
+                                                             len(run[0].velocity))):
+            close()
+        run.append(r)
+    close()
+    return out
 
 
 def _scalar_lane(readings: Sequence[Any], cfg: OdometrySettings, chunk: int

@@ -25,6 +25,7 @@ from diffdrive_odom.core.estimator import Reason, Status
 from diffdrive_odom.core.integration import Pose2D, integrate_batch
 from diffdrive_odom.core.kinematics import Geometry, body_increment
 from diffdrive_odom.core.pipeline import OdometrySettings, ReadingPipeline
+from diffdrive_odom.core.readings import JointBlock
 from diffdrive_odom.core.se2 import wrap_angle
 
 FloatArray = npt.NDArray[np.float64]
@@ -53,7 +54,8 @@ class WheelSteps:
         return len(self.dt)
 
 
-def wheel_steps(readings: Iterable[fastlane.Reading], settings: OdometrySettings) -> WheelSteps:
+def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock],
+                settings: OdometrySettings) -> WheelSteps:
     """Decode readings once into the steps the estimator integrates (as the pipeline decides)."""
     pipe = ReadingPipeline(settings)
     est = pipe.estimator

@@ -126,6 +126,111 @@ class JointStateDecoder:
         return fmt.unpack_from(buf, off), off + 8 * count
 
 
+@dataclass(frozen=True)
+class JointBlockArrays:
+    """Many JointStates of one byte layout: stamps [ns], the names, (n, joints) arrays."""
+
+    stamp_ns: npt.NDArray[np.int64]
+    name: tuple[str, ...]
+    position: npt.NDArray[np.float64]
+    velocity: npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class _JointLayout:
+    """Where the numbers sit in one JointState's bytes; every other byte is fixed."""
+
+    length: int
+    name: tuple[str, ...]
+    position: tuple[int, int]  # byte offset, count
+    velocity: tuple[int, int]
+    fixed: npt.NDArray[np.intp]  # indices of the bytes that must equal the first message's
+
+
+class JointBlockDecoder:
+    """Consecutive sensor_msgs/JointState bytes -> :class:`JointBlockArrays`, with numpy.
+
+    Why: a driver's messages differ only in their stamp and numbers, so once one has
+    been walked (with :class:`JointStateDecoder`'s rules), the others are views at the
+    same offsets. A message joins the block only if it has the same length and every
+    byte outside the stamp and the three double arrays equals the first one's (the
+    encapsulation, frame_id, names and counts), so each decodes to exactly what
+    :meth:`JointStateDecoder.decode` gives it (test/test_cdr_block.py).
+    """
+
+    def __init__(self) -> None:
+        self._one = JointStateDecoder()
+
+    def decode(self, raws: Sequence[bytes], start: int = 0) -> tuple[int, JointBlockArrays | None]:
+        """The longest run from ``raws[start]`` of one layout: (its length, its arrays).
+
+        (1, None) when ``raws[start]`` has no layout to share (not little-endian plain
+        CDR, or malformed): the caller decodes it alone and says why.
+        """
+        first = raws[start]
+        layout = self._walk(first)
+        if layout is None:
+            return 1, None
+        size = layout.length
+        lengths = np.fromiter((len(r) for r in raws[start:]), dtype=np.int64,
+                              count=len(raws) - start)
+        n = _run_length(lengths == size)
+        joined = b"".join(raws[start:start + n])
+        rows = np.frombuffer(joined, dtype=np.uint8).reshape(n, size)
+        fixed = rows[:, layout.fixed]
+        n = _run_length((fixed == fixed[0]).all(axis=1))
+        sec = np.ndarray((n,), dtype="<i4", buffer=joined, offset=_ORIGIN, strides=(size,))
+        nsec = np.ndarray((n,), dtype="<u4", buffer=joined, offset=_ORIGIN + 4, strides=(size,))
+        stamps = sec.astype(np.int64) * 1_000_000_000 + nsec.astype(np.int64)
+        return n, JointBlockArrays(stamps, layout.name,
+                                   _doubles_at(joined, n, size, layout.position),
+                                   _doubles_at(joined, n, size, layout.velocity))
+
+    def _walk(self, buf: bytes) -> _JointLayout | None:
+        """The offsets of ``buf``'s fields, walked as :meth:`JointStateDecoder.decode` does."""
+        try:
+            if self._one.decode(buf) is None:
+                return None
+        except ValueError:
+            return None
+        off = _ORIGIN + 8
+        off += 4 + _U32.unpack_from(buf, off)[0]
+        off = _align(off, 4)
+        names, off = JointStateDecoder._strings(buf, off)
+        arrays = []
+        for _ in range(3):
+            off = _align(off, 4)
+            (count,) = _U32.unpack_from(buf, off)
+            off += 4
+            if count:
+                off = _align(off, 8)
+            arrays.append((off, count))
+            off += 8 * count
+        if off != len(buf):  # trailing bytes: leave the message to the one-by-one decoder
+            return None
+        numeric = np.zeros(len(buf), dtype=np.bool_)
+        numeric[_ORIGIN:_ORIGIN + 8] = True
+        for at, count in arrays:
+            numeric[at:at + 8 * count] = True
+        return _JointLayout(len(buf), names, arrays[0], arrays[1], np.flatnonzero(~numeric))
+
+
+def _run_length(same: npt.NDArray[np.bool_]) -> int:
+    """Leading True values of ``same``."""
+    return len(same) if same.all() else int(np.argmin(same))
+
+
+def _doubles_at(
+    joined: bytes, n: int, size: int, where: tuple[int, int]
+) -> npt.NDArray[np.float64]:
+    """The (n, count) doubles at byte offset ``where[0]`` of each ``size``-byte row."""
+    off, count = where
+    if count == 0:
+        return np.zeros((n, 0), dtype=np.float64)
+    view = np.ndarray((n, count), dtype="<f8", buffer=joined, offset=off, strides=(size, 8))
+    return view.astype(np.float64)
+
+
 _RATES = struct.Struct("<3d")
 # After the header: orientation (4 doubles) and its covariance (9) before the rates,
 # then the rates' covariance (9), linear_acceleration (3) and its covariance (9).

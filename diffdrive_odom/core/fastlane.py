@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from itertools import accumulate, islice
+from itertools import accumulate
 from typing import Protocol, TypeVar
 
 import numpy as np
@@ -44,6 +44,7 @@ from diffdrive_odom.core.fastcov import bulk_covariance, chain_sum
 from diffdrive_odom.core.integration import Pose2D, sinc_array
 from diffdrive_odom.core.kinematics import body_from_arcs, wheel_arcs
 from diffdrive_odom.core.pipeline import Handover, Outcome, ReadingPipeline
+from diffdrive_odom.core.readings import JointBlock, JointReading
 from diffdrive_odom.core.se2 import wrap_angle
 from diffdrive_odom.core.stamps import CLOCK_OFFSET_WARN_S, StampSource
 from diffdrive_odom.core.uncertainty import pose_message_covariance, twist_message_covariance
@@ -129,26 +130,39 @@ class _Chunk:
 
 
 def lanes(
-    pipe: ReadingPipeline, readings: Iterable[R], check_clock: bool = True,
+    pipe: ReadingPipeline, readings: Iterable[R | JointBlock], check_clock: bool = True,
     chunk: int = CHUNK, receive: bool = True,
-) -> Iterator[tuple[R, Outcome] | Stretch]:
+) -> Iterator[tuple[R | JointReading, Outcome] | Stretch]:
     """Feed ``readings`` to ``pipe``: each reading's outcome, or a stretch done in bulk.
 
-    The readings' ``log_ns`` is their receive time, as ``replay`` feeds them (``receive``
-    False: not known, and readings need no ``log_ns``); ``check_clock`` as in
-    :meth:`ReadingPipeline.feed`.
+    A :class:`~diffdrive_odom.core.readings.JointBlock` among them is taken as its
+    readings in order, its arrays as they are. The readings' ``log_ns`` is their receive
+    time, as ``replay`` feeds them (``receive`` False: not known, and readings need no
+    ``log_ns``); ``check_clock`` as in :meth:`ReadingPipeline.feed`.
     """
     lookup = JointLookup(pipe.settings.encoders)
-    it = iter(readings)
-    while block := list(islice(it, chunk)):
-        yield from _chunk_lanes(pipe, block, lookup, check_clock, receive)
-        del block  # before the next is read: one chunk in memory, not two
+    pending: list[R] = []
+    for item in readings:
+        if isinstance(item, JointBlock):
+            if pending:
+                yield from _chunk_lanes(pipe, pending, lookup, check_clock, receive)
+                pending = []
+            for start in range(0, len(item), chunk):
+                yield from _chunk_lanes(pipe, item[start:start + chunk], lookup, check_clock,
+                                        receive)
+            continue
+        pending.append(item)
+        if len(pending) >= chunk:
+            yield from _chunk_lanes(pipe, pending, lookup, check_clock, receive)
+            pending = []  # before the next is read: one chunk in memory, not two
+    if pending:
+        yield from _chunk_lanes(pipe, pending, lookup, check_clock, receive)
 
 
 def _chunk_lanes(
-    pipe: ReadingPipeline, block: list[R], lookup: JointLookup, check_clock: bool,
-    receive: bool,
-) -> Iterator[tuple[R, Outcome] | Stretch]:
+    pipe: ReadingPipeline, block: Sequence[R] | JointBlock, lookup: JointLookup,
+    check_clock: bool, receive: bool,
+) -> Iterator[tuple[R | JointReading, Outcome] | Stretch]:
     c = _arrays(pipe, block, lookup, check_clock, receive)
     n = len(block)
     ends = np.append(np.flatnonzero(~c.plain), n)
@@ -182,30 +196,46 @@ def _log_ns(reading: Reading) -> int:
 
 
 def _arrays(
-    pipe: ReadingPipeline, block: Sequence[Reading], lookup: JointLookup, check_clock: bool,
-    receive: bool,
+    pipe: ReadingPipeline, block: Sequence[Reading] | JointBlock, lookup: JointLookup,
+    check_clock: bool, receive: bool,
 ) -> _Chunk:
     """Decode a chunk into arrays and mark its plain readings (see the module's text)."""
     settings = pipe.settings
     enc, cfg = settings.encoders, settings.estimator
     wheels = 2 * len(enc.left_wheel_names)
     bad = [math.nan] * wheels
-    rows: list[Sequence[float]] = []
-    for r in block:
-        names, pos = r.names, r.position
-        idx = lookup.indices(names)
-        if idx is None or len(pos) != len(names) or len(r.velocity) not in (0, len(names)):
-            rows.append(bad)
+    rows: Sequence[Sequence[float]] | Array
+    if isinstance(block, JointBlock):  # one layout: the same test for every row at once
+        idx = lookup.indices(block.names)
+        joints = len(block.names)
+        if (idx is None or block.position.shape[1] != joints
+                or block.velocity.shape[1] not in (0, joints)):
+            rows = np.full((len(block), wheels), math.nan)
         else:
-            rows.append([pos[k] for k in idx])
+            rows = block.position[:, idx]
+        header, logs = block.stamp_ns, block.log_ns
+        if not receive:
+            logs = np.zeros(len(block), dtype=np.int64)
+    else:
+        listed: list[Sequence[float]] = []
+        for r in block:
+            names, pos = r.names, r.position
+            found = lookup.indices(names)
+            if (found is None or len(pos) != len(names)
+                    or len(r.velocity) not in (0, len(names))):
+                listed.append(bad)
+            else:
+                listed.append([pos[k] for k in found])
+        rows = listed
+        header = np.array([r.stamp_ns for r in block], dtype=np.int64)
+        logs = (np.array([_log_ns(r) for r in block], dtype=np.int64) if receive
+                else np.zeros(len(block), dtype=np.int64))
     state = pipe.handover()
     ref = state.reference
     usable = ref is not None and not ref.from_velocity
     with np.errstate(all="ignore"):
-        values = np.array([ref.values if usable and ref else bad, *rows], dtype=np.float64)
-        header = np.array([r.stamp_ns for r in block], dtype=np.int64)
-        logs = (np.array([_log_ns(r) for r in block], dtype=np.int64) if receive
-                else np.zeros(len(block), dtype=np.int64))
+        first = np.asarray([ref.values if usable and ref else bad], dtype=np.float64)
+        values = np.concatenate((first, np.asarray(rows, dtype=np.float64).reshape(-1, wheels)))
         receive = settings.stamp_source is StampSource.RECEIVE_TIME
         used = np.where(logs > 0, logs, header) if receive else header
         stamps = np.concatenate(([ref.stamp_ns if usable and ref else 0], used))

@@ -52,8 +52,15 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.core.cdr import JointStateDecoder
+try:  # the CSV's numbers from C (float_texts); repr where it is not installed
+    import orjson as _orjson
+except ImportError:  # pragma: no cover - an install without the tools extra's orjson
+    _orjson = None  # type: ignore[assignment]
+
+from diffdrive_odom.core.cdr import JointBlockDecoder, JointStateDecoder
 from diffdrive_odom.core.conversions import split_ns, stamp_to_ns
+from diffdrive_odom.core.readings import JointBlock
+from diffdrive_odom.core.readings import JointReading as JointReading
 from diffdrive_odom.tools import bulkmcap
 from diffdrive_odom.tools.outputs import STORAGES as STORAGES
 
@@ -133,17 +140,6 @@ def connections_for(
 
 
 @dataclass(frozen=True)
-class JointReading:
-    """One JointState as the estimator takes it, plus where it sat in the bag."""
-
-    stamp_ns: int  # header stamp (measurement time)
-    log_ns: int  # time the recorder logged it
-    names: Sequence[str]
-    position: Sequence[float]
-    velocity: Sequence[float]
-
-
-@dataclass(frozen=True)
 class ImuSample:
     """One Imu message's angular velocity (its own frame) and stamps (``use_imu``)."""
 
@@ -209,20 +205,16 @@ def iter_sensor_readings(
 ) -> Iterator[JointReading | ImuSample]:
     """JointState readings (and Imu samples of ``imu_topic``) by header stamp, streaming.
 
-    Both go through one reordering by stamp, so a wheel reading comes after the gyro
-    samples up to its stamp. A stamp more than ``jump_back_ns`` behind the newest seen
-    is a new run (a looped play, a restarted simulation): everything before it comes
-    out first, so two runs are never merged. With ``passthrough``, every message of the
-    bag is also handed to it raw, in log time order (``replay --keep-input``).
+    Both go through one reordering by stamp (:class:`_Reorder`), so a wheel reading
+    comes after the gyro samples up to its stamp. With ``passthrough``, every message
+    of the bag is also handed to it raw, in log time order (``replay --keep-input``).
     """
     joints = connections_for(reader, topic, (JOINT_STATE,))
     imus = [] if imu_topic is None else connections_for(reader, imu_topic, (IMU,))
     conns = reader.connections if passthrough is not None else joints + imus
     joint_ids, imu_ids = {id(c) for c in joints}, {id(c) for c in imus}
     decode = _JointStates(reader)
-    heap: list[tuple[int, int, JointReading | ImuSample]] = []
-    order = itertools.count()
-    newest: int | None = None
+    order = _Reorder(window, jump_back_ns)
     for conn, log_ns, raw in reader.messages(connections=conns):
         item: JointReading | ImuSample
         if passthrough is not None:
@@ -234,16 +226,128 @@ def iter_sensor_readings(
             item = ImuSample(stamp_to_ns(msg.header.stamp), log_ns, w.x, w.y, w.z)
         else:
             continue
-        if newest is not None and item.stamp_ns < newest - jump_back_ns:
-            while heap:
-                yield heapq.heappop(heap)[2]
-            newest = None
-        newest = item.stamp_ns if newest is None else max(newest, item.stamp_ns)
-        heapq.heappush(heap, (item.stamp_ns, next(order), item))
-        if len(heap) > window:
-            yield heapq.heappop(heap)[2]
-    while heap:
-        yield heapq.heappop(heap)[2]
+        yield from order.push(item)
+    yield from order.flush()
+
+
+def iter_joint_blocks(
+    reader: AnyReader,
+    topic: str = "/joint_states",
+    window: int = REORDER_WINDOW,
+    jump_back_ns: int = 1_000_000_000,
+) -> Iterator[JointReading | JointBlock]:
+    """:func:`iter_joint_states`, with runs of alike messages as :class:`JointBlock`s.
+
+    The same readings in the same order (opening the blocks gives exactly what
+    :func:`iter_joint_states` yields); a run of messages of one byte layout in stamp
+    order is decoded at once by :class:`~diffdrive_odom.core.cdr.JointBlockDecoder`.
+    ROS 1 bags, whose bytes that decoder does not read, come one by one.
+    """
+    if not reader.is2:
+        yield from iter_joint_states(reader, topic, None, window, jump_back_ns)
+        return
+    joints = connections_for(reader, topic, (JOINT_STATE,))
+    decode, blocks = _JointStates(reader), JointBlockDecoder()
+    order = _Reorder(window, jump_back_ns)
+    raws: list[bytes] = []
+    logs: list[int] = []
+    types: list[str] = []
+    for conn, log_ns, raw in reader.messages(connections=joints):
+        raws.append(raw)
+        logs.append(log_ns)
+        types.append(conn.msgtype)
+        if len(raws) == GROUP:
+            yield from _group(raws, logs, types, decode, blocks, order)
+            raws, logs, types = [], [], []
+    yield from _group(raws, logs, types, decode, blocks, order)
+    yield from order.flush()
+
+
+GROUP = 1024  # messages decoded into blocks at a time (memory stays flat)
+
+
+def _group(raws: list[bytes], logs: list[int], types: list[str], decode: _JointStates,
+           blocks: JointBlockDecoder, order: _Reorder) -> Iterator[JointReading | JointBlock]:
+    """One group of raw messages into the reordering: blocks where they are alike."""
+    i = 0
+    while i < len(raws):
+        n, arrays = blocks.decode(raws, i)
+        if arrays is None or n < order.window or len(set(types[i:i + n])) > 1:
+            for k in range(i, i + n):
+                yield from order.push(decode(raws[k], types[k], logs[k]))
+        else:
+            yield from order.push_block(JointBlock(
+                arrays.stamp_ns, np.array(logs[i:i + n], dtype=np.int64), arrays.name,
+                arrays.position, arrays.velocity))
+        i += n
+
+
+class _Reorder:
+    """Items in header stamp order: the one rule, for single items and for blocks.
+
+    A heap of ``window`` items: an item displaced further than that from stamp order
+    comes out in arrival order (the estimator then drops the late one, as the node
+    would). A stamp more than ``jump_back_ns`` behind the newest seen is a new run (a
+    looped play, a restarted simulation): everything before it comes out first, so two
+    runs are never merged.
+
+    A block (:meth:`push_block`) whose stamps are in order and start at or after every
+    stamp seen is held whole instead of going through the heap item by item: the heap
+    would have let out everything queued before it, then all of it but its last
+    ``window`` items, in this same order. When a single item follows, exactly that
+    happens (:meth:`_release`); when another such block follows, the held one goes out.
+    """
+
+    def __init__(self, window: int, jump_back_ns: int) -> None:
+        self.window, self._jump = window, jump_back_ns
+        self._heap: list[tuple[int, int, Any]] = []
+        self._order = itertools.count()
+        self._newest: int | None = None
+        self._held: JointBlock | None = None
+
+    def push(self, item: JointReading | ImuSample) -> Iterator[Any]:
+        """Queue one item; whatever the heap lets out."""
+        yield from self._release()
+        if self._newest is not None and item.stamp_ns < self._newest - self._jump:
+            yield from self.flush()
+        self._newest = item.stamp_ns if self._newest is None else max(self._newest, item.stamp_ns)
+        heapq.heappush(self._heap, (item.stamp_ns, next(self._order), item))
+        if len(self._heap) > self.window:
+            yield heapq.heappop(self._heap)[2]
+
+    def push_block(self, block: JointBlock) -> Iterator[Any]:
+        """Queue a block of readings; whatever comes out (blocks and single readings)."""
+        stamps = block.stamp_ns
+        if (len(block) < max(self.window, 1) or (np.diff(stamps) < 0).any()
+                or (self._newest is not None and int(stamps[0]) < self._newest)):
+            for reading in block:
+                yield from self.push(reading)
+            return
+        if self._held is not None:
+            yield self._held
+        while self._heap:
+            yield heapq.heappop(self._heap)[2]
+        self._held, self._newest = block, int(stamps[-1])
+
+    def _release(self) -> Iterator[Any]:
+        """The held block as the heap would have it: all but its last ``window`` out."""
+        held, self._held = self._held, None
+        if held is None:
+            return
+        cut = len(held) - self.window
+        if cut > 0:
+            yield held[:cut]
+        for reading in held[max(cut, 0):]:
+            heapq.heappush(self._heap, (reading.stamp_ns, next(self._order), reading))
+
+    def flush(self) -> Iterator[Any]:
+        """Everything queued, in order; the next item starts a new run."""
+        if self._held is not None:
+            yield self._held
+            self._held = None
+        while self._heap:
+            yield heapq.heappop(self._heap)[2]
+        self._newest = None
 
 
 def read_joint_states(
@@ -252,6 +356,14 @@ def read_joint_states(
     """Open ``path`` and stream its JointState readings in stamp order."""
     with open_bag(path) as reader:
         yield from iter_joint_states(reader, topic, jump_back_ns=jump_back_ns)
+
+
+def read_joint_blocks(
+    path: str | Path, topic: str = "/joint_states", jump_back_ns: int = 1_000_000_000
+) -> Iterator[JointReading | JointBlock]:
+    """:func:`read_joint_states`, runs of alike messages as blocks (:func:`iter_joint_blocks`)."""
+    with open_bag(path) as reader:
+        yield from iter_joint_blocks(reader, topic, jump_back_ns=jump_back_ns)
 
 
 def count_messages(reader: AnyReader, topic: str) -> int:
@@ -409,19 +521,18 @@ class CsvWriter:
         self, ns: int, x: float, y: float, yaw: float, *, linear: float, angular: float,
         status: str, pose_covariance: Sequence[float] = (),
     ) -> None:
-        """One published pose; floats by ``repr`` so reading back is lossless.
+        """One published pose; floats as :func:`float_texts` writes them (lossless).
 
         The stamp is an integer, so it is written as integers too: a float in seconds
         has only ~0.2 us resolution at today's epoch (``1600000000.1000001``).
         ``pose_covariance`` is the message's 6x6 row-major matrix; its x, y and yaw
         variances fill the last three columns (left empty without one).
         """
-        variances = ([repr(float(pose_covariance[i])) for i in (0, 7, 35)]
+        (motion,) = float_texts(np.array([[x, y, yaw, linear, angular]], dtype=np.float64))
+        variances = (float_texts(np.array([[pose_covariance[i] for i in (0, 7, 35)]],
+                                          dtype=np.float64))[0].split(",")
                      if pose_covariance else ["", "", ""])
-        self._csv.writerow(
-            (ns, seconds_text(ns), repr(x), repr(y), repr(yaw), repr(linear), repr(angular),
-             status, *variances)
-        )
+        self._csv.writerow((ns, seconds_text(ns), *motion.split(","), status, *variances))
 
     def rows(self, ns: Sequence[int], columns: npt.NDArray[np.float64], status: str) -> None:
         """Many rows at once, the text :meth:`row` writes.
@@ -432,13 +543,27 @@ class CsvWriter:
         assert self._file is not None
         if not len(ns):
             return
-        secs = [f"{s}.{n:09d}" for s, n in (divmod(int(v), 1_000_000_000) for v in ns)]
-        cols = [map(repr, c) for c in columns.T.tolist()]
-        tail = f",{status}," if status.isidentifier() else None
-        assert tail is not None, status
-        lines = (f"{a},{b},{c},{d},{e},{f},{g}{tail}{h},{i},{j}\r\n"
-                 for a, b, c, d, e, f, g, h, i, j in zip(ns, secs, *cols, strict=True))
+        assert status.isidentifier(), status
+        motion, variances = float_texts(columns[:, :5]), float_texts(columns[:, 5:])
+        lines = (f"{n},{n // 1_000_000_000}.{n % 1_000_000_000:09d},{m},{status},{v}\r\n"
+                 for n, m, v in zip(ns, motion, variances, strict=True))
         self._file.write("".join(lines))
+
+
+def float_texts(values: npt.NDArray[np.float64]) -> list[str]:
+    """Each row of a 2-D array as its numbers' shortest round-trip texts, comma-separated.
+
+    Why: Python's ``repr`` costs about 0.5 us a number, more than the odometry of a
+    reading; orjson (where installed) writes the same shortest digits from C, as
+    ``0.00001`` and ``-2.5e-7`` where ``repr`` writes ``1e-05`` and ``-2.5e-07``.
+    Either reads back to the very same double. A non-finite number (which publication
+    never lets out) falls back to ``repr`` for the whole array.
+    """
+    if _orjson is not None and bool(np.isfinite(values).all()):
+        text: str = _orjson.dumps(np.ascontiguousarray(values, dtype=np.float64),
+                                  option=_orjson.OPT_SERIALIZE_NUMPY).decode()
+        return text[2:-2].split("],[")
+    return [",".join(map(repr, row)) for row in values.tolist()]
 
 
 def seconds_text(ns: int) -> str:

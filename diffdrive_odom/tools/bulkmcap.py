@@ -18,15 +18,19 @@ one message at a time otherwise (and for sqlite3).
 
 from __future__ import annotations
 
+import queue
+import threading
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
 from io import BytesIO
-from typing import Any, ClassVar
+from pathlib import Path
+from typing import Any, BinaryIO, ClassVar
 
 import numpy as np
 import numpy.typing as npt
 from rosbags.interfaces import Connection
 from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.enums import CompressionMode
 from rosbags.rosbag2.storage_mcap import McapWriter, PendingChunk, write_record, write_string
 
 CHUNK_LIMIT = 2**20  # rosbags closes a chunk once its records pass this many bytes
@@ -34,22 +38,28 @@ _HEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, length, channel, sequence, log and publ
 
 
 class FastMcapWriter(McapWriter):
-    """rosbags' MCAP storage with the message index of a chunk packed by numpy."""
+    """rosbags' MCAP storage, a chunk's index packed by numpy, written by a thread."""
+
+    def __init__(self, path: Path, compression: CompressionMode) -> None:
+        super().__init__(path, compression)
+        self.bio = BackgroundFile(self.bio)  # type: ignore[assignment,arg-type,has-type]
 
     def close_chunk(self) -> None:
         """Close the pending chunk: the same records as rosbags' ``close_chunk``."""
         chunk: PendingChunk = self.chunk  # type: ignore[has-type]
         size = chunk.bio.tell()
-        rec = BytesIO()
-        rec.write(np.array([chunk.message_start_time, chunk.message_end_time, size],
-                           dtype="<u8").tobytes())
-        rec.write(b"\x00\x00\x00\x00")
         compressed = self.compressor(chunk.bio.getvalue())
-        write_string(rec, self.compression)
-        rec.write(len(compressed).to_bytes(8, "little"))
-        rec.write(compressed)
+        head = BytesIO()
+        head.write(np.array([chunk.message_start_time, chunk.message_end_time, size],
+                            dtype="<u8").tobytes())
+        head.write(b"\x00\x00\x00\x00")
+        write_string(head, self.compression)
+        head.write(len(compressed).to_bytes(8, "little"))
         chunk_start = self.bio.tell()
-        write_record(self.bio, 0x06, rec)
+        # write_record(0x06) of head + compressed, without copying the chunk's bytes again
+        self.bio.write(b"\x06" + (head.tell() + len(compressed)).to_bytes(8, "little")
+                       + head.getvalue())
+        self.bio.write(compressed)
         chunk_end = self.bio.tell()
         offsets: list[tuple[int, int]] = []
         for cid, msgs in chunk.msgs.items():
@@ -74,6 +84,75 @@ class FastMcapWriter(McapWriter):
         self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
 
 
+class BackgroundFile:
+    """A binary file whose writes are done by a thread, in order; ``tell`` is immediate.
+
+    Why: writing replay's output (~1 kB a reading) costs the kernel about as much time
+    as the odometry; ``write`` releases the GIL, so on a thread it overlaps the next
+    readings' work. Small writes are gathered into blocks; at most :data:`QUEUED` blocks
+    wait, so memory stays flat. A failed write is raised by the next call here.
+    """
+
+    QUEUED = 4
+    GATHER = 1 << 16
+
+    def __init__(self, raw: BinaryIO) -> None:
+        self._raw = raw
+        self._pos = raw.tell()
+        self._small = bytearray()
+        self._queue: queue.Queue[bytes | None] = queue.Queue(self.QUEUED)
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while (data := self._queue.get()) is not None:
+            if self._error is None:
+                try:
+                    self._raw.write(data)
+                except BaseException as exc:  # raised again in the caller
+                    self._error = exc
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def write(self, data: bytes | bytearray | memoryview) -> int:
+        """Queue ``data`` (copied unless it is immutable bytes)."""
+        self._raise()
+        size = len(data)
+        if size < self.GATHER:
+            self._small += data
+            if len(self._small) >= self.GATHER:
+                self._put(bytes(self._small))
+                self._small.clear()
+        else:
+            if self._small:
+                self._put(bytes(self._small))
+                self._small.clear()
+            self._put(data if isinstance(data, bytes) else bytes(data))
+        self._pos += size
+        return size
+
+    def _put(self, data: bytes) -> None:
+        self._queue.put(data)
+
+    def tell(self) -> int:
+        """Where the next byte goes (written or still queued)."""
+        return self._pos
+
+    def close(self) -> None:
+        """Write what is queued, stop the thread, close the file; raise a failed write."""
+        if self._thread.is_alive():
+            if self._small:
+                self._put(bytes(self._small))
+                self._small.clear()
+            self._queue.put(None)
+            self._thread.join()
+        self._raw.close()
+        self._raise()
+
+
 class FastWriter(Writer):
     """rosbags' rosbag2 :class:`Writer` whose MCAP storage is :class:`FastMcapWriter`."""
 
@@ -85,8 +164,6 @@ class FastWriter(Writer):
 
 def supported(writer: Writer) -> bool:
     """Tell whether ``writer`` can take :func:`write_rows` (open, MCAP, uncompressed)."""
-    from rosbags.rosbag2.enums import CompressionMode
-
     return (isinstance(writer.storage, FastMcapWriter)
             and writer.compression_mode == CompressionMode.NONE)
 

@@ -151,7 +151,7 @@ def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,
                                          lambda t: print(f"{PREFIX} {t}", file=sys.stderr))
         ref = evaluate.read_trajectory(bag, topic, args.child_frame)
     jump = int(settings.estimator.time_jump_threshold * 1e9)
-    steps = batch.wheel_steps(bagio.read_joint_states(bag, args.topic, jump), settings)
+    steps = batch.wheel_steps(bagio.read_joint_blocks(bag, args.topic, jump), settings)
     return Run(Path(bag).name, steps, ref)
 
 

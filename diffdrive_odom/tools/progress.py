@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar
 
 MIN_ITEMS = 20_000  # below this a bar is noise
@@ -23,8 +23,11 @@ def wanted(requested: bool | None, total: int) -> bool:
 
 
 def progress(items: Iterable[T], total: int, prefix: str = "[replay]",
-             unit: str = "readings") -> Iterator[T]:
-    """Pass ``items`` through, redrawing one ``done/total`` line on stderr twice a second."""
+             unit: str = "readings", weight: Callable[[T], int] | None = None) -> Iterator[T]:
+    """Pass ``items`` through, redrawing one ``done/total`` line on stderr twice a second.
+
+    ``weight``: how many units an item stands for (a block of readings); else one.
+    """
     def line(n: int, elapsed: float) -> str:
         rate = n / elapsed if elapsed > 0 else 0.0
         share = f" ({100 * n / total:3.0f} %)" if total else ""
@@ -32,7 +35,8 @@ def progress(items: Iterable[T], total: int, prefix: str = "[replay]",
 
     start = last = time.monotonic()
     n = 0
-    for n, item in enumerate(items, 1):
+    for item in items:
+        n += 1 if weight is None else weight(item)
         now = time.monotonic()
         if now - last >= 0.5:
             sys.stderr.write(line(n, now - start))

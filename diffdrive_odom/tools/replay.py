@@ -39,6 +39,8 @@ from diffdrive_odom.core.estimator import Reason, Status
 from diffdrive_odom.core.integration import Pose2D
 from diffdrive_odom.core.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.publication import Refusal, pipeline_publication
+from diffdrive_odom.core.readings import JointBlock
+from diffdrive_odom.core.readings import count as reading_count
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import evaluate, fleet, progress, sinks
 from diffdrive_odom.tools.args import (
@@ -125,7 +127,7 @@ def _stretch_out(stretch: fastlane.Stretch, sink: Callable[[Published], None]) -
 
 
 def replay_readings(
-    readings: Iterable[bagio.JointReading | bagio.ImuSample],
+    readings: Iterable[bagio.JointReading | bagio.ImuSample | JointBlock],
     settings: OdometrySettings,
     sink: Callable[[Published], None] | None = None,
     fast: bool = True,
@@ -134,6 +136,7 @@ def replay_readings(
 
     ``fast``: stretches where no rule can fire go through :mod:`diffdrive_odom.core.fastlane`
     (the same result, proven by test/test_fastlane.py); False: every reading one by one.
+    A :class:`~diffdrive_odom.core.readings.JointBlock` stands for its readings in order.
 
     What is published is decided as in the node (:func:`pipeline_publication`): a pose
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,
@@ -147,13 +150,14 @@ def replay_readings(
     start = time.perf_counter()
     # The bag's log time is the receive time: the node's rules on stamps apply alike.
     def one_by_one(
-        rs: Iterable[bagio.JointReading | bagio.ImuSample],
+        rs: Iterable[bagio.JointReading | bagio.ImuSample | JointBlock],
     ) -> Iterator[tuple[bagio.JointReading, Outcome]]:
-        for r in rs:
-            if isinstance(r, bagio.ImuSample):  # use_imu: the gyro's samples, as the node's
-                pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz)
-                continue
-            yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
+        for item in rs:
+            for r in item if isinstance(item, JointBlock) else (item,):
+                if isinstance(r, bagio.ImuSample):  # use_imu: the gyro's samples, as the node's
+                    pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz)
+                    continue
+                yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 
     # With the gyro every step's heading is decided per reading: no lane in bulk.
     items: Iterable[tuple[bagio.JointReading, Outcome] | fastlane.Stretch] = (
@@ -381,11 +385,16 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
                 writer.add_topic(args.tf_topic, bagio.TF_MESSAGE)
             if args.keep_input:
                 passthrough = sinks.keep_input(reader, writer, args.odom_topic)
-        readings: Iterable[bagio.JointReading | bagio.ImuSample] = bagio.iter_sensor_readings(
-            reader, args.topic, None if settings.gyro is None else args.imu_topic, passthrough,
-            jump_back_ns=int(settings.estimator.time_jump_threshold * 1e9))
+        jump = int(settings.estimator.time_jump_threshold * 1e9)
+        readings: Iterable[bagio.JointReading | bagio.ImuSample | JointBlock]
+        if settings.gyro is None and passthrough is None:  # runs of alike messages at once
+            readings = bagio.iter_joint_blocks(reader, args.topic, jump_back_ns=jump)
+        else:
+            readings = bagio.iter_sensor_readings(
+                reader, args.topic, None if settings.gyro is None else args.imu_topic,
+                passthrough, jump_back_ns=jump)
         if progress.wanted(args.progress, total):
-            readings = progress.progress(readings, total, PREFIX)
+            readings = progress.progress(readings, total, PREFIX, weight=reading_count)
         sink = sinks.output_sink(settings, writer, csv_out, traj if args.eval else None,
                                  odom_topic=args.odom_topic, tf_topic=args.tf_topic)
         stats = replay_readings(readings, settings, sink)
