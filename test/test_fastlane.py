@@ -173,9 +173,12 @@ def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
     _agree(a, b, slow, fast)
     # The same stream with its alike runs as JointBlocks (as bagio.iter_joint_blocks
     # gives them): the same again, though stretches now start elsewhere.
+    blocks = _blocks(readings, chunk)
     blocked: list[replay.Published] = []
-    _agree(a, replay.replay_readings(_blocks(readings, chunk), cfg, blocked.append, fast=True),
-           slow, blocked)
+    _agree(a, replay.replay_readings(blocks, cfg, blocked.append, fast=True), slow, blocked)
+    opened: list[replay.Published] = []  # and one by one, blocks opened: the very same
+    replay.replay_readings(blocks, cfg, opened.append, fast=False)
+    assert opened == slow
     scalar, warned = _scalar_lane(readings, cfg, chunk)
     pipe = ReadingPipeline(cfg)
     assert warned == [(k, w) for k, r in enumerate(readings)

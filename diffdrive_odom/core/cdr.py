@@ -153,15 +153,18 @@ class JointBlockDecoder:
     Why: a driver's messages differ only in their stamp and numbers, so once one has
     been walked (with :class:`JointStateDecoder`'s rules), the others are views at the
     same offsets. A message joins the block only if it has the same length and every
-    byte outside the stamp and the three double arrays equals the first one's (the
-    encapsulation, frame_id, names and counts), so each decodes to exactly what
-    :meth:`JointStateDecoder.decode` gives it (test/test_cdr_block.py).
+    byte the decoder reads outside the stamp and the three double arrays equals the
+    first one's (encapsulation, frame_id, names and counts; not the alignment padding),
+    so each decodes to exactly what :meth:`JointStateDecoder.decode` gives it
+    (test/test_joint_blocks.py).
     """
 
     def __init__(self) -> None:
         self._one = JointStateDecoder()
 
-    def decode(self, raws: Sequence[bytes], start: int = 0) -> tuple[int, JointBlockArrays | None]:
+    def decode(
+        self, raws: Sequence[bytes], start: int = 0
+    ) -> tuple[int, JointBlockArrays | None]:
         """The longest run from ``raws[start]`` of one layout: (its length, its arrays).
 
         (1, None) when ``raws[start]`` has no layout to share (not little-endian plain
@@ -187,32 +190,41 @@ class JointBlockDecoder:
                                    _doubles_at(joined, n, size, layout.velocity))
 
     def _walk(self, buf: bytes) -> _JointLayout | None:
-        """The offsets of ``buf``'s fields, walked as :meth:`JointStateDecoder.decode` does."""
+        """The offsets of ``buf``'s fields, walked as :meth:`JointStateDecoder.decode` does.
+
+        The bytes a decoder reads are fixed, but for the stamp and the numbers; alignment
+        padding is not (Fast CDR leaves it uninitialised, so it differs between messages).
+        """
         try:
             if self._one.decode(buf) is None:
                 return None
         except ValueError:
             return None
+        fixed = np.zeros(len(buf), dtype=np.bool_)
+        fixed[:2] = True  # the encapsulation kind (its options are not read)
         off = _ORIGIN + 8
-        off += 4 + _U32.unpack_from(buf, off)[0]
-        off = _align(off, 4)
-        names, off = JointStateDecoder._strings(buf, off)
+        end = off + 4 + _U32.unpack_from(buf, off)[0]
+        fixed[off:end] = True  # header.frame_id: length, text and NUL
+        start = _align(end, 4)
+        names, off = JointStateDecoder._strings(buf, start)
+        fixed[start:start + 4] = True  # the names: count, each length and text, no padding
+        at = start + 4
+        for _ in names:
+            at = _align(at, 4)
+            end = at + 4 + _U32.unpack_from(buf, at)[0]
+            fixed[at:end] = True
+            at = end
         arrays = []
         for _ in range(3):
             off = _align(off, 4)
             (count,) = _U32.unpack_from(buf, off)
+            fixed[off:off + 4] = True
             off += 4
             if count:
                 off = _align(off, 8)
             arrays.append((off, count))
             off += 8 * count
-        if off != len(buf):  # trailing bytes: leave the message to the one-by-one decoder
-            return None
-        numeric = np.zeros(len(buf), dtype=np.bool_)
-        numeric[_ORIGIN:_ORIGIN + 8] = True
-        for at, count in arrays:
-            numeric[at:at + 8 * count] = True
-        return _JointLayout(len(buf), names, arrays[0], arrays[1], np.flatnonzero(~numeric))
+        return _JointLayout(len(buf), names, arrays[0], arrays[1], np.flatnonzero(fixed))
 
 
 def _run_length(same: npt.NDArray[np.bool_]) -> int:

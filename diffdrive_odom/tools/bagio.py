@@ -251,30 +251,28 @@ def iter_joint_blocks(
     order = _Reorder(window, jump_back_ns)
     raws: list[bytes] = []
     logs: list[int] = []
-    types: list[str] = []
-    for conn, log_ns, raw in reader.messages(connections=joints):
+    for _, log_ns, raw in reader.messages(connections=joints):  # all of type JOINT_STATE
         raws.append(raw)
         logs.append(log_ns)
-        types.append(conn.msgtype)
         if len(raws) == GROUP:
-            yield from _group(raws, logs, types, decode, blocks, order)
-            raws, logs, types = [], [], []
-    yield from _group(raws, logs, types, decode, blocks, order)
+            yield from _group(raws, logs, decode, blocks, order)
+            raws, logs = [], []
+    yield from _group(raws, logs, decode, blocks, order)
     yield from order.flush()
 
 
 GROUP = 1024  # messages decoded into blocks at a time (memory stays flat)
 
 
-def _group(raws: list[bytes], logs: list[int], types: list[str], decode: _JointStates,
+def _group(raws: list[bytes], logs: list[int], decode: _JointStates,
            blocks: JointBlockDecoder, order: _Reorder) -> Iterator[JointReading | JointBlock]:
     """One group of raw messages into the reordering: blocks where they are alike."""
     i = 0
     while i < len(raws):
         n, arrays = blocks.decode(raws, i)
-        if arrays is None or n < order.window or len(set(types[i:i + n])) > 1:
+        if arrays is None or n < order.window:  # short runs are not worth a block
             for k in range(i, i + n):
-                yield from order.push(decode(raws[k], types[k], logs[k]))
+                yield from order.push(decode(raws[k], JOINT_STATE, logs[k]))
         else:
             yield from order.push_block(JointBlock(
                 arrays.stamp_ns, np.array(logs[i:i + n], dtype=np.int64), arrays.name,
