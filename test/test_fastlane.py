@@ -30,6 +30,7 @@ from diffdrive_odom.core.integration import Pose2D, compose
 from diffdrive_odom.core.kinematics import Geometry, body_increment
 from diffdrive_odom.core.pipeline import ReadingPipeline
 from diffdrive_odom.core.readings import JointBlock, JointReading
+from diffdrive_odom.core.se2 import wrap_angle
 from diffdrive_odom.core.uncertainty import NoiseModel, PoseUncertainty, pose_message_covariance
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
 from diffdrive_odom.tools import bagio, replay
@@ -347,6 +348,19 @@ def test_bags_in_both_lanes(monkeypatch: pytest.MonkeyPatch, bag: Path,
     readings = list(bagio.read_joint_states(bag))
     bulk = _both(readings, cfg, fastlane.CHUNK, monkeypatch)
     assert bulk > 0.5 * len(readings)
+
+
+@settings(derandomize=True, max_examples=300, deadline=None)
+@given(start=st.floats(-math.pi, math.pi), seed=st.integers(0, 2**32 - 1),
+       n=st.integers(1, 400), scale=st.floats(1e-5, 2.0), drift=st.floats(-1.0, 1.0))
+def test_headings_in_bulk_are_the_wrapped_sum_bit_for_bit(
+        start: float, seed: int, n: int, scale: float, drift: float) -> None:
+    """fastlane._headings (cumulative sums away from +-pi) is wrap_angle(t + d), step by step."""
+    steps = np.random.default_rng(seed).normal(drift * scale, scale, n)
+    expected = [start]
+    for d in steps.tolist():
+        expected.append(wrap_angle(expected[-1] + d))
+    assert fastlane._headings(start, steps).tolist() == expected
 
 
 def test_covariance_cumulative_form_equals_the_recursion() -> None:

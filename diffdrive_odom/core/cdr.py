@@ -386,9 +386,17 @@ def _put(rows: npt.NDArray[np.uint8], at: int, dtype: str, values: npt.ArrayLike
     rows[:, at:at + width] = col.reshape(len(rows), -1).view(np.uint8)
 
 
-def planar_fields(stamp_ns: Sequence[int], yaw: Sequence[float]) -> tuple[
-        npt.NDArray[np.int32], npt.NDArray[np.uint32], npt.NDArray[np.float64]]:
-    """sec, nanosec and the quaternion's (z, w) of many stamps and headings.
+@dataclass(frozen=True)
+class PlanarFields:
+    """sec, nanosec and the quaternion's (z, w) of many stamped planar poses."""
+
+    sec: npt.NDArray[np.int32]
+    nanosec: npt.NDArray[np.uint32]
+    qzw: npt.NDArray[np.float64]
+
+
+def planar_fields(stamp_ns: Sequence[int], yaw: Sequence[float]) -> PlanarFields:
+    """The stamp and quaternion fields of many stamps and headings (Odometry and /tf share them).
 
     ``math.sin``/``math.cos`` one by one (not numpy's, whose last bit may differ), so
     the bytes are those :meth:`OdometryLayout.planar` writes.
@@ -397,22 +405,24 @@ def planar_fields(stamp_ns: Sequence[int], yaw: Sequence[float]) -> tuple[
     sec, nanosec = np.divmod(ns, 1_000_000_000)
     half = [0.5 * t for t in yaw]
     qzw = np.array([(math.sin(h), math.cos(h)) for h in half], dtype=np.float64).reshape(-1, 2)
-    return sec.astype(np.int32), nanosec.astype(np.uint32), qzw
+    return PlanarFields(sec.astype(np.int32), nanosec.astype(np.uint32), qzw)
 
 
 class BulkOdometry(OdometryLayout):
     """:class:`OdometryLayout` for many messages at once: one row of bytes per message."""
 
-    def rows(self, stamp_ns: Sequence[int], pose: npt.NDArray[np.float64],
+    def rows(self, fields: PlanarFields, pose: npt.NDArray[np.float64],
              twist: npt.NDArray[np.float64], pose_cov: npt.NDArray[np.float64],
              twist_cov: npt.NDArray[np.float64]) -> npt.NDArray[np.uint8]:
-        """(n, size) bytes: ``pose`` (n, 3) x, y, yaw; ``twist`` (n, 2); covariances (n, 36)."""
-        sec, nanosec, qzw = planar_fields(stamp_ns, pose[:, 2].tolist())
-        rows = _filled(self._buf, len(sec))
-        _put(rows, self._stamp, "<i4", sec)
-        _put(rows, self._stamp + 4, "<u4", nanosec)
+        """(n, size) bytes: ``pose`` (n, 3), ``twist`` (n, 2), covariances (n, 36).
+
+        ``fields``: the stamps and headings' fields (:func:`planar_fields`).
+        """
+        rows = _filled(self._buf, len(fields.sec))
+        _put(rows, self._stamp, "<i4", fields.sec)
+        _put(rows, self._stamp + 4, "<u4", fields.nanosec)
         _put(rows, self._xy, "<f8", pose[:, :2])
-        _put(rows, self._qzw, "<f8", qzw)
+        _put(rows, self._qzw, "<f8", fields.qzw)
         _put(rows, self._linear, "<f8", twist[:, 0])
         _put(rows, self._angular, "<f8", twist[:, 1])
         _put(rows, self._pose_cov, "<f8", pose_cov)
@@ -423,12 +433,14 @@ class BulkOdometry(OdometryLayout):
 class BulkTransform(TransformLayout):
     """:class:`TransformLayout` for many messages at once: one row of bytes per message."""
 
-    def rows(self, stamp_ns: Sequence[int], pose: npt.NDArray[np.float64]) -> npt.NDArray[np.uint8]:
-        """(n, size) bytes of the transforms of ``pose`` (n, 3) x, y, yaw."""
-        sec, nanosec, qzw = planar_fields(stamp_ns, pose[:, 2].tolist())
-        rows = _filled(self._buf, len(sec))
-        _put(rows, self._stamp, "<i4", sec)
-        _put(rows, self._stamp + 4, "<u4", nanosec)
+    def rows(self, fields: PlanarFields, pose: npt.NDArray[np.float64]) -> npt.NDArray[np.uint8]:
+        """(n, size) bytes of the transforms of ``pose`` (n, 3).
+
+        ``fields``: the stamps and headings' fields (:func:`planar_fields`).
+        """
+        rows = _filled(self._buf, len(fields.sec))
+        _put(rows, self._stamp, "<i4", fields.sec)
+        _put(rows, self._stamp + 4, "<u4", fields.nanosec)
         _put(rows, self._xy, "<f8", pose[:, :2])
-        _put(rows, self._qzw, "<f8", qzw)
+        _put(rows, self._qzw, "<f8", fields.qzw)
         return rows

@@ -32,7 +32,6 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from itertools import accumulate
 from typing import Protocol, TypeVar
 
 import numpy as np
@@ -272,6 +271,38 @@ def _arrays(
     return _Chunk(values, header, logs, stamps, dt, d_left, d_right, peak, ds, dtheta, ok)
 
 
+SAFE_HEADING = 3.0  # below pi: a heading this small plus a plausible step never wraps
+
+
+def _headings(start: float, dth: Array) -> Array:
+    """``start`` and the heading after each step, bit for bit as the pipeline wraps them.
+
+    The pipeline wraps one step at a time (``wrap_angle(theta + dtheta)``).
+    Why not a Python loop: where no heading leaves (-SAFE_HEADING, SAFE_HEADING),
+    wrapping changes nothing (``math.remainder`` returns such an angle as it is), and
+    ``np.cumsum`` adds one after another in order, so it rounds as the loop does. Only
+    the steps near +-pi go one by one.
+    """
+    n = len(dth)
+    out = np.empty(n + 1)
+    out[0] = t = start
+    k = 0
+    while k < n:
+        run = np.cumsum(np.concatenate(([t], dth[k:])))[1:]
+        over = np.flatnonzero(np.abs(run) > SAFE_HEADING)
+        m = int(over[0]) if len(over) else n - k
+        out[k + 1:k + 1 + m] = run[:m]
+        k += m
+        t = float(out[k])
+        while k < n:  # near +-pi: the pipeline's own step, until well inside again
+            t = wrap_angle(t + float(dth[k]))
+            k += 1
+            out[k] = t
+            if abs(t) <= SAFE_HEADING:
+                break
+    return out
+
+
 def _rolling(prior: Sequence[float], new: Array, size: int) -> tuple[Array, Array]:
     """Sums and counts of the last ``size`` values after each of ``new`` (``prior`` before)."""
     comb = np.concatenate((np.asarray(prior, dtype=np.float64), new))
@@ -309,9 +340,8 @@ def _bulk(
     sl = slice(i, j)
     dt, ds, dth = c.dt[sl], c.ds[sl], c.dtheta[sl]
     d_left, d_right = c.d_left[sl], c.d_right[sl]
-    thetas = list(accumulate(dth.tolist(), lambda t, d: wrap_angle(t + d),
-                             initial=state.pose.theta))
-    before, after = np.array(thetas[:-1]), np.array(thetas[1:])
+    thetas = _headings(state.pose.theta, dth)
+    before, after = thetas[:-1], thetas[1:]
     half = 0.5 * dth
     sh = sinc_array(half)
     chord = ds * sh
@@ -349,7 +379,7 @@ def _bulk(
     last_log = int(c.logs[k])
     ref = WheelReading(int(c.stamps[j]), tuple(c.values[j].tolist()), False,
                        last_log if last_log > 0 else None)
-    end = Handover(ref, Pose2D(float(x[-1]), float(y[-1]), thetas[-1]), windows, cov, sens,
+    end = Handover(ref, Pose2D(float(x[-1]), float(y[-1]), float(thetas[-1])), windows, cov, sens,
                    rates, gate_last, state.clock_named)
     pipe.take_back(end, j - i, len(published),
                    WheelIncrement(float(c.dt[k]), float(c.d_left[k]), float(c.d_right[k]),

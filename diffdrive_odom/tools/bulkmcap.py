@@ -64,10 +64,11 @@ class FastMcapWriter(McapWriter):
         offsets: list[tuple[int, int]] = []
         for cid, msgs in chunk.msgs.items():
             offsets.append((cid, self.bio.tell()))
+            index = _index(msgs)
             rec = BytesIO()
             rec.write(cid.to_bytes(2, "little"))
-            rec.write((len(msgs) * 16).to_bytes(4, "little"))
-            rec.write(np.array(msgs, dtype="<u8").reshape(-1, 2).tobytes())
+            rec.write(index.nbytes.to_bytes(4, "little"))
+            rec.write(index.tobytes())
             write_record(self.bio, 0x07, rec)
         rec = BytesIO()
         rec.write(np.array([chunk.message_start_time, chunk.message_end_time, chunk_start,
@@ -82,6 +83,23 @@ class FastMcapWriter(McapWriter):
         rec.write(size.to_bytes(8, "little"))
         self.chunks.append(rec)
         self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
+
+
+def _index(entries: list[Any]) -> npt.NDArray[np.uint64]:
+    """A channel's (log time, offset) index rows: rosbags' tuples and :func:`_append`'s arrays."""
+    parts: list[npt.NDArray[np.uint64]] = []
+    single: list[tuple[int, int]] = []
+    for entry in entries:
+        if isinstance(entry, np.ndarray):
+            if single:
+                parts.append(np.array(single, dtype="<u8").reshape(-1, 2))
+                single = []
+            parts.append(entry)
+        else:
+            single.append(entry)
+    if single or not parts:
+        parts.append(np.array(single, dtype="<u8").reshape(-1, 2))
+    return np.concatenate(parts) if len(parts) > 1 else parts[0]
 
 
 class BackgroundFile:
@@ -226,5 +244,5 @@ def _append(storage: Any, data: memoryview, tell: int, base: int, ends: npt.NDAr
     chunk.message_start_time = min(int(stamps.min()), chunk.message_start_time)
     chunk.message_end_time = max(int(stamps.max()), chunk.message_end_time)
     for cid in dict.fromkeys(cids[:kinds].tolist()):  # first seen first, as one by one
-        pick = cids == cid
-        chunk.msgs[cid].extend(zip(stamps[pick].tolist(), starts[pick].tolist(), strict=True))
+        pick = cids == cid  # the index rows as one array (close_chunk's _index reads both)
+        chunk.msgs[cid].append(np.column_stack((stamps[pick], starts[pick])).astype("<u8"))

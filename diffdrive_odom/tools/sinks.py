@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core.cdr import BulkOdometry, BulkTransform
+from diffdrive_odom.core.cdr import BulkOdometry, BulkTransform, planar_fields
 from diffdrive_odom.core.estimator import Status
 from diffdrive_odom.core.fastlane import Stretch
 from diffdrive_odom.core.integration import Pose2D
@@ -128,10 +128,11 @@ class OutputSink:
         pcov, tcov = _covariances(st, n)
         if self.writer is not None:
             topics = [self.odom_topic]
-            payloads = [self.odom.rows(st.stamp_ns, st.pose, st.twist, pcov, tcov)]
+            fields = planar_fields(st.stamp_ns, st.pose[:, 2].tolist())
+            payloads = [self.odom.rows(fields, st.pose, st.twist, pcov, tcov)]
             if self.tf:
                 topics.append(self.tf_topic)
-                payloads.append(self.transform.rows(st.stamp_ns, st.pose))
+                payloads.append(self.transform.rows(fields, st.pose))
             self.writer.write_rows(topics, np.asarray(st.log_ns, dtype=np.int64), payloads)
             # the layout keeps the last covariance, as the one-by-one path leaves it
             self.odom.covariance(pcov[-1].tolist(), tcov[-1].tolist())
