@@ -271,7 +271,7 @@ def _arrays(
     return _Chunk(values, header, logs, stamps, dt, d_left, d_right, peak, ds, dtheta, ok)
 
 
-SAFE_HEADING = 3.0  # below pi: a heading this small plus a plausible step never wraps
+SAFE_HEADING = 3.0  # below pi: a heading within (-3, 3) is its own wrap_angle
 
 
 def _headings(start: float, dth: Array) -> Array:
