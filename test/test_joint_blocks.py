@@ -9,7 +9,8 @@
 - Real bag files: iter_joint_blocks opened equals iter_joint_states, and replay writes
   the same bytes either way; the progress line counts a block's readings.
 - The CSV's float text reads back to the same double with repr's number of digits; the
-  output file's background writer raises a failed write (a real /dev/full).
+  output file's background writer raises a failed write (a real /dev/full); a real
+  SIGTERM mid-replay leaves no output behind.
 """
 
 from __future__ import annotations
@@ -17,7 +18,9 @@ from __future__ import annotations
 import heapq
 import itertools
 import math
+import os
 import re
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +34,7 @@ from rosbags.typesys import Stores, get_typestore
 from diffdrive_odom.core.cdr import JointBlockDecoder
 from diffdrive_odom.core.readings import JointBlock, JointReading
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagio, bulkmcap, replay, sinks
+from diffdrive_odom.tools import bagio, bulkmcap, progress, replay, sinks
 from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import OPTIODOM_PARAMS, write_params
@@ -361,3 +364,29 @@ def test_background_file_raises_a_failed_write() -> None:
         finally:
             out.close()
     assert out.tell() >= 1 << 20
+
+
+def test_sigterm_ends_a_replay_as_ctrl_c_with_no_output_left(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capfd: pytest.CaptureFixture[str]) -> None:
+    """A real SIGTERM to this process mid-replay (sent once the first block has gone
+    through): exit 130, the interrupted line, no output and no staged file left, and
+    SIGTERM's handler as it was before."""
+    bag = DATA / "optiodom" / "square_231220200029_run-01"
+    params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+    wrapped = progress.progress
+
+    def then_terminate(items: Any, *args: Any, **kwargs: Any) -> Any:
+        for k, item in enumerate(wrapped(items, *args, **kwargs)):
+            if k == 1:
+                os.kill(os.getpid(), signal.SIGTERM)
+            yield item
+
+    monkeypatch.setattr(progress, "progress", then_terminate)
+    before = signal.getsignal(signal.SIGTERM)
+    out = tmp_path / "out"
+    assert cli(["replay", str(bag), "--params-file", str(params), "--progress", "-o", str(out),
+                "--csv", str(tmp_path / "out.csv")]) == 130
+    assert "interrupted; no output written" in capfd.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.yaml"]
+    assert signal.getsignal(signal.SIGTERM) is before

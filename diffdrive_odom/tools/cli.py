@@ -13,8 +13,11 @@ import argparse
 import difflib
 import importlib
 import shutil
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from importlib import metadata
 from pathlib import Path
 from xml.etree import ElementTree
@@ -107,6 +110,29 @@ def usage() -> str:
     return "\n".join(lines)
 
 
+@contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (``timeout``, a batch system's stop) ends a command as Ctrl-C does.
+
+    Why: SIGTERM's default ends the process on the spot, so a replay's staged outputs
+    stayed behind as ``.NAME.partial-PID``; as a KeyboardInterrupt they are removed on
+    the way out and the exit status is 130. Only where signals can be set (the main
+    thread); the earlier handler comes back afterwards.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Dispatch to ``<module>.main(argv)``; 2 (and the reason) for a missing/unknown command."""
     args = list(sys.argv[1:] if argv is None else argv)
@@ -126,8 +152,12 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{hint}", file=sys.stderr)
         return 2
     try:
-        module = importlib.import_module(COMMANDS[args[0]][0])
-        return int(module.main(args[1:]) or 0)
+        with terminate_as_interrupt():
+            module = importlib.import_module(COMMANDS[args[0]][0])
+            return int(module.main(args[1:]) or 0)
+    except KeyboardInterrupt:  # a command that did not say it (replay and the demo do)
+        print(f"{PROGRAM} {args[0]}: interrupted", file=sys.stderr)
+        return 130
     except ModuleNotFoundError as err:
         line = missing_text(err.name, f"{PROGRAM} {args[0]}")
         if line is None:
