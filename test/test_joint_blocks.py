@@ -93,9 +93,10 @@ KINDS = ("plain", "plain", "plain", "names", "frame", "velocity", "short", "big_
 @CASES
 @given(seed=st.integers(0, 2**32 - 1),
        runs=st.lists(st.tuples(st.sampled_from(KINDS), st.integers(1, 40)), min_size=1,
-                     max_size=8))
+                     max_size=8),
+       min_run=st.sampled_from((1, 1, 4, 16)))
 def test_block_decoder_gives_what_rosbags_deserialises(
-        seed: int, runs: list[tuple[str, int]]) -> None:
+        seed: int, runs: list[tuple[str, int]], min_run: int) -> None:
     rng = np.random.default_rng(seed)
     raws: list[bytes] = []
     for kind, length in runs:
@@ -124,12 +125,13 @@ def test_block_decoder_gives_what_rosbags_deserialises(
     decoder = JointBlockDecoder()
     start = 0
     while start < len(raws):
-        n, arrays = decoder.decode(raws, start)
+        n, arrays = decoder.decode(raws, start, min_run)
         assert 1 <= n <= len(raws) - start
-        if arrays is None:
-            assert n == 1
+        if arrays is None:  # left to the one-by-one decoder: min_run of them
+            assert n == min(min_run, len(raws) - start)
             raw = raws[start]
-            assert raw[:2] != b"\x00\x01" or len(raw) % 4, "a whole LE message has a layout"
+            if min_run == 1:
+                assert raw[:2] != b"\x00\x01" or len(raw) % 4, "a whole LE message has a layout"
         else:
             for k in range(n):
                 msg = STORE.deserialize_cdr(raws[start + k], JS)
@@ -146,6 +148,23 @@ def test_block_decoder_takes_a_long_clean_run_at_once() -> None:
     n, arrays = JointBlockDecoder().decode(raws)
     assert n == 500 and arrays is not None
     assert arrays.position[499].tolist() == [499.0, -499.0]
+
+
+@pytest.mark.parametrize("names", [["arm"], ["left_wheel_joinX", "right_wheel_joinX"]],
+                         ids=["other length", "same length"])
+def test_alternating_layouts_cost_one_check_per_min_run(names: list[str]) -> None:
+    """Two drivers on one topic, interleaved (another length, or the same length with
+    other names): no block, and one call per 64 messages, not one per message."""
+    wheels = ["left_wheel_joint", "right_wheel_joint"]
+    raws = [bytes(STORE.serialize_cdr(_message(10**9 + k * 10**7, wheels if k % 2 else names,
+                                               [0.1 * k] * 2, []), JS)) for k in range(1000)]
+    decoder, start, calls = JointBlockDecoder(), 0, 0
+    while start < len(raws):
+        n, arrays = decoder.decode(raws, start, min_run=64)
+        assert arrays is None
+        start += n
+        calls += 1
+    assert calls == math.ceil(1000 / 64)
 
 
 def _heap_order(items: list[tuple[int, int]], window: int, jump: int) -> list[int]:

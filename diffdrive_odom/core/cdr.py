@@ -163,31 +163,41 @@ class JointBlockDecoder:
         self._one = JointStateDecoder()
 
     def decode(
-        self, raws: Sequence[bytes], start: int = 0
+        self, raws: Sequence[bytes], start: int = 0, min_run: int = 1
     ) -> tuple[int, JointBlockArrays | None]:
         """The longest run from ``raws[start]`` of one layout: (its length, its arrays).
 
-        (1, None) when ``raws[start]`` has no layout to share (not little-endian plain
-        CDR, or malformed): the caller decodes it alone and says why.
+        (n, None): decode the next ``n`` messages one by one. When the first ``min_run``
+        messages are not alike (or ``raws[start]`` has no layout to share: not
+        little-endian plain CDR, or malformed), ``n`` is ``min_run`` (or what is left):
+        messages whose layouts alternate (two drivers on one topic) then cost one check
+        per ``min_run`` messages, and the one-by-one decoder reads anything.
         """
-        first = raws[start]
-        layout = self._walk(first)
-        if layout is None:
-            return 1, None
-        size = layout.length
-        lengths = np.fromiter((len(r) for r in raws[start:]), dtype=np.int64,
-                              count=len(raws) - start)
-        n = _run_length(lengths == size)
+        size = len(raws[start])
+        first = min(start + max(min_run, 1), len(raws)) - start
+        layout = None
+        if _equal_lengths(raws, start, start + first, size) == first:
+            layout = self._walk(raws[start])
+        if layout is None or self._alike(raws, start, first, layout) < first:
+            return first, None
+        n = self._alike(raws, start, _equal_lengths(raws, start, len(raws), size), layout)
         joined = b"".join(raws[start:start + n])
-        rows = np.frombuffer(joined, dtype=np.uint8).reshape(n, size)
-        fixed = rows[:, layout.fixed]
-        n = _run_length((fixed == fixed[0]).all(axis=1))
         sec = np.ndarray((n,), dtype="<i4", buffer=joined, offset=_ORIGIN, strides=(size,))
         nsec = np.ndarray((n,), dtype="<u4", buffer=joined, offset=_ORIGIN + 4, strides=(size,))
         stamps = sec.astype(np.int64) * 1_000_000_000 + nsec.astype(np.int64)
         return n, JointBlockArrays(stamps, layout.name,
                                    _doubles_at(joined, n, size, layout.position),
                                    _doubles_at(joined, n, size, layout.velocity))
+
+    @staticmethod
+    def _alike(raws: Sequence[bytes], start: int, n: int, layout: _JointLayout) -> int:
+        """How many of the ``n`` same-length messages from ``start`` share its fixed bytes.
+
+        The fixed bytes are those the decoder reads, but the stamp and the numbers.
+        """
+        rows = np.frombuffer(b"".join(raws[start:start + n]), dtype=np.uint8)
+        fixed = rows.reshape(n, layout.length)[:, layout.fixed]
+        return _run_length((fixed == fixed[0]).all(axis=1))
 
     def _walk(self, buf: bytes) -> _JointLayout | None:
         """The offsets of ``buf``'s fields, walked as :meth:`JointStateDecoder.decode` does.
@@ -225,6 +235,15 @@ class JointBlockDecoder:
             arrays.append((off, count))
             off += 8 * count
         return _JointLayout(len(buf), names, arrays[0], arrays[1], np.flatnonzero(fixed))
+
+
+def _equal_lengths(raws: Sequence[bytes], start: int, stop: int, size: int) -> int:
+    """How many messages from ``start`` (before ``stop``) are ``size`` bytes long."""
+    stop = min(stop, len(raws))
+    for k in range(start, stop):
+        if len(raws[k]) != size:
+            return k - start
+    return stop - start
 
 
 def _run_length(same: npt.NDArray[np.bool_]) -> int:
@@ -379,6 +398,21 @@ def _filled(template: bytes | bytearray, n: int) -> npt.NDArray[np.uint8]:
     return np.tile(np.frombuffer(bytes(template), dtype=np.uint8), (n, 1))
 
 
+def _planar_rows(template: bytes | bytearray, at: tuple[int, int, int], fields: PlanarFields,
+                 pose: npt.NDArray[np.float64]) -> npt.NDArray[np.uint8]:
+    """Rows of ``template``, each pose's stamp, x, y and quaternion z, w filled in.
+
+    ``at``: the offsets of the stamp, x and z (the fields Odometry and /tf share).
+    """
+    stamp, xy, qzw = at
+    rows = _filled(template, len(fields.sec))
+    _put(rows, stamp, "<i4", fields.sec)
+    _put(rows, stamp + 4, "<u4", fields.nanosec)
+    _put(rows, xy, "<f8", pose[:, :2])
+    _put(rows, qzw, "<f8", fields.qzw)
+    return rows
+
+
 def _put(rows: npt.NDArray[np.uint8], at: int, dtype: str, values: npt.ArrayLike) -> None:
     """Write one field (or a run of them, a 2-D ``values``) of every row at byte ``at``."""
     col = np.ascontiguousarray(values, dtype=dtype)
@@ -418,11 +452,7 @@ class BulkOdometry(OdometryLayout):
 
         ``fields``: the stamps and headings' fields (:func:`planar_fields`).
         """
-        rows = _filled(self._buf, len(fields.sec))
-        _put(rows, self._stamp, "<i4", fields.sec)
-        _put(rows, self._stamp + 4, "<u4", fields.nanosec)
-        _put(rows, self._xy, "<f8", pose[:, :2])
-        _put(rows, self._qzw, "<f8", fields.qzw)
+        rows = _planar_rows(self._buf, (self._stamp, self._xy, self._qzw), fields, pose)
         _put(rows, self._linear, "<f8", twist[:, 0])
         _put(rows, self._angular, "<f8", twist[:, 1])
         _put(rows, self._pose_cov, "<f8", pose_cov)
@@ -438,9 +468,4 @@ class BulkTransform(TransformLayout):
 
         ``fields``: the stamps and headings' fields (:func:`planar_fields`).
         """
-        rows = _filled(self._buf, len(fields.sec))
-        _put(rows, self._stamp, "<i4", fields.sec)
-        _put(rows, self._stamp + 4, "<u4", fields.nanosec)
-        _put(rows, self._xy, "<f8", pose[:, :2])
-        _put(rows, self._qzw, "<f8", fields.qzw)
-        return rows
+        return _planar_rows(self._buf, (self._stamp, self._xy, self._qzw), fields, pose)

@@ -269,8 +269,8 @@ def _group(raws: list[bytes], logs: list[int], decode: _JointStates,
     """One group of raw messages into the reordering: blocks where they are alike."""
     i = 0
     while i < len(raws):
-        n, arrays = blocks.decode(raws, i)
-        if arrays is None or n < order.window:  # short runs are not worth a block
+        n, arrays = blocks.decode(raws, i, min_run=order.window)
+        if arrays is None:  # a run too short for a block (push_block's rule), or no layout
             for k in range(i, i + n):
                 yield from order.push(decode(raws[k], JOINT_STATE, logs[k]))
         else:

@@ -142,18 +142,15 @@ class BackgroundFile:
         if size < self.GATHER:
             self._small += data
             if len(self._small) >= self.GATHER:
-                self._put(bytes(self._small))
+                self._queue.put(bytes(self._small))
                 self._small.clear()
         else:
             if self._small:
-                self._put(bytes(self._small))
+                self._queue.put(bytes(self._small))
                 self._small.clear()
-            self._put(data if isinstance(data, bytes) else bytes(data))
+            self._queue.put(data if isinstance(data, bytes) else bytes(data))
         self._pos += size
         return size
-
-    def _put(self, data: bytes) -> None:
-        self._queue.put(data)
 
     def tell(self) -> int:
         """Where the next byte goes (written or still queued)."""
@@ -163,7 +160,7 @@ class BackgroundFile:
         """Write what is queued, stop the thread, close the file; raise a failed write."""
         if self._thread.is_alive():
             if self._small:
-                self._put(bytes(self._small))
+                self._queue.put(bytes(self._small))
                 self._small.clear()
             self._queue.put(None)
             self._thread.join()
