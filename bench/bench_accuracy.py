@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from diffdrive_odom.core.integration import Pose2D, compose
+from diffdrive_odom.core.geometry.integration import Pose2D, compose
 
 Pose = tuple[float, float, float]
 Step = Callable[[Pose, float, float], Pose]

@@ -44,12 +44,13 @@ from typing import Any
 
 import numpy as np
 
-from diffdrive_odom.core import batch, calibration, crossval
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.metrics import Metrics
-from diffdrive_odom.core.pipeline import ReadingPipeline
-from diffdrive_odom.core.recorded_run import Run, values_of
-from diffdrive_odom.core.uncertainty import (
+from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.evaluation import calibration, crossval
+from diffdrive_odom.core.evaluation.metrics import Metrics
+from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.uncertainty.propagation import (
     DEFAULT_K,
     DEFAULT_RADIUS_STDDEV_RATIO,
     DEFAULT_SEPARATION_STDDEV_RATIO,

@@ -28,7 +28,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from diffdrive_odom.core.pipeline import ReadingPipeline  # noqa: E402
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline  # noqa: E402
 from diffdrive_odom.settings.odometry import odometry_settings  # noqa: E402
 from diffdrive_odom.settings.params import ParamValue  # noqa: E402
 

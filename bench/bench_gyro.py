@@ -32,7 +32,7 @@ import random
 import time
 from dataclasses import dataclass
 
-from diffdrive_odom.core.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.settings.odometry import odometry_settings
 
 R, B = 0.033, 0.16
@@ -258,7 +258,7 @@ def live(seconds: float) -> None:
     from rclpy.context import Context
     from sensor_msgs.msg import Imu, JointState
 
-    from diffdrive_odom.core.conversions import ns_to_stamp
+    from diffdrive_odom.wire.conversions import ns_to_stamp
 
     exe = str(Path(sys.executable).parent / "odometry_node")
     env = {**os.environ, "ROS_DOMAIN_ID": str(rnd.randint(150, 200)),

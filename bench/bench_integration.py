@@ -22,10 +22,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from diffdrive_odom.core.encoders import EncoderConfig
-from diffdrive_odom.core.estimator import OdometryEstimator
-from diffdrive_odom.core.integration import Pose2D, compose, integrate_batch
-from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.estimation.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.estimator import OdometryEstimator
+from diffdrive_odom.core.geometry.integration import Pose2D, compose, integrate_batch
+from diffdrive_odom.core.geometry.kinematics import Geometry
 
 Step = Callable[[tuple[float, float, float], float, float], tuple[float, float, float]]
 

@@ -45,10 +45,10 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from diffdrive_odom.core.conversions import ns_to_stamp, stamp_to_ns
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS
 from diffdrive_odom.ros.runtime import EXECUTOR_ENV, EXECUTOR_KINDS, make_executor
 from diffdrive_odom.tools import process
+from diffdrive_odom.wire.conversions import ns_to_stamp, stamp_to_ns
 
 BIN = Path(sys.executable).parent
 NODE_PARAMS = ["-p", "wheel_radius:=0.05", "-p", "wheel_separation:=0.3"]

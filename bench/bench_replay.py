@@ -21,7 +21,7 @@ one four times longer.
 
 Sizes (issue 19): synthetic bags of 1e4, 1e5 and 1e6 readings (``--sizes``), side by
 side: rosbags' decode-only, replay -> bag and replay -> CSV through the fast lane
-(:mod:`diffdrive_odom.core.fastlane`), replay -> bag one reading at a time (up to
+(:mod:`diffdrive_odom.core.bulk.fastlane`), replay -> bag one reading at a time (up to
 ``--slow-max`` readings), and the peak traced allocation of replay -> bag.
 """
 
@@ -42,8 +42,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from diffdrive_odom.core import batch  # noqa: E402
-from diffdrive_odom.core.readings import count  # noqa: E402
+from diffdrive_odom.core.bulk import batch  # noqa: E402
+from diffdrive_odom.core.bulk.readings import count  # noqa: E402
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings  # noqa: E402
 from diffdrive_odom.tools import bagio, replay, sinks  # noqa: E402
 

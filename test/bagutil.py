@@ -11,8 +11,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.core.conversions import yaw_to_quaternion
 from diffdrive_odom.tools.bagio import ODOMETRY, TF_MESSAGE
+from diffdrive_odom.wire.conversions import yaw_to_quaternion
 
 OPTIODOM_PARAMS = {"wheel_radius": 0.042, "wheel_separation": 0.200}
 TB3_PARAMS = {
@@ -48,7 +48,7 @@ class OdomMessages:
     """Builds nav_msgs/Odometry and tf2_msgs/TFMessage with rosbags' message classes.
 
     Test bags written this way are independent of the byte layouts the node and replay
-    use (:mod:`diffdrive_odom.core.cdr`).
+    use (:mod:`diffdrive_odom.wire.cdr`).
     """
 
     def __init__(self, store: Typestore, odom_frame: str, base_frame: str) -> None:

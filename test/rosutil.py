@@ -32,10 +32,10 @@ from rclpy.parameter import parameter_value_to_python
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
-from diffdrive_odom.core.conversions import ns_to_stamp
-from diffdrive_odom.core.errors import ParameterError
 from diffdrive_odom.ros.qos import qos
+from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.tools import process
+from diffdrive_odom.wire.conversions import ns_to_stamp
 
 BIN = Path(sys.executable).parent
 ROOT = Path(__file__).resolve().parent.parent

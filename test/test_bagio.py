@@ -20,9 +20,9 @@ from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 
-from diffdrive_odom.core.cdr import OdometryLayout, TransformLayout
-from diffdrive_odom.core.conversions import quaternion_to_yaw
 from diffdrive_odom.tools import bagio
+from diffdrive_odom.wire.cdr import OdometryLayout, TransformLayout
+from diffdrive_odom.wire.conversions import quaternion_to_yaw
 
 from bagutil import mcap_messages
 from rosutil import DATA

@@ -17,10 +17,12 @@ import numpy as np
 import pytest
 import yaml
 
-from diffdrive_odom.core import batch, calibration, crossval, routes, umbmark
-from diffdrive_odom.core.kinematics import Geometry, wheel_rates
-from diffdrive_odom.core.metrics import Trajectory
-from diffdrive_odom.core.recorded_run import Run, values_of
+from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.evaluation import calibration, crossval, umbmark
+from diffdrive_odom.core.evaluation.metrics import Trajectory
+from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
+from diffdrive_odom.core.geometry.kinematics import Geometry, wheel_rates
+from diffdrive_odom.core.motion import routes
 from diffdrive_odom.settings import odometry as odometry_settings
 from diffdrive_odom.settings import params
 from diffdrive_odom.tools.cli import main as cli
@@ -88,8 +90,8 @@ def true_values() -> np.ndarray:
 
 @pytest.mark.process
 def test_core_modules_import_no_ros_or_bag_library() -> None:
-    code = ("import sys, diffdrive_odom.core.batch, diffdrive_odom.core.metrics, "
-            "diffdrive_odom.core.calibration, diffdrive_odom.core.umbmark; "
+    code = ("import sys, diffdrive_odom.core.bulk.batch, diffdrive_odom.core.evaluation.metrics, "
+            "diffdrive_odom.core.evaluation.calibration, diffdrive_odom.core.evaluation.umbmark; "
             "print([m for m in ('rclpy', 'rosbags') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout

@@ -18,8 +18,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
-from diffdrive_odom.core.cdr import JointStateDecoder, OdometryLayout, TransformLayout
 from diffdrive_odom.tools import bagio
+from diffdrive_odom.wire.cdr import JointStateDecoder, OdometryLayout, TransformLayout
 
 from rosutil import DATA
 

@@ -14,14 +14,14 @@ import numpy as np
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core.kinematics import (
+from diffdrive_odom.core.commands.limits import CommandLimits, TwistLimiter
+from diffdrive_odom.core.geometry.kinematics import (
     Geometry,
     body_increment,
     point_velocity_to_twist,
     scale_to_wheel_limit,
     wheel_rates,
 )
-from diffdrive_odom.core.limits import CommandLimits, TwistLimiter
 
 geometries = st.builds(
     Geometry,

@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 import yaml
 
-from diffdrive_odom.core.paths import polyline
+from diffdrive_odom.core.motion.paths import polyline
 from diffdrive_odom.demo import BAG_TOPICS, DEFAULT_PARAMS
 from diffdrive_odom.tools import bagio, evaluate
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from diffdrive_odom.core.metrics import Trajectory
+from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.demo import report, settings
 from diffdrive_odom.demo.report import (
     FIT,

@@ -6,20 +6,20 @@ import math
 
 import pytest
 
-from diffdrive_odom.core.base_diagnostics import CommandHealth, CommandState, cmd_vel_report
-from diffdrive_odom.core.diagnostics import (
+from diffdrive_odom.core.commands.limits import (
+    AxisLimits,
+    CommandLimits,
+    TwistLimiter,
+)
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.health.base_diagnostics import CommandHealth, CommandState, cmd_vel_report
+from diffdrive_odom.core.health.diagnostics import (
     Level,
     RateMeter,
     ReadingHealth,
     ReadingThresholds,
     Reporter,
     odometry_report,
-)
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.limits import (
-    AxisLimits,
-    CommandLimits,
-    TwistLimiter,
 )
 
 # --- Level ---------------------------------------------------------------------------

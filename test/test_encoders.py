@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from diffdrive_odom.core.encoders import (
+from diffdrive_odom.core.estimation.encoders import (
     EncoderConfig,
     EncoderConfigError,
     JointLookup,

@@ -12,12 +12,17 @@ from dataclasses import replace
 
 import pytest
 
-from diffdrive_odom.core.encoders import EncoderConfig
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimator import EstimatorConfig, OdometryEstimator, Reason, Status
-from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.se2 import wrap_angle
+from diffdrive_odom.core.estimation.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.estimator import (
+    EstimatorConfig,
+    OdometryEstimator,
+    Reason,
+    Status,
+)
+from diffdrive_odom.core.geometry.integration import Pose2D
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.se2 import wrap_angle
 
 import oracle
 

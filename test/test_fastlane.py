@@ -24,14 +24,18 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core import batch, fastlane
-from diffdrive_odom.core.fastcov import bulk_covariance
-from diffdrive_odom.core.integration import Pose2D, compose
-from diffdrive_odom.core.kinematics import Geometry, body_increment
-from diffdrive_odom.core.pipeline import ReadingPipeline
-from diffdrive_odom.core.readings import JointBlock, JointReading
-from diffdrive_odom.core.se2 import wrap_angle
-from diffdrive_odom.core.uncertainty import NoiseModel, PoseUncertainty, pose_message_covariance
+from diffdrive_odom.core.bulk import batch, fastlane
+from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.geometry.integration import Pose2D, compose
+from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
+from diffdrive_odom.core.geometry.se2 import wrap_angle
+from diffdrive_odom.core.uncertainty.fastcov import bulk_covariance
+from diffdrive_odom.core.uncertainty.propagation import (
+    NoiseModel,
+    PoseUncertainty,
+    pose_message_covariance,
+)
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
 from diffdrive_odom.tools import bagio, replay
 

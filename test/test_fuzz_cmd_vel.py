@@ -20,14 +20,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core.cmd_vel_pipeline import DROP_REASONS, IMPLAUSIBLE, CommandPipeline
+from diffdrive_odom.core.commands.cmd_vel_pipeline import DROP_REASONS, IMPLAUSIBLE, CommandPipeline
 from diffdrive_odom.settings.cmd_vel import (
     DEFAULT_PLAUSIBLE_WHEEL_VELOCITY,
     TICKS_PER_SECOND,
     WHEEL_COMMAND_FORMATS,
     cmd_vel_settings,
 )
-from diffdrive_odom.settings.params import ParameterError
+from diffdrive_odom.settings.errors import ParameterError
 
 FUZZ = settings(max_examples=2000, derandomize=True, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

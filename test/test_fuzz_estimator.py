@@ -18,13 +18,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core.encoders import EncoderConfig
-from diffdrive_odom.core.estimator import EstimatorConfig, OdometryEstimator, Status
-from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.pipeline import ReadingPipeline
-from diffdrive_odom.core.se2 import wrap_angle
-from diffdrive_odom.core.uncertainty import NoiseModel
+from diffdrive_odom.core.estimation.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.estimator import EstimatorConfig, OdometryEstimator, Status
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.geometry.integration import Pose2D
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.se2 import wrap_angle
+from diffdrive_odom.core.uncertainty.propagation import NoiseModel
 from diffdrive_odom.settings.odometry import OdometrySettings
 
 import oracle

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import pytest
 
-from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.pipeline import IMU_BACK, IMU_SILENT, ReadingPipeline
+from diffdrive_odom.core.estimation.pipeline import IMU_BACK, IMU_SILENT, ReadingPipeline
+from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
 
 from oracle import arc
@@ -268,7 +268,7 @@ def test_imu_samples_arriving_after_the_wheel_reading_are_caught_up() -> None:
     ("slip_threshold_sigmas", 0.0),
 ])
 def test_bad_gyro_parameters_are_named(name: str, value: object) -> None:
-    from diffdrive_odom.core.errors import ParameterError
+    from diffdrive_odom.settings.errors import ParameterError
 
     with pytest.raises(ParameterError) as err:
         settings(use_imu=True, **{name: value})

@@ -14,9 +14,9 @@ import math
 import numpy as np
 import pytest
 
-from diffdrive_odom.core.errors import ParameterError
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.sim import DiffDriveSim, SimConfig, SimConfigError, SlipEvent
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.sim.model import DiffDriveSim, SimConfig, SimConfigError, SlipEvent
+from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.sim import sim_settings
 
 G = Geometry(0.033, 0.16)

@@ -14,15 +14,15 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from diffdrive_odom.core.integration import (
+from diffdrive_odom.core.geometry.integration import (
     Pose2D,
     cir_increment,
     compose,
     compose_jacobians,
     integrate_batch,
 )
-from diffdrive_odom.core.kinematics import Geometry, body_increment
-from diffdrive_odom.core.se2 import wrap_angle
+from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
+from diffdrive_odom.core.geometry.se2 import wrap_angle
 
 import oracle
 

@@ -1,6 +1,7 @@
-"""The core and the settings never import rclpy, ROS messages or bag libraries: enforced.
+"""The core, the settings and the wire codecs never import rclpy, ROS messages or bag libraries.
 
-Every module of ``diffdrive_odom.core`` and ``diffdrive_odom.settings`` (walked with
+Every module of ``diffdrive_odom.core``, ``diffdrive_odom.settings`` and
+``diffdrive_odom.wire`` (walked with
 pkgutil, so a new module is checked too) is imported in a fresh interpreter in which
 those packages cannot be imported at all (a meta-path finder refuses them), so an
 import anywhere in their import graph, even an indirect one, fails the test with the
@@ -21,6 +22,7 @@ import pytest
 
 import diffdrive_odom.core
 import diffdrive_odom.settings
+import diffdrive_odom.wire
 
 pytestmark = [pytest.mark.process]
 
@@ -58,9 +60,9 @@ print(json.dumps(failures))
 
 
 def pure_modules() -> list[str]:
-    """Every module of the core and settings packages, and :data:`ALSO_PURE`."""
+    """Every module of the core, settings and wire packages, and :data:`ALSO_PURE`."""
     names = []
-    for package in (diffdrive_odom.core, diffdrive_odom.settings):
+    for package in (diffdrive_odom.core, diffdrive_odom.settings, diffdrive_odom.wire):
         names.append(package.__name__)
         names += [m.name for m in pkgutil.walk_packages(package.__path__, package.__name__ + ".")]
     return sorted(names) + list(ALSO_PURE)
@@ -68,10 +70,10 @@ def pure_modules() -> list[str]:
 
 def test_the_core_imports_no_ros_and_no_rosbags() -> None:
     modules = pure_modules()
-    assert {"diffdrive_odom.core.integration", "diffdrive_odom.core.estimator",
-            "diffdrive_odom.core.conversions", "diffdrive_odom.core.pipeline",
+    assert {"diffdrive_odom.core.geometry.integration", "diffdrive_odom.core.estimation.estimator",
+            "diffdrive_odom.wire.conversions", "diffdrive_odom.core.estimation.pipeline",
             "diffdrive_odom.settings.params", "diffdrive_odom.settings.registry"} <= set(modules)
-    assert len([m for m in modules if m.startswith("diffdrive_odom.core.")]) >= 18
+    assert len([m for m in modules if m.startswith("diffdrive_odom.core.")]) >= 40
     out = subprocess.run(
         [sys.executable, "-c", CHECK, json.dumps(BLOCKED), json.dumps(modules)],
         capture_output=True, text=True, timeout=120, check=True)

@@ -13,8 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core.kinematics import Geometry, body_increment
-from diffdrive_odom.core.limits import (
+from diffdrive_odom.core.commands.limits import (
     AxisLimiter,
     AxisLimits,
     CommandLimits,
@@ -23,6 +22,7 @@ from diffdrive_odom.core.limits import (
     Watchdog,
     ddc_axis_limits,
 )
+from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
 
 DT = 0.01
 EPS = 1e-9

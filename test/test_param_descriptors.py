@@ -31,11 +31,11 @@ from diffdrive_odom.ros.odometry_node import OdometryNode
 from diffdrive_odom.ros.path_follower_node import PathFollowerNode
 from diffdrive_odom.ros.sim_node import SimNode
 from diffdrive_odom.settings.cmd_vel import CMD_VEL_PARAMS, cmd_vel_settings
+from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.follower import FOLLOWER_PARAMS, follower_settings
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, odometry_settings
 from diffdrive_odom.settings.params import (
     INT64_MAX,
-    ParameterError,
     ParamSpec,
     as_declared_type,
 )

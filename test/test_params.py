@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from diffdrive_odom.settings.cmd_vel import CMD_VEL_OWN_PARAMS, CMD_VEL_PARAMS
+from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.follower import FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS
 from diffdrive_odom.settings.odometry import (
@@ -20,7 +21,6 @@ from diffdrive_odom.settings.odometry import (
     odometry_settings,
 )
 from diffdrive_odom.settings.params import (
-    ParameterError,
     ParamSpec,
     load_params_file,
     parse_override,

@@ -15,13 +15,14 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.integration import Pose2D, compose
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.path_following import Gains, PathFollower, law_matrix
-from diffdrive_odom.core.paths import Arc, Line, Path, circle, line, polyline, route_points
-from diffdrive_odom.core.routes import square
+from diffdrive_odom.core.geometry.integration import Pose2D, compose
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.motion.path_following import Gains, PathFollower, law_matrix
+from diffdrive_odom.core.motion.paths import Arc, Line, Path, circle, line, polyline, route_points
+from diffdrive_odom.core.motion.routes import square
+from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.follower import FOLLOWER_PARAMS, follower_settings
-from diffdrive_odom.settings.params import ParameterError, defaults
+from diffdrive_odom.settings.params import defaults
 
 coord = st.floats(-10.0, 10.0)
 G = Geometry(0.05, 0.30)

@@ -12,11 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from diffdrive_odom.core import batch
-from diffdrive_odom.core.estimator import Reason, Status
-from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.pipeline import VELOCITY_ON, ReadingPipeline
-from diffdrive_odom.core.publication import (
+from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.estimation.estimator import Reason, Status
+from diffdrive_odom.core.estimation.pipeline import VELOCITY_ON, ReadingPipeline
+from diffdrive_odom.core.estimation.publication import (
     COVARIANCE_REFUSED,
     NON_FINITE,
     ODOMETRY_REFUSED,
@@ -24,7 +23,8 @@ from diffdrive_odom.core.publication import (
     pipeline_publication,
     publication,
 )
-from diffdrive_odom.core.throttle import KeyedThrottle
+from diffdrive_odom.core.geometry.integration import Pose2D
+from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import bagio, replay
 

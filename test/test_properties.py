@@ -14,16 +14,16 @@ from collections.abc import Sequence
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core.encoders import EncoderConfig
-from diffdrive_odom.core.estimator import (
+from diffdrive_odom.core.estimation.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.estimator import (
     MAX_STEP_ARC,
     EstimatorConfig,
     OdometryEstimator,
     Status,
 )
-from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.se2 import wrap_angle
+from diffdrive_odom.core.geometry.integration import Pose2D
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.se2 import wrap_angle
 
 NAMES = ("left_wheel_joint", "right_wheel_joint")
 DT_NS = 10_000_000

@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from diffdrive_odom.core import batch
-from diffdrive_odom.core.conversions import quaternion_to_yaw
-from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import bagio, replay, sinks
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.wire.conversions import quaternion_to_yaw
 
 import oracle
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, mcap_messages, write_params

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from diffdrive_odom.core import routes
-from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.routes import RouteError, Segment
+from diffdrive_odom.core.geometry.integration import Pose2D
+from diffdrive_odom.core.motion import routes
+from diffdrive_odom.core.motion.routes import RouteError, Segment
 
 import oracle
 

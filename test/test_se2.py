@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from diffdrive_odom.core.se2 import between, conjugate, wrap_angle, wrap_angles
+from diffdrive_odom.core.geometry.se2 import between, conjugate, wrap_angle, wrap_angles
 
 
 def test_array_wrap_has_the_scalar_convention() -> None:

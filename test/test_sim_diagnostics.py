@@ -11,8 +11,8 @@ import time
 import pytest
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.core.base_diagnostics import CommandState, SimHealth, sim_report
-from diffdrive_odom.core.diagnostics import Level
+from diffdrive_odom.core.health.base_diagnostics import CommandState, SimHealth, sim_report
+from diffdrive_odom.core.health.diagnostics import Level
 
 import diagutil
 from diagutil import assert_finite

@@ -18,19 +18,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core.conversions import covariance_matrix
-from diffdrive_odom.core.encoders import EncoderConfig
-from diffdrive_odom.core.errors import ParameterError
-from diffdrive_odom.core.estimator import OdometryEstimator
-from diffdrive_odom.core.kinematics import Geometry, wheel_rates
-from diffdrive_odom.core.pipeline import ReadingPipeline
-from diffdrive_odom.core.uncertainty import (
+from diffdrive_odom.core.estimation.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.estimator import OdometryEstimator
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.geometry.kinematics import Geometry, wheel_rates
+from diffdrive_odom.core.uncertainty.propagation import (
     DEFAULT_K,
     UNOBSERVED_VARIANCE,
     NoiseModel,
+    covariance_matrix,
     pose_message_covariance,
     twist_message_covariance,
 )
+from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
 
 import oracle
@@ -381,8 +381,8 @@ def test_final_pose_nees_of_the_optiodom_squares_with_the_defaults(run: str) -> 
     added, lies below chi-square(3)'s 99 % quantile and is not vanishingly small (a
     covariance inflated until nothing can fail is no better than an overconfident one).
     """
-    from diffdrive_odom.core.metrics import interpolate
-    from diffdrive_odom.core.se2 import between
+    from diffdrive_odom.core.evaluation.metrics import interpolate
+    from diffdrive_odom.core.geometry.se2 import between
     from diffdrive_odom.tools import bagio, evaluate
 
     from rosutil import DATA

@@ -7,7 +7,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from diffdrive_odom.core import routes
+from diffdrive_odom.core.motion import routes
 from diffdrive_odom.tools.cli import HelpFormatter, invocation
 
 from . import interrupts

@@ -12,8 +12,8 @@ import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from diffdrive_odom.core.metrics import Trajectory, match, path_length
-from diffdrive_odom.core.paths import Point
+from diffdrive_odom.core.evaluation.metrics import Trajectory, match, path_length
+from diffdrive_odom.core.motion.paths import Point
 
 from .report import FIT, GYRO, NOMINAL, UMBMARK, slip_bursts
 

@@ -22,11 +22,11 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, Float64
 
-from diffdrive_odom.core.conversions import quaternion_to_yaw, stamp_to_ns
-from diffdrive_odom.core.paths import Point
+from diffdrive_odom.core.motion.paths import Point
 from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.tools import bagio
+from diffdrive_odom.wire.conversions import quaternion_to_yaw, stamp_to_ns
 
 from . import interrupts
 from .report import ImuReading, JointSample, PoseSeries, Recording, Square

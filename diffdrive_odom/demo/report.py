@@ -1,12 +1,13 @@
 """What the demo measured, calibrated and prints: pure (numpy, scipy; no rclpy, no bag).
 
 The recorder (:mod:`.loop`) hands over what it heard; here the run is calibrated with
-the package's own calibration (:mod:`diffdrive_odom.core.calibration`: the whole-trajectory
+the package's own calibration (:mod:`diffdrive_odom.core.evaluation.calibration`: the
+whole-trajectory
 fit against the sim's ground truth, and Borenstein and Feng's UMBmark from the two
 squares' end poses), each geometry is re-integrated through the batch path
-(:mod:`diffdrive_odom.core.batch`, the estimator's own step) and compared with the truth.
+(:mod:`diffdrive_odom.core.bulk.batch`, the estimator's own step) and compared with the truth.
 The recorded readings are also replayed through the node's
-:class:`~diffdrive_odom.core.pipeline.ReadingPipeline` twice, wheels only and with the
+:class:`~diffdrive_odom.core.estimation.pipeline.ReadingPipeline` twice, wheels only and with the
 recorded gyro (``use_imu``, Borenstein and Feng, "Gyrodometry: A New Method for Combining
 Data from Gyros and Odometry in Mobile Robots"), so the sim's scripted wheel slip shows
 what the gyro saves.
@@ -22,14 +23,20 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from diffdrive_odom.core import batch, calibration
-from diffdrive_odom.core.estimator import Status
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.metrics import Trajectory, evaluate
-from diffdrive_odom.core.paths import Point
-from diffdrive_odom.core.pipeline import ReadingPipeline
-from diffdrive_odom.core.recorded_run import CalibrationError, Run, trajectory, with_values
-from diffdrive_odom.core.umbmark import reference_end, umbmark
+from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.estimation.estimator import Status
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.evaluation import calibration
+from diffdrive_odom.core.evaluation.metrics import Trajectory, evaluate
+from diffdrive_odom.core.evaluation.recorded_run import (
+    CalibrationError,
+    Run,
+    trajectory,
+    with_values,
+)
+from diffdrive_odom.core.evaluation.umbmark import reference_end, umbmark
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.motion.paths import Point
 from diffdrive_odom.settings.odometry import OdometrySettings
 
 from .settings import DemoError

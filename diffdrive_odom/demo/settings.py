@@ -13,13 +13,13 @@ from pathlib import Path
 
 import yaml
 
-from diffdrive_odom.core import routes
-from diffdrive_odom.core.paths import Point, route_points
+from diffdrive_odom.core.motion import routes
+from diffdrive_odom.core.motion.paths import Point, route_points
+from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.follower import FollowerSettings, follower_settings
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
 from diffdrive_odom.settings.params import (
     EXAMPLE_PARAMS_FILE,
-    ParameterError,
     ParamValue,
     load_params_file,
 )
@@ -198,7 +198,7 @@ def write_run_params(source: Path, changes: dict[str, dict[str, ParamValue]],
 def square_corners(side: float, clockwise: bool) -> list[Point]:
     """The square's corners in the odom frame, the robot's start ``START_OFFSET_M`` into leg 1.
 
-    The corners are UMBmark's (:func:`diffdrive_odom.core.routes.umbmark`), shifted back so
+    The corners are UMBmark's (:func:`diffdrive_odom.core.motion.routes.umbmark`), shifted back so
     the first leg runs through the start.
     """
     corners = route_points(routes.umbmark(side, clockwise=clockwise))

@@ -1,5 +1,6 @@
 """The rclpy layer (QoS, parameter glue, executors, diagnostics) and the thin nodes.
 
-May import: ``diffdrive_odom.core``, ``diffdrive_odom.settings``, rclpy and messages;
+May import: ``diffdrive_odom.core``, ``diffdrive_odom.settings``, ``diffdrive_odom.wire``,
+rclpy and messages;
 never the tools or the demo.
 """

@@ -1,6 +1,6 @@
 """``cmd_vel_node``: velocity commands -> wheel velocity commands, limited and watched.
 
-Thin rclpy shell around :class:`diffdrive_odom.core.cmd_vel_pipeline.CommandPipeline`
+Thin rclpy shell around :class:`diffdrive_odom.core.commands.cmd_vel_pipeline.CommandPipeline`
 (validation, watchdog, limits, inverse kinematics, plausibility bound): it declares
 parameters, converts messages, logs the pipeline's refusals (one throttle per reason)
 and runs one steady timer. Wheel commands go out at ``wheel_command_rate`` whatever
@@ -20,21 +20,21 @@ from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.core.base_diagnostics import CommandHealth, CommandState, cmd_vel_report
-from diffdrive_odom.core.cmd_vel_pipeline import CommandPipeline, Tick
-from diffdrive_odom.core.conversions import stamp_to_ns
-from diffdrive_odom.core.diagnostics import RateMeter, Report, Reporter
-from diffdrive_odom.core.throttle import WARN_THROTTLE_S, KeyedThrottle
+from diffdrive_odom.core.commands.cmd_vel_pipeline import CommandPipeline, Tick
+from diffdrive_odom.core.health.base_diagnostics import CommandHealth, CommandState, cmd_vel_report
+from diffdrive_odom.core.health.diagnostics import RateMeter, Report, Reporter
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, qos
 from diffdrive_odom.ros.runtime import run
+from diffdrive_odom.ros.throttle import WARN_THROTTLE_S, KeyedThrottle
 from diffdrive_odom.settings.cmd_vel import (
     CMD_VEL_PARAMS,
     JOINT_STATE,
     CmdVelSettings,
     cmd_vel_settings,
 )
+from diffdrive_odom.wire.conversions import stamp_to_ns
 
 NODE_NAME = "cmd_vel_node"
 DIAGNOSTIC_TASK = "cmd_vel"  # status "cmd_vel_node: cmd_vel" on /diagnostics

@@ -1,6 +1,6 @@
 """The /diagnostics publisher: a node's health report as diagnostic_updater would send it.
 
-The report itself is computed in :mod:`diffdrive_odom.core.diagnostics` (pure); this
+The report itself is computed in :mod:`diffdrive_odom.core.health.diagnostics` (pure); this
 module only names the status and publishes it on a steady-clock timer.
 """
 
@@ -17,7 +17,7 @@ from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.node import Node
 
-from diffdrive_odom.core.diagnostics import Report
+from diffdrive_odom.core.health.diagnostics import Report
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 from diffdrive_odom.ros.qos import DIAGNOSTICS_QOS
 

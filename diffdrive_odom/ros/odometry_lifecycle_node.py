@@ -23,8 +23,8 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from diffdrive_odom.ros.odometry_node import OdometryEndpoints
 from diffdrive_odom.ros.parameters import declare, parameter_values
 from diffdrive_odom.ros.runtime import run
+from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS
-from diffdrive_odom.settings.params import ParameterError
 
 NODE_NAME = "odometry_lifecycle_node"
 

@@ -1,12 +1,12 @@
 """``odometry_node``: sensor_msgs/JointState -> nav_msgs/Odometry and odom -> base_link.
 
-Thin rclpy shell around :class:`diffdrive_odom.core.pipeline.ReadingPipeline` (the same
+Thin rclpy shell around :class:`diffdrive_odom.core.estimation.pipeline.ReadingPipeline` (the same
 reading path replay and the demo use): it only declares parameters, converts
 messages and logs the verdicts, one throttle per reason. Output is
 stamped with the JointState's own header stamp (the measurement time), never the
 time the message happened to be processed.
 
-Messages cross rclpy as their serialised bytes (:mod:`diffdrive_odom.core.cdr`): at 1 kHz,
+Messages cross rclpy as their serialised bytes (:mod:`diffdrive_odom.wire.cdr`): at 1 kHz,
 rclpy's conversions to and from Python objects cost more than the odometry itself.
 """
 
@@ -22,31 +22,31 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
 
-from diffdrive_odom.core.cdr import (
-    JointArrays,
-    JointStateDecoder,
-    OdometryLayout,
-    TransformLayout,
-    decode_imu,
-)
-from diffdrive_odom.core.diagnostics import (
+from diffdrive_odom.core.estimation.estimator import Status
+from diffdrive_odom.core.estimation.pipeline import IMU_SILENT, Outcome, ReadingPipeline
+from diffdrive_odom.core.estimation.publication import Publication, Refusal, pipeline_publication
+from diffdrive_odom.core.health.diagnostics import (
     RateMeter,
     ReadingHealth,
     Report,
     Reporter,
     odometry_report,
 )
-from diffdrive_odom.core.estimator import Status
-from diffdrive_odom.core.pipeline import IMU_SILENT, Outcome, ReadingPipeline
-from diffdrive_odom.core.publication import Publication, Refusal, pipeline_publication
-from diffdrive_odom.core.throttle import KeyedThrottle
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS, TF_QOS
 from diffdrive_odom.ros.runtime import run
+from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, OdometrySettings, odometry_settings
 from diffdrive_odom.settings.params import ParamValue
+from diffdrive_odom.wire.cdr import (
+    JointArrays,
+    JointStateDecoder,
+    OdometryLayout,
+    TransformLayout,
+    decode_imu,
+)
 
 NODE_NAME = "odometry_node"
 NO_INPUT_WARN_S = 5.0  # s of steady time without a reading before saying so

@@ -22,8 +22,8 @@ from rclpy.exceptions import ParameterNotDeclaredException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.params import (
-    ParameterError,
     ParamSpec,
     ParamValue,
     as_declared_type,

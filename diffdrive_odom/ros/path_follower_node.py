@@ -1,6 +1,6 @@
 """``path_follower_node``: follows a path with Kumar's control law, odom in, cmd_vel out.
 
-Thin rclpy shell around :class:`diffdrive_odom.core.path_following.PathFollower`: every
+Thin rclpy shell around :class:`diffdrive_odom.core.motion.path_following.PathFollower`: every
 ``odom`` message is one step of the law (its stamps give the time step of the speed
 integral), and the twist goes to ``cmd_vel``, so the cmd_vel node's limits and
 watchdog stay between the law and the wheels. The path comes from parameters or,
@@ -21,19 +21,23 @@ from rclpy.clock_type import ClockType
 from rclpy.node import Node
 from std_msgs.msg import Bool, Float64
 
-from diffdrive_odom.core.base_diagnostics import FollowerHealth, FollowerState, follower_report
-from diffdrive_odom.core.conversions import quaternion_to_yaw, stamp_to_ns
-from diffdrive_odom.core.diagnostics import Report, Reporter
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.path_following import Command, PathFollower
-from diffdrive_odom.core.paths import Path, polyline
-from diffdrive_odom.core.throttle import WARN_THROTTLE_S
+from diffdrive_odom.core.geometry.integration import Pose2D
+from diffdrive_odom.core.health.base_diagnostics import (
+    FollowerHealth,
+    FollowerState,
+    follower_report,
+)
+from diffdrive_odom.core.health.diagnostics import Report, Reporter
+from diffdrive_odom.core.motion.path_following import Command, PathFollower
+from diffdrive_odom.core.motion.paths import Path, polyline
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.ros.runtime import run
+from diffdrive_odom.ros.throttle import WARN_THROTTLE_S
 from diffdrive_odom.settings.follower import FOLLOWER_PARAMS, FollowerSettings, follower_settings
+from diffdrive_odom.wire.conversions import quaternion_to_yaw, stamp_to_ns
 
 NODE_NAME = "path_follower_node"
 DIAGNOSTIC_TASK = "path_follower"

@@ -21,8 +21,9 @@ from rclpy.experimental import EventsExecutor
 from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 
-from diffdrive_odom.core.dependencies import missing_text
-from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE, ParameterError
+from diffdrive_odom.settings.dependencies import missing_text
+from diffdrive_odom.settings.errors import ParameterError
+from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE
 
 
 def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:

@@ -1,6 +1,6 @@
 """``sim_node``: a simulated differential-drive base on DDS.
 
-Thin rclpy shell around :class:`diffdrive_odom.core.sim.DiffDriveSim`: it takes the
+Thin rclpy shell around :class:`diffdrive_odom.core.sim.model.DiffDriveSim`: it takes the
 cmd_vel node's wheel commands, steps the simulation at a fixed rate and publishes
 what a real base's driver would (``joint_states``, header-stamped, radians or
 ticks; with ``imu_rate`` a gyro on ``imu``: true yaw rate, bias, white noise) plus
@@ -15,7 +15,7 @@ agree. A slow machine then slows the simulated world down instead of making it
 jerky: every step is exactly ``1 / joint_state_rate`` simulated seconds.
 
 Like the other nodes it reports its health on ``/diagnostics`` (status
-"sim_node: simulation", :func:`diffdrive_odom.core.base_diagnostics.sim_report`): the step
+"sim_node: simulation", :func:`diffdrive_odom.core.health.base_diagnostics.sim_report`): the step
 and command rates, the age of the last wheel command and the watchdog's state, the
 wheel commands it refused.
 """
@@ -34,19 +34,19 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.core.base_diagnostics import CommandState, SimHealth, sim_report
-from diffdrive_odom.core.cmd_vel_pipeline import JOINT_STATE, TICKS_PER_SECOND
-from diffdrive_odom.core.conversions import ns_to_stamp, yaw_to_quaternion
-from diffdrive_odom.core.diagnostics import RateMeter, Report, Reporter
-from diffdrive_odom.core.encoders import EncoderConfig, JointLookup
-from diffdrive_odom.core.sim import TWO_PI, DiffDriveSim
-from diffdrive_odom.core.throttle import WARN_THROTTLE_S
+from diffdrive_odom.core.commands.cmd_vel_pipeline import JOINT_STATE, TICKS_PER_SECOND
+from diffdrive_odom.core.estimation.encoders import EncoderConfig, JointLookup
+from diffdrive_odom.core.health.base_diagnostics import CommandState, SimHealth, sim_report
+from diffdrive_odom.core.health.diagnostics import RateMeter, Report, Reporter
+from diffdrive_odom.core.sim.model import TWO_PI, DiffDriveSim
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, qos
 from diffdrive_odom.ros.runtime import run
+from diffdrive_odom.ros.throttle import WARN_THROTTLE_S
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.settings.sim import SIM_PARAMS, TICKS, SimSettings, sim_settings
+from diffdrive_odom.wire.conversions import ns_to_stamp, yaw_to_quaternion
 
 NODE_NAME = "sim_node"
 MAX_STEP_NS = 1_000_000_000  # a clock jump larger than this is not simulated as motion

@@ -1,4 +1,4 @@
 """ROS parameters: the machinery (rcl's params-file rules), one module per node, one registry.
 
-May import: ``diffdrive_odom.core``; never rclpy, the nodes or the tools.
+May import: ``diffdrive_odom.core``; never rclpy, the wire codecs, the nodes or the tools.
 """

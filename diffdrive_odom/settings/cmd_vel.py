@@ -11,24 +11,24 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from diffdrive_odom.core.cmd_vel_pipeline import (
+from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     FLOAT64_ARRAY as FLOAT64_ARRAY,
 )
-from diffdrive_odom.core.cmd_vel_pipeline import (
+from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     JOINT_STATE as JOINT_STATE,
 )
-from diffdrive_odom.core.cmd_vel_pipeline import (
+from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     TICKS_PER_SECOND as TICKS_PER_SECOND,
 )
-from diffdrive_odom.core.cmd_vel_pipeline import (
+from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     WHEEL_COMMAND_FORMATS as WHEEL_COMMAND_FORMATS,
 )
-from diffdrive_odom.core.cmd_vel_pipeline import (
+from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     CmdVelSettings as CmdVelSettings,
 )
-from diffdrive_odom.core.encoders import EncoderConfig
-from diffdrive_odom.core.errors import as_parameter_error
-from diffdrive_odom.core.limits import AxisLimits, CommandLimits, ddc_axis_limits
+from diffdrive_odom.core.commands.limits import AxisLimits, CommandLimits, ddc_axis_limits
+from diffdrive_odom.core.estimation.encoders import EncoderConfig
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
 from diffdrive_odom.settings.geometry import (
     GEOMETRY_PARAMS,
     STAMPED_CMD_VEL_PARAM,
@@ -37,7 +37,6 @@ from diffdrive_odom.settings.geometry import (
 from diffdrive_odom.settings.params import (
     NON_NEGATIVE,
     POSITIVE,
-    ParameterError,
     ParamSpec,
     ParamValue,
     Range,

@@ -15,17 +15,16 @@ from dataclasses import dataclass
 from pathlib import Path as FilePath
 from typing import Any
 
-from diffdrive_odom.core.errors import as_parameter_error
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.path_following import Gains
-from diffdrive_odom.core.paths import Path, Point, circle, polyline, route_points
-from diffdrive_odom.core.routes import make_route
-from diffdrive_odom.core.routes import names as route_names
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.motion.path_following import Gains
+from diffdrive_odom.core.motion.paths import Path, Point, circle, polyline, route_points
+from diffdrive_odom.core.motion.routes import make_route
+from diffdrive_odom.core.motion.routes import names as route_names
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, STAMPED_CMD_VEL_PARAM, build_geometry
 from diffdrive_odom.settings.params import (
     NON_NEGATIVE,
     POSITIVE,
-    ParameterError,
     ParamSpec,
     ParamValue,
     Range,

@@ -11,9 +11,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from diffdrive_odom.core.encoders import EncoderConfig
-from diffdrive_odom.core.errors import as_parameter_error
-from diffdrive_odom.core.kinematics import Geometry
+from diffdrive_odom.core.estimation.encoders import EncoderConfig
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.settings.errors import as_parameter_error
 from diffdrive_odom.settings.params import (
     COUNTER_BITS,
     NON_NEGATIVE,

@@ -10,17 +10,17 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from diffdrive_odom.core.errors import as_parameter_error
-from diffdrive_odom.core.estimator import EstimatorConfig
-from diffdrive_odom.core.gyro import GyroConfig
-from diffdrive_odom.core.pipeline import OdometrySettings as OdometrySettings
-from diffdrive_odom.core.stamps import StampSource
-from diffdrive_odom.core.uncertainty import (
+from diffdrive_odom.core.estimation.estimator import EstimatorConfig
+from diffdrive_odom.core.estimation.gyro import GyroConfig
+from diffdrive_odom.core.estimation.pipeline import OdometrySettings as OdometrySettings
+from diffdrive_odom.core.estimation.stamps import StampSource
+from diffdrive_odom.core.uncertainty.propagation import (
     DEFAULT_K,
     DEFAULT_RADIUS_STDDEV_RATIO,
     DEFAULT_SEPARATION_STDDEV_RATIO,
     NoiseModel,
 )
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, build_encoders, build_geometry
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
@@ -28,7 +28,6 @@ from diffdrive_odom.settings.params import (
     NON_NEGATIVE,
     POSITIVE,
     POSITIVE_OR_INF,
-    ParameterError,
     ParamSpec,
     ParamValue,
     Range,

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from diffdrive_odom.core.errors import ParameterError as ParameterError  # re-exported
+from diffdrive_odom.settings.errors import ParameterError
 
 ParamValue = Any
 

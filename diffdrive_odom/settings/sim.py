@@ -12,15 +12,15 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from diffdrive_odom.core.cmd_vel_pipeline import (
+from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     FLOAT64_ARRAY,
     TICKS_PER_SECOND,
     WHEEL_COMMAND_FORMATS,
 )
-from diffdrive_odom.core.encoders import EncoderConfig
-from diffdrive_odom.core.errors import as_parameter_error
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.sim import SimConfig, SlipEvent
+from diffdrive_odom.core.estimation.encoders import EncoderConfig
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.sim.model import SimConfig, SlipEvent
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
     COUNTER_BITS,
@@ -29,7 +29,6 @@ from diffdrive_odom.settings.params import (
     NON_NEGATIVE,
     POSITIVE,
     SIGN,
-    ParameterError,
     ParamSpec,
     ParamValue,
     Range,

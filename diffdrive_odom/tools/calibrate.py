@@ -1,12 +1,12 @@
 """``diffdrive-odom calibrate``: wheel radii, separation and their uncertainty from runs.
 
-The CLI only reads bags and prints; the fit is :mod:`diffdrive_odom.core.calibration`,
-the held-out check and the bootstrap :mod:`diffdrive_odom.core.crossval`. It judges its
+The CLI only reads bags and prints; the fit is :mod:`diffdrive_odom.core.evaluation.calibration`,
+the held-out check and the bootstrap :mod:`diffdrive_odom.core.evaluation.crossval`. It judges its
 own result first: each run integrated with a geometry fitted on the others, against
 the nominal geometry; when the nominal one does better it says so on the first line,
 exits 1 and prints no block (``--force`` prints it anyway).
 Readings are decoded with the odometry node's own parameters and pipeline
-(:func:`diffdrive_odom.core.batch.wheel_steps`), ground truth with ``eval``'s readers, so
+(:func:`diffdrive_odom.core.bulk.batch.wheel_steps`), ground truth with ``eval``'s readers, so
 a bag that replays or evaluates also calibrates. The result is printed as a
 ``/**: ros__parameters:`` block with the node's own parameter names, to paste into
 its params file (``--yaml FILE`` also writes it). The fit (scipy) and the bag reader
@@ -25,11 +25,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core import batch
-from diffdrive_odom.core.kinematics import Geometry
-from diffdrive_odom.core.recorded_run import CalibrationError, Run, trajectory, values_of
-from diffdrive_odom.core.umbmark import Umbmark, reference_end, umbmark
-from diffdrive_odom.core.uncertainty import (
+from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run, trajectory, values_of
+from diffdrive_odom.core.evaluation.umbmark import Umbmark, reference_end, umbmark
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.uncertainty.propagation import (
     DEFAULT_RADIUS_STDDEV_RATIO,
     DEFAULT_SEPARATION_STDDEV_RATIO,
     SESSION_DRIFT_RATIO,
@@ -47,8 +47,8 @@ from diffdrive_odom.tools.args import (
 from diffdrive_odom.tools.cli import HelpFormatter
 
 if TYPE_CHECKING:  # scipy and rosbags (the ``tools`` extra) only where they are used
-    from diffdrive_odom.core import crossval
-    from diffdrive_odom.core.calibration import Fit
+    from diffdrive_odom.core.evaluation import crossval
+    from diffdrive_odom.core.evaluation.calibration import Fit
 
 PREFIX = "[calibrate]"
 
@@ -205,7 +205,7 @@ def main(argv: Sequence[str]) -> int:
 def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
                    runs: Sequence[Run]) -> int:
     """Fit, check it on held-out runs, bootstrap its sigma; print (or refuse) the block."""
-    from diffdrive_odom.core import calibration, crossval
+    from diffdrive_odom.core.evaluation import calibration, crossval
 
     nominal = settings.geometry
     result = calibration.fit(runs, nominal)
@@ -303,7 +303,7 @@ def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None,
     ``covariance`` is the bootstrap's; the 1-sigma column adds ``drift`` of each value
     (:func:`crossval.with_drift`), what the value may move by in another session.
     """
-    from diffdrive_odom.core import calibration, crossval
+    from diffdrive_odom.core.evaluation import calibration, crossval
 
     nominal = values_of(fit.nominal)
     lines = [f"calibrated from {len(fit.runs)} run(s): whole trajectory, {fit.samples} "

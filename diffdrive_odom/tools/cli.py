@@ -4,7 +4,7 @@ Subcommands are imported only when used, so ``diffdrive-odom eval`` does not pay
 for rclpy and ``diffdrive-odom play`` does not pay for matplotlib. Each imports its
 optional dependencies (the ``tools`` extra: rosbags, scipy, matplotlib) only past its
 argument parsing, so ``--help`` works on a plain install; one missing at run time is
-one line naming the extra (:mod:`diffdrive_odom.core.dependencies`), exit 2.
+one line naming the extra (:mod:`diffdrive_odom.settings.dependencies`), exit 2.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from importlib import metadata
 from pathlib import Path
 from xml.etree import ElementTree
 
-from diffdrive_odom.core.dependencies import missing_text
+from diffdrive_odom.settings.dependencies import missing_text
 
 PROGRAM = "diffdrive-odom"
 PACKAGE = "diffdrive_odom"

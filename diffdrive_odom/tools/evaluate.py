@@ -1,6 +1,6 @@
 """``diffdrive-odom eval``: how far odometry is from ground truth, in numbers and a plot.
 
-The figures are computed by the pure :mod:`diffdrive_odom.core.metrics` (see its
+The figures are computed by the pure :mod:`diffdrive_odom.core.evaluation.metrics` (see its
 docstring for what each means); this module reads trajectories from bags, writes
 the JSON and the plot, and is the CLI. The metrics' names are re-exported here so
 ``evaluate.Trajectory`` / ``evaluate.evaluate`` keep working for callers.
@@ -18,8 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from diffdrive_odom.core.conversions import quaternion_to_yaw, stamp_to_ns
-from diffdrive_odom.core.metrics import (
+from diffdrive_odom.core.evaluation.metrics import (
     Matched,
     Metrics,
     Trajectory,
@@ -38,6 +37,7 @@ from diffdrive_odom.tools.args import (
     outputs_problem,
 )
 from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.wire.conversions import quaternion_to_yaw, stamp_to_ns
 
 __all__ = [
     "DEFAULT_REFERENCE", "POSE_TYPES", "Matched", "Metrics", "Trajectory", "align_best_fit",

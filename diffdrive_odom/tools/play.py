@@ -19,9 +19,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from diffdrive_odom.core.conversions import split_ns
 from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.wire.conversions import split_ns
 
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
     from rosbags.interfaces import Connection

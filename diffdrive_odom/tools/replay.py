@@ -2,10 +2,10 @@
 
 One code path with the node: the same parameter file (``params.resolve_parameters`` +
 ``odometry_settings``, so a bad value is refused with the same one line), the
-same :class:`~diffdrive_odom.core.pipeline.ReadingPipeline` (estimator, zero stamps
+same :class:`~diffdrive_odom.core.estimation.pipeline.ReadingPipeline` (estimator, zero stamps
 dropped, gap rule, ``publish_rate``), frames with the tf prefix. The
 output is what the node would have published (the one rule,
-:func:`diffdrive_odom.core.publication.publication`: nothing non-finite goes out),
+:func:`diffdrive_odom.core.estimation.publication.publication`: nothing non-finite goes out),
 written as a rosbag2 (``odom`` and ``/tf``) and/or a CSV (columns in
 :mod:`diffdrive_odom.tools.bagio`) by :mod:`diffdrive_odom.tools.sinks`. The flags it
 shares with calibrate are :mod:`diffdrive_odom.tools.args`.
@@ -14,8 +14,9 @@ Two ways through a bag:
 
 - streaming (:func:`replay_readings`): one reading at a time, constant memory, used
   by the CLI;
-- vectorised (:func:`~diffdrive_odom.core.batch.wheel_steps` then
-  :func:`~diffdrive_odom.core.batch.integrate_steps`, in the pure :mod:`diffdrive_odom.core.batch`):
+- vectorised (:func:`~diffdrive_odom.core.bulk.batch.wheel_steps` then
+  :func:`~diffdrive_odom.core.bulk.batch.integrate_steps`, in the pure
+  :mod:`diffdrive_odom.core.bulk.batch`):
   the bag decoded once into geometry-free wheel increments, then integrated for any
   geometry with numpy. The estimator itself decides which readings become steps, so
   both ways agree on what is dropped; calibration re-runs only the cheap second half
@@ -34,13 +35,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from diffdrive_odom.core import fastlane
-from diffdrive_odom.core.estimator import Reason, Status
-from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.pipeline import Outcome, PipelineStats, ReadingPipeline
-from diffdrive_odom.core.publication import Refusal, pipeline_publication
-from diffdrive_odom.core.readings import JointBlock
-from diffdrive_odom.core.readings import count as reading_count
+from diffdrive_odom.core.bulk import fastlane
+from diffdrive_odom.core.bulk.readings import JointBlock
+from diffdrive_odom.core.bulk.readings import count as reading_count
+from diffdrive_odom.core.estimation.estimator import Reason, Status
+from diffdrive_odom.core.estimation.pipeline import Outcome, PipelineStats, ReadingPipeline
+from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
+from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import evaluate, fleet, progress, sinks
 from diffdrive_odom.tools.args import (
@@ -134,9 +135,9 @@ def replay_readings(
 ) -> ReplayStats:
     """Feed readings through a fresh pipeline; the poses the node would publish go to ``sink``.
 
-    ``fast``: stretches where no rule can fire go through :mod:`diffdrive_odom.core.fastlane`
+    ``fast``: stretches where no rule can fire go through :mod:`diffdrive_odom.core.bulk.fastlane`
     (the same result, proven by test/test_fastlane.py); False: every reading one by one.
-    A :class:`~diffdrive_odom.core.readings.JointBlock` stands for its readings in order.
+    A :class:`~diffdrive_odom.core.bulk.readings.JointBlock` stands for its readings in order.
 
     What is published is decided as in the node (:func:`pipeline_publication`): a pose
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,

@@ -15,13 +15,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core.cdr import BulkOdometry, BulkTransform, planar_fields
-from diffdrive_odom.core.estimator import Status
-from diffdrive_odom.core.fastlane import Stretch
-from diffdrive_odom.core.integration import Pose2D
-from diffdrive_odom.core.metrics import Trajectory
-from diffdrive_odom.core.uncertainty import ZERO3, pose_message_covariance, twist_message_covariance
+from diffdrive_odom.core.bulk.fastlane import Stretch
+from diffdrive_odom.core.estimation.estimator import Status
+from diffdrive_odom.core.evaluation.metrics import Trajectory
+from diffdrive_odom.core.geometry.integration import Pose2D
+from diffdrive_odom.core.uncertainty.propagation import (
+    ZERO3,
+    pose_message_covariance,
+    twist_message_covariance,
+)
 from diffdrive_odom.settings.odometry import OdometrySettings
+from diffdrive_odom.wire.cdr import BulkOdometry, BulkTransform, planar_fields
 
 if TYPE_CHECKING:  # the bag library only where a bag is read or written (``tools`` extra)
     from rosbags.highlevel import AnyReader

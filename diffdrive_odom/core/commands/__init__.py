@@ -1,0 +1,3 @@
+"""Velocity commands to wheel commands: the limits and the cmd_vel pipeline."""
+
+__all__ = ['cmd_vel_pipeline', 'limits']

@@ -1,0 +1,429 @@
+"""One reading's path, shared by the odometry node, ``replay`` and the demo.
+
+Every rule for one JointState reading is applied here, in this order: the stamp is
+chosen (``stamp_source``: the header's, or the receive time) and a header stamp far
+from the receiver's clock is named once (:mod:`diffdrive_odom.core.estimation.stamps`); a zero or
+negative stamp is dropped (output is stamped with the measurement time, so an
+unstamped reading cannot be placed); the estimator decides (decode, stale stamps,
+time reset, gap, speed check, integration); the ``publish_rate`` gate decides whether
+the pose goes out. The outcome and a set of counters come back, so the node logs,
+replay summarises and diagnostics report from the same numbers. With ``use_imu`` the
+IMU's samples come in through :meth:`ReadingPipeline.feed_imu` and the estimator takes
+each step's heading from :mod:`diffdrive_odom.core.estimation.gyro` (gyrodometry). Pure Python.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+from diffdrive_odom.core.estimation.encoders import EncoderConfig, WheelIncrement, WheelReading
+from diffdrive_odom.core.estimation.estimator import (
+    EstimatorConfig,
+    OdometryEstimator,
+    Reason,
+    Status,
+    Step,
+    Verdict,
+)
+from diffdrive_odom.core.estimation.gyro import GyroConfig, GyroHeading, SlipStats
+from diffdrive_odom.core.estimation.stamps import ClockOffsetCheck, StampSource
+from diffdrive_odom.core.geometry.integration import Pose2D
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mat3 import Matrix
+from diffdrive_odom.core.uncertainty.propagation import (
+    NoiseModel,
+    covariance_matrix,
+    pose_message_covariance,
+    twist_message_covariance,
+)
+
+
+@dataclass(frozen=True)
+class OdometrySettings:
+    """All validated settings of the odometry node / replay tool.
+
+    Defined in the core so the core imports nothing above it; ``settings.odometry``
+    builds it from ROS parameters.
+    """
+
+    geometry: Geometry
+    encoders: EncoderConfig
+    estimator: EstimatorConfig
+    odom_frame_id: str
+    base_frame_id: str
+    enable_odom_tf: bool
+    publish_rate: float
+    pose_covariance_diagonal: tuple[float, ...]
+    twist_covariance_diagonal: tuple[float, ...]
+    noise: NoiseModel | None  # None: covariance_model static (the diagonals above)
+    stamp_source: StampSource = StampSource.HEADER
+    gyro: GyroConfig | None = None  # use_imu false: None (wheels only, as before)
+
+
+ZERO_STAMP = Verdict(
+    Status.DROPPED, Reason.ZERO_STAMP,
+    "header stamp is zero (odometry is stamped with the measurement time, so the driver "
+    "must stamp its readings)",
+)
+VELOCITY_ON = (
+    "wheel positions are empty or NaN for every wheel: integrating wheel velocities instead "
+    "(ros2_control without a position state interface); odometry drifts faster this way"
+)
+VELOCITY_OFF = "wheel positions are available again: integrating positions"
+IMU_SILENT = ("IMU silent (no usable yaw rate within imu_timeout of a wheel step): wheels "
+              "only, the heading covariance grows with the wheels' model again")
+IMU_BACK = "IMU samples again: gyro-aided heading"
+
+
+@dataclass(frozen=True)
+class PipelineStats:
+    """Counters since the pipeline was built (a snapshot; never changes once taken).
+
+    The names are stable: diagnostics publish them as they are.
+
+    - ``readings``: readings offered, usable or not.
+    - ``published``: poses that passed the publish gate.
+    - ``dropped``: readings dropped, by reason code (``zero_stamp``, ``missing_joint``,
+      ``bad_array``, ``non_finite``, ``no_data``, ``out_of_range``, ``stale_stamp``,
+      ``future_stamp``, which counts every reading of a discarded burst); only codes
+      seen. A reading stamped over ``max_reading_gap``
+      ahead is held (not published, not counted) until the next reading shows whether
+      it was a pause (then a ``gap`` re-anchor) or a lone outlier (``future_stamp``).
+    - ``reanchors``: implausible steps (faster than ``max_wheel_speed``, a wheel rolling
+      over ``estimator.MAX_STEP_ARC``, or not finite), skipped (code ``too_fast``).
+    - ``gap_reanchors``: readings more than ``max_reading_gap`` after the last usable
+      one, taken as the new reference (code ``gap``).
+    - ``time_resets``: restarts at the origin after a stamp jumped back (``time_reset``).
+    - ``last_usable_stamp_ns``: stamp of the last reading the estimator accepted
+      (None before the first).
+    - ``velocity_fallback``: True while wheel motion comes from velocities because
+      positions are empty or NaN.
+    """
+
+    readings: int = 0
+    published: int = 0
+    dropped: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    reanchors: int = 0
+    gap_reanchors: int = 0
+    time_resets: int = 0
+    last_usable_stamp_ns: int | None = None
+    velocity_fallback: bool = False
+    gyro: GyroStats | None = None  # use_imu true only
+
+    @property
+    def dropped_total(self) -> int:
+        """All dropped readings, whatever the reason."""
+        return sum(self.dropped.values())
+
+
+@dataclass(frozen=True)
+class GyroStats:
+    """The gyro's part of the counters (``use_imu`` true).
+
+    ``samples``: IMU messages offered; ``dropped``: refused by code (``non_finite``,
+    ``saturated``, ``zero_stamp``, ``stale_stamp``, ``future_stamp``); ``silent``: the
+    last step was wheels only for want of samples; ``bias`` [rad/s] and its standard
+    deviation; ``zero_velocity_updates``: bias updates while standing still; ``slips``.
+    """
+
+    samples: int = 0
+    dropped: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    silent: bool = True
+    bias: float = 0.0
+    bias_stddev: float = 0.0
+    zero_velocity_updates: int = 0
+    slips: SlipStats = field(default_factory=SlipStats)
+
+
+@dataclass(frozen=True, slots=True)
+class Outcome:
+    """What happened to one reading: the verdict, whether to publish, and a one-off note.
+
+    ``note`` is set only when the input mode changes (velocity fallback on or off), so
+    a caller that logs it says so once, not per reading; ``warning`` only the first
+    time header stamps are found far from the receiver's clock. ``stamp_ns``: the
+    reading's stamp as used (``stamp_source``), which a published pose carries.
+    """
+
+    verdict: Verdict
+    publish: bool
+    note: str = ""
+    warning: str = ""
+    stamp_ns: int = 0
+
+
+class PublishGate:
+    """The ``publish_rate`` rule shared by the node and replay.
+
+    At most one pose per period of *measurement* time (header stamps), so a bag
+    replayed at any speed, live or offline, publishes the same poses.
+    """
+
+    def __init__(self, rate: float) -> None:
+        self.rate = rate
+        self.last_ns: int | None = None
+
+    def due(self, stamp_ns: int) -> bool:
+        """Tell whether a pose stamped ``stamp_ns`` is published (and remember it if so)."""
+        last = self.last_ns
+        ok = (
+            self.rate <= 0.0
+            or last is None
+            or stamp_ns < last
+            or (stamp_ns - last) >= 1e9 / self.rate - 1e3  # 1 us slack for stamp jitter
+        )
+        if ok:
+            self.last_ns = stamp_ns
+        return ok
+
+
+@dataclass(frozen=True)
+class Handover:
+    """The pipeline's state where a bulk integrator takes over or hands back.
+
+    :mod:`diffdrive_odom.core.bulk.fastlane` integrates stretches where no rule can fire
+    from here and hands the state it reached back (:meth:`ReadingPipeline.take_back`),
+    so the next reading meets the pipeline exactly as if every reading had been fed.
+    ``reference`` is None while a rule has something pending (a held reading, stale
+    stamps, a timeline on trial): then no stretch may start. ``covariance``,
+    ``sensitivity`` and ``rates`` are the propagated model's (empty when static).
+    """
+
+    reference: WheelReading | None
+    pose: Pose2D
+    windows: tuple[tuple[float, ...], tuple[float, ...]]
+    covariance: Matrix
+    sensitivity: Matrix
+    rates: tuple[Matrix, ...]
+    gate_last_ns: int | None
+    clock_named: bool
+
+
+class ReadingPipeline:
+    """The estimator and the publish gate behind one ``feed`` call, with counters."""
+
+    def __init__(self, settings: OdometrySettings) -> None:
+        self._settings = settings
+        self._estimator = OdometryEstimator(
+            settings.geometry, settings.encoders, settings.estimator, settings.noise
+        )
+        self._static = _static_covariances(settings)
+        self._gate = PublishGate(settings.publish_rate)
+        self._readings = 0
+        self._published = 0
+        self._dropped: dict[str, int] = {}
+        self._reanchors = 0
+        self._gap_reanchors = 0
+        self._time_resets = 0
+        self._last_usable_ns: int | None = None
+        self._velocity = False
+        self._clock = ClockOffsetCheck()
+        self._gyro: GyroHeading | None = None
+        self._imu_samples = 0
+        self._imu_dropped: dict[str, int] = {}
+        self._imu_silent = False  # so a missing IMU is named at the first step
+        self._attach_gyro(settings)
+
+    def _attach_gyro(self, settings: OdometrySettings) -> None:
+        """Give the estimator the gyro's heading (``use_imu``), keeping its state if any."""
+        cfg = settings.gyro
+        if cfg is None:
+            self._gyro = None
+        elif self._gyro is None:
+            est = settings.estimator
+            self._gyro = GyroHeading(cfg, settings.noise, est.time_jump_threshold,
+                                     est.max_reading_gap)
+        else:
+            self._gyro.set_config(cfg)
+            self._gyro.noise = self._gyro.noise if settings.noise is None else settings.noise
+        self._estimator.heading = self._gyro
+        if self._gyro is not None:
+            self._gyro.wheel_stamp_ns = self._estimator.stamp_ns
+
+    @property
+    def gyro(self) -> GyroHeading | None:
+        """The gyro's state (bias, slips), None with ``use_imu`` false."""
+        return self._gyro
+
+    def feed_imu(self, stamp_ns: int, wx: float, wy: float, wz: float) -> str:
+        """Offer one IMU sample (angular velocity in the IMU's frame, header stamp).
+
+        Returns '' when kept, else the drop code (counted in ``stats.gyro.dropped``).
+        With ``use_imu`` false nothing happens ('').
+        """
+        gyro = self._gyro
+        if gyro is None:
+            return ""
+        self._imu_samples += 1
+        code = gyro.add(stamp_ns, wx, wy, wz)
+        if code:
+            self._imu_dropped[code] = self._imu_dropped.get(code, 0) + 1
+        return code
+
+    @property
+    def estimator(self) -> OdometryEstimator:
+        """The estimator (pose, twist, last step); feed readings through :meth:`feed` only."""
+        return self._estimator
+
+    @property
+    def settings(self) -> OdometrySettings:
+        """The settings in force."""
+        return self._settings
+
+    @property
+    def stats(self) -> PipelineStats:
+        """A read-only snapshot of the counters."""
+        return PipelineStats(
+            readings=self._readings,
+            published=self._published,
+            dropped=MappingProxyType(dict(self._dropped)),
+            reanchors=self._reanchors,
+            gap_reanchors=self._gap_reanchors,
+            time_resets=self._time_resets,
+            last_usable_stamp_ns=self._last_usable_ns,
+            velocity_fallback=self._velocity,
+            gyro=None if (g := self._gyro) is None else GyroStats(
+                self._imu_samples, MappingProxyType(dict(self._imu_dropped)),
+                g.silent and g.steps > 0,
+                g.bias, g.bias_variance ** 0.5, g.zero_velocity_updates, g.slips),
+        )
+
+    def feed(
+        self,
+        stamp_ns: int,
+        names: Sequence[str],
+        position: Sequence[float],
+        velocity: Sequence[float] = (),
+        receive_ns: int | None = None,
+        check_clock: bool = True,
+    ) -> Outcome:
+        """Apply every rule to one reading (a JointState's stamp and arrays).
+
+        ``receive_ns``: when it arrived on the receiver's clock (the node's clock, a
+        bag's log time; None: unknown). ``check_clock``: False where that clock is not
+        the one drivers stamp with (simulated time), so no offset is named.
+        """
+        self._readings += 1
+        warning = ""
+        if receive_ns is not None and receive_ns > 0:
+            if self._settings.stamp_source is StampSource.RECEIVE_TIME:
+                stamp_ns = receive_ns
+            elif check_clock and stamp_ns > 0:
+                warning = self._clock.check(stamp_ns, receive_ns)
+        else:
+            receive_ns = None
+        gyro = self._gyro
+        steps = 0 if gyro is None else gyro.steps
+        verdict = (
+            self._estimator.update(stamp_ns, names, position, velocity, receive_ns)
+            if stamp_ns > 0 else ZERO_STAMP
+        )
+        status = verdict.status
+        dropped = verdict.dropped_code
+        if dropped is not None:
+            self._dropped[dropped] = self._dropped.get(dropped, 0) + verdict.count
+        if gyro is not None and self._estimator.stamp_ns is not None:
+            gyro.wheel_stamp_ns = max(gyro.wheel_stamp_ns or 0, self._estimator.stamp_ns)
+            if status is Status.TIME_RESET:
+                gyro.wheel_stamp_ns = self._estimator.stamp_ns
+        if status in (Status.DROPPED, Status.HELD):
+            return Outcome(verdict, False, "", warning, stamp_ns)
+        self._last_usable_ns = stamp_ns
+        if status is Status.REANCHORED:
+            self._reanchors += 1
+        elif status is Status.TIME_RESET:
+            self._time_resets += 1
+        elif verdict.code is Reason.GAP:
+            self._gap_reanchors += 1
+        note = ""
+        if self._estimator.from_velocity != self._velocity:
+            self._velocity = not self._velocity
+            note = VELOCITY_ON if self._velocity else VELOCITY_OFF
+        elif gyro is not None and gyro.steps != steps and gyro.silent != self._imu_silent:
+            self._imu_silent = gyro.silent
+            note = IMU_SILENT if gyro.silent else IMU_BACK
+        publish = verdict.has_new_pose and self._gate.due(stamp_ns)
+        if publish:
+            self._published += 1
+        return Outcome(verdict, publish, note, warning, stamp_ns)
+
+    def handover(self) -> Handover:
+        """The state a bulk integrator starts from (see :class:`Handover`)."""
+        est, unc = self._estimator, self._estimator.uncertainty
+        return Handover(
+            est.handover(), est.pose, est.twist_windows(),
+            () if unc is None else unc.covariance, () if unc is None else unc.sensitivity,
+            () if unc is None else unc.rates, self._gate.last_ns,
+            self._clock.offset_ns is not None)
+
+    def take_back(self, state: Handover, readings: int, published: int,
+                  inc: WheelIncrement, step: Step) -> None:
+        """Install the state a bulk integrator reached after ``readings`` updates.
+
+        ``state.reference``: the last of them; ``inc``, ``step``: its step; ``published``:
+        how many of them passed the gate. Counters go on as if each had been fed.
+        """
+        assert state.reference is not None
+        est, unc = self._estimator, self._estimator.uncertainty
+        est.take_over(state.reference, state.pose, state.windows, inc, step)
+        if unc is not None:
+            unc.covariance, unc.sensitivity = state.covariance, state.sensitivity
+            unc.set_rates(state.rates)
+        self._gate.last_ns = state.gate_last_ns
+        self._readings += readings
+        self._published += published
+        self._last_usable_ns = state.reference.stamp_ns
+
+    def covariances(self) -> tuple[list[float], list[float]]:
+        """Pose and twist covariance (6x6 row-major) of the current estimate.
+
+        ``covariance_model`` propagated: the estimator's propagated model; static: the
+        configured diagonals. The node and replay both publish exactly this.
+        """
+        est = self._estimator
+        unc = est.uncertainty
+        if unc is None:
+            return self._static
+        return (pose_message_covariance(unc.pose_covariance(est.pose, est.geometry)),
+                twist_message_covariance(unc.twist_covariance()))
+
+    def reset(self) -> None:
+        """Pose and twist to the origin; the next reading is published whatever the rate."""
+        self._estimator.reset()
+        self._gate.last_ns = None
+
+    def reconfigure(self, settings: OdometrySettings) -> None:
+        """Install validated settings at runtime; the pose carries on without a jump.
+
+        A new encoder or estimator config changes the units of the reference reading
+        (a new ``stamp_source`` its time), so the pose is kept and the next reading
+        becomes the reference. Counters go on.
+        """
+        old = self._settings
+        self._settings = settings
+        self._static = _static_covariances(settings)
+        self._gate.rate = settings.publish_rate
+        if (settings.encoders != old.encoders or settings.estimator != old.estimator
+                or settings.stamp_source != old.stamp_source):
+            before = self._estimator
+            self._estimator = OdometryEstimator(
+                settings.geometry, settings.encoders, settings.estimator, settings.noise
+            )
+            self._estimator.pose = before.pose
+            if before.uncertainty is not None and self._estimator.uncertainty is not None:
+                self._estimator.uncertainty.covariance = before.uncertainty.covariance
+                self._estimator.uncertainty.sensitivity = before.uncertainty.sensitivity
+                self._estimator.uncertainty.bias_sensitivity = \
+                    before.uncertainty.bias_sensitivity
+                self._estimator.uncertainty.bias_variance = before.uncertainty.bias_variance
+        else:
+            self._estimator.set_geometry(settings.geometry)
+            self._estimator.set_noise(settings.noise)
+        self._attach_gyro(settings)
+
+
+def _static_covariances(settings: OdometrySettings) -> tuple[list[float], list[float]]:
+    return (covariance_matrix(settings.pose_covariance_diagonal),
+            covariance_matrix(settings.twist_covariance_diagonal))

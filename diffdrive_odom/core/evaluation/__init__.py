@@ -1,0 +1,3 @@
+"""Odometry against ground truth: metrics, recorded runs, calibration, held-out check, UMBmark."""
+
+__all__ = ['calibration', 'crossval', 'metrics', 'recorded_run', 'umbmark']

@@ -1,0 +1,196 @@
+"""Is a calibration any good on runs it was not fitted to? Held-out checks and a bootstrap.
+
+Pure Python + numpy. A fit always looks better on the runs it was fitted to; what a
+user needs is the error on the next run. :func:`held_out` fits on all runs but one
+group (a run: leave-one-run-out; an experiment: leave-one-experiment-out) and measures
+the group left out, for every group; :func:`check` compares that with the nominal
+geometry on the same runs, the test ``calibrate`` applies to itself before it
+recommends anything.
+
+The geometry's uncertainty is a bootstrap over runs (Efron): refit on runs drawn with
+replacement, ``B`` times; the spread of the refits is what another set of runs of the
+same robot would give, run-to-run differences included, which the Jacobian of one
+fit does not see. Fewer than 3 runs give no sigma (with 2, every resample is one of the
+two runs or both: the spread says nothing); a resample of fewer than 2 distinct runs is
+skipped (one spin on the spot does not determine the separation alone).
+
+A bootstrap over one session's runs cannot see what changes between sessions (tyres,
+floor, the kind of motion), and the geometry a user fits is applied on other days.
+The printed sigma therefore adds, in quadrature, a drift between sessions of
+``SESSION_DRIFT_RATIO`` of each value (chosen on the OptiOdom robot's June 2020
+experiments by :func:`drift_ratio`, checked on the December 2020 / January 2021 ones:
+``bench/bench_calibration.py``) (:func:`with_drift`): sigma^2 = sigma_bootstrap^2
++ (ratio * value)^2. The ratio is a method-of-moments estimate over pairs of
+experiments (:func:`drift_ratio`; DerSimonian and Laird, "Meta-analysis in clinical
+trials", the between-study variance): what their fits differ by beyond both bootstraps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from diffdrive_odom.core.evaluation import calibration
+from diffdrive_odom.core.evaluation.metrics import Metrics
+from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.uncertainty.propagation import SESSION_DRIFT_RATIO
+
+FloatArray = npt.NDArray[np.float64]
+Fitter = Callable[[Sequence[Run]], Geometry]
+
+BOOTSTRAP_RUNS = 20
+MIN_RUNS_FOR_SIGMA = 3
+SEED = 16  # fixed: the same runs print the same sigma
+
+
+def default_fitter(nominal: Geometry) -> Fitter:
+    """The product's fit (:func:`calibration.fit` with its defaults), geometry only."""
+    return lambda runs: calibration.fit(runs, nominal, figures=False).geometry
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """One run judged with a geometry fitted without it (``geometry`` None: none possible)."""
+
+    run: str
+    group: Hashable
+    geometry: Geometry | None
+    nominal: Metrics
+    held_out: Metrics | None
+
+
+def held_out(runs: Sequence[Run], nominal: Geometry, groups: Sequence[Hashable] | None = None,
+             fitter: Fitter | None = None) -> list[HeldOut]:
+    """For each group: fit on the other groups, measure this group's runs.
+
+    ``groups`` labels each run (default: every run its own group, leave-one-run-out).
+    With a single group nothing can be held out: ``geometry`` is None.
+    """
+    labels: Sequence[Hashable] = list(range(len(runs))) if groups is None else groups
+    fit = fitter or default_fitter(nominal)
+    out = []
+    for g in dict.fromkeys(labels):
+        rest = [r for r, lab in zip(runs, labels, strict=True) if lab != g]
+        geometry = fit(rest) if rest else None
+        for r, lab in zip(runs, labels, strict=True):
+            if lab == g:
+                out.append(HeldOut(r.name, g, geometry, calibration.figures_of(r, nominal),
+                                   None if geometry is None
+                                   else calibration.figures_of(r, geometry)))
+    return out
+
+
+@dataclass(frozen=True)
+class Check:
+    """Held-out means against nominal on the same runs; ``better`` only if both drop."""
+
+    runs: int
+    fpe_nominal: float  # mean start-aligned final position error [m]
+    fpe_held_out: float
+    ate_nominal: float  # mean start-aligned ATE RMSE [m]
+    ate_held_out: float
+
+    @property
+    def better(self) -> bool:
+        """Held-out final error and ATE both below nominal's."""
+        return self.fpe_held_out < self.fpe_nominal and self.ate_held_out < self.ate_nominal
+
+
+def check(results: Sequence[HeldOut]) -> Check | None:
+    """Summarise :func:`held_out`; None when no run could be held out."""
+    done = [h for h in results if h.held_out is not None]
+    if not done:
+        return None
+
+    def mean(f: Callable[[HeldOut], float]) -> float:
+        return float(np.mean([f(h) for h in done]))
+
+    return Check(
+        len(done),
+        mean(lambda h: h.nominal.final_position_error_aligned_m),
+        mean(lambda h: h.held_out.final_position_error_aligned_m if h.held_out else 0.0),
+        mean(lambda h: h.nominal.ate_rmse_aligned_m),
+        mean(lambda h: h.held_out.ate_rmse_aligned_m if h.held_out else 0.0),
+    )
+
+
+def bootstrap(runs: Sequence[Run], nominal: Geometry, resamples: int = BOOTSTRAP_RUNS,
+              seed: int = SEED, fitter: Callable[[Sequence[float]], FloatArray] | None = None
+              ) -> FloatArray | None:
+    """3x3 covariance of (left radius, right radius, separation) [m^2]; None below 3 runs.
+
+    ``fitter`` maps per-run weights to fitted values (default: :func:`calibration.fit`).
+    """
+    if len(runs) < MIN_RUNS_FOR_SIGMA:
+        return None
+
+    def default(weights: Sequence[float]) -> FloatArray:
+        return values_of(calibration.fit(runs, nominal, weights=weights,
+                                         figures=False).geometry)
+
+    refit = fitter or default
+    rng = np.random.default_rng(seed)
+    values: list[FloatArray] = []
+    while len(values) < resamples:
+        counts = np.bincount(rng.integers(0, len(runs), len(runs)), minlength=len(runs))
+        if np.count_nonzero(counts) < 2:
+            continue
+        values.append(refit(counts.astype(np.float64).tolist()))
+    return np.asarray(np.cov(np.array(values).T), dtype=np.float64)
+
+
+def stddev_ratios(values: FloatArray, covariance: FloatArray) -> tuple[float, float]:
+    """``(wheel_radius_stddev_ratio, wheel_separation_stddev_ratio)`` from a covariance.
+
+    The node models each radius as independent with one ratio: the larger of the two
+    wheels' relative sigmas (the conservative side).
+    """
+    rel = np.sqrt(np.diag(covariance)) / values
+    return float(max(rel[0], rel[1])), float(rel[2])
+
+
+def with_drift(values: FloatArray, covariance: FloatArray,
+               ratio: float = SESSION_DRIFT_RATIO) -> FloatArray:
+    """The printed covariance: the bootstrap's plus ``(ratio * value)^2`` on the diagonal.
+
+    The drift of each value between sessions is taken independent (its cause differs:
+    each tyre's wear, the contact patches' width on another floor).
+    """
+    return np.asarray(covariance + np.diag((ratio * np.asarray(values)) ** 2),
+                      dtype=np.float64)
+
+
+def drift_ratio(values: Sequence[FloatArray], covariances: Sequence[FloatArray]) -> float:
+    """Relative drift between experiments beyond their own sigmas (method of moments).
+
+    Over every pair (a, b) and parameter: ((v_a - v_b) / mean)^2 - (s_a / v_a)^2 -
+    (s_b / v_b)^2 estimates ratio^2; the mean over all of them, floored at 0, is
+    returned as a ratio. One ratio for all three values: three experiments give too few
+    pairs for one each.
+    """
+    terms: list[float] = []
+    for i in range(len(values)):
+        for j in range(i + 1, len(values)):
+            va, vb = np.asarray(values[i]), np.asarray(values[j])
+            rel = (va - vb) / ((va + vb) / 2)
+            own = (np.diag(covariances[i]) / va ** 2) + (np.diag(covariances[j]) / vb ** 2)
+            terms += (rel ** 2 - own).tolist()
+    if not terms:
+        raise ValueError("drift_ratio needs two or more experiments")
+    return float(np.sqrt(max(0.0, float(np.mean(terms)))))
+
+
+def pair_z(values_a: FloatArray, printed_a: FloatArray, values_b: FloatArray,
+           covariance_b: FloatArray) -> FloatArray:
+    """|v_a - v_b| in units of a's printed sigma with b's own (bootstrap) sigma added.
+
+    How the printed sigma is checked: b is another experiment's fit, its geometry up to
+    its own noise; if a's sigma covers b's geometry, |z| < 1 about 68 % of the time.
+    """
+    diff = np.abs(np.asarray(values_a) - np.asarray(values_b))
+    return np.asarray(diff / np.sqrt(np.diag(printed_a) + np.diag(covariance_b)),
+                      dtype=np.float64)

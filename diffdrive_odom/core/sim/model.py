@@ -1,0 +1,319 @@
+"""A simulated differential-drive base: wheel commands in, encoder readings and true pose out.
+
+Pure Python (no rclpy), so its physics is tested against closed forms in
+microseconds and reused by ``sim_node``, tests and benchmarks. What it models, each
+switchable, all random draws from one seeded ``numpy.random.Generator``:
+
+- the robot's TRUE geometry (a :class:`~diffdrive_odom.core.geometry.kinematics.Geometry`), which
+  may differ from the nominal one the odometry and cmd_vel nodes are given: that
+  difference is the systematic odometry error calibration has to find. The joint
+  signs in it are the hardware's (a flipped joint counts backwards when driving
+  forward, and turns backwards for a positive rate command);
+- a first-order motor response per joint (time constant ``tau``), integrated exactly
+  for a command held over a step;
+- encoders that count whole ticks (``ticks_per_revolution``) in a fixed-width
+  counter that wraps (``counter_bits``), starting from any count;
+- wheel slip: the ground arc of each side differs from the arc its wheel rolled by
+  Gaussian noise whose variance grows in proportion to the distance rolled (Carroll
+  and Jha, "Differential Drive Kinematics", section 2.3, add unit Gaussian noise to
+  the wheel speeds; scaling it with distance makes it independent of the step size
+  and zero at rest). Encoders see the wheel,
+  the pose follows the ground, so slip is invisible to odometry, as on a real robot;
+- a command timeout: no command for ``command_timeout`` seconds -> the wheels are
+  commanded to stop (what a real motor driver's watchdog does).
+
+Motion is integrated with the core's CIR step (:func:`integration.compose` on the
+increments given by :func:`kinematics.body_increment`), which is exact for a
+constant pair of wheel rates, so with an instant motor the true pose is exact.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.geometry.integration import Pose2D, compose
+from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
+
+TWO_PI = 2.0 * math.pi
+Array = npt.NDArray[np.float64]
+
+
+class SimConfigError(ConfigError):
+    """A simulator setting that cannot work (names the field)."""
+
+
+@dataclass(frozen=True)
+class SlipEvent:
+    """A scripted slip: one side's wheels spin ``rate`` rad/s more than they roll.
+
+    From ``start`` for ``duration`` seconds of simulated time the encoders of ``side``
+    ("left" or "right") count the extra turn; the ground (the true pose) does not see
+    it: a wheel spinning on a smooth patch.
+    """
+
+    side: str
+    start: float
+    duration: float
+    rate: float
+
+    def extra(self, t0: float, t1: float) -> float:
+        """Extra joint angle [rad] over simulated ``[t0, t1]`` seconds."""
+        a, b = max(t0, self.start), min(t1, self.start + self.duration)
+        return self.rate * (b - a) if b > a else 0.0
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """The simulated robot's physics and sensors."""
+
+    geometry: Geometry
+    wheels_per_side: int = 1
+    motor_time_constant: float = 0.0  # s; 0 = wheels follow commands instantly
+    ticks_per_revolution: float = 0.0  # 0 = ideal encoder (no quantization)
+    counter_bits: int = 0  # 0 = counter never wraps
+    initial_count: float = 0.0  # counter value at the start (put the wrap close)
+    slip_stddev: float = 0.0  # m: std of one side's slip after 1 m rolled
+    command_timeout: float = 0.5  # s without a command -> stop; 0 = never
+    substeps: int = 1  # motion steps per advance() call (only matters with a motor lag)
+    seed: int = 0
+    slip_events: tuple[SlipEvent, ...] = ()
+    gyro_bias: float = 0.0  # rad/s added to the simulated gyro's yaw rate
+    gyro_noise_density: float = 0.0  # rad/s/sqrt(Hz) of its white noise
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.wheels_per_side, int) or self.wheels_per_side < 1:
+            raise SimConfigError("wheels_per_side", f"must be >= 1, got {self.wheels_per_side!r}")
+        for name in ("motor_time_constant", "slip_stddev", "command_timeout"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise SimConfigError(name, f"must be finite and >= 0, got {value!r}")
+        tpr = self.ticks_per_revolution
+        if not (math.isfinite(tpr) and tpr >= 0.0):
+            raise SimConfigError("ticks_per_revolution", f"must be 0 or > 0, got {tpr!r}")
+        if not isinstance(self.counter_bits, int) or not 0 <= self.counter_bits <= 64:
+            raise SimConfigError(
+                "encoder_counter_bits", f"must be 0 (no wrap) to 64, got {self.counter_bits!r}")
+        if self.counter_bits > 0 and tpr == 0.0:
+            raise SimConfigError(
+                "encoder_counter_bits", "a wrapping counter needs ticks_per_revolution > 0")
+        if not math.isfinite(self.initial_count):
+            raise SimConfigError("encoder_initial_count", "must be finite")
+        if not isinstance(self.substeps, int) or self.substeps < 1:
+            raise SimConfigError("substeps", f"must be >= 1, got {self.substeps!r}")
+        for e in self.slip_events:
+            if e.side not in ("left", "right") or not (
+                    math.isfinite(e.start) and e.start >= 0.0 and math.isfinite(e.duration)
+                    and e.duration > 0.0 and math.isfinite(e.rate)):
+                raise SimConfigError("slip_events", f"cannot use {e!r}: side left or right, "
+                                     "start >= 0, duration > 0, a finite rate")
+        if not math.isfinite(self.gyro_bias):
+            raise SimConfigError("sim_gyro_bias", "must be finite")
+        if not (math.isfinite(self.gyro_noise_density) and self.gyro_noise_density >= 0.0):
+            raise SimConfigError("sim_gyro_noise_density", "must be finite and >= 0")
+
+    @property
+    def joints(self) -> int:
+        """Number of wheel joints (left ones first, then right)."""
+        return 2 * self.wheels_per_side
+
+
+@dataclass(frozen=True)
+class Twist2D:
+    """Body velocity: ``linear`` m/s along x, ``angular`` rad/s about z."""
+
+    linear: float = 0.0
+    angular: float = 0.0
+
+
+@dataclass
+class _State:
+    time_ns: int = 0
+    pose: Pose2D = field(default_factory=Pose2D)
+    twist: Twist2D = field(default_factory=Twist2D)
+    distance: float = 0.0  # path length of the axle centre on the ground [m]
+    last_command_ns: int | None = None
+
+
+class DiffDriveSim:
+    """The simulated base. Feed :meth:`command`, call :meth:`advance`, read the outputs.
+
+    Commands and readings are per joint in the joint's own convention (the same
+    arrays a ros2_control hardware interface takes and gives), left wheels first.
+    """
+
+    def __init__(self, config: SimConfig) -> None:
+        self.config = config
+        self.rng = np.random.default_rng(config.seed)
+        n = config.joints
+        self._command: Array = np.zeros(n)
+        self._rate: Array = np.zeros(n)  # joint rates now [rad/s]
+        self._angle: Array = np.zeros(n)  # true joint angles [rad], continuous
+        self._state = _State()
+        # The gyro's own stream, so turning it on does not change the slip noise's.
+        self._gyro_rng = np.random.default_rng([config.seed, 1])
+
+    def reconfigure(self, config: SimConfig) -> None:
+        """New physics/sensors from now on; pose, wheel angles and rates carry on."""
+        if config.joints != self.config.joints:
+            raise ValueError("the number of wheels cannot change at runtime")
+        if config.seed != self.config.seed:
+            self.rng = np.random.default_rng(config.seed)
+        self.config = config
+
+    # -- inputs -------------------------------------------------------------------
+
+    def command(self, rates: Sequence[float], now_ns: int | None = None) -> None:
+        """Set new joint rate targets [rad/s] (left..., right...); restarts the timeout."""
+        if len(rates) != self.config.joints:
+            raise ValueError(f"expected {self.config.joints} wheel rates, got {len(rates)}")
+        values = np.asarray(rates, dtype=np.float64)
+        if not np.all(np.isfinite(values)):
+            raise ValueError("wheel rate command is NaN or infinite")
+        self._command = values
+        self._state.last_command_ns = self._state.time_ns if now_ns is None else now_ns
+
+    def stop(self) -> None:
+        """Command zero rates (the motors still decelerate with their time constant)."""
+        self._command = np.zeros(self.config.joints)
+
+    # -- physics ------------------------------------------------------------------
+
+    def advance(self, dt_ns: int) -> None:
+        """Move the simulation ``dt_ns`` nanoseconds forward."""
+        if dt_ns <= 0:
+            return
+        cfg = self.config
+        k = cfg.substeps
+        for i in range(k):
+            sub_ns = dt_ns * (i + 1) // k - dt_ns * i // k
+            self._check_timeout()
+            self._step(sub_ns * 1e-9)
+            self._state.time_ns += sub_ns
+
+    def _check_timeout(self) -> None:
+        timeout = self.config.command_timeout
+        last = self._state.last_command_ns
+        expired = last is None or self._state.time_ns - last >= timeout * 1e9
+        if timeout > 0.0 and expired and np.any(self._command != 0.0):
+            self.stop()
+
+    def _step(self, dt: float) -> None:
+        cfg = self.config
+        tau = cfg.motor_time_constant
+        target = self._command
+        if tau > 0.0:
+            decay = math.exp(-dt / tau)
+            # Exact solution of tau * rate' = target - rate with target held over dt.
+            d_angle = target * dt + (self._rate - target) * (tau * (1.0 - decay))
+            self._rate = target + (self._rate - target) * decay
+        else:
+            d_angle = target * dt
+            self._rate = target.copy()
+        self._angle += d_angle
+        n = cfg.wheels_per_side
+        if cfg.slip_events:  # the encoders see the spin, the ground does not
+            t0 = self._state.time_ns * 1e-9
+            for e in cfg.slip_events:
+                extra = e.extra(t0, t0 + dt)
+                if extra:
+                    joints = self._angle[:n] if e.side == "left" else self._angle[n:]
+                    sign = (cfg.geometry.left_wheel_sign if e.side == "left"
+                            else cfg.geometry.right_wheel_sign)
+                    joints += sign * extra
+        d_left = float(np.mean(d_angle[:n]))
+        d_right = float(np.mean(d_angle[n:]))
+        if cfg.slip_stddev > 0.0:
+            d_left, d_right = self._slip(d_left, d_right)
+        ds, dtheta = body_increment(cfg.geometry, d_left, d_right)
+        st = self._state
+        st.pose = compose(st.pose, ds, dtheta)
+        st.distance += abs(ds)
+        if dt > 0.0:
+            st.twist = Twist2D(ds / dt, dtheta / dt)
+
+    def _slip(self, d_left: float, d_right: float) -> tuple[float, float]:
+        """Ground angle increments: each side's arc plus N(0, sigma^2 * |arc|) metres."""
+        g = self.config.geometry
+        sigma = self.config.slip_stddev
+        z = self.rng.standard_normal(2)
+        left = d_left + z[0] * sigma * math.sqrt(abs(d_left) * g.left_radius) / g.left_radius
+        right = d_right + z[1] * sigma * math.sqrt(abs(d_right) * g.right_radius) / g.right_radius
+        return left, right
+
+    # -- outputs ------------------------------------------------------------------
+
+    def gyro(self, sample_rate: float) -> float:
+        """A gyro's yaw rate [rad/s] now: the true one, plus bias and white noise.
+
+        The noise of one sample read at ``sample_rate`` Hz is ``density * sqrt(rate)``
+        (a rate noise density integrated over the sample's bandwidth).
+        """
+        cfg = self.config
+        noise = 0.0
+        if cfg.gyro_noise_density > 0.0:
+            sigma = cfg.gyro_noise_density * math.sqrt(sample_rate)
+            noise = sigma * float(self._gyro_rng.standard_normal())
+        return self._state.twist.angular + cfg.gyro_bias + noise
+
+    @property
+    def time_ns(self) -> int:
+        """Simulated time since the start [ns]."""
+        return self._state.time_ns
+
+    @property
+    def pose(self) -> Pose2D:
+        """True pose of the robot in the world frame (starts at the origin)."""
+        return self._state.pose
+
+    @property
+    def twist(self) -> Twist2D:
+        """True body velocity over the last step."""
+        return self._state.twist
+
+    @property
+    def last_command_ns(self) -> int | None:
+        """Simulated time of the last wheel command (None: never commanded)."""
+        return self._state.last_command_ns
+
+    @property
+    def distance(self) -> float:
+        """Path length driven on the ground [m]."""
+        return self._state.distance
+
+    @property
+    def joint_angles(self) -> Array:
+        """True continuous joint angles [rad] (what an ideal encoder would read)."""
+        return self._angle.copy()
+
+    @property
+    def joint_rates(self) -> Array:
+        """Current joint rates [rad/s]."""
+        return self._rate.copy()
+
+    def encoder_counts(self) -> Array:
+        """Counter values: whole ticks since the start plus the initial count, wrapped.
+
+        A real counter is an integer register: it truncates (floor) towards the
+        previous edge and wraps modulo ``2**counter_bits`` (reported unsigned).
+        """
+        cfg = self.config
+        if cfg.ticks_per_revolution <= 0.0:
+            raise ValueError("encoder_counts needs ticks_per_revolution > 0")
+        counts = np.floor(cfg.initial_count + self._angle * (cfg.ticks_per_revolution / TWO_PI))
+        if cfg.counter_bits > 0:
+            counts = np.mod(counts, float(2**cfg.counter_bits))
+        return counts
+
+    def encoder_radians(self) -> Array:
+        """Joint angles as a quantizing encoder reports them in radians (no wrap)."""
+        cfg = self.config
+        if cfg.ticks_per_revolution <= 0.0:
+            return self.joint_angles
+        scale = cfg.ticks_per_revolution / TWO_PI
+        return np.floor(self._angle * scale) / scale

@@ -1,0 +1,394 @@
+"""Pose and twist covariance of wheel odometry, propagated through the CIR step.
+
+Pure Python (no rclpy, no messages). The random part of odometry error is modelled
+as Chong and Kleeman do ("Accurate odometry and error modelling for a mobile robot",
+ICRA 1997): each wheel's ground travel over a step carries zero-mean noise of
+variance ``k |d|``, ``d`` the arc that wheel rolled, ``k`` [m] per side. Variance
+in proportion to distance makes the model independent of the reading rate (ten
+small steps add the same variance as one big one) and zero at rest. Systematic
+error (wrong radii, separation) is not random: it is the geometry term below.
+
+Each step the 3x3 pose covariance goes through the exact CIR step's Jacobians
+(Furlan, Marzorati and Sorrenti, "2D transforms for the odometry of a differential
+kinematics mobile robot"; :func:`integration.compose_jacobians`), chained with the
+linear wheel -> body map of :func:`kinematics.body_increment`:
+
+    P <- F_pose P F_pose^T + G Q G^T,   G = F_step B,   Q = diag(var_left, var_right)
+
+with ``B`` the 2x2 Jacobian of ``(ds, dtheta)`` w.r.t. the joint angle increments.
+
+Systematic error (the true radii and separation differ from the configured ones) is the
+other part of odometry error (Kelly, "Linearized Error Propagation in Odometry"; Chong
+and Kleeman): one draw per robot, not per step, so it is not added step by step. Beside
+``P`` the state carries ``J``, the sensitivity of the pose to the relative errors of
+``(left radius, right radius, separation)``:
+
+    J <- F_pose J + F_step G,   G = [[s_l / 2, s_r / 2, 0], [-s_l / b, s_r / b, -dtheta]]
+
+(``s_l``, ``s_r`` the step's wheel arcs, ``G = d(ds, dtheta) / d(ln r_l, ln r_r, ln b)``),
+and the published pose covariance adds ``J S J^T`` with ``S = diag(sr^2, sr^2, sb^2)``,
+``sr`` / ``sb`` = ``wheel_radius_stddev_ratio`` / ``wheel_separation_stddev_ratio``
+(each radius independent). That term grows with distance squared where ``P`` grows with
+distance. Reset sets both ``P`` and ``J`` back to zero.
+
+Encoder quantization (the Caltech ME/CS 133 notes, "Kinematics and Odometry for a
+Differential Drive Vehicle", list it among the four sources of drift) is *not*
+noise per step: the increments of consecutive readings telescope, so the sum of
+the wheel travels is off by the quantization of only two readings, the reference
+and the current one, however many steps lie between. It is therefore a floor added
+to the published pose covariance (``2 * tick^2 / 12`` per wheel joint, divided by
+the wheels averaged per side, mapped at the current heading), never accumulated
+into ``P``, so the covariance does not grow with the reading rate. The floor
+neglects how the reference reading's heading error swings the rest of the path
+(a lever of ``tick * r / b`` rad times the distance), which is far below the
+``k`` terms for any real encoder and any ``k`` > 0.
+
+The twist is the rolling mean of per-step rates ``ds / dt``, ``dtheta / dt``; its
+covariance comes from the same model over the same ``dt``: the wheel noise of each
+step plus the quantization of the step's two readings (here the difference of two
+readings is all there is, so both count), averaged over the window as independent
+steps (slightly pessimistic for a window > 1, exact for the default window of 1).
+
+Messages carry 6x6 row-major matrices over (x, y, z, roll, pitch, yaw) and
+(vx, vy, vz, wx, wy, wz). A planar sensor says nothing of z, roll and pitch and
+their rates: those get :data:`UNOBSERVED_VARIANCE` (large and finite, as
+robot_localization expects of a 2D sensor). Lateral velocity ``vy`` is zero by the
+rolling constraint, so the model gives it no variance. The twist covariance has no geometry
+term (not modelled: at the default ratios it is a few tenths of a percent of the speed).
+With a gyro (``use_imu``, :mod:`diffdrive_odom.core.estimation.gyro`) a step goes through
+propagate_gyro.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+from itertools import islice
+
+from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.geometry.integration import Pose2D, compose_jacobians
+from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
+from diffdrive_odom.core.geometry.mat3 import (
+    Matrix,
+    add3,
+    congruence3,
+    outer3,
+    rotate_sensitivity,
+    symmetric,
+    times2x2,
+    times_vec,
+    wheel_noise2,
+    wheel_noise3,
+)
+
+UNOBSERVED_VARIANCE = 1.0e6
+# Defaults for an uncalibrated robot: wheel-travel noise k [m] (a side's arc off by 1 mm,
+# 1 sigma, after 1 m rolled), each radius known to 0.25 % and the separation to 1 %
+# (1 sigma). Chosen on the June 2020 OptiOdom sessions (Sousa et al.) with the nominal
+# geometry and judged on the December/January ones (bench/bench_calibration.py; README
+# "Uncertainty"): final-pose mean NEES inside the 95 % band on both.
+DEFAULT_K = 1.0e-6
+DEFAULT_RADIUS_STDDEV_RATIO = 0.0025
+DEFAULT_SEPARATION_STDDEV_RATIO = 0.01
+# What a calibration's values drift between recording sessions (tyres, floor), relative,
+# 1 sigma: calibrate adds it to its bootstrap sigma (core.crossval.with_drift). Chosen on
+# the June 2020 OptiOdom experiments, checked on the Dec 2020 / Jan 2021 ones (README
+# "Calibration").
+SESSION_DRIFT_RATIO = 0.0019
+ZERO3: Matrix = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+
+
+class UncertaintyConfigError(ConfigError):
+    """A noise setting that cannot work (names the parameter)."""
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Wheel-travel noise and geometry uncertainty: what the propagated covariance covers.
+
+    ``k`` per side [m]: variance ``k * |arc|`` of each step's ground arc. The ratios: the
+    relative 1-sigma uncertainty of each effective radius and of the separation.
+    """
+
+    k_left: float = DEFAULT_K
+    k_right: float = DEFAULT_K
+    radius_stddev_ratio: float = DEFAULT_RADIUS_STDDEV_RATIO
+    separation_stddev_ratio: float = DEFAULT_SEPARATION_STDDEV_RATIO
+
+    def __post_init__(self) -> None:
+        for field, value in (("wheel_noise_k_left", self.k_left),
+                             ("wheel_noise_k_right", self.k_right),
+                             ("wheel_radius_stddev_ratio", self.radius_stddev_ratio),
+                             ("wheel_separation_stddev_ratio", self.separation_stddev_ratio)):
+            if (isinstance(value, bool) or not isinstance(value, (int, float))
+                    or not math.isfinite(value) or value < 0.0):
+                raise UncertaintyConfigError(field, f"must be finite and >= 0, got {value!r}")
+
+
+ZERO_VEC = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True, slots=True)
+class GyroStep:
+    """One gyrodometry step (:mod:`diffdrive_odom.core.estimation.gyro`) and how its errors enter.
+
+    ``(ds, dtheta) = B d + c g``: ``d`` the joint increments (the wheel model's
+    variance), ``g`` the gyro's angle (white variance ``var_gyro``, plus ``dt`` times
+    the bias error); ``geometry`` = d(ds, dtheta)/d(ln r_l, ln r_r, ln b).
+    """
+
+    ds: float
+    dtheta: float
+    b: Matrix  # 2x2
+    c: tuple[float, float]
+    var_gyro: float
+    dt: float
+    geometry: Matrix  # 2x3
+    slip: bool
+
+
+def _sensitivity_step(j: Matrix, f_pose: Matrix, f_step: Matrix, ds: float, dtheta: float,
+                      separation: float) -> Matrix:
+    """``F_pose J + F_step G``: the pose's sensitivity to the relative geometry errors."""
+    (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = j
+    a, b = f_pose[0][2], f_pose[1][2]  # F_pose = [[1, 0, a], [0, 1, b], [0, 0, 1]]
+    (f00, f01), (f10, f11), (_, f21) = f_step
+    half = 0.5 * dtheta * separation
+    s_l, s_r = ds - half, ds + half  # the wheels' arcs
+    g00, g01 = 0.5 * s_l, 0.5 * s_r
+    g10, g11, g12 = -s_l / separation, s_r / separation, -dtheta
+    return ((j00 + a * j20 + f00 * g00 + f01 * g10, j01 + a * j21 + f00 * g01 + f01 * g11,
+             j02 + a * j22 + f01 * g12),
+            (j10 + b * j20 + f10 * g00 + f11 * g10, j11 + b * j21 + f10 * g01 + f11 * g11,
+             j12 + b * j22 + f11 * g12),
+            (j20 + f21 * g10, j21 + f21 * g11, j22 + f21 * g12))
+
+
+def geometry_term(j: Matrix, radius_ratio: float, separation_ratio: float) -> Matrix:
+    """``J S J^T`` with ``S = diag(radius_ratio^2, radius_ratio^2, separation_ratio^2)``."""
+    vr, vb = radius_ratio * radius_ratio, separation_ratio * separation_ratio
+    (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = j
+    return symmetric(
+        vr * (j00 * j00 + j01 * j01) + vb * j02 * j02,
+        vr * (j00 * j10 + j01 * j11) + vb * j02 * j12,
+        vr * (j00 * j20 + j01 * j21) + vb * j02 * j22,
+        vr * (j10 * j10 + j11 * j11) + vb * j12 * j12,
+        vr * (j10 * j20 + j11 * j21) + vb * j12 * j22,
+        vr * (j20 * j20 + j21 * j21) + vb * j22 * j22,
+    )
+
+
+def wheel_jacobian(geometry: Geometry) -> Matrix:
+    """``d(ds, dtheta) / d(joint increments)``: the columns of the linear map itself."""
+    left = body_increment(geometry, 1.0, 0.0)
+    right = body_increment(geometry, 0.0, 1.0)
+    return ((left[0], right[0]), (left[1], right[1]))
+
+
+def joint_variances(
+    model: NoiseModel, geometry: Geometry, d_left: float, d_right: float
+) -> tuple[float, float]:
+    """Variance [rad^2] of each joint increment: ``k |r d| / r^2 = k |d| / r``."""
+    return (model.k_left * abs(d_left) / geometry.left_radius,
+            model.k_right * abs(d_right) / geometry.right_radius)
+
+
+def quantization_variance(ticks_per_revolution: float, wheels_per_side: int) -> float:
+    """Variance [rad^2] of one reading's joint angle from counting whole ticks (0 = radians)."""
+    if ticks_per_revolution <= 0.0:
+        return 0.0
+    tick = 2.0 * math.pi / ticks_per_revolution
+    return tick * tick / 12.0 / wheels_per_side
+
+
+# z, roll, pitch (or their rates): nothing known. Message rows 0, 1, 5: x (vx), y, yaw (wz).
+_PLANAR = [UNOBSERVED_VARIANCE if i in (14, 21, 28) else 0.0 for i in range(36)]
+
+
+def pose_message_covariance(p: Matrix) -> list[float]:
+    """3x3 (x, y, yaw) -> the 6x6 row-major pose covariance of an Odometry message."""
+    (xx, xy, xt), (yx, yy, yt), (tx, ty, tt) = p
+    cov = _PLANAR.copy()
+    cov[0], cov[1], cov[5] = float(xx), float(xy), float(xt)
+    cov[6], cov[7], cov[11] = float(yx), float(yy), float(yt)
+    cov[30], cov[31], cov[35] = float(tx), float(ty), float(tt)
+    return cov
+
+
+def twist_message_covariance(t: Matrix) -> list[float]:
+    """2x2 (vx, wz) -> the 6x6 row-major twist covariance (vy: 0 by the rolling constraint)."""
+    (vv, vw), (wv, ww) = t
+    cov = _PLANAR.copy()
+    cov[0], cov[5] = float(vv), float(vw)
+    cov[30], cov[35] = float(wv), float(ww)
+    return cov
+
+
+class PoseUncertainty:
+    """The 3x3 pose covariance state of one estimator, and the twist covariance window."""
+
+    def __init__(
+        self,
+        model: NoiseModel,
+        ticks_per_revolution: float = 0.0,
+        wheels_per_side: int = 1,
+        window: int = 1,
+        start: Matrix = ZERO3,
+    ) -> None:
+        self.model = model
+        self.start = start
+        self.covariance: Matrix = start
+        # d pose / d(ln left radius, ln right radius, ln separation); zero at the start.
+        self.sensitivity: Matrix = ZERO3
+        self._quantum = quantization_variance(ticks_per_revolution, wheels_per_side)
+        self._rates: deque[Matrix] = deque(maxlen=window)
+        self._geometry: Geometry | None = None
+        self._b: Matrix = ()
+        # Gyro mode: d pose / d(gyro bias) since the bias variance last shrank, and that
+        # variance (the bias is one draw over that stretch, as the geometry above).
+        self.bias_sensitivity: tuple[float, float, float] = ZERO_VEC
+        self.bias_variance = 0.0
+
+    def reset(self) -> None:
+        """Back to the start value (a reset or restart of the odometry); twist forgotten."""
+        self.covariance = self.start
+        self.sensitivity = ZERO3
+        self.bias_sensitivity = ZERO_VEC
+        self.forget_twist()
+
+    def forget_twist(self) -> None:
+        """Empty the twist window (the estimator forgot its rates)."""
+        self._rates.clear()
+
+    @property
+    def rates(self) -> tuple[Matrix, ...]:
+        """The twist window: each step's rate covariance, oldest first."""
+        return tuple(self._rates)
+
+    def set_rates(self, rates: Sequence[Matrix]) -> None:
+        """Replace the twist window (a bulk integrator hands its steps back)."""
+        self._rates.clear()
+        self._rates.extend(rates)
+
+    def propagate(
+        self,
+        pose_before: Pose2D,
+        geometry: Geometry,
+        *,
+        ds: float,
+        dtheta: float,
+        d_left: float,
+        d_right: float,
+        dt: float,
+    ) -> None:
+        """One CIR step from ``pose_before`` by joint increments ``d_left``, ``d_right``."""
+        f_pose, f_step = compose_jacobians(pose_before, ds, dtheta)
+        b = self._wheel_jacobian(geometry)
+        var_l, var_r = joint_variances(self.model, geometry, d_left, d_right)
+        self.covariance = add3(
+            congruence3(f_pose, self.covariance), wheel_noise3(times2x2(f_step, b), var_l, var_r)
+        )
+        self.sensitivity = _sensitivity_step(self.sensitivity, f_pose, f_step, ds, dtheta,
+                                             geometry.separation)
+        if self.bias_sensitivity is not ZERO_VEC:
+            self.bias_sensitivity = rotate_sensitivity(f_pose, self.bias_sensitivity)
+        q = 2.0 * self._quantum  # the step's two readings
+        scale = 1.0 / (dt * dt)
+        self._rates.append(wheel_noise2(b, (var_l + q) * scale, (var_r + q) * scale))
+
+    def propagate_gyro(
+        self,
+        pose_before: Pose2D,
+        step: GyroStep,
+        *,
+        d_left: float,
+        d_right: float,
+        geometry: Geometry,
+        bias_variance: float,
+    ) -> None:
+        """One CIR step whose ``(ds, dtheta) = B d + c g`` (:mod:`~.estimation.gyro`).
+
+        The wheels' noise enters through ``B``, the gyro's white noise through ``c``
+        (heading variance ``noise_density^2 dt`` per step instead of the wheels'), its
+        bias error through the sensitivity ``dt f_step c`` carried like the geometry's.
+        When a zero-velocity update shrank the bias variance, the stretch before is
+        folded into ``P`` with the variance it had (its error is done) and starts over.
+        """
+        if bias_variance < self.bias_variance:
+            jb = self.bias_sensitivity
+            self.covariance = add3(self.covariance, outer3(jb, self.bias_variance))
+            self.bias_sensitivity = ZERO_VEC
+        self.bias_variance = bias_variance
+        f_pose, f_step = compose_jacobians(pose_before, step.ds, step.dtheta)
+        var_l, var_r = joint_variances(self.model, geometry, d_left, d_right)
+        fc = times_vec(f_step, step.c)
+        self.covariance = add3(
+            add3(congruence3(f_pose, self.covariance),
+                  wheel_noise3(times2x2(f_step, step.b), var_l, var_r)),
+            outer3(fc, step.var_gyro))
+        (j0, j1, j2), ((g00, g01, g02), (g10, g11, g12)) = self.sensitivity, step.geometry
+        a, b = f_pose[0][2], f_pose[1][2]
+        (f00, f01), (f10, f11), (_, f21) = f_step
+        self.sensitivity = (  # F_pose J + F_step G, written out as _sensitivity_step
+            (j0[0] + a * j2[0] + f00 * g00 + f01 * g10, j0[1] + a * j2[1] + f00 * g01 + f01 * g11,
+             j0[2] + a * j2[2] + f00 * g02 + f01 * g12),
+            (j1[0] + b * j2[0] + f10 * g00 + f11 * g10, j1[1] + b * j2[1] + f10 * g01 + f11 * g11,
+             j1[2] + b * j2[2] + f10 * g02 + f11 * g12),
+            (j2[0] + f21 * g10, j2[1] + f21 * g11, j2[2] + f21 * g12))
+        jb = rotate_sensitivity(f_pose, self.bias_sensitivity)
+        self.bias_sensitivity = (jb[0] + step.dt * fc[0], jb[1] + step.dt * fc[1],
+                                 jb[2] + step.dt * fc[2])
+        q = 2.0 * self._quantum
+        scale = 1.0 / (step.dt * step.dt)
+        (c0, c1) = step.c
+        (t00, t01), (_, t11) = wheel_noise2(step.b, (var_l + q) * scale, (var_r + q) * scale)
+        vg = step.var_gyro * scale + bias_variance
+        self._rates.append(((t00 + c0 * c0 * vg, t01 + c0 * c1 * vg),
+                            (t01 + c0 * c1 * vg, t11 + c1 * c1 * vg)))
+
+    def _wheel_jacobian(self, geometry: Geometry) -> Matrix:
+        """:func:`wheel_jacobian`, kept while the geometry object stays the same."""
+        if geometry is not self._geometry:
+            self._geometry, self._b = geometry, wheel_jacobian(geometry)
+        return self._b
+
+    def pose_covariance(self, pose: Pose2D, geometry: Geometry) -> Matrix:
+        """Covariance of ``pose``: wheel noise, geometry uncertainty, quantization floor."""
+        model = self.model
+        cov = self.covariance
+        if model.radius_stddev_ratio or model.separation_stddev_ratio:
+            cov = add3(cov, geometry_term(self.sensitivity, model.radius_stddev_ratio,
+                                           model.separation_stddev_ratio))
+        if self.bias_sensitivity is not ZERO_VEC:
+            jb = self.bias_sensitivity
+            cov = add3(cov, outer3(jb, self.bias_variance))
+        if self._quantum == 0.0:
+            return cov
+        _, at_heading = compose_jacobians(Pose2D(0.0, 0.0, pose.theta), 0.0, 0.0)
+        w = times2x2(at_heading, self._wheel_jacobian(geometry))
+        q = 2.0 * self._quantum  # the reference and the current reading
+        return add3(cov, wheel_noise3(w, q, q))
+
+    def twist_covariance(self) -> Matrix:
+        """Covariance of the rolling-mean twist (vx, wz); zero before a step is integrated."""
+        rates = self._rates
+        n = len(rates)
+        if n == 0:
+            return ((0.0, 0.0), (0.0, 0.0))
+        if n == 1:
+            return rates[0]  # the mean of one step is that step (``v / 1`` is ``v``)
+        (t00, t01), (t10, t11) = rates[0]
+        for (r00, r01), (r10, r11) in islice(rates, 1, None):
+            t00, t01, t10, t11 = t00 + r00, t01 + r01, t10 + r10, t11 + r11
+        nn = n * n
+        return ((t00 / nn, t01 / nn), (t10 / nn, t11 / nn))
+
+
+def covariance_matrix(diagonal: Sequence[float]) -> list[float]:
+    """6x6 row-major covariance with the given diagonal (what Odometry messages carry)."""
+    cov = [0.0] * 36
+    for i, d in enumerate(diagonal):
+        cov[7 * i] = float(d)
+    return cov
