@@ -9,8 +9,8 @@ converted once with its own ``to_rosbag2.py`` into a cache folder
 (``$XDG_CACHE_HOME/diffdrive_odom`` or ``/tmp/diffdrive_odom``, never the repository),
 plus the two squares of ``../shared/data/optiodom``. Skips, saying so, where the data
 are missing. Everything goes through the product: bags read by ``tools.bagio``, steps
-by the node's pipeline, fits by ``core.calibration``, held-out fits and bootstrap by
-``core.crossval``, covariance by the node's own ``ReadingPipeline``.
+by the node's pipeline, fits by ``core.evaluation.calibration``, held-out fits and bootstrap by
+``core.evaluation.crossval``, covariance by the node's own ``ReadingPipeline``.
 
 Prints:
 1. objectives compared on held-out runs (why the whole-trajectory Cauchy fit);

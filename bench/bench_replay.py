@@ -13,7 +13,7 @@ Rows per bag (readings/s, higher is better; ratios against "rosbags decode"):
   replay -> bag    decode + pipeline + Odometry and /tf into an MCAP bag + CSV
 and, on the decoded readings held in memory:
   step-by-step     the pipeline fed one reading at a time (the node's path)
-  fast lane        the same through core.fastlane (rule-free stretches in bulk)
+  fast lane        the same through core.bulk.fastlane (rule-free stretches in bulk)
   vectorised       wheel_steps (decode once) + integrate_steps (numpy)
   integrate only   integrate_steps alone: calibration's inner loop
 Memory: peak traced allocation of streaming replay -> bag on a synthetic bag and on

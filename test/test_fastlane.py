@@ -1,6 +1,6 @@
-"""The fast lane (core.fastlane, core.fastcov) publishes what the one-by-one pipeline does.
+"""The fast lane (core.bulk.fastlane, core.uncertainty.fastcov) publishes what the pipeline does.
 
-The pipeline (core.pipeline.ReadingPipeline) is the definition of every rule; the fast
+The pipeline (core.estimation.pipeline.ReadingPipeline) is the definition of every rule; the fast
 lane integrates in bulk only the stretches where none can fire. Proven here by
 property tests: streams holding every reason code (zero stamps, missing joints, NaN,
 bursts of speed, driver restarts, gaps, time resets, far-future stamps and bursts of

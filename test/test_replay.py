@@ -234,7 +234,7 @@ def _write_run(path: Path, stamps: list[int], wheels: list[tuple[float, float]],
 def test_replay_refuses_what_the_node_refuses(
         tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """A pose whose covariance is not finite is not written, as the node does not publish
-    it (both ask core.publication): a 1e-300 m axle (accepted by the parameter checks)
+    it (both ask core.estimation.publication): a 1e-300 m axle (accepted by the parameter checks)
     driven straight. Only the reference reading's pose goes out; the rest are counted."""
     values = {"wheel_radius": 0.05, "wheel_separation": 1e-300}
     settings = _settings(tmp_path, values)

@@ -64,7 +64,7 @@ def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock],
     segments = 0
     trial_start = 0  # steps before the timeline on trial (estimator.on_trial) began
     on_trial = False
-    # The fast lane (core.fastlane): its stretches are plain steps, never on trial.
+    # The fast lane (core.bulk.fastlane): its stretches are plain steps, never on trial.
     for item in fastlane.lanes(pipe, readings, receive=False):
         if isinstance(item, fastlane.Stretch):
             header, dt, left, right = item.steps

@@ -93,7 +93,7 @@ class Stretch:
 
     count: int
     # every reading's step (the estimator's last_increment after each): header stamps,
-    # dt, d_left, d_right, as core.batch.wheel_steps collects them
+    # dt, d_left, d_right, as core.bulk.batch.wheel_steps collects them
     steps: tuple[npt.NDArray[np.int64], Array, Array, Array]
     stamp_ns: list[int]
     log_ns: list[int]

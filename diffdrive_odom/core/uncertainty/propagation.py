@@ -93,7 +93,7 @@ DEFAULT_K = 1.0e-6
 DEFAULT_RADIUS_STDDEV_RATIO = 0.0025
 DEFAULT_SEPARATION_STDDEV_RATIO = 0.01
 # What a calibration's values drift between recording sessions (tyres, floor), relative,
-# 1 sigma: calibrate adds it to its bootstrap sigma (core.crossval.with_drift). Chosen on
+# 1 sigma: calibrate adds it to its bootstrap sigma (core.evaluation.crossval.with_drift). Chosen on
 # the June 2020 OptiOdom experiments, checked on the Dec 2020 / Jan 2021 ones (README
 # "Calibration").
 SESSION_DRIFT_RATIO = 0.0019
