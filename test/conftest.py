@@ -4,6 +4,7 @@ colcon workspace that test_colcon and test_launch share."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import shutil
@@ -26,6 +27,16 @@ if os.environ.get("PYTEST_XDIST_WORKER", "").startswith("gw"):
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.pop("ROS_LOCALHOST_ONLY", None)
 os.environ.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Let matplotlib build its font cache now, outside any test's tier guard.
+
+    On a machine that has never run matplotlib, its first import runs ``fc-list``: inside
+    a pure test that is a child process the guard refuses (seen on a new machine).
+    """
+    with contextlib.suppress(ImportError):
+        import matplotlib.font_manager  # noqa: F401
 
 
 def _refuse(what: str, marker: str, nodeid: str) -> Any:
