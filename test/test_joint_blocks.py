@@ -35,7 +35,7 @@ from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools import bagio, bulkmcap, progress, replay, sinks
 from diffdrive_odom.tools.cli import main as cli
-from diffdrive_odom.wire.cdr import JointBlockDecoder
+from diffdrive_odom.wire.jointstate import JointBlockDecoder
 
 from bagutil import OPTIODOM_PARAMS, write_params
 from rosutil import DATA

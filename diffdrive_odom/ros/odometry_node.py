@@ -6,7 +6,7 @@ messages and logs the verdicts, one throttle per reason. Output is
 stamped with the JointState's own header stamp (the measurement time), never the
 time the message happened to be processed.
 
-Messages cross rclpy as their serialised bytes (:mod:`diffdrive_odom.wire.cdr`): at 1 kHz,
+Messages cross rclpy as their serialised bytes (:mod:`diffdrive_odom.wire.jointstate`): at 1 kHz,
 rclpy's conversions to and from Python objects cost more than the odometry itself.
 """
 
@@ -40,7 +40,7 @@ from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, OdometrySettings, odometry_settings
 from diffdrive_odom.settings.params import ParamValue
-from diffdrive_odom.wire.cdr import (
+from diffdrive_odom.wire.jointstate import (
     JointArrays,
     JointStateDecoder,
     OdometryLayout,

@@ -61,8 +61,8 @@ from diffdrive_odom.core.bulk.readings import JointBlock
 from diffdrive_odom.core.bulk.readings import JointReading as JointReading
 from diffdrive_odom.tools import bulkmcap
 from diffdrive_odom.tools.outputs import STORAGES as STORAGES
-from diffdrive_odom.wire.cdr import JointBlockDecoder, JointStateDecoder
 from diffdrive_odom.wire.conversions import split_ns, stamp_to_ns
+from diffdrive_odom.wire.jointstate import JointBlockDecoder, JointStateDecoder
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 IMU = "sensor_msgs/msg/Imu"
@@ -240,7 +240,7 @@ def iter_joint_blocks(
 
     The same readings in the same order (opening the blocks gives exactly what
     :func:`iter_joint_states` yields); a run of messages of one byte layout in stamp
-    order is decoded at once by :class:`~diffdrive_odom.wire.cdr.JointBlockDecoder`.
+    order is decoded at once by :class:`~diffdrive_odom.wire.jointstate.JointBlockDecoder`.
     ROS 1 bags, whose bytes that decoder does not read, come one by one.
     """
     if not reader.is2:
