@@ -22,7 +22,7 @@ from sensor_msgs.msg import JointState
 
 from diffdrive_odom.tools import bagio
 from diffdrive_odom.wire.conversions import quaternion_to_yaw
-from diffdrive_odom.wire.jointstate import OdometryLayout, TransformLayout
+from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
 from bagutil import mcap_messages
 from rosutil import DATA

@@ -19,7 +19,8 @@ from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom.tools import bagio
-from diffdrive_odom.wire.jointstate import JointStateDecoder, OdometryLayout, TransformLayout
+from diffdrive_odom.wire.jointstate import JointStateDecoder
+from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
 from rosutil import DATA
 

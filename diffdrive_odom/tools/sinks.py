@@ -25,7 +25,7 @@ from diffdrive_odom.core.uncertainty.propagation import (
     twist_message_covariance,
 )
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.wire.jointstate import BulkOdometry, BulkTransform, planar_fields
+from diffdrive_odom.wire.odometry import BulkOdometry, BulkTransform, planar_fields
 
 if TYPE_CHECKING:  # the bag library only where a bag is read or written (``tools`` extra)
     from rosbags.highlevel import AnyReader
