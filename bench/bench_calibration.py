@@ -58,7 +58,8 @@ from diffdrive_odom.core.uncertainty.propagation import (
     geometry_term,
 )
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools import bagreadings as bagio
+from diffdrive_odom.tools import evaluate
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared" / "data"

@@ -181,7 +181,8 @@ def turtlebot3(plot: str | None) -> None:
 
     from rosbags.highlevel import AnyReader
 
-    from diffdrive_odom.tools import bagio, replay
+    from diffdrive_odom.tools import bagreadings as bagio
+    from diffdrive_odom.tools import replay
     from diffdrive_odom.tools.sinks import Published
 
     bag = Path(__file__).resolve().parent.parent / "test" / "data" / "turtlebot3_sim" / \

@@ -45,7 +45,8 @@ sys.path.insert(0, str(ROOT))
 from diffdrive_odom.core.bulk import batch  # noqa: E402
 from diffdrive_odom.core.bulk.readings import count  # noqa: E402
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings  # noqa: E402
-from diffdrive_odom.tools import bagio, replay, sinks  # noqa: E402
+from diffdrive_odom.tools import bagreadings as bagio  # noqa: E402
+from diffdrive_odom.tools import replay, sinks  # noqa: E402
 
 DATA = ROOT / "test" / "data"
 

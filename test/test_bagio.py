@@ -20,7 +20,7 @@ from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 
-from diffdrive_odom.tools import bagio
+from diffdrive_odom.tools import bagreadings as bagio
 from diffdrive_odom.wire.conversions import quaternion_to_yaw
 from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 

@@ -18,7 +18,8 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2.storage_mcap import McapWriter
 
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
-from diffdrive_odom.tools import bagio, bulkmcap, replay, sinks
+from diffdrive_odom.tools import bagreadings as bagio
+from diffdrive_odom.tools import bulkmcap, replay, sinks
 
 DATA = Path(__file__).parent / "data"
 OPTIODOM = odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})

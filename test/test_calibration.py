@@ -204,7 +204,8 @@ def test_umbmark_with_noise_stays_near_the_truth() -> None:
 
 
 def _optiodom_runs() -> list[Run]:
-    from diffdrive_odom.tools import bagio, evaluate
+    from diffdrive_odom.tools import bagreadings as bagio
+    from diffdrive_odom.tools import evaluate
 
     settings = odometry_settings.odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
     return [Run(name, batch.wheel_steps(bagio.read_joint_states(OPTIODOM / name), settings),

@@ -32,7 +32,8 @@ import yaml
 
 from diffdrive_odom.core.motion.paths import polyline
 from diffdrive_odom.demo import BAG_TOPICS, DEFAULT_PARAMS
-from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools import bagreadings as bagio
+from diffdrive_odom.tools import evaluate
 
 import oracle
 from rosutil import executable

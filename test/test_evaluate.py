@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools import bagreadings as bagio
+from diffdrive_odom.tools import evaluate
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.tools.evaluate import Trajectory
 

@@ -37,7 +37,8 @@ from diffdrive_odom.core.uncertainty.propagation import (
     pose_message_covariance,
 )
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
-from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools import bagreadings as bagio
+from diffdrive_odom.tools import replay
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS
 from rosutil import DATA

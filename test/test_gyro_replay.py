@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from rosbags.highlevel import AnyReader
 
-from diffdrive_odom.tools import bagio
+from diffdrive_odom.tools import bagreadings as bagio
 from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import TB3_PARAMS, write_params

@@ -33,7 +33,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagio, bulkmcap, progress, replay, sinks
+from diffdrive_odom.tools import bagreadings as bagio
+from diffdrive_odom.tools import bulkmcap, progress, replay, sinks
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.wire.jointstate import JointBlockDecoder
 

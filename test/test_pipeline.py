@@ -26,7 +26,8 @@ from diffdrive_odom.core.estimation.publication import (
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools import bagreadings as bagio
+from diffdrive_odom.tools import replay
 
 from bagutil import write_params
 

@@ -16,7 +16,8 @@ import pytest
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 
-from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools import bagreadings as bagio
+from diffdrive_odom.tools import replay
 from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, write_params

@@ -23,7 +23,8 @@ from rosbags.highlevel import AnyReader
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import bagio, replay, sinks
+from diffdrive_odom.tools import bagreadings as bagio
+from diffdrive_odom.tools import replay, sinks
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.wire.conversions import quaternion_to_yaw
 

@@ -32,7 +32,8 @@ from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools import bagreadings as bagio
+from diffdrive_odom.tools import replay
 from diffdrive_odom.tools.cli import main as cli
 
 import oracle

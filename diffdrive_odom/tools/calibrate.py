@@ -143,7 +143,7 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
 def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,
          reference: bool) -> Run:
     """Decode one bag into its wheel steps (and read its ground truth when asked)."""
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings as bagio
 
     ref = None
     if reference:
@@ -186,7 +186,7 @@ def main(argv: Sequence[str]) -> int:
     settings = settings_from_args(args)
     if isinstance(settings, str):
         return _error(settings)
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings as bagio
 
     try:
         if args.umbmark is not None:

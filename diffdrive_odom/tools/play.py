@@ -26,7 +26,7 @@ from diffdrive_odom.wire.conversions import split_ns
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
     from rosbags.interfaces import Connection
 
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings as bagio
 
 CLOCK_QOS_DEPTH = 1
 
@@ -89,7 +89,7 @@ def main(argv: Sequence[str]) -> int:
             print(f"[play] --remap expects FROM:=TO, got {item!r}", file=sys.stderr)
             return 2
         remap[src] = dst
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings as bagio
 
     try:
         reader = bagio.open_bag(args.bag)
@@ -110,7 +110,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     from rosgraph_msgs.msg import Clock
 
     from diffdrive_odom.ros import qos as ros_qos
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings as bagio
 
     conns: list[Connection] = [
         c for c in reader.connections if args.topics is None or c.topic in args.topics

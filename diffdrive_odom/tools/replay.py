@@ -56,7 +56,7 @@ from diffdrive_odom.tools.outputs import STORAGES, staged
 from diffdrive_odom.tools.sinks import Published
 
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings as bagio
 
 __all__ = ["Published", "ReplayStats", "load_settings", "main", "replay_readings"]
 
@@ -143,7 +143,9 @@ def replay_readings(
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,
     so nothing is built or checked (the estimator alone, as the benchmarks time it).
     """
-    from diffdrive_odom.tools import bagio  # rosbags: only where bags are read (plain install)
+    from diffdrive_odom.tools import (
+        bagreadings as bagio,  # rosbags: only where bags are read (plain install)
+    )
 
     pipe = ReadingPipeline(settings)
     est = pipe.estimator
@@ -292,7 +294,7 @@ def run_bag(args: argparse.Namespace) -> int:
     problem = _output_problem(args)
     if problem:
         return _error(problem)
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings as bagio
 
     ref: evaluate.Trajectory | None = None
     gt_topic = ""
@@ -363,7 +365,7 @@ def _remove_outputs(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, sinks.PoseLog]:
     """Replay into staged outputs; they get their names only if the whole replay worked."""
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings as bagio
 
     traj = sinks.PoseLog()
     with ExitStack() as stack:

@@ -31,7 +31,7 @@ if TYPE_CHECKING:  # the bag library only where a bag is read or written (``tool
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
 
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings as bagio
 
 
 @dataclass
@@ -70,7 +70,7 @@ class PoseLog:
 
 def keep_input(reader: AnyReader, writer: bagio.BagWriter, odom_topic: str) -> bagio.Passthrough:
     """Copy every input message (converted to CDR) into the output bag as it streams by."""
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings as bagio
 
     convert = bagio.CdrConverter(reader)
     for conn in reader.connections:
