@@ -11,7 +11,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.tools.bagreadings import ODOMETRY, TF_MESSAGE
+from diffdrive_odom.tools.bagio import ODOMETRY, TF_MESSAGE
 from diffdrive_odom.wire.conversions import yaw_to_quaternion
 
 OPTIODOM_PARAMS = {"wheel_radius": 0.042, "wheel_separation": 0.200}

@@ -49,7 +49,7 @@ def test_the_recorder_records_the_gyro_into_the_bag_and_the_recording(tmp_path: 
     from rclpy.node import Node
     from sensor_msgs.msg import Imu
 
-    from diffdrive_odom.tools import bagreadings as bagio
+    from diffdrive_odom.tools import bagio
 
     bag = tmp_path / "bag"
     with Recorder(DOMAIN, bag) as rec:
