@@ -85,6 +85,8 @@ class JointStateDecoder:
         sec, nanosec, end = head
         try:
             off = align(end, 4)
+            # The last message's names when their bytes recur (not when marking: each
+            # name's own bytes are marked, the padding between them is not).
             if fixed is None and buf.startswith(self._name_bytes, off) and self._name_bytes:
                 names = self._names
                 off += len(self._name_bytes)
