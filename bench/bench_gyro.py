@@ -181,7 +181,7 @@ def turtlebot3(plot: str | None) -> None:
 
     from rosbags.highlevel import AnyReader
 
-    from diffdrive_odom.tools import bagio, replay
+    from diffdrive_odom.tools import bagio, bagreadings, replay
     from diffdrive_odom.tools.sinks import Published
 
     bag = Path(__file__).resolve().parent.parent / "test" / "data" / "turtlebot3_sim" / \
@@ -209,7 +209,7 @@ def turtlebot3(plot: str | None) -> None:
                   "right_wheel_names": ["wheel_right_joint"], **MODES[mode]}
         out: list[Published] = []
         with bagio.open_bag(bag) as reader:
-            items = list(bagio.iter_sensor_readings(
+            items = list(bagreadings.iter_sensor_readings(
                 reader, "/joint_states", "/imu" if values["use_imu"] else None))
         replay.replay_readings(items, odometry_settings(values), out.append)
         end = out[-1].pose

@@ -45,7 +45,15 @@ sys.path.insert(0, str(ROOT))
 from diffdrive_odom.core.bulk import batch  # noqa: E402
 from diffdrive_odom.core.bulk.readings import count  # noqa: E402
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings  # noqa: E402
-from diffdrive_odom.tools import bagio, replay, sinks  # noqa: E402
+from diffdrive_odom.tools import (  # noqa: E402
+    bagblocks,
+    bagio,
+    bagreadings,
+    bagwriter,
+    csvout,
+    replay,
+    sinks,
+)
 
 DATA = ROOT / "test" / "data"
 
@@ -74,7 +82,7 @@ def _synthetic(path: Path, n: int, storage: str = "mcap") -> None:
     rng = np.random.default_rng(1)
     left = np.cumsum(0.05 + 0.02 * rng.standard_normal(n))
     right = np.cumsum(0.05 + 0.02 * rng.standard_normal(n))
-    with bagio.BagWriter(path, storage) as w:
+    with bagwriter.BagWriter(path, storage) as w:
         w.add_topic("/joint_states", bagio.JOINT_STATE)
         t = w.typestore.types
         for k in range(n):
@@ -105,10 +113,10 @@ def _rosbags_decode(bag: Path) -> int:
 def _replay_to_bag(bag: Path, settings: OdometrySettings, out: Path) -> None:
     """What ``diffdrive-odom replay BAG -o OUT --csv OUT.csv`` does, minus argument parsing."""
     shutil.rmtree(out, ignore_errors=True)
-    with bagio.BagWriter(out) as w, bagio.CsvWriter(out.with_suffix(".csv")) as table:
+    with bagwriter.BagWriter(out) as w, csvout.CsvWriter(out.with_suffix(".csv")) as table:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
-        replay.replay_readings(bagio.read_joint_blocks(bag), settings,
+        replay.replay_readings(bagblocks.read_joint_blocks(bag), settings,
                                sinks.output_sink(settings, w, table))
 
 
@@ -117,14 +125,14 @@ def _replay_to(bag: Path, settings: OdometrySettings, out: Path, *, to_bag: bool
     """``replay BAG -o OUT`` (``to_bag``) or ``replay BAG --csv OUT.csv``, one output."""
     _clear(out)
     if to_bag:
-        with bagio.BagWriter(out) as w:
+        with bagwriter.BagWriter(out) as w:
             w.add_topic("/odom", bagio.ODOMETRY)
             w.add_topic("/tf", bagio.TF_MESSAGE)
-            replay.replay_readings(bagio.read_joint_blocks(bag), settings,
+            replay.replay_readings(bagblocks.read_joint_blocks(bag), settings,
                                    sinks.output_sink(settings, w, None), fast=fast)
     else:
-        with bagio.CsvWriter(out.with_suffix(".csv")) as table:
-            replay.replay_readings(bagio.read_joint_blocks(bag), settings,
+        with csvout.CsvWriter(out.with_suffix(".csv")) as table:
+            replay.replay_readings(bagblocks.read_joint_blocks(bag), settings,
                                    sinks.output_sink(settings, None, table), fast=fast)
 
 
@@ -164,15 +172,15 @@ def bench_sizes(tmp: Path, sizes: list[int], slow_max: int, settings: OdometrySe
 
 
 def bench_bag(name: str, bag: Path, settings: OdometrySettings, tmp: Path) -> None:
-    readings = list(bagio.read_joint_states(bag))
+    readings = list(bagreadings.read_joint_states(bag))
     n = len(readings)
     rows: list[tuple[str, float]] = []
     rows.append(("read only", _best(lambda: _read_only(bag))))
     decode = _best(lambda: _rosbags_decode(bag))
     rows.append(("rosbags decode", decode))
-    rows.append(("decode only", _best(lambda: sum(map(count, bagio.read_joint_blocks(bag))))))
+    rows.append(("decode only", _best(lambda: sum(map(count, bagblocks.read_joint_blocks(bag))))))
     rows.append(("replay", _best(
-        lambda: replay.replay_readings(bagio.read_joint_blocks(bag), settings))))
+        lambda: replay.replay_readings(bagblocks.read_joint_blocks(bag), settings))))
     rows.append(("replay -> bag + csv", _best(
         lambda: _replay_to_bag(bag, settings, tmp / f"{name}_out"), repeat=2)))
     step = _best(lambda: replay.replay_readings(readings, settings, fast=False))

@@ -48,7 +48,7 @@ class OdomMessages:
     """Builds nav_msgs/Odometry and tf2_msgs/TFMessage with rosbags' message classes.
 
     Test bags written this way are independent of the byte layouts the node and replay
-    use (:mod:`diffdrive_odom.wire.cdr`).
+    use (:mod:`diffdrive_odom.wire.odometry`).
     """
 
     def __init__(self, store: Typestore, odom_frame: str, base_frame: str) -> None:

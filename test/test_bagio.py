@@ -1,4 +1,4 @@
-"""bagio: reading JointState from rosbag2 and ROS 1 bags, writing odometry bags and CSV.
+"""Bag I/O: reading JointState from rosbag2 and ROS 1 bags, writing odometry bags and CSV.
 
 Every read is checked against an independent reader (mcap-ros2-support for MCAP, rclpy's
 own CDR deserializer for converted ROS 1 data) and every write is read back.
@@ -20,9 +20,10 @@ from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 
-from diffdrive_odom.tools import bagio
-from diffdrive_odom.wire.cdr import OdometryLayout, TransformLayout
+from diffdrive_odom.tools import bagio, bagreadings, bagwriter, cdrconvert, csvout
+from diffdrive_odom.tools.outputs import STORAGES
 from diffdrive_odom.wire.conversions import quaternion_to_yaw
+from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
 from bagutil import mcap_messages
 from rosutil import DATA
@@ -36,7 +37,7 @@ def _ns(t: Any) -> int:
 
 
 def test_optiodom_readings_equal_an_independent_mcap_reader() -> None:
-    readings = list(bagio.read_joint_states(RUN04))
+    readings = list(bagreadings.read_joint_states(RUN04))
     independent = [m for _, _, m in mcap_messages(RUN04, ["/joint_states"])]
     assert len(readings) == len(independent) == 1385  # metadata.yaml's count
     independent.sort(key=lambda m: _ns(m.header.stamp))
@@ -51,7 +52,7 @@ def test_optiodom_readings_equal_an_independent_mcap_reader() -> None:
 
 
 def test_ros1_bag_reads_with_its_quirks() -> None:
-    readings = list(bagio.read_joint_states(TB3))
+    readings = list(bagreadings.read_joint_states(TB3))
     assert len(readings) == 2741
     first = readings[0]
     # Data README: right wheel listed first, non-zero first positions, sim time from 112 s.
@@ -67,7 +68,7 @@ def test_ros1_messages_convert_to_cdr_that_rclpy_decodes() -> None:
     """Converted bytes decode with rclpy's own deserializer to the ROS 1 values."""
     checked = 0
     with bagio.open_bag(TB3) as reader:
-        convert = bagio.CdrConverter(reader)
+        convert = cdrconvert.CdrConverter(reader)
         conns = [c for c in reader.connections if c.topic == "/joint_states"]
         for conn, _, raw in reader.messages(connections=conns):
             ros1 = reader.deserialize(raw, conn.msgtype)
@@ -93,7 +94,7 @@ def _joint_state(store: Any, ns: int, pos: tuple[float, float]) -> Any:
     )
 
 
-@pytest.mark.parametrize("storage", bagio.STORAGES)
+@pytest.mark.parametrize("storage", STORAGES)
 def test_readings_come_out_in_stamp_order_when_logged_out_of_order(
     tmp_path: Path, storage: str
 ) -> None:
@@ -105,16 +106,16 @@ def test_readings_come_out_in_stamp_order_when_logged_out_of_order(
         rng.shuffle(block)
         logged[i:i + 8] = block
     bag = tmp_path / "shuffled"
-    with bagio.BagWriter(bag, storage) as w:
+    with bagwriter.BagWriter(bag, storage) as w:
         w.add_topic("/joint_states", bagio.JOINT_STATE)
         for k, ns in enumerate(logged):
             w.write("/joint_states", 2 * 10**9 + k, _joint_state(w.typestore, ns, (ns, -ns)))
-    readings = list(bagio.read_joint_states(bag))
+    readings = list(bagreadings.read_joint_states(bag))
     assert [r.stamp_ns for r in readings] == stamps
     assert all(r.position[0] == r.stamp_ns for r in readings)
 
 
-@pytest.mark.parametrize("storage", bagio.STORAGES)
+@pytest.mark.parametrize("storage", STORAGES)
 def test_odometry_and_tf_round_trip(tmp_path: Path, storage: str) -> None:
     """The node's byte layouts, as replay writes them, read back by rosbags and (MCAP)
     by mcap-ros2-support."""
@@ -125,7 +126,7 @@ def test_odometry_and_tf_round_trip(tmp_path: Path, storage: str) -> None:
     twist_cov = [0.5 * i for i in range(36)]
     poses = [(10**9 * 1_700_000_000 + 123 + k * 50_000_000, 0.1 * k, -0.2 * k,
               math.remainder(0.7 * k, 2 * math.pi), 0.3, -0.4) for k in range(20)]
-    with bagio.BagWriter(bag, storage) as w:
+    with bagwriter.BagWriter(bag, storage) as w:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
         for ns, x, y, yaw, v, om in poses:
@@ -166,13 +167,13 @@ def test_odometry_and_tf_round_trip(tmp_path: Path, storage: str) -> None:
 def test_csv_header_is_the_documented_one_and_values_round_trip(tmp_path: Path) -> None:
     path = tmp_path / "o.csv"
     rows = [(1_600_000_000_050_000_001, 1 / 3, -2 / 7, math.pi, 0.1, -1e-17, "updated")]
-    with bagio.CsvWriter(path) as out:
+    with csvout.CsvWriter(path) as out:
         for ns, x, y, yaw, v, w, status in rows:
             out.row(ns, x, y, yaw, linear=v, angular=w, status=status)
     with open(path, newline="", encoding="utf-8") as f:
         got = list(csv.reader(f))
-    assert tuple(got[0]) == bagio.CSV_COLUMNS
-    assert all(f"``{c}``" in (bagio.__doc__ or "") for c in bagio.CSV_COLUMNS)
+    assert tuple(got[0]) == csvout.CSV_COLUMNS
+    assert all(f"``{c}``" in (csvout.__doc__ or "") for c in csvout.CSV_COLUMNS)
     ns, x, y, yaw, v, w, status = rows[0]
     back = got[1]
     assert int(back[0]) == ns and back[1] == "1600000000.050000001"
@@ -184,10 +185,10 @@ def test_csv_stamps_round_trip_exactly(tmp_path: Path) -> None:
     ns = 1_600_000_000 * 10**9 + 100_000_001
     assert float(ns * 1e-9) != Decimal("1600000000.100000001")  # why floats will not do
     path = tmp_path / "o.csv"
-    with bagio.CsvWriter(path) as out:
+    with csvout.CsvWriter(path) as out:
         out.row(ns, 0.0, 0.0, 0.0, linear=0.0, angular=0.0, status="updated")
     with open(path, newline="", encoding="utf-8") as f:
-        row = dict(zip(bagio.CSV_COLUMNS, list(csv.reader(f))[1], strict=True))
+        row = dict(zip(csvout.CSV_COLUMNS, list(csv.reader(f))[1], strict=True))
     assert int(row["stamp_ns"]) == ns
     assert row["time"] == "1600000000.100000001"
     assert Decimal(row["time"]) * 10**9 == ns
@@ -204,9 +205,9 @@ def test_unusable_bags_raise_one_clear_error(tmp_path: Path) -> None:
               bagio.open_bag(tmp_path / name)):
             pass
     with pytest.raises(bagio.BagError, match=r"/ground_truth/pose"):
-        list(bagio.read_joint_states(RUN04, "/wheels"))
+        list(bagreadings.read_joint_states(RUN04, "/wheels"))
     with bagio.open_bag(RUN04) as reader, pytest.raises(bagio.BagError, match="has type"):
         bagio.connections_for(reader, "/firmware/odom", [bagio.JOINT_STATE])
     (tmp_path / "exists").mkdir()
     with pytest.raises(bagio.BagError, match="exists"):
-        bagio.BagWriter(tmp_path / "exists")
+        bagwriter.BagWriter(tmp_path / "exists")

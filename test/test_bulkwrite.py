@@ -18,7 +18,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2.storage_mcap import McapWriter
 
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
-from diffdrive_odom.tools import bagio, bulkmcap, replay, sinks
+from diffdrive_odom.tools import bagio, bagreadings, bagwriter, bulkmcap, csvout, replay, sinks
 
 DATA = Path(__file__).parent / "data"
 OPTIODOM = odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
@@ -32,7 +32,7 @@ def _synthetic(path: Path, n: int) -> None:
     rng = np.random.default_rng(1)
     left = np.cumsum(0.05 + 0.02 * rng.standard_normal(n))
     right = np.cumsum(0.05 + 0.02 * rng.standard_normal(n))
-    with bagio.BagWriter(path) as w:
+    with bagwriter.BagWriter(path) as w:
         w.add_topic("/joint_states", bagio.JOINT_STATE)
         t = w.typestore.types
         for k in range(n):
@@ -47,7 +47,7 @@ def _synthetic(path: Path, n: int) -> None:
 
 def _replay(bag: Path, settings: OdometrySettings, out: Path, *, bulk: bool,
             storage: str = "mcap") -> replay.ReplayStats:
-    with bagio.BagWriter(out, storage) as w, bagio.CsvWriter(out.with_suffix(".csv")) as t:
+    with bagwriter.BagWriter(out, storage) as w, csvout.CsvWriter(out.with_suffix(".csv")) as t:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
         sink = sinks.output_sink(settings, w, t)
@@ -55,9 +55,9 @@ def _replay(bag: Path, settings: OdometrySettings, out: Path, *, bulk: bool,
             if isinstance(w._writer.storage, bulkmcap.FastMcapWriter):  # rosbags' own index
                 w._writer.storage.close_chunk = (  # type: ignore[method-assign]
                     McapWriter.close_chunk.__get__(w._writer.storage))
-            return replay.replay_readings(bagio.read_joint_states(bag), settings,
+            return replay.replay_readings(bagreadings.read_joint_states(bag), settings,
                                           lambda p: sink(p))
-        return replay.replay_readings(bagio.read_joint_states(bag), settings, sink)
+        return replay.replay_readings(bagreadings.read_joint_states(bag), settings, sink)
 
 
 def _mcap(out: Path) -> bytes:

@@ -18,8 +18,9 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
-from diffdrive_odom.tools import bagio
-from diffdrive_odom.wire.cdr import JointStateDecoder, OdometryLayout, TransformLayout
+from diffdrive_odom.tools import bagio, cdrconvert
+from diffdrive_odom.wire.jointstate import JointStateDecoder
+from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
 from rosutil import DATA
 
@@ -158,7 +159,7 @@ def test_decoder_agrees_with_rosbags_on_every_reading_of_the_data(bag: str) -> N
     decoder = JointStateDecoder()
     count = 0
     with bagio.open_bag(DATA / bag) as reader:
-        convert = bagio.CdrConverter(reader)
+        convert = cdrconvert.CdrConverter(reader)
         for conn, _, raw in reader.messages(connections=bagio.connections_for(reader,
                                                                               "/joint_states")):
             want = reader.deserialize(raw, conn.msgtype)

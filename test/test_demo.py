@@ -32,7 +32,7 @@ import yaml
 
 from diffdrive_odom.core.motion.paths import polyline
 from diffdrive_odom.demo import BAG_TOPICS, DEFAULT_PARAMS
-from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools import bagio, bagreadings, evaluate
 
 import oracle
 from rosutil import executable
@@ -95,7 +95,7 @@ def commanded_length(res: dict[str, Any]) -> float:
 
 def tick_steps(bag: Path) -> np.ndarray[Any, Any]:
     """Wheel angle steps [rad] from the counted ticks (16-bit counters unwrapped by hand)."""
-    readings = list(bagio.read_joint_states(bag))
+    readings = list(bagreadings.read_joint_states(bag))
     counts = np.array([r.position for r in readings], dtype=float)
     steps = np.diff(counts, axis=0)
     steps -= 2**16 * np.round(steps / 2**16)
@@ -213,7 +213,7 @@ def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(
         counts = {t: bagio.count_messages(reader, t) for t in topics}
     assert topics == BAG_TOPICS
     assert all(n > 0 for n in counts.values()), counts
-    readings = list(bagio.read_joint_states(bag))
+    readings = list(bagreadings.read_joint_states(bag))
     assert len(readings) == counts["/joint_states"]
     odom = evaluate.read_trajectory(bag, "/odom")
     truth = evaluate.read_trajectory(bag, "/ground_truth/odom")

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools import bagio, bagwriter, evaluate
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.tools.evaluate import Trajectory
 
@@ -189,7 +189,7 @@ def _write_reference_bag(path: Path, traj: Trajectory) -> None:
     t = store.types
     odom = OdomMessages(store, "world", "robot")
     cov = [0.0] * 36
-    with bagio.BagWriter(path) as w:
+    with bagwriter.BagWriter(path) as w:
         w.add_topic("/pose", "geometry_msgs/msg/PoseStamped")
         w.add_topic("/odometry", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
@@ -237,7 +237,7 @@ def test_eval_on_a_bag_like_the_demo_s_needs_no_topic_flags(
     bag = tmp_path / "bag"
     msgs = OdomMessages(bagio.typestore(), "odom", "base_link")
     cov = [0.0] * 36
-    with bagio.BagWriter(bag) as w:
+    with bagwriter.BagWriter(bag) as w:
         for topic in ("/odom", "/ground_truth/odom"):
             w.add_topic(topic, bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)

@@ -37,7 +37,7 @@ from diffdrive_odom.core.uncertainty.propagation import (
     pose_message_covariance,
 )
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
-from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools import bagreadings, replay
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS
 from rosutil import DATA
@@ -176,7 +176,7 @@ def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
     a = replay.replay_readings(readings, cfg, slow.append, fast=False)  # type: ignore[arg-type]
     b = replay.replay_readings(readings, cfg, fast.append, fast=True)  # type: ignore[arg-type]
     _agree(a, b, slow, fast)
-    # The same stream with its alike runs as JointBlocks (as bagio.iter_joint_blocks
+    # The same stream with its alike runs as JointBlocks (as bagblocks.iter_joint_blocks
     # gives them): the same again, though stretches now start elsewhere.
     blocks = _blocks(readings, chunk)
     blocked: list[replay.Published] = []
@@ -349,7 +349,7 @@ BAGS = [(DATA / "optiodom" / run, OPTIODOM_PARAMS) for run in
 def test_bags_in_both_lanes(monkeypatch: pytest.MonkeyPatch, bag: Path,
                             params: dict[str, object], extra: dict[str, object]) -> None:
     cfg = odometry_settings({**params, **extra})
-    readings = list(bagio.read_joint_states(bag))
+    readings = list(bagreadings.read_joint_states(bag))
     bulk = _both(readings, cfg, fastlane.CHUNK, monkeypatch)
     assert bulk > 0.5 * len(readings)
 

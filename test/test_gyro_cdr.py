@@ -8,7 +8,7 @@ import pytest
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu
 
-from diffdrive_odom.wire.cdr import decode_imu
+from diffdrive_odom.wire.imu import decode_imu
 
 
 def imu(sec: int, nsec: int, frame: str, w: tuple[float, float, float]) -> Imu:

@@ -3,7 +3,7 @@
 - cdr.JointBlockDecoder against rosbags' own deserialisation (the bytes oracle), on
   streams whose layout changes (names, frame_id, array lengths), with padding bytes
   scribbled as Fast CDR leaves them, big-endian and cut-off messages among them.
-- bagio._Reorder with blocks against the plain heap rule written out here: any mix of
+- reorder.Reorder with blocks against the plain heap rule written out here: any mix of
   blocks and single readings, out-of-order stamps and jumps back, comes out in the
   order the heap gives one reading at a time.
 - Real bag files: iter_joint_blocks opened equals iter_joint_states, and replay writes
@@ -33,9 +33,20 @@ from rosbags.typesys import Stores, get_typestore
 
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagio, bulkmcap, progress, replay, sinks
+from diffdrive_odom.tools import (
+    bagblocks,
+    bagio,
+    bagreadings,
+    bagwriter,
+    bulkmcap,
+    csvout,
+    progress,
+    reorder,
+    replay,
+    sinks,
+)
 from diffdrive_odom.tools.cli import main as cli
-from diffdrive_odom.wire.cdr import JointBlockDecoder
+from diffdrive_odom.wire.jointstate import JointBlockDecoder
 
 from bagutil import OPTIODOM_PARAMS, write_params
 from rosutil import DATA
@@ -205,7 +216,7 @@ def test_reorder_with_blocks_is_the_heap_one_by_one(
     stamps = list(itertools.accumulate([100_000, *steps]))
     items = list(zip(stamps, range(len(stamps)), strict=True))
     expected = _heap_order(items, window, jump=1000)
-    order = bagio._Reorder(window, 1000)
+    order = reorder.Reorder(window, 1000)
     got: list[int] = []
     blocks = 0
 
@@ -234,7 +245,7 @@ def test_reorder_with_blocks_is_the_heap_one_by_one(
 
 
 def test_sorted_blocks_pass_whole() -> None:
-    order = bagio._Reorder(64, 10**9)
+    order = reorder.Reorder(64, 10**9)
     first = _block([(1000 + k, k) for k in range(100)])
     second = _block([(2000 + k, 100 + k) for k in range(100)])
     assert list(order.push_block(first)) == []
@@ -286,8 +297,8 @@ def _fields(r: JointReading) -> tuple[Any, ...]:
 @pytest.mark.parametrize("bag", BAGS, ids=lambda v: getattr(v, "name", str(v)))
 def test_blocks_opened_are_the_readings(bag: Any, messy: Path) -> None:
     path = messy if bag == "messy" else bag
-    one = list(bagio.read_joint_states(path))
-    items = list(bagio.read_joint_blocks(path))
+    one = list(bagreadings.read_joint_states(path))
+    items = list(bagblocks.read_joint_blocks(path))
     opened = [r for item in items for r in (item if isinstance(item, JointBlock) else [item])]
     assert list(map(_fields, opened)) == list(map(_fields, one))
     in_blocks = sum(len(i) for i in items if isinstance(i, JointBlock))
@@ -302,11 +313,11 @@ def test_replay_writes_the_same_from_blocks(tmp_path: Path, messy: Path) -> None
     lane's bound (1e-9 of the largest entry), as stretches start at other readings."""
     cfg = odometry_settings({"wheel_radius": 0.05, "wheel_separation": 0.3})
     tables, bags = [], []
-    for name, source in (("one", bagio.read_joint_states(messy)),
-                         ("blocks", bagio.read_joint_blocks(messy))):
+    for name, source in (("one", bagreadings.read_joint_states(messy)),
+                         ("blocks", bagblocks.read_joint_blocks(messy))):
         (tmp_path / name).mkdir()
         out = tmp_path / name / "out"
-        with bagio.BagWriter(out) as w, bagio.CsvWriter(out.with_suffix(".csv")) as t:
+        with bagwriter.BagWriter(out) as w, csvout.CsvWriter(out.with_suffix(".csv")) as t:
             w.add_topic("/odom", bagio.ODOMETRY)
             w.add_topic("/tf", bagio.TF_MESSAGE)
             stats = replay.replay_readings(source, cfg, sinks.output_sink(cfg, w, t))
@@ -360,7 +371,7 @@ def _digits(text: str) -> str:
 @given(values=st.lists(st.floats(allow_nan=False, allow_infinity=False), min_size=8,
                        max_size=8))
 def test_csv_numbers_read_back_exactly_with_the_fewest_digits(values: list[float]) -> None:
-    (text,) = bagio.float_texts(np.array([values]))
+    (text,) = csvout.float_texts(np.array([values]))
     cells = text.split(",")
     assert len(cells) == 8
     for cell, value in zip(cells, values, strict=True):
@@ -369,7 +380,7 @@ def test_csv_numbers_read_back_exactly_with_the_fewest_digits(values: list[float
 
 
 def test_csv_non_finite_falls_back_to_repr() -> None:
-    assert bagio.float_texts(np.array([[1.5, math.inf, -math.nan]]))[0].split(",")[:2] == [
+    assert csvout.float_texts(np.array([[1.5, math.inf, -math.nan]]))[0].split(",")[:2] == [
         "1.5", "inf"]
 
 

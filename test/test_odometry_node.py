@@ -302,9 +302,9 @@ def test_publish_rate_throttles_by_stamp_and_tf_can_be_disabled() -> None:
 
 def _joint_bag(path: Path, stamps_ns: list[int], positions: list[list[float]]) -> None:
     """The readings sent to the node, as a JointState MCAP (rosbags' own message classes)."""
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagio, bagwriter
 
-    with bagio.BagWriter(path) as writer:
+    with bagwriter.BagWriter(path) as writer:
         writer.add_topic("/joint_states", bagio.JOINT_STATE)
         types: Any = writer.typestore.types
         for ns, position in zip(stamps_ns, positions, strict=True):

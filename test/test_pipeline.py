@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.bulk.readings import JointReading
 from diffdrive_odom.core.estimation.estimator import Reason, Status
 from diffdrive_odom.core.estimation.pipeline import VELOCITY_ON, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import (
@@ -26,7 +27,7 @@ from diffdrive_odom.core.estimation.publication import (
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools import replay
 
 from bagutil import write_params
 
@@ -138,9 +139,9 @@ def test_the_demo_reintegrates_through_the_same_rules(tmp_path: Path) -> None:
     """The demo's calibrated rows come from the batch path, which takes its steps from
     the pipeline: an unstamped reading is dropped there as in the node."""
     s = settings(tmp_path)
-    readings = [bagio.JointReading(T0 + k * STEP, 0, tuple(NAMES), (0.1 * k, 0.1 * k), ())
+    readings = [JointReading(T0 + k * STEP, 0, tuple(NAMES), (0.1 * k, 0.1 * k), ())
                 for k in range(51)]
-    readings.insert(25, bagio.JointReading(0, 0, tuple(NAMES), (99.0, 99.0), ()))
+    readings.insert(25, JointReading(0, 0, tuple(NAMES), (99.0, 99.0), ()))
     steps = batch.wheel_steps(readings, s)
     assert len(steps) == 50
     assert math.isclose(batch.final_pose(steps, s.geometry).x, R * 5.0, abs_tol=1e-12)

@@ -16,7 +16,7 @@ import pytest
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 
-from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools import bagio, bagreadings, replay
 from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, write_params
@@ -39,7 +39,7 @@ def _offline(bag: Path, params: Path, until_ns: int | None = None,
     got (its output has one pose per reading received, stamped with it).
     """
     settings = replay.load_settings(params)
-    readings = bagio.read_joint_states(bag)
+    readings = bagreadings.read_joint_states(bag)
     if until_ns is not None:
         readings = (r for r in readings if r.log_ns < until_ns)
     if only is not None:
@@ -96,7 +96,7 @@ def _node_args(params: Path) -> list[str]:
 def test_play_with_clock_drives_the_node_to_offline_replays_poses(tmp_path: Path) -> None:
     params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
     expected = _offline(RUN04, params)
-    logged = [r.log_ns for r in bagio.read_joint_states(RUN04)]
+    logged = [r.log_ns for r in bagreadings.read_joint_states(RUN04)]
     bag_start, bag_end = min(logged), max(logged)
     odoms: list[Odometry] = []
     clocks: list[int] = []

@@ -23,7 +23,7 @@ from rosbags.highlevel import AnyReader
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import bagio, replay, sinks
+from diffdrive_odom.tools import bagio, bagreadings, bagwriter, replay, sinks
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.wire.conversions import quaternion_to_yaw
 
@@ -45,7 +45,7 @@ def _settings(tmp_path: Path, values: dict[str, Any]) -> OdometrySettings:
 
 def _published(bag: Path, settings: OdometrySettings) -> list[replay.Published]:
     out: list[replay.Published] = []
-    replay.replay_readings(bagio.read_joint_states(bag), settings, out.append)
+    replay.replay_readings(bagreadings.read_joint_states(bag), settings, out.append)
     return out
 
 
@@ -67,7 +67,7 @@ def test_optiodom_replay_matches_firmware_and_first_principles(tmp_path: Path, r
                 "--csv", str(table)]) == 0
     odoms = [(t, m) for t, _, m in mcap_messages(out, ["/odom"])]
     tfs = [m for _, _, m in mcap_messages(out, ["/tf"])]
-    readings = list(bagio.read_joint_states(bag))
+    readings = list(bagreadings.read_joint_states(bag))
     assert len(odoms) == len(tfs) == len(readings)  # every reading published, first = origin
     last = odoms[-1][1]
     assert _ns(last.header.stamp) == readings[-1].stamp_ns
@@ -102,7 +102,7 @@ def test_optiodom_replay_matches_firmware_and_first_principles(tmp_path: Path, r
 def test_vectorised_path_equals_the_step_by_step_estimator(tmp_path: Path, run: str) -> None:
     bag = DATA / "optiodom" / run
     settings = _settings(tmp_path, OPTIODOM_PARAMS)
-    steps = batch.wheel_steps(bagio.read_joint_states(bag), settings)
+    steps = batch.wheel_steps(bagreadings.read_joint_states(bag), settings)
     x, y, th = batch.integrate_steps(steps, settings.geometry)
     stepwise = [p for p in _published(bag, settings) if p.status.value == "updated"]
     readings = 1385 if run.endswith("04") else 1388  # metadata.yaml
@@ -120,7 +120,7 @@ def test_vectorised_path_equals_the_step_by_step_estimator(tmp_path: Path, run: 
     g2 = Geometry(0.042, 0.2, left_wheel_radius_multiplier=1.01,
                          wheel_separation_multiplier=0.99)
     s2 = dataclasses.replace(settings, geometry=g2)
-    final2 = replay.replay_readings(bagio.read_joint_states(bag), s2).final_pose
+    final2 = replay.replay_readings(bagreadings.read_joint_states(bag), s2).final_pose
     end2 = batch.final_pose(steps, g2)
     assert math.hypot(end2.x - final2.x, end2.y - final2.y) < 1e-9
 
@@ -128,7 +128,7 @@ def test_vectorised_path_equals_the_step_by_step_estimator(tmp_path: Path, run: 
 def test_turtlebot3_ros1_bag_replays_without_a_jump_at_start(tmp_path: Path) -> None:
     settings = _settings(tmp_path, TB3_PARAMS)
     poses = _published(TB3, settings)
-    readings = list(bagio.read_joint_states(TB3))
+    readings = list(bagreadings.read_joint_states(TB3))
     first = poses[0]
     # The first reading (wheels at -4.23 / 9.01 rad, sim time 112.54 s) is the origin.
     assert first.stamp_ns == readings[0].stamp_ns and 112e9 < first.stamp_ns < 113e9
@@ -218,7 +218,7 @@ def test_publish_rate_and_frames_follow_the_params(tmp_path: Path) -> None:
 def _write_run(path: Path, stamps: list[int], wheels: list[tuple[float, float]],
                storage: str = "mcap") -> None:
     """JointState bag; logged 1 ms apart in list order, whatever the stamps."""
-    with bagio.BagWriter(path, storage) as w:
+    with bagwriter.BagWriter(path, storage) as w:
         w.add_topic("/joint_states", bagio.JOINT_STATE)
         t = w.typestore.types
         for k, (ns, (left, right)) in enumerate(zip(stamps, wheels, strict=True)):
@@ -243,7 +243,7 @@ def test_replay_refuses_what_the_node_refuses(
     _write_run(bag, [10**9 + k * 20_000_000 for k in range(n)], [(0.1 * k, 0.1 * k)
                                                                  for k in range(n)])
     poses: list[replay.Published] = []
-    stats = replay.replay_readings(bagio.read_joint_states(bag), settings, poses.append)
+    stats = replay.replay_readings(bagreadings.read_joint_states(bag), settings, poses.append)
     assert stats.pipeline.published == n
     assert stats.refused == {"non-finite covariance suppressed": n - 1}
     assert stats.published == len(poses) == 1
@@ -276,7 +276,7 @@ def test_a_looped_bag_restarts_both_paths_at_the_origin(tmp_path: Path) -> None:
     bag = tmp_path / "looped"
     _write_run(bag, stamps, wheels)
     # The reordering must not merge the two runs.
-    readings = list(bagio.read_joint_states(bag))
+    readings = list(bagreadings.read_joint_states(bag))
     assert [r.stamp_ns for r in readings] == stamps
     poses: list[replay.Published] = []
     stats = replay.replay_readings(readings, settings, poses.append)
@@ -310,10 +310,10 @@ def test_streaming_memory_does_not_grow_with_the_bag(tmp_path: Path) -> None:
                    [(0.01 * k, 0.011 * k) for k in range(n)], "sqlite3")
         out = tmp_path / f"out{n}"
         tracemalloc.start()
-        with bagio.BagWriter(out, "sqlite3") as w:
+        with bagwriter.BagWriter(out, "sqlite3") as w:
             w.add_topic("/odom", bagio.ODOMETRY)
             w.add_topic("/tf", bagio.TF_MESSAGE)
-            stats = replay.replay_readings(bagio.read_joint_states(bag), settings,
+            stats = replay.replay_readings(bagreadings.read_joint_states(bag), settings,
                                            sinks.output_sink(settings, w, None))
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
@@ -384,11 +384,11 @@ def test_a_driver_restart_after_a_pause_keeps_the_pose_in_replay(tmp_path: Path)
     run += [(restart + k * step, names, [0.2 * k, 0.2 * k]) for k in range(26)]
     bag = tmp_path / "restart"
     _write_joint_bag(bag, run)
-    stats = replay.replay_readings(bagio.read_joint_states(bag), settings)
+    stats = replay.replay_readings(bagreadings.read_joint_states(bag), settings)
     assert stats.pipeline.gap_reanchors == 1 and stats.reasons["gap"] == 1
     assert math.isclose(stats.final_pose.x, r * 25.0, abs_tol=1e-12)
     assert stats.final_pose.y == 0.0
-    steps = batch.wheel_steps(bagio.read_joint_states(bag), settings)
+    steps = batch.wheel_steps(bagreadings.read_joint_states(bag), settings)
     assert steps.segments == 1 and len(steps) == 50 + 25
     assert math.isclose(batch.final_pose(steps, settings.geometry).x, r * 25.0, abs_tol=1e-12)
     out = tmp_path / "out"
@@ -459,7 +459,7 @@ def test_replay_eval_finds_a_ground_truth_topic_by_its_name(
     """A bag whose ground truth is on /ground_truth/odom, as sim_node and the demo write."""
     src = DATA / "optiodom" / RUNS[1]
     bag = tmp_path / "sim_like"
-    with bagio.open_bag(src) as reader, bagio.BagWriter(bag) as writer:
+    with bagio.open_bag(src) as reader, bagwriter.BagWriter(bag) as writer:
         for conn in reader.connections:
             name = "/ground_truth/odom" if conn.topic == "/ground_truth/pose" else conn.topic
             writer.add_topic(name, conn.msgtype)

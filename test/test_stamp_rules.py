@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.bulk.readings import JointReading
 from diffdrive_odom.core.estimation.encoders import EncoderConfig
 from diffdrive_odom.core.estimation.estimator import (
     EstimatorConfig,
@@ -32,7 +33,7 @@ from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools import bagio, bagwriter, replay
 from diffdrive_odom.tools.cli import main as cli
 
 import oracle
@@ -225,7 +226,7 @@ def test_a_bag_loop_during_a_trial_still_restarts() -> None:
 
 def test_the_batch_path_takes_the_burst_back_too(tmp_path: Path) -> None:
     """Calibration's decoded steps: the burst's steps are removed when it is discarded."""
-    readings = [bagio.JointReading(ns(burst_stamp(PERIOD * k)), ns(PERIOD * k), NAMES,
+    readings = [JointReading(ns(burst_stamp(PERIOD * k)), ns(PERIOD * k), NAMES,
                                    positions(PERIOD * k), ()) for k in range(151)]
     steps = batch.wheel_steps(readings, settings(tmp_path))
     assert steps.segments == 1 and len(steps) == 150 - 50
@@ -237,7 +238,7 @@ def test_replay_of_the_burst_keeps_the_pose_and_writes_no_future_stamp(
         tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """The exact scenario in a bag (logged on receipt, in true time), through the CLI."""
     bag = tmp_path / "burst"
-    with bagio.BagWriter(bag) as w:
+    with bagwriter.BagWriter(bag) as w:
         w.add_topic("/joint_states", bagio.JOINT_STATE)
         t = w.typestore.types
         for k in range(151):
@@ -305,7 +306,7 @@ def test_stamp_source_receive_time_stamps_with_the_receive_time(tmp_path: Path) 
 
 
 def test_replay_stamps_with_the_log_time_and_names_the_clock(tmp_path: Path) -> None:
-    readings = [bagio.JointReading(10**12 + round(PERIOD * k * 1e9), ns(PERIOD * k), NAMES,
+    readings = [JointReading(10**12 + round(PERIOD * k * 1e9), ns(PERIOD * k), NAMES,
                                    positions(PERIOD * k), ()) for k in range(51)]
     out: list[replay.Published] = []
     stats = replay.replay_readings(readings, settings(tmp_path), out.append)

@@ -383,13 +383,13 @@ def test_final_pose_nees_of_the_optiodom_squares_with_the_defaults(run: str) -> 
     """
     from diffdrive_odom.core.evaluation.metrics import interpolate
     from diffdrive_odom.core.geometry.se2 import between
-    from diffdrive_odom.tools import bagio, evaluate
+    from diffdrive_odom.tools import bagreadings, evaluate
 
     from rosutil import DATA
 
     bag = DATA / "optiodom" / run
     pipe = ReadingPipeline(odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2}))
-    readings = list(bagio.read_joint_states(bag))
+    readings = list(bagreadings.read_joint_states(bag))
     for r in readings:
         pipe.feed(r.stamp_ns, r.names, r.position, r.velocity)
     est = pipe.estimator

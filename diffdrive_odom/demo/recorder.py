@@ -25,7 +25,7 @@ from std_msgs.msg import Bool, Float64
 from diffdrive_odom.core.motion.paths import Point
 from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
-from diffdrive_odom.tools import bagio
+from diffdrive_odom.tools import bagwriter
 from diffdrive_odom.wire.conversions import quaternion_to_yaw, stamp_to_ns
 
 from . import interrupts
@@ -55,7 +55,7 @@ class Recorder:
                  topics: Mapping[str, str] = BAG_TOPICS) -> None:
         self.domain_id, self.bag_path, self.topics = domain_id, bag_path, dict(topics)
         self.context = Context()
-        self.writer: bagio.BagWriter | None = None
+        self.writer: bagwriter.BagWriter | None = None
         self.now_ns: int | None = None
         self.odom, self.truth = PoseSeries(), PoseSeries()
         self.joint_states: list[JointSample] = []
@@ -78,7 +78,7 @@ class Recorder:
             stack.callback(self.executor.shutdown)
             self.executor.add_node(self.node)
             if self.bag_path is not None:
-                self.writer = stack.enter_context(bagio.BagWriter(self.bag_path))
+                self.writer = stack.enter_context(bagwriter.BagWriter(self.bag_path))
             for topic, type_name in self.topics.items():
                 cls = message_class(type_name)
                 if self.writer is not None:

@@ -6,7 +6,7 @@ messages and logs the verdicts, one throttle per reason. Output is
 stamped with the JointState's own header stamp (the measurement time), never the
 time the message happened to be processed.
 
-Messages cross rclpy as their serialised bytes (:mod:`diffdrive_odom.wire.cdr`): at 1 kHz,
+Messages cross rclpy as their serialised bytes (:mod:`diffdrive_odom.wire`): at 1 kHz,
 rclpy's conversions to and from Python objects cost more than the odometry itself.
 """
 
@@ -40,13 +40,9 @@ from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, OdometrySettings, odometry_settings
 from diffdrive_odom.settings.params import ParamValue
-from diffdrive_odom.wire.cdr import (
-    JointArrays,
-    JointStateDecoder,
-    OdometryLayout,
-    TransformLayout,
-    decode_imu,
-)
+from diffdrive_odom.wire.imu import decode_imu
+from diffdrive_odom.wire.jointstate import JointArrays, JointStateDecoder
+from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
 NODE_NAME = "odometry_node"
 NO_INPUT_WARN_S = 5.0  # s of steady time without a reading before saying so

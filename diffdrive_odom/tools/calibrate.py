@@ -143,7 +143,7 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
 def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,
          reference: bool) -> Run:
     """Decode one bag into its wheel steps (and read its ground truth when asked)."""
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagblocks
 
     ref = None
     if reference:
@@ -151,7 +151,7 @@ def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,
                                          lambda t: print(f"{PREFIX} {t}", file=sys.stderr))
         ref = evaluate.read_trajectory(bag, topic, args.child_frame)
     jump = int(settings.estimator.time_jump_threshold * 1e9)
-    steps = batch.wheel_steps(bagio.read_joint_blocks(bag, args.topic, jump), settings)
+    steps = batch.wheel_steps(bagblocks.read_joint_blocks(bag, args.topic, jump), settings)
     return Run(Path(bag).name, steps, ref)
 
 

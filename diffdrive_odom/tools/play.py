@@ -26,7 +26,7 @@ from diffdrive_odom.wire.conversions import split_ns
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
     from rosbags.interfaces import Connection
 
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import cdrconvert
 
 CLOCK_QOS_DEPTH = 1
 
@@ -110,7 +110,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     from rosgraph_msgs.msg import Clock
 
     from diffdrive_odom.ros import qos as ros_qos
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import cdrconvert
 
     conns: list[Connection] = [
         c for c in reader.connections if args.topics is None or c.topic in args.topics
@@ -123,7 +123,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     rclpy.init(args=["--ros-args"])
     node = rclpy.create_node("diffdrive_odom_player")
     log = node.get_logger()
-    convert = bagio.CdrConverter(reader)
+    convert = cdrconvert.CdrConverter(reader)
     topics: dict[int, _Topic] = {}
     by_name: dict[str, _Topic] = {}
     try:
@@ -191,7 +191,7 @@ def _play_once(
     *,
     conns: list[Connection],
     topics: dict[int, _Topic],
-    convert: bagio.CdrConverter,
+    convert: cdrconvert.CdrConverter,
     clock_pub: Any,
     clock_cls: Any,
     start_ns: int,

@@ -7,7 +7,7 @@ dropped, gap rule, ``publish_rate``), frames with the tf prefix. The
 output is what the node would have published (the one rule,
 :func:`diffdrive_odom.core.estimation.publication.publication`: nothing non-finite goes out),
 written as a rosbag2 (``odom`` and ``/tf``) and/or a CSV (columns in
-:mod:`diffdrive_odom.tools.bagio`) by :mod:`diffdrive_odom.tools.sinks`. The flags it
+:mod:`diffdrive_odom.tools.csvout`) by :mod:`diffdrive_odom.tools.sinks`. The flags it
 shares with calibrate are :mod:`diffdrive_odom.tools.args`.
 
 Two ways through a bag:
@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from diffdrive_odom.core.bulk import fastlane
-from diffdrive_odom.core.bulk.readings import JointBlock
+from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.core.bulk.readings import count as reading_count
 from diffdrive_odom.core.estimation.estimator import Reason, Status
 from diffdrive_odom.core.estimation.pipeline import Outcome, PipelineStats, ReadingPipeline
@@ -56,7 +56,7 @@ from diffdrive_odom.tools.outputs import STORAGES, staged
 from diffdrive_odom.tools.sinks import Published
 
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings
 
 __all__ = ["Published", "ReplayStats", "load_settings", "main", "replay_readings"]
 
@@ -128,7 +128,7 @@ def _stretch_out(stretch: fastlane.Stretch, sink: Callable[[Published], None]) -
 
 
 def replay_readings(
-    readings: Iterable[bagio.JointReading | bagio.ImuSample | JointBlock],
+    readings: Iterable[JointReading | bagreadings.ImuSample | JointBlock],
     settings: OdometrySettings,
     sink: Callable[[Published], None] | None = None,
     fast: bool = True,
@@ -143,7 +143,7 @@ def replay_readings(
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,
     so nothing is built or checked (the estimator alone, as the benchmarks time it).
     """
-    from diffdrive_odom.tools import bagio  # rosbags: only where bags are read (plain install)
+    from diffdrive_odom.tools import bagreadings  # rosbags: only where bags are read
 
     pipe = ReadingPipeline(settings)
     est = pipe.estimator
@@ -151,17 +151,17 @@ def replay_readings(
     start = time.perf_counter()
     # The bag's log time is the receive time: the node's rules on stamps apply alike.
     def one_by_one(
-        rs: Iterable[bagio.JointReading | bagio.ImuSample | JointBlock],
-    ) -> Iterator[tuple[bagio.JointReading, Outcome]]:
+        rs: Iterable[JointReading | bagreadings.ImuSample | JointBlock],
+    ) -> Iterator[tuple[JointReading, Outcome]]:
         for item in rs:
             for r in item if isinstance(item, JointBlock) else (item,):
-                if isinstance(r, bagio.ImuSample):  # use_imu: the gyro's samples, as the node's
+                if isinstance(r, bagreadings.ImuSample):  # use_imu: gyro samples, as the node's
                     pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz)
                     continue
                 yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 
     # With the gyro every step's heading is decided per reading: no lane in bulk.
-    items: Iterable[tuple[bagio.JointReading, Outcome] | fastlane.Stretch] = (
+    items: Iterable[tuple[JointReading, Outcome] | fastlane.Stretch] = (
         fastlane.lanes(pipe, readings, chunk=fastlane.CHUNK)  # type: ignore[arg-type]
         if fast and settings.gyro is None else one_by_one(readings))
     for item in items:
@@ -363,7 +363,7 @@ def _remove_outputs(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, sinks.PoseLog]:
     """Replay into staged outputs; they get their names only if the whole replay worked."""
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagblocks, bagio, bagreadings, bagwriter, csvout
 
     traj = sinks.PoseLog()
     with ExitStack() as stack:
@@ -374,10 +374,10 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
         writer = None
         if args.output:
             path = stack.enter_context(staged(args.output))
-            writer = stack.enter_context(bagio.BagWriter(path, args.storage))
+            writer = stack.enter_context(bagwriter.BagWriter(path, args.storage))
         csv_out = None
         if args.csv:
-            csv_out = stack.enter_context(bagio.CsvWriter(stack.enter_context(
+            csv_out = stack.enter_context(csvout.CsvWriter(stack.enter_context(
                 staged(args.csv))))
         passthrough = None
         if writer is not None:
@@ -387,11 +387,11 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
             if args.keep_input:
                 passthrough = sinks.keep_input(reader, writer, args.odom_topic)
         jump = int(settings.estimator.time_jump_threshold * 1e9)
-        readings: Iterable[bagio.JointReading | bagio.ImuSample | JointBlock]
+        readings: Iterable[JointReading | bagreadings.ImuSample | JointBlock]
         if settings.gyro is None and passthrough is None:  # runs of alike messages at once
-            readings = bagio.iter_joint_blocks(reader, args.topic, jump_back_ns=jump)
+            readings = bagblocks.iter_joint_blocks(reader, args.topic, jump_back_ns=jump)
         else:
-            readings = bagio.iter_sensor_readings(
+            readings = bagreadings.iter_sensor_readings(
                 reader, args.topic, None if settings.gyro is None else args.imu_topic,
                 passthrough, jump_back_ns=jump)
         if progress.wanted(args.progress, total):

@@ -25,13 +25,13 @@ from diffdrive_odom.core.uncertainty.propagation import (
     twist_message_covariance,
 )
 from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.wire.cdr import BulkOdometry, BulkTransform, planar_fields
+from diffdrive_odom.wire.odometry import BulkOdometry, BulkTransform, planar_fields
 
 if TYPE_CHECKING:  # the bag library only where a bag is read or written (``tools`` extra)
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
 
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagreadings, bagwriter, csvout
 
 
 @dataclass
@@ -68,11 +68,13 @@ class PoseLog:
         )
 
 
-def keep_input(reader: AnyReader, writer: bagio.BagWriter, odom_topic: str) -> bagio.Passthrough:
+def keep_input(
+    reader: AnyReader, writer: bagwriter.BagWriter, odom_topic: str
+) -> bagreadings.Passthrough:
     """Copy every input message (converted to CDR) into the output bag as it streams by."""
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools import bagio, cdrconvert
 
-    convert = bagio.CdrConverter(reader)
+    convert = cdrconvert.CdrConverter(reader)
     for conn in reader.connections:
         if conn.topic == odom_topic:
             raise bagio.BagError(
@@ -98,8 +100,8 @@ class OutputSink:
     at a time cost more than the odometry). The bag's topics are registered by the caller.
     """
 
-    def __init__(self, settings: OdometrySettings, writer: bagio.BagWriter | None,
-                 csv_out: bagio.CsvWriter | None, traj: PoseLog | None = None, *,
+    def __init__(self, settings: OdometrySettings, writer: bagwriter.BagWriter | None,
+                 csv_out: csvout.CsvWriter | None, traj: PoseLog | None = None, *,
                  odom_topic: str = "/odom", tf_topic: str = "/tf") -> None:
         # The node's own byte layouts: the bag holds what the node would have published.
         self.odom = BulkOdometry(settings.odom_frame_id, settings.base_frame_id)
@@ -172,8 +174,8 @@ def _covariances(st: Stretch, n: int) -> tuple[npt.NDArray[np.float64], npt.NDAr
 
 def output_sink(
     settings: OdometrySettings,
-    writer: bagio.BagWriter | None,
-    csv_out: bagio.CsvWriter | None,
+    writer: bagwriter.BagWriter | None,
+    csv_out: csvout.CsvWriter | None,
     traj: PoseLog | None = None,
     *,
     odom_topic: str = "/odom",

@@ -5,4 +5,4 @@ library, so the node, bag I/O and the sinks share one codec that the import
 contracts keep free of ROS.
 """
 
-__all__ = ['cdr', 'conversions']
+__all__ = ['cdr', 'conversions', 'imu', 'jointstate', 'odometry']

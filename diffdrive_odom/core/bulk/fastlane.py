@@ -62,7 +62,7 @@ MARGIN = 1.0 - 1e-9  # the plausibility limits, tightened: borderline steps go t
 
 
 class Reading(Protocol):
-    """One JointState as the estimator takes it (``bagio.JointReading`` is one).
+    """One JointState as the estimator takes it (``core.bulk.readings.JointReading`` is one).
 
     Replay's readings also carry ``log_ns``, the receive time (read where present).
     """

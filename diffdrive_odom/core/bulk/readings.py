@@ -2,7 +2,8 @@
 
 Why: a bag's JointState messages from one driver share one byte layout (the same
 names, the same array lengths), so a thousand of them can be decoded with a few numpy
-views instead of a thousand Python calls (:class:`~diffdrive_odom.wire.cdr.JointBlockDecoder`).
+views instead of a thousand Python calls
+(:class:`~diffdrive_odom.wire.jointstate.JointBlockDecoder`).
 A :class:`JointBlock` keeps them as arrays and is still a sequence of
 :class:`JointReading`: the fast lane takes its arrays as they are, and whatever must go
 through the one :class:`~diffdrive_odom.core.estimation.pipeline.ReadingPipeline` reading by
