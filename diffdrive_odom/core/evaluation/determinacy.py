@@ -179,8 +179,10 @@ def coverage(shapes: Sequence[Shape]) -> Coverage:
     elif ratio > MAX_MIRROR_RATIO:
         net = sum(s.net_turn for s in shapes)
         way = "counter-clockwise" if net > 0 else "clockwise"
+        seen = ("a combination these runs do not see at all" if math.isinf(ratio)
+                else f"the geometry {ratio:.0f}x more strongly in one combination")
         reason = (f"turning one way only ({way}: the same runs driven the other way would "
-                  f"see the geometry {ratio:.0f}x more strongly in one combination)")
+                  f"see {seen})")
     else:
         reason = ""
     return Coverage(travel, span, ratio, reason)
