@@ -19,8 +19,8 @@ set of runs fails, each named:
   ``M``, the runs themselves ``A`` (both with the reference's start yaw, the fit's
   nuisance, eliminated); the largest generalised eigenvalue of ``(M, A)`` is how much
   more strongly, at worst, the mirrored runs would see a combination of the three
-  values. Balanced runs give about 1; on the OptiOdom runs one direction gave 770 to
-  2300, a free path 15 (``bench/bench_verdict.py``).
+  values. Balanced runs give about 1; on the OptiOdom runs (at the nominal geometry)
+  circles or squares of one direction gave 770 to 2300, a single free path 15.
 
 A fold also judges nothing when its held-out run ends in the same place whatever the
 geometry (a turn on the spot): :func:`judges` asks that a 1 % change of the values move
