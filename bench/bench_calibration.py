@@ -100,13 +100,19 @@ def load(bag: Path, kind: str, exp: str) -> Data:
     return Data(Run(bag.name, steps, ref), kind, exp, readings)
 
 
-def load_all(quick: bool) -> list[Data]:
+def bags() -> Path:
+    """The 45 training runs as bags in the cache folder, converted on first use."""
     out = cache_dir()
     if len([p for p in out.glob("*_run-*") if p.is_dir()]) < 45:
         out.mkdir(parents=True, exist_ok=True)
         print(f"converting {TRAIN} into {out} (its to_rosbag2.py) ...", flush=True)
         subprocess.run([sys.executable, str(TRAIN / "to_rosbag2.py"), str(out)], check=True,
                        stdout=subprocess.DEVNULL)
+    return out
+
+
+def load_all(quick: bool) -> list[Data]:
+    out = bags()
     data = []
     for bag in sorted(p for p in out.glob("*_run-*") if p.is_dir()):
         kind, exp, _ = bag.name.split("_")

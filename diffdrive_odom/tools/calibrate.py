@@ -3,8 +3,10 @@
 The CLI only reads bags and prints; the fit is :mod:`diffdrive_odom.core.evaluation.calibration`,
 the held-out check and the bootstrap :mod:`diffdrive_odom.core.evaluation.crossval`. It judges its
 own result first: each run integrated with a geometry fitted on the others, against
-the nominal geometry; when the nominal one does better it says so on the first line,
-exits 1 and prints no block (``--force`` prints it anyway).
+the nominal geometry, over the folds whose training runs determine the geometry (the
+others are named and left out); when the nominal one does better it says so on the
+first line, exits 1 and prints no block (``--force`` prints it anyway); when no fold
+remains it says it cannot tell and prints the block with that warning.
 Readings are decoded with the odometry node's own parameters and pipeline
 (:func:`diffdrive_odom.core.bulk.batch.wheel_steps`), ground truth with ``eval``'s readers, so
 a bag that replays or evaluates also calibrates. The result is printed as a
@@ -209,14 +211,19 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
 
     nominal = settings.geometry
     result = calibration.fit(runs, nominal)
-    verdict = crossval.check(crossval.held_out(runs, nominal)) if len(runs) >= 2 else None
+    in_sample = [r.after.final_position_error_aligned_m for r in result.runs]
+    verdict = (crossval.judge(runs, crossval.held_out(runs, nominal), nominal, in_sample)
+               if len(runs) >= 2 else None)
     covariance = crossval.bootstrap(runs, nominal)
     printed = None if covariance is None else crossval.with_drift(result.values, covariance,
                                                                   args.session_drift)
     ratios = None if printed is None else crossval.stddev_ratios(result.values, printed)
-    refused = verdict is not None and not verdict.better
-    print(check_line(verdict, len(runs), refused and args.force))
-    text = params_block(result.geometry, ratios, f"least squares on {len(runs)} run(s)")
+    refused = verdict is not None and not verdict.cannot_tell and not verdict.better
+    print(check_lines(verdict, len(runs), refused and args.force))
+    how = f"least squares on {len(runs)} run(s)"
+    if verdict is not None and verdict.cannot_tell:
+        how += "; held-out check CANNOT TELL, see its first line"
+    text = params_block(result.geometry, ratios, how)
     if args.plot:
         plot(result, runs, args.plot)
     print(fit_report(result, covariance, args.session_drift))
@@ -230,19 +237,38 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
     return 0
 
 
-def check_line(c: crossval.Check | None, runs: int, forced: bool) -> str:
-    """The verdict of the held-out check, the first line calibrate prints."""
-    if c is None:
+def check_lines(v: crossval.Verdict | None, runs: int, forced: bool) -> str:
+    """The verdict of the held-out check (calibrate's first line), then each fold left out.
+
+    First line: ``held-out check: ...`` (better, or cannot be made), ``NOT BETTER THAN
+    NOMINAL ...`` or ``CANNOT TELL ...``; then one ``held-out fold left out: RUN: WHY``
+    line per fold that cannot judge the fit.
+    """
+    if v is None:
         return (f"held-out check: cannot be made with {runs} run (give 2 or more runs: each "
                 "is then judged with a geometry fitted on the others)")
+    left = [f"held-out fold left out: {run}: {why}" for run, why in v.left_out]
+    c = v.check
+    if c is None:
+        return "\n".join([
+            f"CANNOT TELL on held-out runs: none of the {len(v.left_out)} folds can judge the "
+            "fit (drive both ways, with lines and turns); the block is printed, judge it "
+            "yourself", *left])
     figures = (f"mean final position error {c.fpe_nominal:.4f} m nominal, {c.fpe_held_out:.4f} "
                f"m calibrated; ATE {c.ate_nominal:.4f} -> {c.ate_held_out:.4f} m "
-               f"(leave-one-run-out over {c.runs} runs)")
-    if c.better:
-        return ("held-out check: calibrated geometry better than nominal on runs it did not "
+               f"(leave-one-run-out over {c.runs} runs"
+               + (f", {len(v.left_out)} left out" if v.left_out else "") + ")")
+    if v.within_margin:
+        head = (f"CANNOT TELL on held-out runs: {figures}; the change is within its noise, "
+                f"{v.margin:.4f} m (the RMS in-sample final error over the square root of "
+                "the folds); the block is printed, judge it yourself")
+    elif v.better:
+        head = ("held-out check: calibrated geometry better than nominal on runs it did not "
                 f"see: {figures}")
-    return ("NOT BETTER THAN NOMINAL on held-out runs"
-            + (" (--force: block printed anyway)" if forced else "") + f": {figures}")
+    else:
+        head = ("NOT BETTER THAN NOMINAL on held-out runs"
+                + (" (--force: block printed anyway)" if forced else "") + f": {figures}")
+    return "\n".join([head, *left])
 
 
 def _umbmark(args: argparse.Namespace, settings: OdometrySettings) -> int:

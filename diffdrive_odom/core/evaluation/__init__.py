@@ -1,3 +1,3 @@
 """Odometry against ground truth: metrics, recorded runs, calibration, held-out check, UMBmark."""
 
-__all__ = ['calibration', 'crossval', 'metrics', 'recorded_run', 'umbmark']
+__all__ = ['calibration', 'crossval', 'determinacy', 'metrics', 'recorded_run', 'umbmark']

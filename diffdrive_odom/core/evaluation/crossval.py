@@ -27,13 +27,14 @@ trials", the between-study variance): what their fits differ by beyond both boot
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core.evaluation import calibration
+from diffdrive_odom.core.evaluation import calibration, determinacy
 from diffdrive_odom.core.evaluation.metrics import Metrics
 from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
 from diffdrive_odom.core.geometry.kinematics import Geometry
@@ -116,6 +117,80 @@ def check(results: Sequence[HeldOut]) -> Check | None:
         mean(lambda h: h.nominal.ate_rmse_aligned_m),
         mean(lambda h: h.held_out.ate_rmse_aligned_m if h.held_out else 0.0),
     )
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The held-out check over the folds that count, what was left out and why, the margin.
+
+    ``check`` is None when no fold counts. ``margin`` [m] is the noise of the held-out
+    mean final error: the RMS final error the full fit leaves on its own runs (those
+    whose end depends on the geometry; what no geometry explains: slip, the runs'
+    scatter) over the square root of the folds counted. A change within it cannot tell
+    better from worse. ``every_fold`` is the check over all folds, the rule before.
+    """
+
+    check: Check | None
+    every_fold: Check
+    left_out: tuple[tuple[str, str], ...]  # (held-out run, why its fold cannot judge)
+    margin: float = 0.0
+
+    @property
+    def within_margin(self) -> bool:
+        """The held-out change of the mean final error is within the margin."""
+        c = self.check
+        return c is not None and abs(c.fpe_held_out - c.fpe_nominal) <= self.margin
+
+    @property
+    def cannot_tell(self) -> bool:
+        """No fold can judge, or the change is within the margin: the block with a warning."""
+        return self.check is None or self.within_margin
+
+    @property
+    def better(self) -> bool:
+        """Better than nominal beyond the margin: the block without a warning."""
+        return self.check is not None and not self.within_margin and self.check.better
+
+
+def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
+          in_sample: Sequence[float] = (), groups: Sequence[Hashable] | None = None,
+          shapes: Sequence[determinacy.Shape] | None = None) -> Verdict | None:
+    """:func:`check` over the folds that can judge the fit, with its margin.
+
+    A fold counts when its training runs determine the geometry
+    (:func:`determinacy.coverage`) and its held-out run's end depends on it
+    (:func:`determinacy.judges`). ``results`` from :func:`held_out` with the same
+    ``groups``; ``in_sample``: the full fit's final position error on each run, in
+    order (the margin; empty: none); ``shapes`` (one per run, :func:`determinacy.shape`) when the
+    caller has them. None when no run could be held out.
+    """
+    every = check(results)
+    if every is None:
+        return None
+    labels: Sequence[Hashable] = list(range(len(runs))) if groups is None else groups
+    shown = list(shapes) if shapes is not None else [determinacy.shape(r, nominal)
+                                                     for r in runs]
+    training: dict[Hashable, str] = {}
+    for g in dict.fromkeys(labels):
+        training[g] = determinacy.coverage(
+            [s for s, lab in zip(shown, labels, strict=True) if lab != g]).reason
+    # held_out's order: group by group, each group's runs in their order
+    order = [i for g in dict.fromkeys(labels) for i, lab in enumerate(labels) if lab == g]
+    kept, left = [], []
+    for h, i in zip(results, order, strict=True):
+        if h.held_out is None:
+            continue
+        why = (f"its training runs do not determine the geometry: {training[h.group]}"
+               if training[h.group] else determinacy.judges(shown[i]))
+        if why:
+            left.append((h.run, why))
+        else:
+            kept.append(h)
+    judging = ([e for e, s in zip(in_sample, shown, strict=True) if not determinacy.judges(s)]
+               if len(in_sample) else [])
+    noise = math.sqrt(float(np.mean(np.square(judging)))) if judging else 0.0
+    margin = noise / math.sqrt(len(kept)) if kept else 0.0
+    return Verdict(check(kept), every, tuple(left), margin)
 
 
 def bootstrap(runs: Sequence[Run], nominal: Geometry, resamples: int = BOOTSTRAP_RUNS,

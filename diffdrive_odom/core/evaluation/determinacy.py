@@ -1,0 +1,188 @@
+"""Do a set of runs determine the geometry? The held-out verdict counts only folds that do.
+
+Pure Python + numpy. A fold of the held-out check (:mod:`diffdrive_odom.core.evaluation.crossval`)
+judges a geometry fitted on its training runs; when those runs cannot determine the
+geometry, the fold's error says what the runs lack, not whether the fit is any good.
+Per step the wheels give an arc length and a turn, two numbers for three values: a
+motion with one wheel ratio (a line, a spin on the spot, a circle) leaves one
+combination free, and only runs with different ratios pin down all three. Three ways a
+set of runs fails, each named:
+
+- too little travel: turns on the spot alone do not see the common scale of the radii
+  and the separation (a spin's angle is ``(r_left + r_right) / b``);
+- too little turning: straight lines alone do not see the separation;
+- turning one way only: the fit's Jacobian sees the combination that a turn the other
+  way brings out (Borenstein and Feng, "Measurement and correction of systematic
+  odometry errors in mobile robots": a square's type A and type B errors are told apart
+  only by squares driven both ways). Measured on the fit's own normal equations: the
+  runs mirrored (left and right wheels swapped, the path reflected) give information
+  ``M``, the runs themselves ``A`` (both with the reference's start yaw, the fit's
+  nuisance, eliminated); the largest generalised eigenvalue of ``(M, A)`` is how much
+  more strongly, at worst, the mirrored runs would see a combination of the three
+  values. Balanced runs give about 1; on the OptiOdom runs (at the nominal geometry)
+  circles or squares of one direction gave 770 to 2300, a single free path 15.
+
+A fold also judges nothing when its held-out run ends in the same place whatever the
+geometry (a turn on the spot): :func:`judges` asks that a 1 % change of the values move
+the run's end by :data:`MIN_END_SHIFT_M` or more (turns on the spot: 1.4 mm; the
+OptiOdom lines, circles and squares: 80 mm or more).
+
+The thresholds: :data:`MIN_TRAVEL_M` and :data:`MIN_TURN_RAD` are where a 1 % error of
+the scale or of the separation moves a run by 10 mm or 0.9 deg, well above a motion
+capture's own error (1 mm, 0.5 deg); :data:`MAX_MIRROR_RATIO` lies between the balanced
+and one-way runs above (10x in amplitude).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from diffdrive_odom.core.bulk.batch import integrate_steps
+from diffdrive_odom.core.evaluation import calibration
+from diffdrive_odom.core.evaluation.recorded_run import Run, values_of, with_values
+from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
+
+FloatArray = npt.NDArray[np.float64]
+
+MIN_TRAVEL_M = 1.0  # arc length driven, all runs together
+MIN_TURN_RAD = math.pi / 2  # heading span of the run that turns most
+MAX_MIRROR_RATIO = 100.0
+MIN_END_SHIFT_M = 0.01  # end moved by a 1 % change of the values, at worst
+_STEP = 1e-5  # relative step of the central differences
+
+
+@dataclass(frozen=True)
+class Shape:
+    """What one run shows of the geometry (nominal geometry, computed once per run)."""
+
+    travel: float  # sum of |arc length| [m]
+    turn_span: float  # max - min heading [rad]
+    net_turn: float  # end heading [rad], + counter-clockwise
+    end_shift: float  # how far a 1 % change of the values moves the end, at most [m]
+    information: FloatArray  # 4x4 J^T J: log radii, log separation, start yaw
+    mirrored: FloatArray  # the same for the run mirrored
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """Whether a set of runs determines the geometry; ``reason`` names what it lacks."""
+
+    travel: float
+    turn_span: float
+    mirror_ratio: float
+    reason: str  # "" when it does
+
+    @property
+    def determined(self) -> bool:
+        """Nothing lacking: the runs determine all three values."""
+        return not self.reason
+
+
+def mirrored(run: Run) -> Run:
+    """The run driven the other way: wheels swapped, its reference reflected about x."""
+    ref = run.reference
+    steps = dataclasses.replace(run.steps, d_left=run.steps.d_right,
+                                d_right=run.steps.d_left)
+    return Run(run.name, steps, None if ref is None
+               else dataclasses.replace(ref, y=-ref.y, yaw=-ref.yaw))
+
+
+def information(run: Run, nominal: Geometry, max_gap: float = 0.5) -> FloatArray:
+    """``J^T J`` of the fit's residuals of ``run`` at ``nominal`` (its weighting, 4x4).
+
+    Columns: the logs of the left and right radius and the separation (relative
+    changes), then the reference's start yaw.
+    """
+    p = calibration.prepare(run, max_gap)
+    base = values_of(nominal)
+    heading_length = 0.5 * nominal.separation
+    weight = 1.0 / math.sqrt(len(p.index))
+
+    def res(x: FloatArray) -> FloatArray:
+        v = base * np.exp(x[:3])
+        g = with_values(nominal, float(v[0]), float(v[1]), float(v[2]))
+        return weight * calibration.residuals(p, g, float(x[3]), heading_length).ravel()
+
+    cols = [(res(_STEP * e) - res(-_STEP * e)) / (2 * _STEP) for e in np.eye(4)]
+    jac = np.column_stack(cols)
+    return np.asarray(jac.T @ jac, dtype=np.float64)
+
+
+def end_shift(run: Run, nominal: Geometry) -> float:
+    """How far a 1 % change of the three values moves the run's end, at most [m]."""
+    base = values_of(nominal)
+
+    def end(x: FloatArray) -> FloatArray:
+        v = base * np.exp(x)
+        x_, y_, _ = integrate_steps(run.steps, with_values(nominal, float(v[0]),
+                                                           float(v[1]), float(v[2])))
+        return np.array([x_[-1], y_[-1]])
+
+    jac = np.column_stack([(end(_STEP * e) - end(-_STEP * e)) / (2 * _STEP)
+                           for e in np.eye(3)])
+    return 0.01 * float(np.linalg.norm(jac, 2))
+
+
+def shape(run: Run, nominal: Geometry, max_gap: float = 0.5) -> Shape:
+    """One run's travel, turning and information (the fit's Jacobian), and its mirror's."""
+    ds, _ = body_increment(nominal, run.steps.d_left, run.steps.d_right)
+    _, _, th = integrate_steps(run.steps, nominal)
+    heading = np.concatenate(([0.0], th))
+    return Shape(float(np.sum(np.abs(ds))), float(np.ptp(heading)), float(heading[-1]),
+                 end_shift(run, nominal), information(run, nominal, max_gap),
+                 information(mirrored(run), nominal, max_gap))
+
+
+def judges(held_out: Shape) -> str:
+    """Why a held-out run cannot judge a geometry ("" when it can)."""
+    if held_out.end_shift >= MIN_END_SHIFT_M:
+        return ""
+    return (f"the held-out run ends in place whatever the geometry (a 1 % change moves its "
+            f"end {1000 * held_out.end_shift:.1f} mm; {1000 * MIN_END_SHIFT_M:g} mm or more "
+            "needed)")
+
+
+def geometry_part(info: FloatArray) -> FloatArray:
+    """The 3x3 information on the geometry with the start yaw eliminated (Schur complement)."""
+    a, b, d = info[:3, :3], info[:3, 3], float(info[3, 3])
+    return a if d <= 0.0 else np.asarray(a - np.outer(b, b) / d, dtype=np.float64)
+
+
+def mirror_ratio(shapes: Sequence[Shape]) -> float:
+    """Largest generalised eigenvalue of (mirrored, own) information; inf when singular."""
+    own = geometry_part(sum((s.information for s in shapes), np.zeros((4, 4))))
+    mir = geometry_part(sum((s.mirrored for s in shapes), np.zeros((4, 4))))
+    w, u = np.linalg.eigh(own)
+    if w[0] <= 1e-12 * max(float(w[-1]), 1e-300):
+        return math.inf
+    white = u / np.sqrt(w)
+    return float(np.linalg.eigvalsh(white.T @ mir @ white)[-1])
+
+
+def coverage(shapes: Sequence[Shape]) -> Coverage:
+    """Whether ``shapes`` (a fold's training runs) determine the geometry, and if not why."""
+    travel = sum(s.travel for s in shapes)
+    span = max((s.turn_span for s in shapes), default=0.0)
+    ratio = mirror_ratio(shapes) if shapes else math.inf
+    if travel < MIN_TRAVEL_M:
+        reason = (f"too little travel ({travel:.2f} m, turns on the spot only; "
+                  f"{MIN_TRAVEL_M:g} m or more needed)")
+    elif span < MIN_TURN_RAD:
+        reason = (f"too little turning (heading spans {math.degrees(span):.0f} deg, "
+                  f"straight lines only; {math.degrees(MIN_TURN_RAD):.0f} deg or more needed)")
+    elif ratio > MAX_MIRROR_RATIO:
+        net = sum(s.net_turn for s in shapes)
+        way = "counter-clockwise" if net > 0 else "clockwise"
+        seen = ("a combination these runs do not see at all" if math.isinf(ratio)
+                else f"the geometry {ratio:.0f}x more strongly in one combination")
+        reason = (f"turning one way only ({way}: the same runs driven the other way would "
+                  f"see {seen})")
+    else:
+        reason = ""
+    return Coverage(travel, span, ratio, reason)
