@@ -45,7 +45,7 @@ from diffdrive_odom.core.evaluation import calibration, crossval, determinacy
 from diffdrive_odom.core.evaluation.recorded_run import Run
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagio, evaluate
+from diffdrive_odom.tools import bagreadings, evaluate
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "bench"))
@@ -60,7 +60,7 @@ RULES = ("old", "folds", "new")
 
 def load(bag: Path) -> Run:
     """One bag decoded once into wheel steps, with its ground truth."""
-    steps = batch.wheel_steps(bagio.read_joint_states(bag), odometry_settings(PARAMS))
+    steps = batch.wheel_steps(bagreadings.read_joint_states(bag), odometry_settings(PARAMS))
     return Run(bag.name, steps, evaluate.read_trajectory(bag, "/ground_truth/pose"))
 
 
