@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 from diffdrive_odom.core.bulk import batch
-from diffdrive_odom.core.estimation.estimator import Reason, Status
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.estimation.encoders import Reason
 from diffdrive_odom.core.estimation.pipeline import VELOCITY_ON, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import (
     COVARIANCE_REFUSED,
@@ -23,9 +24,9 @@ from diffdrive_odom.core.estimation.publication import (
     pipeline_publication,
     publication,
 )
+from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.ros.throttle import KeyedThrottle
-from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import bagio, replay
 
 from bagutil import write_params

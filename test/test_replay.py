@@ -21,8 +21,8 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import bagio, replay, sinks
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.wire.conversions import quaternion_to_yaw

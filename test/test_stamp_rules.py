@@ -17,21 +17,16 @@ import numpy as np
 import pytest
 
 from diffdrive_odom.core.bulk import batch
-from diffdrive_odom.core.estimation.encoders import EncoderConfig
-from diffdrive_odom.core.estimation.estimator import (
-    EstimatorConfig,
-    OdometryEstimator,
-    Reason,
-    Status,
-)
+from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
+from diffdrive_odom.core.estimation.encoders import EncoderConfig, Reason
+from diffdrive_odom.core.estimation.estimator import OdometryEstimator
 from diffdrive_odom.core.estimation.pipeline import Outcome, ReadingPipeline
 from diffdrive_odom.core.estimation.stamps import CLOCK_OFFSET_WARN_S, StampSource
-from diffdrive_odom.core.estimation.timeline import ADOPT_CLOCK_AFTER_S
+from diffdrive_odom.core.estimation.timeline import ADOPT_CLOCK_AFTER_S, Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import bagio, replay
 from diffdrive_odom.tools.cli import main as cli
 

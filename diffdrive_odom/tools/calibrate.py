@@ -26,6 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run, trajectory, values_of
 from diffdrive_odom.core.evaluation.umbmark import Umbmark, reference_end, umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
@@ -34,7 +35,6 @@ from diffdrive_odom.core.uncertainty.propagation import (
     DEFAULT_SEPARATION_STDDEV_RATIO,
     SESSION_DRIFT_RATIO,
 )
-from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.settings.params import yaml_text
 from diffdrive_odom.tools import evaluate, fleet
 from diffdrive_odom.tools.args import (

@@ -38,11 +38,12 @@ from typing import TYPE_CHECKING
 from diffdrive_odom.core.bulk import fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock
 from diffdrive_odom.core.bulk.readings import count as reading_count
-from diffdrive_odom.core.estimation.estimator import Reason, Status
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.estimation.encoders import Reason
 from diffdrive_odom.core.estimation.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
+from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
-from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import evaluate, fleet, progress, sinks
 from diffdrive_odom.tools.args import (
     add_param_arguments,
@@ -160,10 +161,9 @@ def replay_readings(
                     continue
                 yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 
-    # With the gyro every step's heading is decided per reading: no lane in bulk.
     items: Iterable[tuple[bagio.JointReading, Outcome] | fastlane.Stretch] = (
         fastlane.lanes(pipe, readings, chunk=fastlane.CHUNK)  # type: ignore[arg-type]
-        if fast and settings.gyro is None else one_by_one(readings))
+        if fast and settings.takes_bulk else one_by_one(readings))
     for item in items:
         if isinstance(item, fastlane.Stretch):
             stats.statuses[Status.UPDATED.value] += item.count
@@ -388,7 +388,7 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
                 passthrough = sinks.keep_input(reader, writer, args.odom_topic)
         jump = int(settings.estimator.time_jump_threshold * 1e9)
         readings: Iterable[bagio.JointReading | bagio.ImuSample | JointBlock]
-        if settings.gyro is None and passthrough is None:  # runs of alike messages at once
+        if settings.takes_bulk and passthrough is None:  # runs of alike messages at once
             readings = bagio.iter_joint_blocks(reader, args.topic, jump_back_ns=jump)
         else:
             readings = bagio.iter_sensor_readings(
