@@ -44,6 +44,7 @@ from diffdrive_odom.core.uncertainty.propagation import (
 )
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools.sinks import Published
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS
 from rosutil import DATA
@@ -177,17 +178,17 @@ def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
           monkeypatch: pytest.MonkeyPatch) -> int:
     """Replay both ways, check they agree; how many readings the fast lane took in bulk."""
     monkeypatch.setattr(fastlane, "CHUNK", chunk)
-    slow: list[replay.Published] = []
-    fast: list[replay.Published] = []
+    slow: list[Published] = []
+    fast: list[Published] = []
     a = replay.replay_readings(readings, cfg, slow.append, fast=False)  # type: ignore[arg-type]
     b = replay.replay_readings(readings, cfg, fast.append, fast=True)  # type: ignore[arg-type]
     _agree(a, b, slow, fast)
     # The same stream with its alike runs as JointBlocks (as bagio.iter_joint_blocks
     # gives them): the same again, though stretches now start elsewhere.
     blocks = _blocks(readings, chunk)
-    blocked: list[replay.Published] = []
+    blocked: list[Published] = []
     _agree(a, replay.replay_readings(blocks, cfg, blocked.append, fast=True), slow, blocked)
-    opened: list[replay.Published] = []  # and one by one, blocks opened: the very same
+    opened: list[Published] = []  # and one by one, blocks opened: the very same
     replay.replay_readings(blocks, cfg, opened.append, fast=False)
     assert opened == slow
     scalar, warned = _scalar_lane(readings, cfg, chunk)
@@ -198,8 +199,8 @@ def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
     return b.readings - scalar
 
 
-def _agree(a: replay.ReplayStats, b: replay.ReplayStats, slow: list[replay.Published],
-           fast: list[replay.Published]) -> None:
+def _agree(a: replay.ReplayStats, b: replay.ReplayStats, slow: list[Published],
+           fast: list[Published]) -> None:
     """Replay ``b`` (and what it published) is replay ``a``'s, to the issue's bounds."""
     for field in ("readings", "published", "statuses", "reasons", "examples", "refused",
                   "warnings", "final_stamp_ns"):

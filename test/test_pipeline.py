@@ -27,7 +27,8 @@ from diffdrive_odom.core.estimation.publication import (
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.ros.throttle import KeyedThrottle
-from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools import bagio
+from diffdrive_odom.tools.args import load_settings
 
 from bagutil import write_params
 
@@ -39,7 +40,7 @@ R = 0.1
 
 def settings(tmp_path: Path, **extra: object) -> OdometrySettings:
     values = {"wheel_radius": R, "wheel_separation": 0.4, **extra}
-    return replay.load_settings(write_params(tmp_path / "p.yaml", values))
+    return load_settings(write_params(tmp_path / "p.yaml", values))
 
 
 def test_zero_and_negative_stamps_are_dropped_before_the_estimator(tmp_path: Path) -> None:

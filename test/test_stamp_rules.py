@@ -28,7 +28,9 @@ from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.tools import bagio, replay
+from diffdrive_odom.tools.args import load_settings
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.sinks import Published
 
 import oracle
 from bagutil import mcap_messages, write_params
@@ -76,7 +78,7 @@ def pipeline(tmp_path: Path, **extra: object) -> ReadingPipeline:
 
 def settings(tmp_path: Path, **extra: object) -> OdometrySettings:
     values = {"wheel_radius": R, "wheel_separation": B, **extra}
-    return replay.load_settings(write_params(tmp_path / "p.yaml", values))
+    return load_settings(write_params(tmp_path / "p.yaml", values))
 
 
 def burst_stamp(t: float) -> float:
@@ -302,7 +304,7 @@ def test_stamp_source_receive_time_stamps_with_the_receive_time(tmp_path: Path) 
 def test_replay_stamps_with_the_log_time_and_names_the_clock(tmp_path: Path) -> None:
     readings = [bagio.JointReading(10**12 + round(PERIOD * k * 1e9), ns(PERIOD * k), NAMES,
                                    positions(PERIOD * k), ()) for k in range(51)]
-    out: list[replay.Published] = []
+    out: list[Published] = []
     stats = replay.replay_readings(readings, settings(tmp_path), out.append)
     assert len(stats.warnings) == 1 and "behind the time they were received" in stats.warnings[0]
     assert out[-1].stamp_ns == 10**12 + 10**9

@@ -43,12 +43,13 @@ from diffdrive_odom.core.estimation.encoders import Reason
 from diffdrive_odom.core.estimation.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
 from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.tools import evaluate, fleet, progress, sinks
 from diffdrive_odom.tools.args import (
+    DEFAULT_REFERENCE,
     add_param_arguments,
     fail,
-    load_settings,
     outputs_problem,
     settings_from_args,
 )
@@ -59,7 +60,7 @@ from diffdrive_odom.tools.sinks import Published
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
     from diffdrive_odom.tools import bagio
 
-__all__ = ["Published", "ReplayStats", "load_settings", "main", "replay_readings"]
+__all__ = ["ReplayStats", "main", "replay_readings"]
 
 PREFIX = "[replay]"
 
@@ -229,7 +230,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--eval", nargs="?", const=AUTO_REFERENCE, default=None,
                     metavar="GT_TOPIC", help="evaluate against ground truth in the input bag "
                     f"(default: no evaluation; GT_TOPIC defaults to "
-                    f"{evaluate.DEFAULT_REFERENCE}, else the bag's only ground-truth topic)")
+                    f"{DEFAULT_REFERENCE}, else the bag's only ground-truth topic)")
     ap.add_argument("--child-frame", default=None, metavar="FRAME",
                     help="ground truth child frame when it is on /tf (default: the only one)")
     ap.add_argument("--json", metavar="FILE",
@@ -294,7 +295,7 @@ def run_bag(args: argparse.Namespace) -> int:
         return _error(problem)
     from diffdrive_odom.tools import bagio
 
-    ref: evaluate.Trajectory | None = None
+    ref: metrics.Trajectory | None = None
     gt_topic = ""
     if args.eval:  # the reference first: a wrong topic must not cost a whole replay
 
@@ -332,8 +333,8 @@ def run_bag(args: argparse.Namespace) -> int:
     if ref is not None:
         try:
             est = traj.trajectory()
-            metrics = evaluate.evaluate(est, ref)
-            evaluate.report(metrics, est, ref, args.json, args.plot,
+            figures = metrics.evaluate(est, ref)
+            evaluate.report(figures, est, ref, args.json, args.plot,
                             labels=("replay", gt_topic))
         except ValueError as err:
             return _error(f"--eval: {err}")
