@@ -60,7 +60,7 @@ from diffdrive_odom.core.estimation.pipeline import (
     PublishGate,
     ReadingPipeline,
 )
-from diffdrive_odom.core.estimation.stamps import CLOCK_OFFSET_WARN_S, StampSource
+from diffdrive_odom.core.estimation.stamps import StampSource, in_sync
 from diffdrive_odom.core.geometry.integration import Pose2D, chord_array
 from diffdrive_odom.core.geometry.kinematics import body_from_arcs, wheel_arcs
 from diffdrive_odom.core.geometry.se2 import wrap_angle
@@ -268,8 +268,7 @@ def _arrays(
         stamps = np.concatenate(([ref.stamp_ns if usable and ref else 0], used))
         clock_ok = np.ones(len(block), dtype=np.bool_)
         if check_clock and not receive and not state.clock_named:
-            clock_ok = (logs <= 0) | (used <= 0) | (
-                np.abs(used - logs) <= CLOCK_OFFSET_WARN_S * 1e9)
+            clock_ok = (logs <= 0) | (used <= 0) | in_sync(used - logs)
         cur = values[1:]
         ok = np.isfinite(cur).all(axis=1) & (used > 0) & clock_ok
         if enc.counter_bits > 0:

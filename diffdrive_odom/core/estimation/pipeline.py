@@ -350,10 +350,11 @@ class ReadingPipeline:
         """The state a bulk integrator starts from (see :class:`Handover`)."""
         est, unc = self._estimator, self._estimator.uncertainty
         return Handover(
-            est.handover(), est.pose, est.twist_windows(),
-            () if unc is None else unc.covariance, () if unc is None else unc.sensitivity,
-            () if unc is None else unc.rates, self._gate.last_ns,
-            self._clock.offset_ns is not None)
+            reference=est.handover(), pose=est.pose, windows=est.twist_windows(),
+            covariance=() if unc is None else unc.covariance,
+            sensitivity=() if unc is None else unc.sensitivity,
+            rates=() if unc is None else unc.rates, gate_last_ns=self._gate.last_ns,
+            clock_named=self._clock.offset_ns is not None)
 
     def take_back(self, state: Handover, readings: int, published: int,
                   inc: WheelIncrement, step: Step) -> None:
