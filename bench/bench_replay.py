@@ -44,7 +44,8 @@ sys.path.insert(0, str(ROOT))
 
 from diffdrive_odom.core.bulk import batch  # noqa: E402
 from diffdrive_odom.core.bulk.readings import count  # noqa: E402
-from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings  # noqa: E402
+from diffdrive_odom.core.estimation.config import OdometrySettings  # noqa: E402
+from diffdrive_odom.settings.odometry import odometry_settings  # noqa: E402
 from diffdrive_odom.tools import (  # noqa: E402
     bagblocks,
     bagio,

@@ -75,6 +75,22 @@ def test_core_bench_prints_its_table() -> None:
         assert row and float(row.group(1)) > 0.0 and float(row.group(2)) > 0.0, out
 
 
+def test_node_path_bench_compares_both_trees_or_says_why_not() -> None:
+    """Before (the commit before issue 23) and after, each a row; both end at one pose.
+
+    In a clone without that commit the bench says it skipped, and nothing else."""
+    out = run_bench("bench_node_path.py", 120)
+    if out.startswith("skipped:"):
+        assert "not in this clone's git history" in out and len(out.splitlines()) == 1, out
+        return
+    for tree in (r"before \(5a2a093\)", r"after \(this tree\)"):
+        row = re.search(rf"^{tree}\s+(\d+\.\d+)\s+(\d+\.\d+)\s+(\d+\.\d+)$", out, re.M)
+        assert row and 0.0 < float(row.group(2)) <= float(row.group(1)), out
+    for ratio in (r"after / before \(medians\)", r"after / before \(paired rounds\)"):
+        assert re.search(rf"^{ratio}\s+\d+\.\d+$", out, re.M), out
+    assert "same pose, bit for bit, every reading published: yes" in out, out
+
+
 @pytest.mark.slow
 def test_soak_bench_samples_memory_and_cpu() -> None:
     """A 20 s soak at 1 kHz: samples every 2 s and a verdict on growth. The verdict is

@@ -17,7 +17,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2.storage_mcap import McapWriter
 
-from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools import bagio, bagreadings, bagwriter, bulkmcap, csvout, replay, sinks
 
 DATA = Path(__file__).parent / "data"

@@ -30,8 +30,9 @@ import numpy as np
 import pytest
 import yaml
 
+from diffdrive_odom.core.evaluation import metrics as core_metrics
 from diffdrive_odom.core.motion.paths import polyline
-from diffdrive_odom.demo import BAG_TOPICS, DEFAULT_PARAMS
+from diffdrive_odom.demo.settings import BAG_TOPICS, DEFAULT_PARAMS
 from diffdrive_odom.tools import bagio, bagreadings, evaluate
 
 import oracle
@@ -221,14 +222,14 @@ def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(
     assert len(odom) > 100 and len(truth) > 100 and abs(len(tf) - len(odom)) <= 5
     # What the bag says is what the demo reported.
     assert [odom.x[-1], odom.y[-1]] == rows["nominal"]["final_pose"][:2]
-    metrics = evaluate.evaluate(odom, truth)
+    metrics = core_metrics.evaluate(odom, truth)
     assert abs(metrics.final_position_error_m - nominal) < 1e-12
 
     # The follower: on its odometry the robot stays on the sent path up to the
     # fillets (a 90 degree fillet of r cuts the corner by r (sqrt 2 - 1) = 10 cm) and
     # a few centimetres of tracking; the truth strays further only by the drift.
-    drift = float(np.max(np.hypot(*(evaluate.match(odom, truth).est[:, :2]
-                                    - evaluate.match(odom, truth).ref[:, :2]).T)))
+    drift = float(np.max(np.hypot(*(core_metrics.match(odom, truth).est[:, :2]
+                                    - core_metrics.match(odom, truth).ref[:, :2]).T)))
     cut = CORNER * (math.sqrt(2) - 1)
     for sq in res["squares"]:
         pts = np.array(sq["points"])

@@ -13,13 +13,10 @@ from dataclasses import replace
 import pytest
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimation.encoders import EncoderConfig
-from diffdrive_odom.core.estimation.estimator import (
-    EstimatorConfig,
-    OdometryEstimator,
-    Reason,
-    Status,
-)
+from diffdrive_odom.core.estimation.config import EstimatorConfig
+from diffdrive_odom.core.estimation.encoders import EncoderConfig, Reason
+from diffdrive_odom.core.estimation.estimator import OdometryEstimator
+from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle

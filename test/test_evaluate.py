@@ -11,9 +11,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from diffdrive_odom.core.evaluation import metrics
+from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.tools import bagio, bagwriter, evaluate
 from diffdrive_odom.tools.cli import main as cli
-from diffdrive_odom.tools.evaluate import Trajectory
 
 from bagutil import OPTIODOM_PARAMS, OdomMessages, mcap_messages, write_params
 from rosutil import DATA
@@ -106,7 +107,7 @@ def _square(n_side: int = 100) -> Trajectory:
 
 def test_identical_trajectories_have_zero_error() -> None:
     ref = _square()
-    m = evaluate.evaluate(ref, ref)
+    m = metrics.evaluate(ref, ref)
     assert m.samples == len(ref)
     for name in ("final_position_error_m", "final_heading_error_rad", "ate_rmse_m",
                  "ate_rmse_aligned_m", "ate_rmse_best_fit_m", "rpe_translation_per_m",
@@ -121,7 +122,7 @@ def test_a_rigidly_moved_trajectory_is_only_wrong_before_alignment() -> None:
     c, s = math.cos(a), math.sin(a)
     est = Trajectory.from_arrays(ref.stamp_ns, tx + c * ref.x - s * ref.y,
                                  ty + s * ref.x + c * ref.y, ref.yaw + a)
-    m = evaluate.evaluate(est, ref)
+    m = metrics.evaluate(est, ref)
     # Raw: the end (back at ~origin) is off by where the origin went.
     end = np.array([ref.x[-1], ref.y[-1]])
     moved = np.array([tx + c * end[0] - s * end[1], ty + s * end[0] + c * end[1]])
@@ -139,7 +140,7 @@ def test_scale_error_is_a_constant_error_per_metre() -> None:
     ref = _line()  # 10 s at 0.5 m/s = 5 m
     k = 0.02
     est = Trajectory.from_arrays(ref.stamp_ns, (1 + k) * ref.x, ref.y, ref.yaw)
-    m = evaluate.evaluate(est, ref, segment_length=1.0)
+    m = metrics.evaluate(est, ref, segment_length=1.0)
     assert m.distance_m == pytest.approx(5.0)
     assert m.final_position_error_m == pytest.approx(k * 5.0, abs=1e-12)
     assert m.final_error_per_m == pytest.approx(k, abs=1e-12)
@@ -155,7 +156,7 @@ def test_heading_drift_per_metre() -> None:
     ref = _line()
     bias = 0.01  # rad per metre travelled
     est = Trajectory.from_arrays(ref.stamp_ns, ref.x, ref.y, bias * ref.x)
-    m = evaluate.evaluate(est, ref, segment_length=1.0)
+    m = metrics.evaluate(est, ref, segment_length=1.0)
     assert m.rpe_heading_rad_per_m == pytest.approx(bias, rel=1e-9)
     assert m.final_heading_error_rad == pytest.approx(bias * 5.0, abs=1e-12)
 
@@ -164,24 +165,24 @@ def test_stamps_are_matched_by_interpolation_never_extrapolated() -> None:
     ref = _line(n=101, hz=10.0)  # 0..10 s, 10 Hz, x = 0.5 t
     t = np.arange(-1.0, 12.0, 1 / 33.0)  # 33 Hz, starts before and ends after the reference
     est = Trajectory.from_arrays((t * 1e9).astype(np.int64) + 10**9, 0.5 * t, 0 * t, 0 * t)
-    m = evaluate.evaluate(est, ref)
+    m = metrics.evaluate(est, ref)
     assert m.ate_rmse_m == pytest.approx(0.0, abs=1e-9)
     assert m.samples == int(np.sum((t >= -1e-9) & (t <= 10.0 + 1e-9)))
     assert m.duration_s <= 10.0
     # A gap in the reference longer than max_gap is not bridged.
     keep = (ref.stamp_ns < 2 * 10**9) | (ref.stamp_ns > 8 * 10**9)
     holey = Trajectory.from_arrays(ref.stamp_ns[keep], ref.x[keep], ref.y[keep], ref.yaw[keep])
-    assert evaluate.evaluate(est, holey).samples < m.samples * 0.5
+    assert metrics.evaluate(est, holey).samples < m.samples * 0.5
 
 
 def test_headings_are_compared_modulo_a_turn() -> None:
     ref = _square()
     est = Trajectory.from_arrays(ref.stamp_ns, ref.x, ref.y, ref.yaw + 4 * math.pi)
-    m = evaluate.evaluate(est, ref)
+    m = metrics.evaluate(est, ref)
     assert m.final_heading_error_rad == pytest.approx(0.0, abs=1e-12)
     wrapped = np.remainder(ref.yaw + math.pi, 2 * math.pi) - math.pi
     est2 = Trajectory.from_arrays(ref.stamp_ns, ref.x, ref.y, wrapped)  # unwrapped on input
-    assert evaluate.evaluate(est2, ref).rpe_heading_rad_per_m == pytest.approx(0.0, abs=1e-12)
+    assert metrics.evaluate(est2, ref).rpe_heading_rad_per_m == pytest.approx(0.0, abs=1e-12)
 
 
 def _write_reference_bag(path: Path, traj: Trajectory) -> None:
@@ -230,7 +231,7 @@ def test_eval_on_a_bag_like_the_demo_s_needs_no_topic_flags(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """The demo and sim_node write /ground_truth/odom; eval's defaults must find it."""
-    from diffdrive_odom.demo import BAG_TOPICS
+    from diffdrive_odom.demo.settings import BAG_TOPICS
 
     assert "/ground_truth/odom" in BAG_TOPICS and "/odom" in BAG_TOPICS
     ref = _square(n_side=40)

@@ -26,18 +26,25 @@ from hypothesis import strategies as st
 
 from diffdrive_odom.core.bulk import batch, fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
+from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
-from diffdrive_odom.core.geometry.integration import Pose2D, compose
+from diffdrive_odom.core.geometry.integration import Pose2D, chord_array, compose
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
 from diffdrive_odom.core.geometry.se2 import wrap_angle
-from diffdrive_odom.core.uncertainty.fastcov import bulk_covariance
+from diffdrive_odom.core.uncertainty.fastcov import (
+    BulkModel,
+    BulkSteps,
+    CovarianceState,
+    bulk_covariance,
+)
 from diffdrive_odom.core.uncertainty.propagation import (
     NoiseModel,
     PoseUncertainty,
     pose_message_covariance,
 )
-from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
+from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools import bagreadings, replay
+from diffdrive_odom.tools.sinks import Published
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS
 from rosutil import DATA
@@ -171,17 +178,17 @@ def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
           monkeypatch: pytest.MonkeyPatch) -> int:
     """Replay both ways, check they agree; how many readings the fast lane took in bulk."""
     monkeypatch.setattr(fastlane, "CHUNK", chunk)
-    slow: list[replay.Published] = []
-    fast: list[replay.Published] = []
+    slow: list[Published] = []
+    fast: list[Published] = []
     a = replay.replay_readings(readings, cfg, slow.append, fast=False)  # type: ignore[arg-type]
     b = replay.replay_readings(readings, cfg, fast.append, fast=True)  # type: ignore[arg-type]
     _agree(a, b, slow, fast)
     # The same stream with its alike runs as JointBlocks (as bagblocks.iter_joint_blocks
     # gives them): the same again, though stretches now start elsewhere.
     blocks = _blocks(readings, chunk)
-    blocked: list[replay.Published] = []
+    blocked: list[Published] = []
     _agree(a, replay.replay_readings(blocks, cfg, blocked.append, fast=True), slow, blocked)
-    opened: list[replay.Published] = []  # and one by one, blocks opened: the very same
+    opened: list[Published] = []  # and one by one, blocks opened: the very same
     replay.replay_readings(blocks, cfg, opened.append, fast=False)
     assert opened == slow
     scalar, warned = _scalar_lane(readings, cfg, chunk)
@@ -192,8 +199,8 @@ def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
     return b.readings - scalar
 
 
-def _agree(a: replay.ReplayStats, b: replay.ReplayStats, slow: list[replay.Published],
-           fast: list[replay.Published]) -> None:
+def _agree(a: replay.ReplayStats, b: replay.ReplayStats, slow: list[Published],
+           fast: list[Published]) -> None:
     """Replay ``b`` (and what it published) is replay ``a``'s, to the issue's bounds."""
     for field in ("readings", "published", "statuses", "reasons", "examples", "refused",
                   "warnings", "final_stamp_ns"):
@@ -380,7 +387,8 @@ def test_covariance_cumulative_form_equals_the_recursion() -> None:
     unc = PoseUncertainty(model, 4096.0, 2, 3)
     unc.covariance = ((0.3, 0.01, 0.02), (0.01, 0.2, -0.03), (0.02, -0.03, 0.05))
     unc.sensitivity = ((1.0, 2.0, -3.0), (0.5, -1.0, 2.0), (0.1, -0.1, 0.2))
-    start = (unc.covariance, unc.sensitivity, unc.rates)
+    start = CovarianceState(covariance=unc.covariance, sensitivity=unc.sensitivity,
+                            rates=unc.rates)
     pose = Pose2D(500.0, -300.0, 2.5)
     before, after, published = [], [], []
     for k in range(m):
@@ -390,10 +398,16 @@ def test_covariance_cumulative_form_equals_the_recursion() -> None:
         pose = compose(pose, float(ds[k]), float(dth[k]))
         after.append(pose.theta)
         published.append(unc.pose_covariance(pose, geo))
-    out = bulk_covariance(model, geo, 4096.0, 2, 3, start, (dt, ds, dth, d_left, d_right),
-                          np.array(before), np.array(after))
+    sinc_half, chord = chord_array(ds, dth)
+    out = bulk_covariance(
+        BulkModel(noise=model, geometry=geo, ticks_per_revolution=4096.0, wheels_per_side=2,
+                  window=3),
+        start,
+        BulkSteps(dt=dt, ds=ds, dtheta=dth, d_left=d_left, d_right=d_right, sinc_half=sinc_half,
+                  chord=chord, before=np.array(before), after=np.array(after)))
     assert out is not None
-    rows, p_end, j_end, twist, rates = out
+    rows, twist = out.pose, out.twist
+    p_end, j_end, rates = out.end.covariance, out.end.sensitivity, out.end.rates
     for k in (0, 1, 499, m - 1):
         want = np.asarray(pose_message_covariance(published[k]))
         got = np.asarray(pose_message_covariance(

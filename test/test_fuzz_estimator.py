@@ -18,14 +18,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
 from diffdrive_odom.core.estimation.encoders import EncoderConfig
-from diffdrive_odom.core.estimation.estimator import EstimatorConfig, OdometryEstimator, Status
+from diffdrive_odom.core.estimation.estimator import OdometryEstimator
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle
 from diffdrive_odom.core.uncertainty.propagation import NoiseModel
-from diffdrive_odom.settings.odometry import OdometrySettings
 
 import oracle
 

@@ -17,9 +17,10 @@ from dataclasses import dataclass
 
 import pytest
 
+from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.pipeline import IMU_BACK, IMU_SILENT, ReadingPipeline
 from diffdrive_odom.core.geometry.integration import Pose2D
-from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
+from diffdrive_odom.settings.odometry import odometry_settings
 
 from oracle import arc
 

@@ -19,6 +19,7 @@ import pytest
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS
 from diffdrive_odom.settings.params import resolve_parameters
 from diffdrive_odom.tools import replay
+from diffdrive_odom.tools.args import load_settings
 
 from rosutil import ROOT, node_parameters, node_process, ros_test_node
 
@@ -147,7 +148,7 @@ def test_replay_resolves_as_the_node_does(case: str, files: dict[str, str]) -> N
     differ = {n: (got[n], expected[n]) for n in names if not same(got[n], expected[n])}
     assert not differ, f"{case}: node vs replay {differ}"
     # And replay builds the very settings (frames with the namespace prefix too).
-    settings = replay.load_settings(args.ros_params, args.node_name, args.namespace)
+    settings = load_settings(args.ros_params, args.node_name, args.namespace)
     assert settings.publish_rate == got["publish_rate"]
     assert settings.geometry.wheel_radius == got["wheel_radius"]
 
@@ -207,7 +208,7 @@ def test_replay_warns_the_same_way(tmp_path: Path, capsys: pytest.CaptureFixture
     args = replay._parser().parse_args(
         ["bag", "--params-file", CONFIG, "--params-file", str(typo),
          "-p", "wheel_radious:=0.05"])
-    replay.load_settings(args.ros_params, args.node_name, args.namespace)
+    load_settings(args.ros_params, args.node_name, args.namespace)
     err = capsys.readouterr().err.splitlines()
     warned = [ln for ln in err if "unknown parameters" in ln]
     assert len(warned) == 1, err

@@ -14,7 +14,8 @@ import pytest
 
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.bulk.readings import JointReading
-from diffdrive_odom.core.estimation.estimator import Reason, Status
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.estimation.encoders import Reason
 from diffdrive_odom.core.estimation.pipeline import VELOCITY_ON, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import (
     COVARIANCE_REFUSED,
@@ -24,10 +25,10 @@ from diffdrive_odom.core.estimation.publication import (
     pipeline_publication,
     publication,
 )
+from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.ros.throttle import KeyedThrottle
-from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import replay
+from diffdrive_odom.tools.args import load_settings
 
 from bagutil import write_params
 
@@ -39,7 +40,7 @@ R = 0.1
 
 def settings(tmp_path: Path, **extra: object) -> OdometrySettings:
     values = {"wheel_radius": R, "wheel_separation": 0.4, **extra}
-    return replay.load_settings(write_params(tmp_path / "p.yaml", values))
+    return load_settings(write_params(tmp_path / "p.yaml", values))
 
 
 def test_zero_and_negative_stamps_are_dropped_before_the_estimator(tmp_path: Path) -> None:

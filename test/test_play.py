@@ -17,7 +17,9 @@ from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 
 from diffdrive_odom.tools import bagio, bagreadings, replay
+from diffdrive_odom.tools.args import load_settings
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.sinks import Published
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, write_params
 from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until
@@ -31,20 +33,20 @@ def _ns(t: Any) -> int:
 
 
 def _offline(bag: Path, params: Path, until_ns: int | None = None,
-             only: set[int] | None = None) -> dict[int, replay.Published]:
+             only: set[int] | None = None) -> dict[int, Published]:
     """Offline replay's poses by stamp; ``only``: just the readings with these stamps.
 
     Best-effort DDS may drop a reading on a loaded machine; the node then integrates
     one longer step, so the fair comparison feeds replay exactly the readings the node
     got (its output has one pose per reading received, stamped with it).
     """
-    settings = replay.load_settings(params)
+    settings = load_settings(params)
     readings = bagreadings.read_joint_states(bag)
     if until_ns is not None:
         readings = (r for r in readings if r.log_ns < until_ns)
     if only is not None:
         readings = (r for r in readings if r.stamp_ns in only)
-    out: list[replay.Published] = []
+    out: list[Published] = []
     replay.replay_readings(readings, settings, out.append)
     return {p.stamp_ns: p for p in out}
 
@@ -62,7 +64,7 @@ def _check_pass(odoms: list[Odometry], bag: Path, params: Path, everything: set[
         _assert_same(o, expected[_ns(o.header.stamp)])
 
 
-def _assert_same(odom: Odometry, expected: replay.Published) -> None:
+def _assert_same(odom: Odometry, expected: Published) -> None:
     p = odom.pose.pose
     assert math.hypot(p.position.x - expected.pose.x, p.position.y - expected.pose.y) < 1e-9
     yaw = 2 * math.atan2(p.orientation.z, p.orientation.w)

@@ -21,10 +21,12 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import bagio, bagreadings, bagwriter, replay, sinks
+from diffdrive_odom.tools.args import load_settings
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.sinks import Published
 from diffdrive_odom.wire.conversions import quaternion_to_yaw
 
 import oracle
@@ -40,11 +42,11 @@ def _ns(t: Any) -> int:
 
 
 def _settings(tmp_path: Path, values: dict[str, Any]) -> OdometrySettings:
-    return replay.load_settings(write_params(tmp_path / "p.yaml", values))
+    return load_settings(write_params(tmp_path / "p.yaml", values))
 
 
-def _published(bag: Path, settings: OdometrySettings) -> list[replay.Published]:
-    out: list[replay.Published] = []
+def _published(bag: Path, settings: OdometrySettings) -> list[Published]:
+    out: list[Published] = []
     replay.replay_readings(bagreadings.read_joint_states(bag), settings, out.append)
     return out
 
@@ -187,7 +189,7 @@ def test_same_parameter_validation_as_the_node(
         "cmd_vel_node:\n  ros__parameters:\n    wheel_radius: 9.0\n"
         "odometry_node:\n  ros__parameters:\n    wheel_radius: 0.033\n"
         "    odom_frame_id: odom\n    tf_frame_prefix: robot1\n", encoding="utf-8")
-    s = replay.load_settings(doc)
+    s = load_settings(doc)
     assert s.geometry.wheel_radius == 0.033 and s.geometry.wheel_separation == 0.287
     assert s.odom_frame_id == "robot1/odom" and s.base_frame_id == "robot1/base_link"
     # -r __ns:=/robot2: the namespaced section wins and the prefix is the namespace.
@@ -196,9 +198,9 @@ def test_same_parameter_validation_as_the_node(
         "/**:\n  ros__parameters:\n    wheel_radius: 0.05\n    wheel_separation: 0.3\n"
         "/robot2/odometry_node:\n  ros__parameters:\n    wheel_radius: 0.07\n",
         encoding="utf-8")
-    s2 = replay.load_settings(ns_doc, namespace="/robot2")
+    s2 = load_settings(ns_doc, namespace="/robot2")
     assert s2.geometry.wheel_radius == 0.07 and s2.odom_frame_id == "robot2/odom"
-    assert replay.load_settings(ns_doc).geometry.wheel_radius == 0.05
+    assert load_settings(ns_doc).geometry.wheel_radius == 0.05
 
 
 def test_publish_rate_and_frames_follow_the_params(tmp_path: Path) -> None:
@@ -242,7 +244,7 @@ def test_replay_refuses_what_the_node_refuses(
     bag = tmp_path / "tiny_axle"
     _write_run(bag, [10**9 + k * 20_000_000 for k in range(n)], [(0.1 * k, 0.1 * k)
                                                                  for k in range(n)])
-    poses: list[replay.Published] = []
+    poses: list[Published] = []
     stats = replay.replay_readings(bagreadings.read_joint_states(bag), settings, poses.append)
     assert stats.pipeline.published == n
     assert stats.refused == {"non-finite covariance suppressed": n - 1}
@@ -278,7 +280,7 @@ def test_a_looped_bag_restarts_both_paths_at_the_origin(tmp_path: Path) -> None:
     # The reordering must not merge the two runs.
     readings = list(bagreadings.read_joint_states(bag))
     assert [r.stamp_ns for r in readings] == stamps
-    poses: list[replay.Published] = []
+    poses: list[Published] = []
     stats = replay.replay_readings(readings, settings, poses.append)
     assert stats.statuses["time_reset"] == 1
     steps = batch.wheel_steps(readings, settings)

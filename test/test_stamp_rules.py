@@ -18,23 +18,20 @@ import pytest
 
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.bulk.readings import JointReading
-from diffdrive_odom.core.estimation.encoders import EncoderConfig
-from diffdrive_odom.core.estimation.estimator import (
-    EstimatorConfig,
-    OdometryEstimator,
-    Reason,
-    Status,
-)
+from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
+from diffdrive_odom.core.estimation.encoders import EncoderConfig, Reason
+from diffdrive_odom.core.estimation.estimator import OdometryEstimator
 from diffdrive_odom.core.estimation.pipeline import Outcome, ReadingPipeline
 from diffdrive_odom.core.estimation.stamps import CLOCK_OFFSET_WARN_S, StampSource
-from diffdrive_odom.core.estimation.timeline import ADOPT_CLOCK_AFTER_S
+from diffdrive_odom.core.estimation.timeline import ADOPT_CLOCK_AFTER_S, Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.tools import bagio, bagwriter, replay
+from diffdrive_odom.tools.args import load_settings
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.sinks import Published
 
 import oracle
 from bagutil import mcap_messages, write_params
@@ -82,7 +79,7 @@ def pipeline(tmp_path: Path, **extra: object) -> ReadingPipeline:
 
 def settings(tmp_path: Path, **extra: object) -> OdometrySettings:
     values = {"wheel_radius": R, "wheel_separation": B, **extra}
-    return replay.load_settings(write_params(tmp_path / "p.yaml", values))
+    return load_settings(write_params(tmp_path / "p.yaml", values))
 
 
 def burst_stamp(t: float) -> float:
@@ -308,7 +305,7 @@ def test_stamp_source_receive_time_stamps_with_the_receive_time(tmp_path: Path) 
 def test_replay_stamps_with_the_log_time_and_names_the_clock(tmp_path: Path) -> None:
     readings = [JointReading(10**12 + round(PERIOD * k * 1e9), ns(PERIOD * k), NAMES,
                                    positions(PERIOD * k), ()) for k in range(51)]
-    out: list[replay.Published] = []
+    out: list[Published] = []
     stats = replay.replay_readings(readings, settings(tmp_path), out.append)
     assert len(stats.warnings) == 1 and "behind the time they were received" in stats.warnings[0]
     assert out[-1].stamp_ns == 10**12 + 10**9

@@ -24,8 +24,9 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from diffdrive_odom.core.bulk import batch
-from diffdrive_odom.core.estimation.estimator import Status
+from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.evaluation import calibration
 from diffdrive_odom.core.evaluation.metrics import Trajectory, evaluate
 from diffdrive_odom.core.evaluation.recorded_run import (
@@ -37,7 +38,6 @@ from diffdrive_odom.core.evaluation.recorded_run import (
 from diffdrive_odom.core.evaluation.umbmark import reference_end, umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.motion.paths import Point
-from diffdrive_odom.settings.odometry import OdometrySettings
 
 from .settings import DemoError
 

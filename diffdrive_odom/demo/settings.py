@@ -13,11 +13,12 @@ from pathlib import Path
 
 import yaml
 
+from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.motion import routes
 from diffdrive_odom.core.motion.paths import Point, route_points
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.follower import FollowerSettings, follower_settings
-from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
+from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.settings.params import (
     EXAMPLE_PARAMS_FILE,
     ParamValue,

@@ -13,7 +13,9 @@ rclpy's conversions to and from Python objects cost more than the odometry itsel
 from __future__ import annotations
 
 import time
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
@@ -22,9 +24,10 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
 
-from diffdrive_odom.core.estimation.estimator import Status
+from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.pipeline import IMU_SILENT, Outcome, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Publication, Refusal, pipeline_publication
+from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.health.diagnostics import (
     RateMeter,
     ReadingHealth,
@@ -38,13 +41,14 @@ from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS, TF_QOS
 from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.ros.throttle import KeyedThrottle
-from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, OdometrySettings, odometry_settings
+from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, odometry_settings
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.wire.imu import decode_imu
 from diffdrive_odom.wire.jointstate import JointArrays, JointStateDecoder
 from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
 NODE_NAME = "odometry_node"
+T = TypeVar("T")
 NO_INPUT_WARN_S = 5.0  # s of steady time without a reading before saying so
 
 
@@ -158,24 +162,10 @@ class OdometryEndpoints:
         ))
 
     def _on_imu(self, raw: bytes) -> None:
-        """One gyro sample to the pipeline; a refused one is named (throttled per reason).
-
-        Decoded from its bytes (:func:`decode_imu`); rclpy's deserialisation takes what
-        that leaves (big-endian senders).
-        """
-        try:
-            got = decode_imu(raw)
-        except ValueError:
-            got = None
+        """One gyro sample to the pipeline; a refused one is named (throttled per reason)."""
+        got = self._decode(raw, decode_imu, IMU_FALLBACK)
         if got is None:
-            try:
-                msg = deserialize_message(raw, Imu)
-            except Exception as exc:  # whatever rclpy raises for bytes it cannot read
-                self._throttle.warning("imu_undecodable", f"imu message dropped: its "
-                                       f"{len(raw)} bytes are not an Imu ({exc})")
-                return
-            w = msg.angular_velocity
-            got = (msg.header.stamp.sec, msg.header.stamp.nanosec, w.x, w.y, w.z)
+            return
         sec, nanosec, wx, wy, wz = got
         code = self._pipeline.feed_imu(sec * 1_000_000_000 + nanosec, wx, wy, wz)
         if code:
@@ -186,7 +176,7 @@ class OdometryEndpoints:
     def _on_joint_state(self, raw: bytes) -> None:
         self._last_rx = t = time.monotonic()
         self._rate.add(t)
-        msg = self._decode(raw)
+        msg = self._decode(raw, self._decoder.decode, JOINT_STATE_FALLBACK)
         if msg is None:
             return
         clock = self._node.get_clock()
@@ -201,25 +191,25 @@ class OdometryEndpoints:
         if outcome.publish:
             self._publish(outcome.stamp_ns)
 
-    def _decode(self, raw: bytes) -> JointArrays | None:
-        """The reading's fields, or None (with a throttled warning) if unreadable.
+    def _decode(self, raw: bytes, fast: Callable[[bytes], T | None],
+                fallback: Fallback[T]) -> T | None:
+        """A message's fields, or None (with a throttled warning) if unreadable.
 
-        rclpy's own deserialisation takes what the decoder leaves (big-endian senders).
+        ``fast`` decodes the bytes (:mod:`diffdrive_odom.wire.cdr`); rclpy's own
+        deserialisation takes what it leaves (big-endian senders).
         """
         try:
-            if (fields := self._decoder.decode(raw)) is not None:
-                return fields
+            if (got := fast(raw)) is not None:
+                return got
         except ValueError:
             pass
         try:
-            msg = deserialize_message(raw, JointState)
+            msg = deserialize_message(raw, fallback.msg_type)
         except Exception as exc:  # whatever rclpy raises for bytes it cannot read
-            self._throttle.warning("undecodable", f"joint_states message dropped: its "
-                                   f"{len(raw)} bytes are not a JointState ({exc})")
+            self._throttle.warning(fallback.key, f"{fallback.topic} message dropped: its "
+                                   f"{len(raw)} bytes are not {fallback.a_type} ({exc})")
             return None
-        stamp = msg.header.stamp
-        return JointArrays(stamp.sec, stamp.nanosec, tuple(msg.name), tuple(msg.position),
-                           tuple(msg.velocity))
+        return fallback.fields(msg)
 
     def _report(self, outcome: Outcome) -> None:
         verdict = outcome.verdict
@@ -257,7 +247,11 @@ class OdometryEndpoints:
 
     def _publish(self, stamp_ns: int) -> None:
         out = pipeline_publication(self._pipeline)  # replay publishes by the same rule
-        if isinstance(out, Refusal):  # cannot happen; never NaN
+        # The pose and twist are always finite (the estimator keeps no non-finite state),
+        # but a propagated covariance can overflow (an absurd geometry such as a 1e-300 m
+        # wheel_separation, which the parameter checks accept): then nothing is published
+        # and the refusal is logged, throttled.
+        if isinstance(out, Refusal):
             self._throttle.warning(out.code, out.reason)
             return
         self._set_covariance(out)
@@ -266,6 +260,34 @@ class OdometryEndpoints:
         self._odom_pub.publish(self._odom.planar(stamp_ns, x, y, theta, out.linear, out.angular))
         if self._settings.enable_odom_tf:
             self._tf_pub.publish(self._tf.planar(stamp_ns, x, y, theta))
+
+
+@dataclass(frozen=True)
+class Fallback(Generic[T]):
+    """rclpy's deserialisation of what the byte decoder leaves, and how a failure is named."""
+
+    msg_type: type[Any]
+    fields: Callable[[Any], T]  # the message's fields, as the byte decoder gives them
+    key: str  # the throttle's key for "not readable"
+    topic: str
+    a_type: str  # "a JointState": what the bytes are not
+
+
+def _joint_fields(msg: JointState) -> JointArrays:
+    stamp = msg.header.stamp
+    return JointArrays(stamp.sec, stamp.nanosec, tuple(msg.name), tuple(msg.position),
+                       tuple(msg.velocity))
+
+
+def _imu_fields(msg: Imu) -> tuple[int, int, float, float, float]:
+    w = msg.angular_velocity
+    return (msg.header.stamp.sec, msg.header.stamp.nanosec, w.x, w.y, w.z)
+
+
+JOINT_STATE_FALLBACK = Fallback(msg_type=JointState, fields=_joint_fields, key="undecodable",
+                                topic="joint_states", a_type="a JointState")
+IMU_FALLBACK = Fallback(msg_type=Imu, fields=_imu_fields, key="imu_undecodable", topic="imu",
+                        a_type="an Imu")
 
 
 class OdometryNode(Node):

@@ -10,9 +10,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from diffdrive_odom.core.estimation.estimator import EstimatorConfig
+from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
 from diffdrive_odom.core.estimation.gyro import GyroConfig
-from diffdrive_odom.core.estimation.pipeline import OdometrySettings as OdometrySettings
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.uncertainty.propagation import (
     DEFAULT_K,

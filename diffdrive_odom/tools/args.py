@@ -14,8 +14,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
+from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.settings.params import ParamSource, resolve_parameters
 from diffdrive_odom.settings.registry import unknown_parameters_report
 from diffdrive_odom.tools.outputs import output_problem

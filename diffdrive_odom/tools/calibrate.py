@@ -28,6 +28,8 @@ import numpy as np
 import numpy.typing as npt
 
 from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run, trajectory, values_of
 from diffdrive_odom.core.evaluation.umbmark import Umbmark, reference_end, umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
@@ -36,7 +38,6 @@ from diffdrive_odom.core.uncertainty.propagation import (
     DEFAULT_SEPARATION_STDDEV_RATIO,
     SESSION_DRIFT_RATIO,
 )
-from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.settings.params import yaml_text
 from diffdrive_odom.tools import evaluate, fleet
 from diffdrive_odom.tools.args import (
@@ -403,8 +404,8 @@ def plot(fit: Fit, runs: Sequence[Run], path: str | Path) -> None:
                 (fit.nominal, "--", "nominal", figures.before),
                 (fit.geometry, "-", "calibrated", figures.after)):
             est = trajectory(run, geometry)
-            matched = evaluate.match(est, run.reference)
-            aligned = evaluate.align_start(matched.est, matched.ref)
+            matched = metrics.match(est, run.reference)
+            aligned = metrics.align_start(matched.est, matched.ref)
             ax.plot(aligned[:, 0], aligned[:, 1], style, lw=1.0,
                     label=f"{label}: end error {m.final_position_error_aligned_m:.3f} m")
         ax.set_aspect("equal", adjustable="datalim")

@@ -2,8 +2,8 @@
 
 The figures are computed by the pure :mod:`diffdrive_odom.core.evaluation.metrics` (see its
 docstring for what each means); this module reads trajectories from bags, writes
-the JSON and the plot, and is the CLI. The metrics' names are re-exported here so
-``evaluate.Trajectory`` / ``evaluate.evaluate`` keep working for callers.
+the JSON and the plot, and is the CLI. Callers that compute figures import them from
+:mod:`~diffdrive_odom.core.evaluation.metrics`, where they are defined.
 """
 
 from __future__ import annotations
@@ -19,15 +19,11 @@ from typing import Any
 import numpy as np
 
 from diffdrive_odom.core.evaluation.metrics import (
-    Matched,
     Metrics,
     Trajectory,
-    align_best_fit,
     align_start,
     evaluate,
     match,
-    path_length,
-    relative_errors,
 )
 from diffdrive_odom.tools import fleet
 from diffdrive_odom.tools.args import (
@@ -39,11 +35,8 @@ from diffdrive_odom.tools.args import (
 from diffdrive_odom.tools.cli import HelpFormatter
 from diffdrive_odom.wire.conversions import quaternion_to_yaw, stamp_to_ns
 
-__all__ = [
-    "DEFAULT_REFERENCE", "POSE_TYPES", "Matched", "Metrics", "Trajectory", "align_best_fit",
-    "align_start", "evaluate", "main", "match", "output_problem", "path_length", "plot",
-    "read_trajectory", "reference_topic", "relative_errors", "report",
-]
+__all__ = ["POSE_TYPES", "main", "output_problem", "plot", "read_trajectory",
+           "reference_topic", "report"]
 
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 POSE_TYPES = (

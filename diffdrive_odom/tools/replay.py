@@ -38,16 +38,28 @@ from typing import TYPE_CHECKING
 from diffdrive_odom.core.bulk import fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.core.bulk.readings import count as reading_count
-from diffdrive_odom.core.estimation.estimator import Reason, Status
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.estimation.encoders import Reason
 from diffdrive_odom.core.estimation.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
+from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.core.geometry.integration import Pose2D
-from diffdrive_odom.settings.odometry import OdometrySettings
-from diffdrive_odom.tools import evaluate, fleet, progress, sinks
+from diffdrive_odom.tools import (
+    bagblocks,
+    bagio,
+    bagreadings,
+    bagwriter,
+    csvout,
+    evaluate,
+    fleet,
+    progress,
+    sinks,
+)
 from diffdrive_odom.tools.args import (
+    DEFAULT_REFERENCE,
     add_param_arguments,
     fail,
-    load_settings,
     outputs_problem,
     settings_from_args,
 )
@@ -56,9 +68,9 @@ from diffdrive_odom.tools.outputs import STORAGES, staged
 from diffdrive_odom.tools.sinks import Published
 
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
-    from diffdrive_odom.tools import bagreadings
+    pass
 
-__all__ = ["Published", "ReplayStats", "load_settings", "main", "replay_readings"]
+__all__ = ["ReplayStats", "main", "replay_readings"]
 
 PREFIX = "[replay]"
 
@@ -143,8 +155,6 @@ def replay_readings(
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,
     so nothing is built or checked (the estimator alone, as the benchmarks time it).
     """
-    from diffdrive_odom.tools import bagreadings  # rosbags: only where bags are read
-
     pipe = ReadingPipeline(settings)
     est = pipe.estimator
     stats = ReplayStats()
@@ -160,10 +170,9 @@ def replay_readings(
                     continue
                 yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 
-    # With the gyro every step's heading is decided per reading: no lane in bulk.
     items: Iterable[tuple[JointReading, Outcome] | fastlane.Stretch] = (
         fastlane.lanes(pipe, readings, chunk=fastlane.CHUNK)  # type: ignore[arg-type]
-        if fast and settings.gyro is None else one_by_one(readings))
+        if fast and settings.takes_bulk else one_by_one(readings))
     for item in items:
         if isinstance(item, fastlane.Stretch):
             stats.statuses[Status.UPDATED.value] += item.count
@@ -229,7 +238,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--eval", nargs="?", const=AUTO_REFERENCE, default=None,
                     metavar="GT_TOPIC", help="evaluate against ground truth in the input bag "
                     f"(default: no evaluation; GT_TOPIC defaults to "
-                    f"{evaluate.DEFAULT_REFERENCE}, else the bag's only ground-truth topic)")
+                    f"{DEFAULT_REFERENCE}, else the bag's only ground-truth topic)")
     ap.add_argument("--child-frame", default=None, metavar="FRAME",
                     help="ground truth child frame when it is on /tf (default: the only one)")
     ap.add_argument("--json", metavar="FILE",
@@ -292,9 +301,8 @@ def run_bag(args: argparse.Namespace) -> int:
     problem = _output_problem(args)
     if problem:
         return _error(problem)
-    from diffdrive_odom.tools import bagio
 
-    ref: evaluate.Trajectory | None = None
+    ref: metrics.Trajectory | None = None
     gt_topic = ""
     if args.eval:  # the reference first: a wrong topic must not cost a whole replay
 
@@ -332,8 +340,8 @@ def run_bag(args: argparse.Namespace) -> int:
     if ref is not None:
         try:
             est = traj.trajectory()
-            metrics = evaluate.evaluate(est, ref)
-            evaluate.report(metrics, est, ref, args.json, args.plot,
+            figures = metrics.evaluate(est, ref)
+            evaluate.report(figures, est, ref, args.json, args.plot,
                             labels=("replay", gt_topic))
         except ValueError as err:
             return _error(f"--eval: {err}")
@@ -363,8 +371,6 @@ def _remove_outputs(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, sinks.PoseLog]:
     """Replay into staged outputs; they get their names only if the whole replay worked."""
-    from diffdrive_odom.tools import bagblocks, bagio, bagreadings, bagwriter, csvout
-
     traj = sinks.PoseLog()
     with ExitStack() as stack:
         reader = stack.enter_context(bagio.open_bag(args.bag))
@@ -388,7 +394,7 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
                 passthrough = sinks.keep_input(reader, writer, args.odom_topic)
         jump = int(settings.estimator.time_jump_threshold * 1e9)
         readings: Iterable[JointReading | bagreadings.ImuSample | JointBlock]
-        if settings.gyro is None and passthrough is None:  # runs of alike messages at once
+        if settings.takes_bulk and passthrough is None:  # runs of alike messages at once
             readings = bagblocks.iter_joint_blocks(reader, args.topic, jump_back_ns=jump)
         else:
             readings = bagreadings.iter_sensor_readings(

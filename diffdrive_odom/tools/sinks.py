@@ -16,7 +16,8 @@ import numpy as np
 import numpy.typing as npt
 
 from diffdrive_odom.core.bulk.fastlane import Stretch
-from diffdrive_odom.core.estimation.estimator import Status
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.uncertainty.propagation import (
@@ -24,7 +25,6 @@ from diffdrive_odom.core.uncertainty.propagation import (
     pose_message_covariance,
     twist_message_covariance,
 )
-from diffdrive_odom.settings.odometry import OdometrySettings
 from diffdrive_odom.wire.odometry import BulkOdometry, BulkTransform, planar_fields
 
 if TYPE_CHECKING:  # the bag library only where a bag is read or written (``tools`` extra)

@@ -23,8 +23,10 @@ import numpy.typing as npt
 
 from diffdrive_odom.core.bulk import fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock
-from diffdrive_odom.core.estimation.estimator import Reason, Status
-from diffdrive_odom.core.estimation.pipeline import OdometrySettings, ReadingPipeline
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.estimation.encoders import Reason
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D, integrate_batch
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
 from diffdrive_odom.core.geometry.se2 import wrap_angle

@@ -1,18 +1,25 @@
 """The fast lane: stretches of readings where no rule can fire, integrated in bulk.
 
 Offline work (``replay``) feeds millions of readings, and the one
-:class:`~diffdrive_odom.core.estimation.pipeline.ReadingPipeline` costs microseconds a reading in
-Python. The pipeline stays the only definition of the rules: this module decides
-nothing on its own. A conservative array pre-check marks each reading that the
-pipeline would merely integrate from the one before (:func:`_plain`: the configured
-joints present with one value per name, positions finite and in the counter's range,
-a positive stamp later than the last by at most ``max_reading_gap``, every wheel
-within ``max_wheel_speed`` and :data:`~diffdrive_odom.core.estimation.estimator.MAX_STEP_ARC`
-by a margin, no clock offset still to be named); a run of them that starts where the
-pipeline has nothing pending (:meth:`ReadingPipeline.handover`: no held reading, stale
-stamps or timeline on trial, the reference being the reading before, from positions)
-is integrated in bulk here and its end state handed back
-(:meth:`ReadingPipeline.take_back`). Every other reading goes through the pipeline.
+:class:`~diffdrive_odom.core.estimation.pipeline.ReadingPipeline` costs microseconds a
+reading in Python. The pipeline stays the only definition of the rules: this module
+decides nothing on its own, and where it needs a rule in array form it calls the form
+that lives beside the scalar one in the rule's own module (the counter unwrap and the
+increments: :func:`~diffdrive_odom.core.estimation.encoders.position_increments`; the
+plausibility limits: :func:`~diffdrive_odom.core.estimation.estimator.plausible_steps`;
+the publish gate: :meth:`~diffdrive_odom.core.estimation.pipeline.PublishGate.passed`;
+the chord: :func:`~diffdrive_odom.core.geometry.integration.chord_array`; whether bulk
+is allowed at all:
+:attr:`~diffdrive_odom.core.estimation.config.OdometrySettings.takes_bulk`). A
+conservative array pre-check (:func:`_arrays`) marks each reading that the pipeline
+would merely integrate from the one before: the configured joints present with one
+value per name, positions finite and in the counter's range, a positive stamp later
+than the last by at most ``max_reading_gap``, a plausible step by a margin, no clock
+offset still to be named. A run of them that starts where the pipeline has nothing
+pending (:meth:`ReadingPipeline.handover`: no held reading, stale stamps or timeline on
+trial, the reference being the reading before, from positions) is integrated in bulk
+here and its end state handed back (:meth:`ReadingPipeline.take_back`). Every other
+reading goes through the pipeline.
 
 The bulk step is the pipeline's arithmetic in array form, in the same order where it
 matters: headings wrapped one step at a time, positions and the geometry sensitivity
@@ -23,8 +30,9 @@ recursion ``P <- F_pose P F_pose^T + N``: every ``F_pose`` is ``[[1, 0, a], [0, 
 product from step ``k`` to ``n`` is the same form with the sums of ``a`` and ``b``
 between them, and ``P_n = sum_k Phi(n, k) N_k Phi(n, k)^T`` (``N_0`` the start ``P``)
 expands into cumulative sums of ``N`` weighted by 1, ``A_k``, ``B_k`` and their
-products (:func:`_propagated`). A run never exceeds :data:`CHUNK` steps, with ``A``
-and ``B`` counted from its start, so the expansion does not cancel badly.
+products (:func:`~diffdrive_odom.core.uncertainty.fastcov.propagated`). A run never
+exceeds :data:`CHUNK` steps, with ``A`` and ``B`` counted from its start, so the
+expansion does not cancel badly.
 """
 
 from __future__ import annotations
@@ -43,14 +51,26 @@ from diffdrive_odom.core.estimation.encoders import (
     WheelIncrement,
     WheelReading,
     counter_range,
+    position_increments,
 )
-from diffdrive_odom.core.estimation.estimator import MAX_STEP_ARC, Step
-from diffdrive_odom.core.estimation.pipeline import Handover, Outcome, ReadingPipeline
-from diffdrive_odom.core.estimation.stamps import CLOCK_OFFSET_WARN_S, StampSource
-from diffdrive_odom.core.geometry.integration import Pose2D, sinc_array
+from diffdrive_odom.core.estimation.estimator import Step, plausible_steps
+from diffdrive_odom.core.estimation.pipeline import (
+    Handover,
+    Outcome,
+    PublishGate,
+    ReadingPipeline,
+)
+from diffdrive_odom.core.estimation.stamps import StampSource, in_sync
+from diffdrive_odom.core.geometry.integration import Pose2D, chord_array
 from diffdrive_odom.core.geometry.kinematics import body_from_arcs, wheel_arcs
 from diffdrive_odom.core.geometry.se2 import wrap_angle
-from diffdrive_odom.core.uncertainty.fastcov import bulk_covariance, chain_sum
+from diffdrive_odom.core.uncertainty.fastcov import (
+    BulkModel,
+    BulkSteps,
+    CovarianceState,
+    bulk_covariance,
+    chain_sum,
+)
 from diffdrive_odom.core.uncertainty.propagation import (
     pose_message_covariance,
     twist_message_covariance,
@@ -248,8 +268,7 @@ def _arrays(
         stamps = np.concatenate(([ref.stamp_ns if usable and ref else 0], used))
         clock_ok = np.ones(len(block), dtype=np.bool_)
         if check_clock and not receive and not state.clock_named:
-            clock_ok = (logs <= 0) | (used <= 0) | (
-                np.abs(used - logs) <= CLOCK_OFFSET_WARN_S * 1e9)
+            clock_ok = (logs <= 0) | (used <= 0) | in_sync(used - logs)
         cur = values[1:]
         ok = np.isfinite(cur).all(axis=1) & (used > 0) & clock_ok
         if enc.counter_bits > 0:
@@ -257,26 +276,16 @@ def _arrays(
             ok &= (cur.min(axis=1) >= low) & (cur.max(axis=1) < high)
         dt_ns = stamps[1:] - stamps[:-1]
         dt = dt_ns * 1e-9
-        deltas = cur - values[:-1]
-        if enc.counter_bits > 0:
-            span = float(2**enc.counter_bits)
-            deltas = deltas - span * np.floor(deltas / span + 0.5)
-        deltas = deltas * enc.radians_per_unit
-        half = wheels // 2
-        d_left = deltas[:, :half].sum(axis=1) / half
-        d_right = deltas[:, half:].sum(axis=1) / half
-        peak = np.abs(deltas).max(axis=1)
-        limit = cfg.max_wheel_speed * dt * MARGIN
+        d_left, d_right, peak = position_increments(enc, values)
         arcs = wheel_arcs(settings.geometry, d_left, d_right)
         ds, dtheta = body_from_arcs(settings.geometry, *arcs)
-        ok &= ((dt_ns > 0) & (dt <= cfg.max_reading_gap) & (np.abs(d_left) <= limit)
-               & (np.abs(d_right) <= limit) & (peak <= limit)
-               & (np.abs(arcs[0]) <= MAX_STEP_ARC * MARGIN)
-               & (np.abs(arcs[1]) <= MAX_STEP_ARC * MARGIN)
+        ok &= ((dt_ns > 0) & (dt <= cfg.max_reading_gap)
+               & plausible_steps(cfg, dt, d_left, d_right, peak, arcs, MARGIN)
                & np.isfinite(ds / dt) & np.isfinite(dtheta / dt))
-    if settings.gyro is not None:  # use_imu: each step's heading is decided per reading
+    if not settings.takes_bulk:
         ok[:] = False
-    return _Chunk(values, header, logs, stamps, dt, d_left, d_right, peak, ds, dtheta, ok)
+    return _Chunk(values=values, header=header, logs=logs, stamps=stamps, dt=dt, d_left=d_left,
+                  d_right=d_right, peak=peak, ds=ds, dtheta=dtheta, plain=ok)
 
 
 SAFE_HEADING = 3.0  # below pi: a heading within (-3, 3) is its own wrap_angle
@@ -323,19 +332,6 @@ def _rolling(prior: Sequence[float], new: Array, size: int) -> tuple[Array, Arra
     return windows.sum(axis=1), counts
 
 
-def _gate(rate: float, last: int | None, stamps: list[int]) -> tuple[list[int], int | None]:
-    """:class:`~diffdrive_odom.core.estimation.pipeline.PublishGate` over a stretch (same rule)."""
-    if rate <= 0.0:
-        return list(range(len(stamps))), stamps[-1]
-    period = 1e9 / rate - 1e3
-    out = []
-    for k, s in enumerate(stamps):
-        if last is None or s < last or (s - last) >= period:
-            out.append(k)
-            last = s
-    return out, last
-
-
 def _bulk(
     pipe: ReadingPipeline, state: Handover, c: _Chunk, i: int, j: int
 ) -> Stretch | None:
@@ -351,8 +347,7 @@ def _bulk(
     thetas = _headings(state.pose.theta, dth)
     before, after = thetas[:-1], thetas[1:]
     half = 0.5 * dth
-    sh = sinc_array(half)
-    chord = ds * sh
+    sh, chord = chord_array(ds, dth)
     dx, dy = chord * np.cos(half), chord * np.sin(half)
     cos_b, sin_b = np.cos(before), np.sin(before)
     x = chain_sum(state.pose.x, cos_b * dx, -(sin_b * dy))
@@ -363,22 +358,26 @@ def _bulk(
     linear, angular = lin_sum / counts, ang_sum / counts
     windows = (tuple(np.concatenate((state.windows[0], ds / dt))[-size:].tolist()),
                tuple(np.concatenate((state.windows[1], dth / dt))[-size:].tolist()))
-    published, gate_last = _gate(settings.publish_rate, state.gate_last_ns,
-                                 c.stamps[i + 1:j + 1].tolist())
+    gate = PublishGate(settings.publish_rate, state.gate_last_ns)
+    published = gate.passed(c.stamps[i + 1:j + 1].tolist())
     pub = np.array(published, dtype=np.int64)
-    cov, sens, rates = state.covariance, state.sensitivity, state.rates
+    cov = CovarianceState(covariance=state.covariance, sensitivity=state.sensitivity,
+                          rates=state.rates)
     static = pipe.covariances()
     pose_covs: Array | None = None
     twist_covs: Array | None = None
     if unc is not None:
         enc = settings.encoders
-        props = bulk_covariance(unc.model, geo, enc.ticks_per_revolution,
-                                len(enc.left_wheel_names), size, (cov, sens, rates),
-                                (dt, ds, dth, d_left, d_right), before, after)
+        props = bulk_covariance(
+            BulkModel(noise=unc.model, geometry=geo, ticks_per_revolution=enc.ticks_per_revolution,
+                      wheels_per_side=len(enc.left_wheel_names), window=size),
+            cov,
+            BulkSteps(dt=dt, ds=ds, dtheta=dth, d_left=d_left, d_right=d_right, sinc_half=sh,
+                      chord=chord, before=before, after=after))
         if props is None:
             return None
-        p_rows, cov, sens, rate_rows, rates = props
-        pose_covs, twist_covs = p_rows[pub], rate_rows[pub]
+        cov = props.end
+        pose_covs, twist_covs = props.pose[pub], props.twist[pub]
     pose = np.column_stack((x, y, after))
     twist = np.column_stack((linear, angular))
     if not (np.isfinite(pose).all() and np.isfinite(twist).all()):
@@ -387,13 +386,15 @@ def _bulk(
     last_log = int(c.logs[k])
     ref = WheelReading(int(c.stamps[j]), tuple(c.values[j].tolist()), False,
                        last_log if last_log > 0 else None)
-    end = Handover(ref, Pose2D(float(x[-1]), float(y[-1]), float(thetas[-1])), windows, cov, sens,
-                   rates, gate_last, state.clock_named)
+    end = Handover(reference=ref,
+                   pose=Pose2D(float(x[-1]), float(y[-1]), float(thetas[-1])),
+                   windows=windows, covariance=cov.covariance, sensitivity=cov.sensitivity,
+                   rates=cov.rates, gate_last_ns=gate.last_ns, clock_named=state.clock_named)
     pipe.take_back(end, j - i, len(published),
                    WheelIncrement(float(c.dt[k]), float(c.d_left[k]), float(c.d_right[k]),
                                   float(c.peak[k])),
                    Step(float(c.dt[k]), float(c.ds[k]), float(c.dtheta[k])))
-    return Stretch(j - i, (c.header[sl], dt, d_left, d_right),
-                   c.stamps[i + 1:j + 1][pub].tolist(), c.logs[sl][pub].tolist(),
-                   pose[pub], twist[pub],
-                   pose_covs, twist_covs, static)
+    return Stretch(count=j - i, steps=(c.header[sl], dt, d_left, d_right),
+                   stamp_ns=c.stamps[i + 1:j + 1][pub].tolist(),
+                   log_ns=c.logs[sl][pub].tolist(), pose=pose[pub], twist=twist[pub],
+                   pose_covariance=pose_covs, twist_covariance=twist_covs, static=static)

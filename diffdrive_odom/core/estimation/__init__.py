@@ -1,3 +1,5 @@
-"""Wheel readings to poses: encoders, stamps, timeline, gyro, estimator, pipeline, publication."""
+"""Wheel readings to poses: encoders, config, stamps, timeline, gyro, estimator, pipeline."""
 
-__all__ = ['encoders', 'estimator', 'gyro', 'pipeline', 'publication', 'stamps', 'timeline']
+__all__ = [
+    'config', 'encoders', 'estimator', 'gyro', 'pipeline', 'publication', 'stamps', 'timeline',
+]

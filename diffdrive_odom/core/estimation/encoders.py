@@ -1,11 +1,13 @@
 """Encoder readings -> per-side wheel angle increments.
 
-Pure Python. Turns the arrays of a JointState (names, position, velocity) into the
+Turns the arrays of a JointState (names, position, velocity) into the
 left/right joint angle change since the previous reading: joints found by name
 (order and extra joints do not matter), raw counts converted to radians, fixed-width
 counters unwrapped on the *difference* (so the first reading may be any value),
 several wheels per side averaged, and velocity-only drivers integrated over the
-stamp interval.
+stamp interval. The unwrap and the position increment have their array forms beside
+them (:func:`unwrap_differences`, :func:`position_increments`), used by the fast lane,
+so the two cannot differ.
 """
 
 from __future__ import annotations
@@ -14,10 +16,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+import numpy.typing as npt
+
 from diffdrive_odom.core.compat import StrEnum
 from diffdrive_odom.core.errors import ConfigError
 
 TWO_PI = 2.0 * math.pi
+Array = npt.NDArray[np.float64]
 
 
 class Reason(StrEnum):
@@ -125,6 +131,16 @@ def unwrap_difference(delta: float, counter_bits: int) -> float:
         return delta
     span = float(2**counter_bits)
     return delta - span * math.floor(delta / span + 0.5)
+
+
+def unwrap_differences(deltas: Array, counter_bits: int) -> Array:
+    """:func:`unwrap_difference` of each element (the fast lane's form), non-finite ones alike."""
+    if counter_bits <= 0:
+        return deltas
+    span = float(2**counter_bits)
+    with np.errstate(invalid="ignore"):
+        unwrapped = deltas - span * np.floor(deltas / span + 0.5)
+    return np.where(np.isfinite(deltas), unwrapped, deltas)
 
 
 def in_counter_range(value: float, counter_bits: int) -> bool:
@@ -299,3 +315,19 @@ def increment(
     n = len(config.left_wheel_names)
     peak = max(map(abs, deltas)) if all(map(math.isfinite, deltas)) else math.nan
     return WheelIncrement(dt, side_mean(deltas[:n]), side_mean(deltas[n:]), peak)
+
+
+def position_increments(config: EncoderConfig, values: Array) -> tuple[Array, Array, Array]:
+    """:func:`increment` of positions for each row of ``values`` from the row before it.
+
+    The fast lane's form: ``values`` (n + 1, wheels) raw positions in the config's name
+    order; each step's ``d_left``, ``d_right`` and ``peak`` as in :class:`WheelIncrement`
+    (a NaN or inf among a row's wheels comes out in all three, and the caller refuses the
+    row). The sides are averaged by a plain sum, exactly ``fsum`` for up to two wheels a
+    side (within a rounding beyond).
+    """
+    deltas = unwrap_differences(values[1:] - values[:-1], config.counter_bits)
+    deltas = deltas * config.radians_per_unit
+    n = len(config.left_wheel_names)
+    return (deltas[:, :n].sum(axis=1) / n, deltas[:, n:].sum(axis=1) / n,
+            np.abs(deltas).max(axis=1))

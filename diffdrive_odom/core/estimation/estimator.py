@@ -18,9 +18,10 @@ non-finite):
   of them, so it does not spike;
 - an implausible step is skipped and the reading becomes the new reference, so one
   glitch costs one step instead of freezing. Implausible is defined once
-  (:meth:`OdometryEstimator._implausible`): a wheel faster than ``max_wheel_speed``
-  over the step (whose interval the gap rule bounds), a wheel rolling more than
-  :data:`MAX_STEP_ARC` whatever the settings, or a step that is not finite;
+  (:func:`implausible`; its array form :func:`plausible_steps` beside it): a wheel
+  faster than ``max_wheel_speed`` over the step (whose interval the gap rule bounds),
+  a wheel rolling more than :data:`MAX_STEP_ARC` whatever the settings, or a step
+  that is not finite;
 - a reading more than ``max_reading_gap`` after the last usable one is held: if the
   next reading continues from it (within ``max_reading_gap`` after it), the pause was
   real and it becomes the new reference (over a driver restart that zeroes its
@@ -47,32 +48,22 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
+import numpy as np
+import numpy.typing as npt
+
 from diffdrive_odom.core.estimation import timeline
+from diffdrive_odom.core.estimation.config import EstimatorConfig
 from diffdrive_odom.core.estimation.encoders import (
     EncoderConfig,
     JointLookup,
+    Reason,
     WheelIncrement,
     WheelReading,
     decode,
     increment,
 )
-from diffdrive_odom.core.estimation.encoders import (
-    Reason as Reason,  # re-exported: verdicts carry its codes
-)
 from diffdrive_odom.core.estimation.gyro import GyroHeading
-from diffdrive_odom.core.estimation.timeline import ON_TRIAL, UPDATED, Trial
-from diffdrive_odom.core.estimation.timeline import (  # re-exported: the estimator's settings
-    EstimatorConfig as EstimatorConfig,
-)
-from diffdrive_odom.core.estimation.timeline import (
-    EstimatorConfigError as EstimatorConfigError,
-)
-from diffdrive_odom.core.estimation.timeline import (  # re-exported: update() returns them
-    Status as Status,
-)
-from diffdrive_odom.core.estimation.timeline import (
-    Verdict as Verdict,
-)
+from diffdrive_odom.core.estimation.timeline import ON_TRIAL, UPDATED, Status, Trial, Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D, compose
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_from_arcs, wheel_arcs
 from diffdrive_odom.core.uncertainty.propagation import NoiseModel, PoseUncertainty
@@ -81,6 +72,43 @@ from diffdrive_odom.core.uncertainty.propagation import NoiseModel, PoseUncertai
 # motion (1 km is 36 km/h for 100 s), and it keeps the pose where a double still
 # resolves the next millimetre even with ``max_wheel_speed: .inf``.
 MAX_STEP_ARC = 1000.0
+Array = npt.NDArray[np.float64]
+
+
+def implausible(config: EstimatorConfig, inc: WheelIncrement, arcs: tuple[float, float]) -> str:
+    """Why a step cannot be real wheel motion ('' if it can): the one definition.
+
+    A joint faster than ``max_wheel_speed`` over the step's interval (which the gap
+    rule bounds by ``max_reading_gap``, so a bogus stamp never licenses more travel),
+    or, whatever the settings (``max_wheel_speed: .inf`` included), a wheel rolling
+    more than ``MAX_STEP_ARC`` metres, or a value that is not a finite number.
+    ``arcs`` are the step's :func:`kinematics.wheel_arcs`.
+    """
+    left, right, peak = abs(inc.d_left), abs(inc.d_right), abs(inc.peak)
+    limit = config.max_wheel_speed * inc.dt
+    if not (left <= limit and right <= limit and peak <= limit):  # NaN fails
+        return (f"wheel moved {_largest((left, right, peak)):.4g} rad in {inc.dt:.4g} s, "
+                f"over max_wheel_speed {config.max_wheel_speed:g} rad/s")
+    s_left, s_right = abs(arcs[0]), abs(arcs[1])
+    if not (s_left <= MAX_STEP_ARC and s_right <= MAX_STEP_ARC):
+        return (f"a wheel rolled {_largest((s_left, s_right)):.4g} m in one step, "
+                f"over {MAX_STEP_ARC:g} m")
+    return ""
+
+
+def plausible_steps(
+    config: EstimatorConfig, dt: Array, d_left: Array, d_right: Array, peak: Array,
+    arcs: tuple[Array, Array], margin: float = 1.0,
+) -> npt.NDArray[np.bool_]:
+    """The array form of :func:`implausible` (True: plausible), every limit times ``margin``.
+
+    The fast lane passes a ``margin`` just below 1, so a borderline step goes the
+    scalar way and gets its verdict (and text) from :func:`implausible`.
+    """
+    limit = config.max_wheel_speed * dt * margin
+    arc = MAX_STEP_ARC * margin
+    return ((np.abs(d_left) <= limit) & (np.abs(d_right) <= limit) & (np.abs(peak) <= limit)
+            & (np.abs(arcs[0]) <= arc) & (np.abs(arcs[1]) <= arc))
 
 
 @dataclass
@@ -348,37 +376,17 @@ class OdometryEstimator:
             inc = replace(inc, dt=max(inc.dt, min(span, self.config.max_reading_gap)))
         # Each increment's arcs are computed once, for the check and the integration.
         arcs = wheel_arcs(self.geometry, inc.d_left, inc.d_right)
-        why = self._implausible(inc, arcs)
+        why = implausible(self.config, inc, arcs)
         rate_arcs = arcs
         if rate is not inc:
             rate_arcs = wheel_arcs(self.geometry, rate.d_left, rate.d_right)
-            why = why or self._implausible(rate, rate_arcs)
+            why = why or implausible(self.config, rate, rate_arcs)
         if not why and not self._integrate(inc, arcs, rate, rate_arcs,
                                            ref.stamp_ns, reading.stamp_ns):
             why = "its integration is not a finite number"
         if why:
             return Verdict(Status.REANCHORED, Reason.TOO_FAST, f"{why}; step skipped")
         return UPDATED
-
-    def _implausible(self, inc: WheelIncrement, arcs: tuple[float, float]) -> str:
-        """Why a step cannot be real wheel motion ('' if it can): the one definition.
-
-        A joint faster than ``max_wheel_speed`` over the step's interval (which the gap
-        rule bounds by ``max_reading_gap``, so a bogus stamp never licenses more travel),
-        or, whatever the settings (``max_wheel_speed: .inf`` included), a wheel rolling
-        more than ``MAX_STEP_ARC`` metres, or a value that is not a finite number.
-        ``arcs`` are the step's :func:`kinematics.wheel_arcs`.
-        """
-        left, right, peak = abs(inc.d_left), abs(inc.d_right), abs(inc.peak)
-        limit = self.config.max_wheel_speed * inc.dt
-        if not (left <= limit and right <= limit and peak <= limit):  # NaN fails
-            return (f"wheel moved {_largest((left, right, peak)):.4g} rad in {inc.dt:.4g} s, "
-                    f"over max_wheel_speed {self.config.max_wheel_speed:g} rad/s")
-        s_left, s_right = abs(arcs[0]), abs(arcs[1])
-        if not (s_left <= MAX_STEP_ARC and s_right <= MAX_STEP_ARC):
-            return (f"a wheel rolled {_largest((s_left, s_right)):.4g} m in one step, "
-                    f"over {MAX_STEP_ARC:g} m")
-        return ""
 
     def _integrate(
         self,

@@ -299,20 +299,22 @@ class GyroHeading:
         if not slip:
             w_g = var_w / (var_w + var_g) if var_w + var_g > 0.0 else 0.0
             w_w = 1.0 - w_g
-            return GyroStep(ds_w, w_w * dth_w + w_g * g,
-                            (b[0], (w_w * b[1][0], w_w * b[1][1])), (0.0, w_g), var_white,
-                            dt, (geo_ds, tuple(w_w * v for v in geo_th)), False)
+            return GyroStep(ds=ds_w, dtheta=w_w * dth_w + w_g * g,
+                            b=(b[0], (w_w * b[1][0], w_w * b[1][1])), c=(0.0, w_g),
+                            var_gyro=var_white, dt=dt,
+                            geometry=(geo_ds, tuple(w_w * v for v in geo_th)), slip=False)
         if not cfg.slip_distance_from_other_wheel:
-            return GyroStep(ds_w, g, (b[0], (0.0, 0.0)), (0.0, 1.0), var_white, dt,
-                            (geo_ds, (0.0, 0.0, 0.0)), True)
+            return GyroStep(ds=ds_w, dtheta=g, b=(b[0], (0.0, 0.0)), c=(0.0, 1.0),
+                            var_gyro=var_white, dt=dt, geometry=(geo_ds, (0.0, 0.0, 0.0)),
+                            slip=True)
         half = 0.5 * sep
         if abs(s_l) <= abs(s_r):  # the right wheel spun: the left one and the gyro
-            return GyroStep(s_l + half * g, g, ((2.0 * b[0][0], 0.0), (0.0, 0.0)),
-                            (half, 1.0), var_white, dt,
-                            ((s_l, 0.0, half * g), (0.0, 0.0, 0.0)), True)
-        return GyroStep(s_r - half * g, g, ((0.0, 2.0 * b[0][1]), (0.0, 0.0)),
-                        (-half, 1.0), var_white, dt,
-                        ((0.0, s_r, -half * g), (0.0, 0.0, 0.0)), True)
+            return GyroStep(ds=s_l + half * g, dtheta=g, b=((2.0 * b[0][0], 0.0), (0.0, 0.0)),
+                            c=(half, 1.0), var_gyro=var_white, dt=dt,
+                            geometry=((s_l, 0.0, half * g), (0.0, 0.0, 0.0)), slip=True)
+        return GyroStep(ds=s_r - half * g, dtheta=g, b=((0.0, 2.0 * b[0][1]), (0.0, 0.0)),
+                        c=(-half, 1.0), var_gyro=var_white, dt=dt,
+                        geometry=((0.0, s_r, -half * g), (0.0, 0.0, 0.0)), slip=True)
 
     def _zero_velocity_update(self, z: float, dt: float) -> None:
         """The wheels stand still: the mean rate ``z`` over ``dt`` measures the bias."""

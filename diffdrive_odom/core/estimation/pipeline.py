@@ -14,53 +14,28 @@ each step's heading from :mod:`diffdrive_odom.core.estimation.gyro` (gyrodometry
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
-from diffdrive_odom.core.estimation.encoders import EncoderConfig, WheelIncrement, WheelReading
-from diffdrive_odom.core.estimation.estimator import (
-    EstimatorConfig,
-    OdometryEstimator,
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.estimation.encoders import (
     Reason,
-    Status,
-    Step,
-    Verdict,
+    WheelIncrement,
+    WheelReading,
 )
-from diffdrive_odom.core.estimation.gyro import GyroConfig, GyroHeading, SlipStats
+from diffdrive_odom.core.estimation.estimator import OdometryEstimator, Step
+from diffdrive_odom.core.estimation.gyro import GyroHeading, SlipStats
 from diffdrive_odom.core.estimation.stamps import ClockOffsetCheck, StampSource
+from diffdrive_odom.core.estimation.timeline import Status, Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D
-from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.propagation import (
-    NoiseModel,
     covariance_matrix,
     pose_message_covariance,
     twist_message_covariance,
 )
-
-
-@dataclass(frozen=True)
-class OdometrySettings:
-    """All validated settings of the odometry node / replay tool.
-
-    Defined in the core so the core imports nothing above it; ``settings.odometry``
-    builds it from ROS parameters.
-    """
-
-    geometry: Geometry
-    encoders: EncoderConfig
-    estimator: EstimatorConfig
-    odom_frame_id: str
-    base_frame_id: str
-    enable_odom_tf: bool
-    publish_rate: float
-    pose_covariance_diagonal: tuple[float, ...]
-    twist_covariance_diagonal: tuple[float, ...]
-    noise: NoiseModel | None  # None: covariance_model static (the diagonals above)
-    stamp_source: StampSource = StampSource.HEADER
-    gyro: GyroConfig | None = None  # use_imu false: None (wheels only, as before)
-
 
 ZERO_STAMP = Verdict(
     Status.DROPPED, Reason.ZERO_STAMP,
@@ -154,29 +129,51 @@ class Outcome:
     stamp_ns: int = 0
 
 
+def publish_period_ns(rate: float) -> float:
+    """Least stamp spacing [ns] of two published poses at ``rate`` [Hz]; -inf: no limit.
+
+    One period less 1 us of slack for stamp jitter; a rate <= 0 publishes every pose.
+    """
+    return 1e9 / rate - 1e3 if rate > 0.0 else -math.inf
+
+
 class PublishGate:
-    """The ``publish_rate`` rule shared by the node and replay.
+    """The ``publish_rate`` rule shared by the node, replay and the fast lane.
 
     At most one pose per period of *measurement* time (header stamps), so a bag
-    replayed at any speed, live or offline, publishes the same poses.
+    replayed at any speed, live or offline, publishes the same poses. :meth:`due` is the
+    rule for one pose, :meth:`passed` the same rule over a stretch of them.
     """
 
-    def __init__(self, rate: float) -> None:
+    def __init__(self, rate: float, last_ns: int | None = None) -> None:
         self.rate = rate
-        self.last_ns: int | None = None
+        self.last_ns = last_ns
+
+    @property
+    def rate(self) -> float:
+        """Poses per second of measurement time (<= 0: every pose)."""
+        return self._rate
+
+    @rate.setter
+    def rate(self, rate: float) -> None:
+        self._rate = rate
+        self._period = publish_period_ns(rate)
 
     def due(self, stamp_ns: int) -> bool:
-        """Tell whether a pose stamped ``stamp_ns`` is published (and remember it if so)."""
+        """Tell whether a pose stamped ``stamp_ns`` is published (and remember it if so).
+
+        A stamp before the last published one (time went back) is published at once.
+        """
         last = self.last_ns
-        ok = (
-            self.rate <= 0.0
-            or last is None
-            or stamp_ns < last
-            or (stamp_ns - last) >= 1e9 / self.rate - 1e3  # 1 us slack for stamp jitter
-        )
-        if ok:
+        if last is None or stamp_ns < last or (stamp_ns - last) >= self._period:
             self.last_ns = stamp_ns
-        return ok
+            return True
+        return False
+
+    def passed(self, stamps: Iterable[int]) -> list[int]:
+        """The indices of ``stamps`` (in order) that :meth:`due` publishes."""
+        due = self.due
+        return [k for k, stamp in enumerate(stamps) if due(stamp)]
 
 
 @dataclass(frozen=True)
@@ -353,10 +350,11 @@ class ReadingPipeline:
         """The state a bulk integrator starts from (see :class:`Handover`)."""
         est, unc = self._estimator, self._estimator.uncertainty
         return Handover(
-            est.handover(), est.pose, est.twist_windows(),
-            () if unc is None else unc.covariance, () if unc is None else unc.sensitivity,
-            () if unc is None else unc.rates, self._gate.last_ns,
-            self._clock.offset_ns is not None)
+            reference=est.handover(), pose=est.pose, windows=est.twist_windows(),
+            covariance=() if unc is None else unc.covariance,
+            sensitivity=() if unc is None else unc.sensitivity,
+            rates=() if unc is None else unc.rates, gate_last_ns=self._gate.last_ns,
+            clock_named=self._clock.offset_ns is not None)
 
     def take_back(self, state: Handover, readings: int, published: int,
                   inc: WheelIncrement, step: Step) -> None:
@@ -413,11 +411,7 @@ class ReadingPipeline:
             )
             self._estimator.pose = before.pose
             if before.uncertainty is not None and self._estimator.uncertainty is not None:
-                self._estimator.uncertainty.covariance = before.uncertainty.covariance
-                self._estimator.uncertainty.sensitivity = before.uncertainty.sensitivity
-                self._estimator.uncertainty.bias_sensitivity = \
-                    before.uncertainty.bias_sensitivity
-                self._estimator.uncertainty.bias_variance = before.uncertainty.bias_variance
+                self._estimator.uncertainty.carry_on_from(before.uncertainty)
         else:
             self._estimator.set_geometry(settings.geometry)
             self._estimator.set_noise(settings.noise)

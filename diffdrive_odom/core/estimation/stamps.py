@@ -1,7 +1,8 @@
 """Which time a reading is stamped with, and the check of a driver's clock against ours.
 
-Pure Python, used by :class:`~diffdrive_odom.core.estimation.pipeline.ReadingPipeline`, so the node,
-``replay`` (with the bag's log time as the receive time) and the demo agree.
+Used by :class:`~diffdrive_odom.core.estimation.pipeline.ReadingPipeline`, so the
+node, ``replay`` (with the bag's log time as the receive time) and the demo agree, and
+by the fast lane through the same :func:`in_sync`.
 
 A driver that stamps its readings from its own clock (a microcontroller counting from
 its boot, 1000 s + t, with no time sync) makes odometry stamped in that clock: every TF
@@ -14,6 +15,11 @@ measurement time is then lost, transport delay and jitter included).
 """
 
 from __future__ import annotations
+
+from typing import overload
+
+import numpy as np
+import numpy.typing as npt
 
 from diffdrive_odom.core.compat import StrEnum
 
@@ -44,6 +50,22 @@ def clock_offset_text(offset_ns: int) -> str:
     )
 
 
+@overload
+def in_sync(offset_ns: int) -> bool: ...
+@overload
+def in_sync(offset_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]: ...
+def in_sync(offset_ns: int | npt.NDArray[np.int64]) -> bool | npt.NDArray[np.bool_]:
+    """True where a header stamp is within CLOCK_OFFSET_WARN_S of its receive time.
+
+    ``offset_ns``: stamp minus receive time, one (the node's check) or an array of them
+    (the fast lane's), by the same arithmetic.
+    """
+    limit = CLOCK_OFFSET_WARN_S * 1e9
+    if isinstance(offset_ns, np.ndarray):
+        return np.abs(offset_ns) <= limit
+    return abs(offset_ns) <= limit
+
+
 class ClockOffsetCheck:
     """Names a driver's clock once: the first reading stamped far from its receive time."""
 
@@ -55,7 +77,7 @@ class ClockOffsetCheck:
         if self.offset_ns is not None:
             return ""
         offset = stamp_ns - receive_ns
-        if abs(offset) <= CLOCK_OFFSET_WARN_S * 1e9:
+        if in_sync(offset):
             return ""
         self.offset_ns = offset
         return clock_offset_text(offset)

@@ -1,23 +1,20 @@
 """What the estimator says about a reading, and the verdicts of its stamp rules.
 
-Pure Python. :class:`EstimatorConfig` holds the rules' settings; :class:`Status` and
-:class:`Verdict` are the outcome of
-:meth:`~diffdrive_odom.core.estimation.estimator.OdometryEstimator.update` (the estimator
-re-exports all three). The rest is the vocabulary of the rules on header stamps: a stamp
-far back (a bag loop), a reading held after a gap, a lone outlier, a pause taken as
-a new reference, and the :class:`Trial` of a timeline taken after a gap, which keeps
-a burst of far-ahead stamps from replacing the timeline or the pose. Kept beside the
-estimator so its module holds the rules themselves, and every text a log shows for
-them is written once.
+Pure Python. :class:`Status` and :class:`Verdict` are the outcome of
+:meth:`~diffdrive_odom.core.estimation.estimator.OdometryEstimator.update` (the rules'
+settings: :mod:`~diffdrive_odom.core.estimation.config`). The rest is the vocabulary
+of the rules on header stamps: a stamp far back (a bag loop), a reading held after a
+gap, a lone outlier, a pause taken as a new reference, and the :class:`Trial` of a
+timeline taken after a gap, which keeps a burst of far-ahead stamps from replacing the
+timeline or the pose. Kept beside the estimator so its module holds the rules
+themselves, and every text a log shows for them is written once.
 """
 
 from __future__ import annotations
 
 import enum
-import math
 from dataclasses import dataclass
 
-from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.encoders import Reason, WheelReading
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.mat3 import Matrix
@@ -26,42 +23,6 @@ from diffdrive_odom.core.geometry.mat3 import Matrix
 # than a burst of outlier stamps (a driver's clock glitching for a second or two), short
 # enough that a driver whose clock really changed is published again soon.
 ADOPT_CLOCK_AFTER_S = 5.0
-
-
-class EstimatorConfigError(ConfigError):
-    """An estimator setting that cannot work (names the parameter)."""
-
-
-@dataclass(frozen=True)
-class EstimatorConfig:
-    """Everything the estimator needs besides geometry and encoders."""
-
-    max_wheel_speed: float = 200.0  # rad/s of a joint; faster steps are implausible
-    velocity_rolling_window_size: int = 1
-    time_jump_threshold: float = 1.0  # s; a stamp further back than this restarts
-    # s; a reading this long after the last usable one is held, then a new reference
-    # or an outlier (inf = off). 1 s: a 5 Hz driver (0.2 s) keeps integrating, a
-    # restart pause does not.
-    max_reading_gap: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not (self.max_wheel_speed > 0.0):
-            raise EstimatorConfigError(
-                "max_wheel_speed", f"must be > 0 (inf = no check), got {self.max_wheel_speed!r}"
-            )
-        w = self.velocity_rolling_window_size
-        if not isinstance(w, int) or w < 1:
-            raise EstimatorConfigError(
-                "velocity_rolling_window_size", f"must be an integer >= 1, got {w!r}"
-            )
-        if not (math.isfinite(self.time_jump_threshold) and self.time_jump_threshold >= 0.0):
-            raise EstimatorConfigError(
-                "time_jump_threshold", f"must be finite and >= 0, got {self.time_jump_threshold!r}"
-            )
-        if not (self.max_reading_gap > 0.0):
-            raise EstimatorConfigError(
-                "max_reading_gap", f"must be > 0 (inf = no check), got {self.max_reading_gap!r}"
-            )
 
 
 class Status(enum.Enum):

@@ -51,6 +51,16 @@ def sinc_array(x: Array) -> Array:
     return out
 
 
+def chord_array(ds: Array, dtheta: Array) -> tuple[Array, Array]:
+    """``sinc(dtheta / 2)`` and the chord ``ds * sinc(dtheta / 2)`` of many steps.
+
+    The array form of the chord in :func:`cir_increment`, computed once by a caller that
+    needs it for the pose and for its Jacobians (the fast lane).
+    """
+    sinc_half = sinc_array(0.5 * dtheta)
+    return sinc_half, ds * sinc_half
+
+
 def sinc_derivative(x: float) -> float:
     """``d sinc / dx``; only for Jacobians, where a series below 1e-3 is exact to 1e-22."""
     if abs(x) < 1e-3:
@@ -135,7 +145,7 @@ def integrate_batch(
     theta_after = start.theta + np.cumsum(dtheta)
     theta_before = np.concatenate(([start.theta], theta_after[:-1]))
     half = 0.5 * dtheta
-    chord = ds * sinc_array(half)
+    _, chord = chord_array(ds, dtheta)
     heading = theta_before + half
     x = start.x + np.cumsum(chord * np.cos(heading))
     y = start.y + np.cumsum(chord * np.sin(heading))

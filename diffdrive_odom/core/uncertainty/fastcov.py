@@ -29,6 +29,7 @@ its first two rows add ``a_k`` (``b_k``) times the last row before the step.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -93,40 +94,84 @@ def _noise3(g: Sequence[Array], var_l: Array, var_r: Array) -> Array:
                             for r, c in SYM])
 
 
+@dataclass(frozen=True)
+class CovarianceState:
+    """What :class:`PoseUncertainty` carries from step to step: ``P``, ``J``, twist window."""
+
+    covariance: Matrix
+    sensitivity: Matrix
+    rates: tuple[Matrix, ...]
+
+
+@dataclass(frozen=True)
+class BulkModel:
+    """The covariance model of :class:`PoseUncertainty`, as its constructor takes it."""
+
+    noise: NoiseModel
+    geometry: Geometry
+    ticks_per_revolution: float
+    wheels_per_side: int
+    window: int  # the twist's rolling window (velocity_rolling_window_size)
+
+
+@dataclass(frozen=True)
+class BulkSteps:
+    """Many steps (arrays of one length), as the fast lane integrated them.
+
+    ``sinc_half`` and ``chord`` are the step's ``sinc(dtheta / 2)`` and chord length
+    (:func:`~diffdrive_odom.core.geometry.integration.chord_array`), computed once for
+    the pose and the covariance alike; ``before`` / ``after``: the wrapped headings
+    before and after each step.
+    """
+
+    dt: Array
+    ds: Array
+    dtheta: Array
+    d_left: Array
+    d_right: Array
+    sinc_half: Array
+    chord: Array
+    before: Array
+    after: Array
+
+
+@dataclass(frozen=True)
+class BulkCovariance:
+    """What is published after each step and the state after the last one.
+
+    ``pose``: (m, 6) the pose covariance's entries of :data:`SYM`; ``twist``: (m, 3)
+    ``vv, vw, ww``.
+    """
+
+    pose: Array
+    twist: Array
+    end: CovarianceState
+
+
 def bulk_covariance(
-    model: NoiseModel, geometry: Geometry, ticks_per_revolution: float, wheels_per_side: int,
-    window: int, start: tuple[Matrix, Matrix, tuple[Matrix, ...]],
-    steps: tuple[Array, Array, Array, Array, Array], before: Array, after: Array,
-) -> tuple[Array, Matrix, Matrix, Array, tuple[Matrix, ...]] | None:
+    model: BulkModel, start: CovarianceState, steps: BulkSteps
+) -> BulkCovariance | None:
     """:func:`_bulk_covariance` with numpy's overflow warnings off.
 
     A covariance that overflows is an outcome here (None: not finite, refused as the
     scalar path refuses its inf), not a fault.
     """
     with np.errstate(over="ignore", invalid="ignore"):
-        return _bulk_covariance(model, geometry, ticks_per_revolution, wheels_per_side,
-                                window, start, steps, before, after)
+        return _bulk_covariance(model, start, steps)
 
 
 def _bulk_covariance(
-    model: NoiseModel, geometry: Geometry, ticks_per_revolution: float, wheels_per_side: int,
-    window: int, start: tuple[Matrix, Matrix, tuple[Matrix, ...]],
-    steps: tuple[Array, Array, Array, Array, Array], before: Array, after: Array,
-) -> tuple[Array, Matrix, Matrix, Array, tuple[Matrix, ...]] | None:
+    model: BulkModel, start: CovarianceState, steps: BulkSteps
+) -> BulkCovariance | None:
     """What :class:`PoseUncertainty` holds and publishes after each of many steps.
 
-    ``start``: ``(P, J, twist window)``; ``steps``: ``dt, ds, dtheta, d_left, d_right``;
-    ``before`` / ``after``: the headings (wrapped) before and after each step. Returns
-    the published pose covariance after each step (rows of :data:`SYM`), the end
-    ``P`` and ``J``, the published twist covariance after each step (``vv, vw, ww``)
-    and the end twist window; None if anything is not finite.
+    None if anything is not finite.
     """
-    dt, ds, dth, d_left, d_right = steps
+    dt, ds, dth, d_left, d_right = steps.dt, steps.ds, steps.dtheta, steps.d_left, steps.d_right
+    sh, chord, before, after = steps.sinc_half, steps.chord, steps.before, steps.after
+    geometry, noise, window = model.geometry, model.noise, model.window
     (b00, b01), (b10, b11) = wheel_jacobian(geometry)
     half = 0.5 * dth
-    sh = np.ones_like(half)
-    np.divide(np.sin(half), half, out=sh, where=half != 0.0)
-    chord = ds * sh
     heading = before + half
     ch, shd = np.cos(heading), np.sin(heading)
     dcd = 0.5 * ds * sinc_derivative_array(half)
@@ -134,11 +179,11 @@ def _bulk_covariance(
     f10, f11 = sh * shd, dcd * shd + 0.5 * chord * ch
     g = (f00 * b00 + f01 * b10, f00 * b01 + f01 * b11, f10 * b00 + f11 * b10,
          f10 * b01 + f11 * b11, np.full_like(ds, b10), np.full_like(ds, b11))
-    var_l = model.k_left * np.abs(d_left) / geometry.left_radius
-    var_r = model.k_right * np.abs(d_right) / geometry.right_radius
-    p0, j0, rates0 = start
-    p = propagated(p0, -chord * shd, chord * ch, _noise3(g, var_l, var_r))
+    var_l = noise.k_left * np.abs(d_left) / geometry.left_radius
+    var_r = noise.k_right * np.abs(d_right) / geometry.right_radius
+    p0, j0, rates0 = start.covariance, start.sensitivity, start.rates
     a, b = -chord * shd, chord * ch
+    p = propagated(p0, a, b, _noise3(g, var_l, var_r))
     sep = geometry.separation
     hs = 0.5 * dth * sep
     s_l, s_r = ds - hs, ds + hs
@@ -153,13 +198,13 @@ def _bulk_covariance(
     j1r.append(chain_sum(j0[1][2], b * j2_before[2], f11 * gg[1][2]))
     jac = (j0r, j1r, j2)
     published = p
-    vr = model.radius_stddev_ratio ** 2
-    vb = model.separation_stddev_ratio ** 2
-    if model.radius_stddev_ratio or model.separation_stddev_ratio:
+    vr = noise.radius_stddev_ratio ** 2
+    vb = noise.separation_stddev_ratio ** 2
+    if noise.radius_stddev_ratio or noise.separation_stddev_ratio:
         published = published + np.column_stack([
             vr * (jac[r][0] * jac[c][0] + jac[r][1] * jac[c][1]) + vb * jac[r][2] * jac[c][2]
             for r, c in SYM])
-    q = 2.0 * quantization_variance(ticks_per_revolution, wheels_per_side)
+    q = 2.0 * quantization_variance(model.ticks_per_revolution, model.wheels_per_side)
     if q != 0.0:
         c, s = np.cos(after), np.sin(after)
         w = (c * b00, c * b01, s * b00, s * b01, np.full_like(ds, b10), np.full_like(ds, b11))
@@ -184,4 +229,6 @@ def _bulk_covariance(
     j_end = tuple(tuple(float(jac[r][col][-1]) for col in range(3)) for r in range(3))
     rates_end = tuple(((float(r0), float(r1)), (float(r1), float(r2)))
                       for r0, r1, r2 in comb[-window:].tolist())
-    return published, p_end, j_end, twist, rates_end
+    return BulkCovariance(pose=published, twist=twist,
+                          end=CovarianceState(covariance=p_end, sensitivity=j_end,
+                                              rates=rates_end))

@@ -130,23 +130,23 @@ class NoiseModel:
 ZERO_VEC = (0.0, 0.0, 0.0)
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class GyroStep:
     """One gyrodometry step (:mod:`diffdrive_odom.core.estimation.gyro`) and how its errors enter.
 
     ``(ds, dtheta) = B d + c g``: ``d`` the joint increments (the wheel model's
     variance), ``g`` the gyro's angle (white variance ``var_gyro``, plus ``dt`` times
-    the bias error); ``geometry`` = d(ds, dtheta)/d(ln r_l, ln r_r, ln b).
+    the bias error). Built by keyword only: eight fields, three of them matrices.
     """
 
-    ds: float
-    dtheta: float
-    b: Matrix  # 2x2
-    c: tuple[float, float]
-    var_gyro: float
-    dt: float
-    geometry: Matrix  # 2x3
-    slip: bool
+    ds: float  # m: the step's distance
+    dtheta: float  # rad: its heading change
+    b: Matrix  # 2x2: d(ds, dtheta) / d(joint increments left, right)
+    c: tuple[float, float]  # d(ds, dtheta) / d(gyro angle)
+    var_gyro: float  # rad^2: the gyro angle's white-noise variance over the step
+    dt: float  # s: the step's interval
+    geometry: Matrix  # 2x3: d(ds, dtheta) / d(ln r_left, ln r_right, ln separation)
+    slip: bool  # a wheel slipped: the heading is the gyro's
 
 
 def _sensitivity_step(j: Matrix, f_pose: Matrix, f_step: Matrix, ds: float, dtheta: float,
@@ -257,6 +257,15 @@ class PoseUncertainty:
         self.sensitivity = ZERO3
         self.bias_sensitivity = ZERO_VEC
         self.forget_twist()
+
+    def carry_on_from(self, before: PoseUncertainty) -> None:
+        """Take what ``before`` accumulated: covariance, sensitivities, bias variance.
+
+        An estimator rebuilt for new settings goes on from the old one's state without a
+        jump; the twist window (rates in the old units) starts empty.
+        """
+        self.covariance, self.sensitivity = before.covariance, before.sensitivity
+        self.bias_sensitivity, self.bias_variance = before.bias_sensitivity, before.bias_variance
 
     def forget_twist(self) -> None:
         """Empty the twist window (the estimator forgot its rates)."""
