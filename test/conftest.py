@@ -15,6 +15,8 @@ from typing import Any
 
 import pytest
 
+from paths import ROOT
+
 # Before anything imports rclpy or starts a node: child processes inherit these.
 if "ROS_DOMAIN_ID" not in os.environ or os.environ.get("DIFFDRIVE_ODOM_FRESH_DOMAIN", "1") == "1":
     os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid() ^ id(os)).randint(1, 100))
@@ -48,7 +50,6 @@ def _tier_guard(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch)
 
 
 BIN = Path(sys.executable).parent
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def _tracked_files() -> list[str]:

@@ -37,9 +37,10 @@ from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.tools import process
 from diffdrive_odom.wire.conversions import ns_to_stamp
 
+from paths import DATA as DATA  # re-exported: the DDS tests take both from here
+from paths import ROOT as ROOT
+
 BIN = Path(sys.executable).parent
-ROOT = Path(__file__).resolve().parent.parent
-DATA = Path(__file__).resolve().parent / "data"
 
 
 def executable(name: str) -> str:

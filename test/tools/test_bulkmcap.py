@@ -20,7 +20,8 @@ from rosbags.rosbag2.storage_mcap import McapWriter
 from diffdrive_odom.settings.odometry import OdometrySettings, odometry_settings
 from diffdrive_odom.tools import bagio, bulkmcap, replay, sinks
 
-DATA = Path(__file__).parent / "data"
+from paths import DATA
+
 OPTIODOM = odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
 TB3 = odometry_settings({"wheel_radius": 0.033, "wheel_separation": 0.287,
                          "left_wheel_names": ["wheel_left_joint"],
