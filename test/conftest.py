@@ -1,6 +1,7 @@
 """Test-session setup: every run (each xdist worker) gets its own DDS domain, on loopback
 only; a test marked neither ``process`` nor ``dds`` may start neither (the tiers); the
-colcon workspace that test_colcon and test_launch share."""
+colcon workspace that test_colcon and test_launch share; the odometry_node rig of the
+DDS tests (``odom_rig``)."""
 
 from __future__ import annotations
 
@@ -9,13 +10,17 @@ import random
 import shutil
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
 from paths import ROOT
+
+if TYPE_CHECKING:
+    from rosutil import OdomRig
 
 # Before anything imports rclpy or starts a node: child processes inherit these.
 if "ROS_DOMAIN_ID" not in os.environ or os.environ.get("DIFFDRIVE_ODOM_FRESH_DOMAIN", "1") == "1":
@@ -87,3 +92,16 @@ def colcon_ws(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     assert build.returncode == 0, build.stdout + build.stderr
     return ws
+
+
+@pytest.fixture
+def odom_rig() -> Iterator[Callable[..., OdomRig]]:
+    """Starts the rig of an odometry_node test, as often as the test calls it: ``rig =
+    odom_rig(*params, geometry=..., ns=..., joints=..., qos=...)`` is the node's process
+    (with its output read as it comes) and a peer node with its executor, publisher and
+    sink, matched both ways (rosutil.odom_rig); all stopped when the test ends.
+    """
+    from rosutil import odom_rig as start  # rclpy only where a DDS test asks for it
+
+    with ExitStack() as stack:
+        yield lambda *params, **options: stack.enter_context(start(*params, **options))
