@@ -156,7 +156,7 @@ class JointBlockDecoder:
     byte the decoder reads outside the stamp and the three double arrays equals the
     first one's (encapsulation, frame_id, names and counts; not the alignment padding),
     so each decodes to exactly what :meth:`JointStateDecoder.decode` gives it
-    (test/test_joint_blocks.py).
+    (test/tools/test_joint_blocks.py).
     """
 
     def __init__(self) -> None:
