@@ -41,6 +41,27 @@ def _refuse(what: str, marker: str, nodeid: str) -> Any:
     return refuse
 
 
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Keeps ``make test``'s ``--dist loadgroup`` grouping: the tests of an xdist_group
+    (``colcon``: one build, one ``ros2`` graph of nine nodes) on one worker.
+
+    pytest-xdist tells its scheduler a test's group by a suffix on its node id, written
+    where pytest 9.2's structured node ids no longer read it (pytest-xdist issue 1386):
+    the group was silently dropped, and both workers built the workspace and started the
+    graph. The suffix goes where pytest reads it now; where xdist's own worked, it is there.
+    """
+    if not getattr(config.option, "loadgroup", False):  # an xdist worker under loadgroup
+        return
+    for item in items:
+        groups = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                         for m in item.iter_markers("xdist_group")})
+        if groups and "@" not in item.nodeid and hasattr(item, "_id"):
+            from _pytest.nodeid import NodeId
+
+            item._id = NodeId.parse(f"{item.nodeid}@{'_'.join(groups)}")
+
+
 @pytest.fixture(autouse=True)
 def _tier_guard(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     """A test of the fast tier really is pure: no child process, no rclpy Context."""
