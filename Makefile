@@ -6,7 +6,7 @@ PYTHON ?= python3
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.diffdrive_odom-installed
 # ROS 2 launch + launch_ros (not on PyPI) where CI keeps them beside the clone; a clone
-# without them skips the launch tests that need them (test/test_launch.py says why).
+# without them skips the launch tests that need them (test/system/test_launch.py says why).
 SHARED_LAUNCH ?= ../shared/launch
 LAUNCH_STAMP := $(VENV)/.launch-installed
 PIP_QUIET := 2>&1 | grep -v '^WARNING: Location' || true

@@ -1,6 +1,7 @@
 """Test-session setup: every run (each xdist worker) gets its own DDS domain, on loopback
 only; a test marked neither ``process`` nor ``dds`` may start neither (the tiers); the
-colcon workspace that test_colcon and test_launch share."""
+colcon workspace that test_colcon and test_launch share; the odometry_node rig of the
+DDS tests (``odom_rig``)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,17 @@ import random
 import shutil
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
+
+from paths import ROOT
+
+if TYPE_CHECKING:
+    from rosutil import OdomRig
 
 # Before anything imports rclpy or starts a node: child processes inherit these.
 if "ROS_DOMAIN_ID" not in os.environ or os.environ.get("DIFFDRIVE_ODOM_FRESH_DOMAIN", "1") == "1":
@@ -45,6 +52,27 @@ def _refuse(what: str, marker: str, nodeid: str) -> Any:
     return refuse
 
 
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Keeps ``make test``'s ``--dist loadgroup`` grouping: the tests of an xdist_group
+    (``colcon``: one build, one ``ros2`` graph of nine nodes) on one worker.
+
+    pytest-xdist tells its scheduler a test's group by a suffix on its node id, written
+    where pytest 9.2's structured node ids no longer read it (pytest-xdist issue 1386):
+    the group was silently dropped, and both workers built the workspace and started the
+    graph. The suffix goes where pytest reads it now; where xdist's own worked, it is there.
+    """
+    if not getattr(config.option, "loadgroup", False):  # an xdist worker under loadgroup
+        return
+    for item in items:
+        groups = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                         for m in item.iter_markers("xdist_group")})
+        if groups and "@" not in item.nodeid and hasattr(item, "_id"):
+            from _pytest.nodeid import NodeId
+
+            item._id = NodeId.parse(f"{item.nodeid}@{'_'.join(groups)}")
+
+
 @pytest.fixture(autouse=True)
 def _tier_guard(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     """A test of the fast tier really is pure: no child process, no rclpy Context."""
@@ -59,7 +87,6 @@ def _tier_guard(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch)
 
 
 BIN = Path(sys.executable).parent
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def _tracked_files() -> list[str]:
@@ -97,3 +124,16 @@ def colcon_ws(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     assert build.returncode == 0, build.stdout + build.stderr
     return ws
+
+
+@pytest.fixture
+def odom_rig() -> Iterator[Callable[..., OdomRig]]:
+    """Starts the rig of an odometry_node test, as often as the test calls it: ``rig =
+    odom_rig(*params, geometry=..., ns=..., joints=..., qos=...)`` is the node's process
+    (with its output read as it comes) and a peer node with its executor, publisher and
+    sink, matched both ways (rosutil.odom_rig); all stopped when the test ends.
+    """
+    from rosutil import odom_rig as start  # rclpy only where a DDS test asks for it
+
+    with ExitStack() as stack:
+        yield lambda *params, **options: stack.enter_context(start(*params, **options))

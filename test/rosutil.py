@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import pytest
 import rclpy
@@ -37,9 +37,10 @@ from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.tools import process
 from diffdrive_odom.wire.conversions import ns_to_stamp
 
+from paths import DATA as DATA  # re-exported: the DDS tests take both from here
+from paths import ROOT as ROOT
+
 BIN = Path(sys.executable).parent
-ROOT = Path(__file__).resolve().parent.parent
-DATA = Path(__file__).resolve().parent / "data"
 
 
 def executable(name: str) -> str:
@@ -339,6 +340,37 @@ class Output:
 def odometry_node(*extra: str) -> Iterator[tuple[Any, Output]]:
     with node_process("odometry_node", ["--ros-args", *GEOMETRY, *extra]) as proc:
         yield proc, Output(proc)
+
+
+class OdomRig(NamedTuple):
+    """An odometry_node process and a peer in a private Context, matched both ways."""
+
+    proc: subprocess.Popen[str]
+    out: Output
+    node: Node
+    ex: SingleThreadedExecutor
+    pub: Any  # JointState to the node
+    sink: Sink  # what it publishes
+
+
+OdomRigs = Callable[..., OdomRig]  # the odom_rig fixture (conftest.py)
+
+
+@contextmanager
+def odom_rig(*params: str, geometry: Sequence[str] = GEOMETRY, ns: str = "",
+             joints: str = "joint_states", qos: Any = 10) -> Iterator[OdomRig]:
+    """The rig of an odometry_node test (the ``odom_rig`` fixture's): the node started with
+    ``geometry`` and ``params`` (``--ros-args`` arguments), a peer publishing JointState on
+    ``{ns}/{joints}`` (``qos``: a depth or a profile) and listening to ``{ns}/odom`` and
+    /tf, both sides matched (:func:`wait_ready`). Torn down peer first, then the node."""
+    with node_process("odometry_node", ["--ros-args", *geometry, *params]) as proc, \
+            ros_test_node() as (node, ex):
+        out = Output(proc)
+        sink = listen(node, f"{ns}/odom")
+        pub = node.create_publisher(JointState, f"{ns}/{joints}", qos)
+        assert wait_matched(node, ex, pub, sink.odom_sub), (
+            "odometry_node and this test never matched:\n" + out.text())
+        yield OdomRig(proc, out, node, ex, pub, sink)
 
 
 def reading(t_ns: int, position: list[float], velocity: list[float] | None = None,

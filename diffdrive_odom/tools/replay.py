@@ -148,7 +148,7 @@ def replay_readings(
     """Feed readings through a fresh pipeline; the poses the node would publish go to ``sink``.
 
     ``fast``: stretches where no rule can fire go through :mod:`diffdrive_odom.core.bulk.fastlane`
-    (the same result, proven by test/test_fastlane.py); False: every reading one by one.
+    (the same result, proven by test/core/bulk/test_fastlane.py); False: every reading one by one.
     A :class:`~diffdrive_odom.core.bulk.readings.JointBlock` stands for its readings in order.
 
     What is published is decided as in the node (:func:`pipeline_publication`): a pose

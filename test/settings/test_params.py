@@ -28,7 +28,8 @@ from diffdrive_odom.settings.params import (
 from diffdrive_odom.settings.registry import unknown_parameters_report
 from diffdrive_odom.settings.sim import SIM_PARAMS, sim_settings
 
-ROOT = Path(__file__).resolve().parent.parent
+from paths import ROOT
+
 CONFIG = ROOT / "config" / "diffdrive_odom.yaml"
 VALID: dict[str, Any] = {"wheel_radius": 0.05, "wheel_separation": 0.3}
 # The example robot of config/diffdrive_odom.yaml: OptiOdom, r = 0.042 m, b = 0.200 m.

@@ -31,63 +31,56 @@ from rosutil import (
     ROOT,
     STEP_NS,
     T0_NS,
+    OdomRigs,
     assert_refused_in_process,
     assert_refuses_to_start,
     drive_straight,
-    listen,
-    node_process,
     ns_of,
-    ros_test_node,
     send_first,
     spin_for,
     spin_until,
     stamp,
-    wait_ready,
     yaw,
 )
 
 pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 
-def test_ticks_wrap_shuffled_names_sign_flip_and_nonzero_start() -> None:
+def test_ticks_wrap_shuffled_names_sign_flip_and_nonzero_start(odom_rig: OdomRigs) -> None:
     """Raw 16-bit counts that wrap, names shuffled, extra joints, right joint reversed."""
     r, b, tpr = 0.05, 0.3, 1000.0
     left_inc, right_inc = 40, -60  # counts per reading; right joint axis reversed
     steps = 100
     args = [
-        "--ros-args",
         "-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}",
         "-p", f"ticks_per_revolution:={tpr}", "-p", "encoder_counter_bits:=16",
         "-p", "right_wheel_sign:=-1",
         "-p", "left_wheel_names:=['lw']", "-p", "right_wheel_names:=['rw']",
     ]
-    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        left0, right0 = 65_000, 100  # left wraps up through 65535, right down through 0
-        for k in range(steps + 1):
-            msg = JointState()
-            msg.header.stamp = stamp(T0_NS + k * STEP_NS)
-            left = (left0 + k * left_inc) % 65536
-            right = (right0 + k * right_inc) % 65536
-            names = [("caster", 123.0 * k), ("rw", float(right)), ("lw", float(left))]
-            if k % 2:
-                names.reverse()
-            msg.name = [n for n, _ in names]
-            msg.position = [v for _, v in names]
-            if k == 0:
-                send_first(ex, pub, sink, msg)
-            else:
-                pub.publish(msg)
-                spin_for(ex, 0.005)
-        last_ns = T0_NS + steps * STEP_NS
-        assert spin_until(
-            ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom), 10.0
-        ), f"no odom for the last reading ({len(sink.odom)} received)"
-        # /tf goes out right after odom, on its own topic: wait for it as well.
-        spin_until(ex, lambda: any(ns_of(t.header.stamp) == last_ns
-                                   for m in sink.tf for t in m.transforms), 10.0)
+    _, _, _, ex, pub, sink = odom_rig(*args, geometry=())
+    left0, right0 = 65_000, 100  # left wraps up through 65535, right down through 0
+    for k in range(steps + 1):
+        msg = JointState()
+        msg.header.stamp = stamp(T0_NS + k * STEP_NS)
+        left = (left0 + k * left_inc) % 65536
+        right = (right0 + k * right_inc) % 65536
+        names = [("caster", 123.0 * k), ("rw", float(right)), ("lw", float(left))]
+        if k % 2:
+            names.reverse()
+        msg.name = [n for n, _ in names]
+        msg.position = [v for _, v in names]
+        if k == 0:
+            send_first(ex, pub, sink, msg)
+        else:
+            pub.publish(msg)
+            spin_for(ex, 0.005)
+    last_ns = T0_NS + steps * STEP_NS
+    assert spin_until(
+        ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom), 10.0
+    ), f"no odom for the last reading ({len(sink.odom)} received)"
+    # /tf goes out right after odom, on its own topic: wait for it as well.
+    spin_until(ex, lambda: any(ns_of(t.header.stamp) == last_ns
+                               for m in sink.tf for t in m.transforms), 10.0)
 
     s_left = r * steps * left_inc * 2 * math.pi / tpr
     s_right = r * steps * (-right_inc) * 2 * math.pi / tpr
@@ -118,38 +111,36 @@ def test_ticks_wrap_shuffled_names_sign_flip_and_nonzero_start() -> None:
     assert math.isclose(t.transform.translation.y, ex_y, abs_tol=1e-9)
 
 
-def test_params_file_namespace_remap_and_reset_service() -> None:
+def test_params_file_namespace_remap_and_reset_service(odom_rig: OdomRigs) -> None:
     """The shipped YAML, a namespace, a remapped input and the reset service."""
-    args = ["--ros-args", "--params-file", str(ROOT / "config" / "diffdrive_odom.yaml"),
+    args = ["--params-file", str(ROOT / "config" / "diffdrive_odom.yaml"),
             "-r", "__ns:=/robot1", "-r", "joint_states:=wheel_states"]
     r = 0.042  # config/diffdrive_odom.yaml's example robot
-    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
-        sink = listen(node, "/robot1/odom")
-        pub = node.create_publisher(JointState, "/robot1/wheel_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        per_step = 0.5 / r / 50  # 0.5 m in 50 steps
-        k = drive_straight(pub, ex, sink, 0, 50, per_step)
-        last = T0_NS + k * STEP_NS
-        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
-        before = max(sink.odom, key=lambda o: ns_of(o.header.stamp))
-        assert math.isclose(before.pose.pose.position.x, 0.5, abs_tol=1e-9)
-        assert before.header.frame_id == "robot1/odom"
-        assert before.child_frame_id == "robot1/base_link"
+    _, _, node, ex, pub, sink = odom_rig(*args, geometry=(), ns="/robot1",
+                                         joints="wheel_states")
+    per_step = 0.5 / r / 50  # 0.5 m in 50 steps
+    k = drive_straight(pub, ex, sink, 0, 50, per_step)
+    last = T0_NS + k * STEP_NS
+    assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
+    before = max(sink.odom, key=lambda o: ns_of(o.header.stamp))
+    assert math.isclose(before.pose.pose.position.x, 0.5, abs_tol=1e-9)
+    assert before.header.frame_id == "robot1/odom"
+    assert before.child_frame_id == "robot1/base_link"
 
-        client = node.create_client(Trigger, "/robot1/odometry_node/reset_odometry")
-        assert client.wait_for_service(timeout_sec=10.0)
-        future = client.call_async(Trigger.Request())
-        assert spin_until(ex, future.done, 10.0)
-        result = future.result()
-        assert result is not None and result.success
+    client = node.create_client(Trigger, "/robot1/odometry_node/reset_odometry")
+    assert client.wait_for_service(timeout_sec=10.0)
+    future = client.call_async(Trigger.Request())
+    assert spin_until(ex, future.done, 10.0)
+    result = future.result()
+    assert result is not None and result.success
 
-        # Drive on from where the wheels are: no jump, 0.25 m more from the origin.
-        k2 = drive_straight(pub, ex, sink, k + 1, 24, per_step, prime=False)
-        last2 = T0_NS + k2 * STEP_NS
-        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last2 for o in sink.odom), 10.0)
-        after = max(sink.odom, key=lambda o: ns_of(o.header.stamp))
-        assert math.isclose(after.pose.pose.position.x, 0.25, abs_tol=1e-9)
-        assert after.pose.pose.position.y == 0.0
+    # Drive on from where the wheels are: no jump, 0.25 m more from the origin.
+    k2 = drive_straight(pub, ex, sink, k + 1, 24, per_step, prime=False)
+    last2 = T0_NS + k2 * STEP_NS
+    assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last2 for o in sink.odom), 10.0)
+    after = max(sink.odom, key=lambda o: ns_of(o.header.stamp))
+    assert math.isclose(after.pose.pose.position.x, 0.25, abs_tol=1e-9)
+    assert after.pose.pose.position.y == 0.0
 
 
 BAD_PARAMETERS = {
@@ -185,46 +176,43 @@ def _set_param(node: Node, ex: Any, name: str, value: ParameterValue) -> Any:
     return future.result().results[0]
 
 
-def test_runtime_parameter_refused_with_reason_and_bad_messages_dropped() -> None:
+def test_runtime_parameter_refused_with_reason_and_bad_messages_dropped(odom_rig: OdomRigs) -> None:
     r, b = 0.1, 0.4
-    args = ["--ros-args", "-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}"]
-    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        bad = _set_param(node, ex, "wheel_radius",
-                         ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=-1.0))
-        assert not bad.successful and "wheel_radius" in bad.reason
-        ok = _set_param(node, ex, "wheel_radius",
-                        ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.2))
-        assert ok.successful
+    args = ["-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}"]
+    proc, _, node, ex, pub, sink = odom_rig(*args, geometry=())
+    bad = _set_param(node, ex, "wheel_radius",
+                     ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=-1.0))
+    assert not bad.successful and "wheel_radius" in bad.reason
+    ok = _set_param(node, ex, "wheel_radius",
+                    ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.2))
+    assert ok.successful
 
-        names = ["left_wheel_joint", "right_wheel_joint"]
+    names = ["left_wheel_joint", "right_wheel_joint"]
 
-        def send(k: int, position: list[float], name: list[str] | None = None) -> None:
-            msg = JointState()
-            msg.header.stamp = stamp(T0_NS + k * STEP_NS)
-            msg.name = name if name is not None else names
-            msg.position = position
-            pub.publish(msg)
-            spin_for(ex, 0.01)
+    def send(k: int, position: list[float], name: list[str] | None = None) -> None:
+        msg = JointState()
+        msg.header.stamp = stamp(T0_NS + k * STEP_NS)
+        msg.name = name if name is not None else names
+        msg.position = position
+        pub.publish(msg)
+        spin_for(ex, 0.01)
 
-        first = JointState()
-        first.header.stamp = stamp(T0_NS)
-        first.name, first.position = names, [0.0, 0.0]
-        send_first(ex, pub, sink, first)
-        send(1, [float("nan"), 1.0])  # NaN: dropped
-        send(2, [float("inf"), 1.0])  # inf: dropped
-        send(3, [1.0])  # shorter than names: dropped
-        send(4, [1.0, 1.0], ["left_wheel_joint"])  # right wheel missing: dropped
-        send(5, [1.0, 1.0])  # good: 1 rad on both wheels
-        send(5, [9.0, 9.0])  # repeated stamp: dropped
-        send(4, [9.0, 9.0])  # slightly older: dropped
-        send(6, [1e6, 1e6])  # implausibly fast: skipped, re-anchored
-        send(7, [1e6 + 1.0, 1e6 + 1.0])  # good: 1 rad more
-        last = T0_NS + 7 * STEP_NS
-        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
-        assert proc.poll() is None, "node died on bad input"
+    first = JointState()
+    first.header.stamp = stamp(T0_NS)
+    first.name, first.position = names, [0.0, 0.0]
+    send_first(ex, pub, sink, first)
+    send(1, [float("nan"), 1.0])  # NaN: dropped
+    send(2, [float("inf"), 1.0])  # inf: dropped
+    send(3, [1.0])  # shorter than names: dropped
+    send(4, [1.0, 1.0], ["left_wheel_joint"])  # right wheel missing: dropped
+    send(5, [1.0, 1.0])  # good: 1 rad on both wheels
+    send(5, [9.0, 9.0])  # repeated stamp: dropped
+    send(4, [9.0, 9.0])  # slightly older: dropped
+    send(6, [1e6, 1e6])  # implausibly fast: skipped, re-anchored
+    send(7, [1e6 + 1.0, 1e6 + 1.0])  # good: 1 rad more
+    last = T0_NS + 7 * STEP_NS
+    assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
+    assert proc.poll() is None, "node died on bad input"
     for o in sink.odom:
         values = [o.pose.pose.position.x, o.pose.pose.position.y, o.pose.pose.orientation.z,
                   o.pose.pose.orientation.w, o.twist.twist.linear.x, o.twist.twist.angular.z]
@@ -235,54 +223,42 @@ def test_runtime_parameter_refused_with_reason_and_bad_messages_dropped() -> Non
     assert final.pose.pose.position.y == 0.0
 
 
-def test_best_effort_publisher_and_sim_time_loop_reset() -> None:
+def test_best_effort_publisher_and_sim_time_loop_reset(odom_rig: OdomRigs) -> None:
     """A best-effort driver connects; a bag-like stamp jump back restarts at the origin."""
     r, b = 0.1, 0.4
-    args = ["--ros-args", "-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}",
+    args = ["-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}",
             "-p", "use_sim_time:=true", "-p", "time_jump_threshold:=0.2"]
-    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-        pub = node.create_publisher(JointState, "/joint_states", qos)
-        wait_ready(ex, pub, sink, proc)
-        k = drive_straight(pub, ex, sink, 0, 20, 0.5)  # 10 rad -> 1 m
-        last = T0_NS + k * STEP_NS
-        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
-        assert math.isclose(
-            max(sink.odom, key=lambda o: ns_of(o.header.stamp)).pose.pose.position.x, 1.0,
-            abs_tol=1e-9)
-        sink.odom.clear()
-        # The "bag" starts again: same stamps and wheel angles as at its beginning.
-        time.sleep(0.05)
-        drive_straight(pub, ex, sink, 0, 10, 0.5)  # 0.5 m in the new run
-        last = T0_NS + 10 * STEP_NS
-        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
-        final = [o for o in sink.odom if ns_of(o.header.stamp) == last][-1]
-        assert math.isclose(final.pose.pose.position.x, 0.5, abs_tol=1e-9)
-        assert proc.poll() is None
-    out = _output_after_stop(proc)
-    assert "jumped back" in out
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+    proc, out, _, ex, pub, sink = odom_rig(*args, geometry=(), qos=qos)
+    k = drive_straight(pub, ex, sink, 0, 20, 0.5)  # 10 rad -> 1 m
+    last = T0_NS + k * STEP_NS
+    assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
+    assert math.isclose(
+        max(sink.odom, key=lambda o: ns_of(o.header.stamp)).pose.pose.position.x, 1.0,
+        abs_tol=1e-9)
+    sink.odom.clear()
+    # The "bag" starts again: same stamps and wheel angles as at its beginning.
+    time.sleep(0.05)
+    drive_straight(pub, ex, sink, 0, 10, 0.5)  # 0.5 m in the new run
+    last = T0_NS + 10 * STEP_NS
+    assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
+    final = [o for o in sink.odom if ns_of(o.header.stamp) == last][-1]
+    assert math.isclose(final.pose.pose.position.x, 0.5, abs_tol=1e-9)
+    assert proc.poll() is None
+    assert out.wait_for("jumped back"), out.text()
 
 
-def _output_after_stop(proc: Any) -> str:
-    proc.wait(timeout=10)
-    return proc.stdout.read() if proc.stdout else ""
-
-
-def test_publish_rate_throttles_by_stamp_and_tf_can_be_disabled() -> None:
+def test_publish_rate_throttles_by_stamp_and_tf_can_be_disabled(odom_rig: OdomRigs) -> None:
     """10 Hz out of 50 Hz readings: every fifth stamp, decided by the stamps themselves."""
     pose_diag = [0.002, 0.003, 1e6, 1e6, 1e6, 0.04]
-    args = ["--ros-args", "-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4",
+    args = ["-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4",
             "-p", "publish_rate:=10.0", "-p", "enable_odom_tf:=false",
             "-p", "covariance_model:=static", "-p", f"pose_covariance_diagonal:={pose_diag}"]
-    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        k = drive_straight(pub, ex, sink, 0, 50, 0.1)  # 1 s of readings at 50 Hz
-        last = T0_NS + k * STEP_NS
-        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
-        spin_for(ex, 0.3)
+    _, _, _, ex, pub, sink = odom_rig(*args, geometry=())
+    k = drive_straight(pub, ex, sink, 0, 50, 0.1)  # 1 s of readings at 50 Hz
+    last = T0_NS + k * STEP_NS
+    assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
+    spin_for(ex, 0.3)
     stamps = sorted({ns_of(o.header.stamp) for o in sink.odom})
     assert stamps == [T0_NS + i * 100_000_000 for i in range(11)]
     final = max(sink.odom, key=lambda o: ns_of(o.header.stamp))
@@ -320,7 +296,7 @@ def _joint_bag(path: Path, stamps_ns: list[int], positions: list[list[float]]) -
 
 
 def test_propagated_covariance_grows_along_a_drive_and_replay_writes_the_same(
-    tmp_path: Path,
+    tmp_path: Path, odom_rig: OdomRigs,
 ) -> None:
     """Straight line, both wheels with noise k: var(x) = k s / 2 and var(yaw) = 2 k s / b^2.
 
@@ -336,13 +312,9 @@ def test_propagated_covariance_grows_along_a_drive_and_replay_writes_the_same(
         "wheel_noise_k_left": k, "wheel_noise_k_right": k,
         "wheel_radius_stddev_ratio": 0.0, "wheel_separation_stddev_ratio": 0.0})
     per_step, steps = 0.4, 40  # 2 cm per reading, 0.8 m
-    with node_process("odometry_node", ["--ros-args", "--params-file", str(params)]) as proc, \
-            ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        last = T0_NS + drive_straight(pub, ex, sink, 0, steps, per_step) * STEP_NS
-        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
+    _, _, _, ex, pub, sink = odom_rig("--params-file", str(params), geometry=())
+    last = T0_NS + drive_straight(pub, ex, sink, 0, steps, per_step) * STEP_NS
+    assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == last for o in sink.odom), 10.0)
     live = {ns_of(o.header.stamp): o for o in sink.odom}
     assert len(live) == steps + 1
     var_x = []

@@ -12,6 +12,7 @@ unit, once the limiter has settled.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -53,9 +54,16 @@ class Robot:
     rate: float
 
 
+@functools.cache
+def _nan_or(low: float, high: float) -> st.SearchStrategy[float]:
+    # Built once per bounds: a new one_of per draw is validated anew each time (a third of
+    # the draw's cost), and the same strategy draws the same values.
+    return st.one_of(st.just(NAN), st.floats(low, high))
+
+
 def _maybe(draw: Any, low: float, high: float, scale: float = 1.0) -> float:
     """NaN (no limit) or a value in [low, high] * scale."""
-    value: float = draw(st.one_of(st.just(NAN), st.floats(low, high)))
+    value: float = draw(_nan_or(low, high))
     return value * scale
 
 

@@ -17,9 +17,11 @@ from pathlib import Path
 
 import pytest
 
+from paths import ROOT
+
 pytestmark = [pytest.mark.process]
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "build_tf2_msgs.sh"
+SCRIPT = ROOT / "scripts" / "build_tf2_msgs.sh"
 PYINC, NPINC = "/venv/include/python3.X", "/venv/site-packages/numpy/_core/include"
 
 EXPORT = ('set(_exported_include_dirs "{builder}/include/python{v};'

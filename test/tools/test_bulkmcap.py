@@ -21,7 +21,8 @@ from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools import bagio, bagreadings, bagwriter, bulkmcap, csvout, replay, sinks
 
-DATA = Path(__file__).parent / "data"
+from paths import DATA
+
 OPTIODOM = odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
 TB3 = odometry_settings({"wheel_radius": 0.033, "wheel_separation": 0.287,
                          "left_wheel_names": ["wheel_left_joint"],

@@ -24,6 +24,7 @@ from rosutil import (
     STEP_NS,
     T0_NS,
     B,
+    OdomRigs,
     R,
     Sink,
     listen,
@@ -34,6 +35,7 @@ from rosutil import (
     send_first,
     spin_for,
     spin_until,
+    wait_matched,
     wait_ready,
     yaw,
 )
@@ -76,47 +78,47 @@ def then(pose: tuple[float, float, float], s_left: float, s_right: float
     return oracle.wheel_arc(s_left, s_right, B, pose)
 
 
-def restart_run(max_reading_gap: float, pause_s: float) -> tuple[Odometry, Odometry]:
+def restart_run(odom_rig: OdomRigs, max_reading_gap: float, pause_s: float
+                ) -> tuple[Odometry, Odometry]:
     """An arc, the driver away for ``pause_s`` while the wheels turn on, the counters
     carrying on; returns the odometry before the pause and at the end."""
     rate = (0.2, 0.3)  # rad per 20 ms reading: 10 and 15 rad/s
-    with odometry_node("-p", f"max_reading_gap:={max_reading_gap}") as (proc, _out), \
-            ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
-        before_ns = drive(ex, pub, T0_NS, (0.0, 0.0), rate, 50)
-        before = pose_at(ex, sink, before_ns)
-        spin_for(ex, pause_s)  # the driver is down; the encoders keep counting
-        pause_steps = round(pause_s * 1e9 / STEP_NS)
-        back_ns = before_ns + pause_steps * STEP_NS
-        at_back = (rate[0] * (50 + pause_steps), rate[1] * (50 + pause_steps))
-        pub.publish(reading(back_ns, list(at_back)))
-        last_ns = drive(ex, pub, back_ns, at_back, rate, 25)
-        final = pose_at(ex, sink, last_ns)
-        assert proc.poll() is None
+    proc, _, _, ex, pub, sink = odom_rig("-p", f"max_reading_gap:={max_reading_gap}")
+    send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
+    before_ns = drive(ex, pub, T0_NS, (0.0, 0.0), rate, 50)
+    before = pose_at(ex, sink, before_ns)
+    spin_for(ex, pause_s)  # the driver is down; the encoders keep counting
+    pause_steps = round(pause_s * 1e9 / STEP_NS)
+    back_ns = before_ns + pause_steps * STEP_NS
+    at_back = (rate[0] * (50 + pause_steps), rate[1] * (50 + pause_steps))
+    pub.publish(reading(back_ns, list(at_back)))
+    last_ns = drive(ex, pub, back_ns, at_back, rate, 25)
+    final = pose_at(ex, sink, last_ns)
+    assert proc.poll() is None
     return before, final
 
 
-def test_driver_restart_within_max_reading_gap_integrates_the_motion_meanwhile() -> None:
+def test_driver_restart_within_max_reading_gap_integrates_the_motion_meanwhile(
+        odom_rig: OdomRigs) -> None:
     """Counters carry on after 2 s of silence, max_reading_gap 3 s: the step over the
     silence is a real, known motion and is integrated: one arc of 50 + 100 + 25 readings."""
-    before, final = restart_run(3.0, 2.0)
+    before, final = restart_run(odom_rig, 3.0, 2.0)
     assert_pose(before, *oracle.wheel_arc(R * 0.2 * 50, R * 0.3 * 50, B))
     assert_pose(final, *oracle.wheel_arc(R * 0.2 * 175, R * 0.3 * 175, B))
 
 
-def test_driver_restart_after_max_reading_gap_skips_the_unknown_motion() -> None:
+def test_driver_restart_after_max_reading_gap_skips_the_unknown_motion(
+        odom_rig: OdomRigs) -> None:
     """The same, max_reading_gap 1 s: what happened in the 2 s is not integrated; the
     pose is the arc before the silence followed by the 25 readings after it."""
-    before, final = restart_run(1.0, 2.0)
+    before, final = restart_run(odom_rig, 1.0, 2.0)
     start = oracle.wheel_arc(R * 0.2 * 50, R * 0.3 * 50, B)
     assert_pose(before, *start)
     assert_pose(final, *then(start, R * 0.2 * 25, R * 0.3 * 25))
 
 
-def test_counter_reset_after_a_short_pause_is_skipped_by_max_wheel_speed() -> None:
+def test_counter_reset_after_a_short_pause_is_skipped_by_max_wheel_speed(
+        odom_rig: OdomRigs) -> None:
     """Counters 0 -> 20 rad in 1 s, 0.5 s pause (within max_reading_gap), then counting
     from 0 again. Only max_wheel_speed can tell that reset from motion: at the wheels'
     real top speed (25 rad/s here; they drive at 20), -20 rad in 0.5 s (40 rad/s) is
@@ -124,51 +126,44 @@ def test_counter_reset_after_a_short_pause_is_skipped_by_max_wheel_speed() -> No
     max_wheel_speed, 200 rad/s by default, the same reset would be integrated as 20 rad
     backwards: set it to what the wheels can really do.)
     """
-    with odometry_node("-p", "max_wheel_speed:=25.0") as (proc, out), \
-            ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
-        before_ns = drive(ex, pub, T0_NS, (0.0, 0.0), (0.4, 0.4), 50)
-        before = pose_at(ex, sink, before_ns)
-        spin_for(ex, 0.5)
-        restart_ns = before_ns + 25 * STEP_NS
-        pub.publish(reading(restart_ns, [0.0, 0.0]))
-        last_ns = drive(ex, pub, restart_ns, (0.0, 0.0), (0.2, 0.2), 25)
-        final = pose_at(ex, sink, last_ns)
-        skipped = out.wait_for("over max_wheel_speed")
-        assert proc.poll() is None
+    proc, out, _, ex, pub, sink = odom_rig("-p", "max_wheel_speed:=25.0")
+    send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
+    before_ns = drive(ex, pub, T0_NS, (0.0, 0.0), (0.4, 0.4), 50)
+    before = pose_at(ex, sink, before_ns)
+    spin_for(ex, 0.5)
+    restart_ns = before_ns + 25 * STEP_NS
+    pub.publish(reading(restart_ns, [0.0, 0.0]))
+    last_ns = drive(ex, pub, restart_ns, (0.0, 0.0), (0.2, 0.2), 25)
+    final = pose_at(ex, sink, last_ns)
+    skipped = out.wait_for("over max_wheel_speed")
+    assert proc.poll() is None
     assert_pose(before, R * 20.0, 0.0, 0.0)
     assert_pose(final, R * 25.0, 0.0, 0.0)  # 20 rad before, 5 rad after, none backwards
     assert skipped, out.text()
 
 
-def test_burst_of_5000_readings_ends_on_the_exact_pose() -> None:
+def test_burst_of_5000_readings_ends_on_the_exact_pose(odom_rig: OdomRigs) -> None:
     """5,000 readings as fast as the publisher goes: the node's keep-last 100 queue may
     drop some, but increments are differences of absolute positions, so the pose at
     the last reading is still the arc's closed form. Stamps 1 ms apart (a 1 kHz
     driver) and a max_reading_gap of 60 s: this is about queue drops, not gaps."""
     n, rate = 5000, (0.004, 0.006)  # rad per reading: 4 and 6 rad/s
-    with odometry_node("-p", "max_reading_gap:=60.0", "-p", "enable_odom_tf:=false") \
-            as (proc, _out), ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 100)
-        wait_ready(ex, pub, sink, proc)
-        send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
-        step = 1_000_000
-        for k in range(1, n + 1):
-            pub.publish(reading(T0_NS + k * step, [rate[0] * k, rate[1] * k]))
-        last = reading(T0_NS + n * step, [rate[0] * n, rate[1] * n])
-        last_ns = T0_NS + n * step
-        # Best effort may lose the last one too: repeat it (repeats are dropped as such).
-        for _ in range(50):
-            if spin_until(ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom),
-                          0.5):
-                break
-            pub.publish(last)
-        final = pose_at(ex, sink, last_ns)
-        assert proc.poll() is None
+    proc, _, _, ex, pub, sink = odom_rig("-p", "max_reading_gap:=60.0",
+                                         "-p", "enable_odom_tf:=false", qos=100)
+    send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
+    step = 1_000_000
+    for k in range(1, n + 1):
+        pub.publish(reading(T0_NS + k * step, [rate[0] * k, rate[1] * k]))
+    last = reading(T0_NS + n * step, [rate[0] * n, rate[1] * n])
+    last_ns = T0_NS + n * step
+    # Best effort may lose the last one too: repeat it (repeats are dropped as such).
+    for _ in range(50):
+        if spin_until(ex, lambda: any(ns_of(o.header.stamp) == last_ns for o in sink.odom),
+                      0.5):
+            break
+        pub.publish(last)
+    final = pose_at(ex, sink, last_ns)
+    assert proc.poll() is None
     assert_pose(final, *oracle.wheel_arc(R * rate[0] * n, R * rate[1] * n, B))
 
 
@@ -218,8 +213,9 @@ def test_ten_namespaced_robots_at_once_have_no_crosstalk() -> None:
         sinks = [listen(node, f"/robot{i}/odom") for i in range(n)]
         pubs = [node.create_publisher(JointState, f"/robot{i}/joint_states", 10)
                 for i in range(n)]
-        assert spin_until(ex, lambda: all(p.get_subscription_count() for p in pubs), 90.0), \
-            "not every robot subscribed"
+        for i in range(n):  # both ways (rosutil.handshake): a robot whose odom publisher
+            # did not see us yet would lose its first pose, and the repeats are dropped
+            assert wait_matched(node, ex, pubs[i], sinks[i].odom_sub, 90.0), f"robot{i}"
         for i in range(n):
             send_first(ex, pubs[i], sinks[i], reading(T0_NS, [0.0, 0.0]))
         steps = 30
@@ -274,33 +270,30 @@ def finite(o: Odometry) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
-def test_dds_fuzz_never_kills_or_poisons_the_node() -> None:
+def test_dds_fuzz_never_kills_or_poisons_the_node(odom_rig: OdomRigs) -> None:
     """A few hundred seeded bad readings: the node lives, publishes nothing non-finite,
     and a clean straight drive afterwards (after a gap, so it starts a new reference)
     moves the pose on from where the bad input left it by exactly its closed form."""
     rng = random.Random(9)
-    with odometry_node() as (proc, out), ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 50)
-        wait_ready(ex, pub, sink, proc)
-        send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
-        n = 300
-        for k in range(1, n + 1):
-            pub.publish(bad_reading(rng, k) if rng.random() < 0.8
-                        else reading(T0_NS + k * STEP_NS, [0.01 * k, 0.01 * k]))
-            spin_for(ex, 0.002)
-        spin_for(ex, 0.5)
-        assert proc.poll() is None, out.text()
-        start = sink.odom[-1]  # where the bad input left the pose
-        # 4 s later, past max_reading_gap: the first clean reading is held, the next one
-        # continues from it, so it becomes the new reference and the pose carries on.
-        clean_ns = T0_NS + (n + 200) * STEP_NS
-        pub.publish(reading(clean_ns, [5.0, 5.0]))
-        spin_for(ex, 0.2)
-        last_ns = drive(ex, pub, clean_ns, (5.0, 5.0), (0.1, 0.1), 40)
-        final = pose_at(ex, sink, last_ns)
-        assert proc.poll() is None
-        assert out.matching("dropped"), out.text()  # the garbage did reach the node
+    proc, out, _, ex, pub, sink = odom_rig(qos=50)
+    send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
+    n = 300
+    for k in range(1, n + 1):
+        pub.publish(bad_reading(rng, k) if rng.random() < 0.8
+                    else reading(T0_NS + k * STEP_NS, [0.01 * k, 0.01 * k]))
+        spin_for(ex, 0.002)
+    spin_for(ex, 0.5)
+    assert proc.poll() is None, out.text()
+    start = sink.odom[-1]  # where the bad input left the pose
+    # 4 s later, past max_reading_gap: the first clean reading is held, the next one
+    # continues from it, so it becomes the new reference and the pose carries on.
+    clean_ns = T0_NS + (n + 200) * STEP_NS
+    pub.publish(reading(clean_ns, [5.0, 5.0]))
+    spin_for(ex, 0.2)
+    last_ns = drive(ex, pub, clean_ns, (5.0, 5.0), (0.1, 0.1), 40)
+    final = pose_at(ex, sink, last_ns)
+    assert proc.poll() is None
+    assert out.matching("dropped"), out.text()  # the garbage did reach the node
     assert all(finite(o) for o in sink.odom)
     assert all(math.isfinite(v) for m in sink.tf for t in m.transforms
                for v in (t.transform.translation.x, t.transform.translation.y,

@@ -11,21 +11,17 @@ import math
 import time
 
 import pytest
-from sensor_msgs.msg import JointState
 
 from rosutil import (
     STEP_NS,
     T0_NS,
+    OdomRigs,
     R,
-    listen,
     ns_of,
-    odometry_node,
     reading,
-    ros_test_node,
     send_first,
     spin_for,
     spin_until,
-    wait_ready,
 )
 
 pytestmark = [pytest.mark.dds, pytest.mark.process]
@@ -40,26 +36,23 @@ def angles(k: int) -> list[float]:
 
 @pytest.mark.parametrize("stamp_source", ["header", "receive_time"])
 def test_a_driver_on_its_own_clock_is_named_once_or_stamped_on_receipt(
-        stamp_source: str) -> None:
+        stamp_source: str, odom_rig: OdomRigs,
+) -> None:
     """header: /odom carries the driver's 1000 s stamps and the node says so once, with
     the offset and both fixes; receive_time: /odom is stamped on the node's clock."""
-    with odometry_node("-p", f"stamp_source:={stamp_source}") as (proc, out), \
-            ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        before_ns = time.time_ns()
-        pub.publish(reading(DRIVER_T0_NS, angles(0)))
-        assert spin_until(ex, lambda: bool(sink.odom), 10.0), out.text()
-        for k in range(1, 51):
-            pub.publish(reading(DRIVER_T0_NS + k * STEP_NS, angles(k)))
-            spin_for(ex, 0.005)
-        assert spin_until(ex, lambda: math.isclose(
-            sink.odom[-1].pose.pose.position.x, R * RAD_PER_STEP * 50, abs_tol=1e-9), 10.0)
-        after_ns = time.time_ns()
-        named = out.wait_for("header stamps are", "behind the time they were received",
-                             timeout=2.0 if stamp_source == "header" else 0.5)
-        assert proc.poll() is None, out.text()
+    proc, out, _, ex, pub, sink = odom_rig("-p", f"stamp_source:={stamp_source}")
+    before_ns = time.time_ns()
+    pub.publish(reading(DRIVER_T0_NS, angles(0)))
+    assert spin_until(ex, lambda: bool(sink.odom), 10.0), out.text()
+    for k in range(1, 51):
+        pub.publish(reading(DRIVER_T0_NS + k * STEP_NS, angles(k)))
+        spin_for(ex, 0.005)
+    assert spin_until(ex, lambda: math.isclose(
+        sink.odom[-1].pose.pose.position.x, R * RAD_PER_STEP * 50, abs_tol=1e-9), 10.0)
+    after_ns = time.time_ns()
+    named = out.wait_for("header stamps are", "behind the time they were received",
+                         timeout=2.0 if stamp_source == "header" else 0.5)
+    assert proc.poll() is None, out.text()
     stamps = [ns_of(o.header.stamp) for o in sink.odom]
     if stamp_source == "header":
         assert len(named) == 1, out.text()
@@ -73,7 +66,8 @@ def test_a_driver_on_its_own_clock_is_named_once_or_stamped_on_receipt(
         assert all(before_ns <= s <= after_ns for s in stamps), (before_ns, stamps, after_ns)
 
 
-def test_one_second_of_far_future_stamps_keeps_the_timeline_and_the_pose() -> None:
+def test_one_second_of_far_future_stamps_keeps_the_timeline_and_the_pose(
+        odom_rig: OdomRigs) -> None:
     """The issue's fault: a 50 Hz driver on a synced clock (stamped when sent), one
     second of it stamped 1000 s ahead. On main the burst was published, taken as the
     timeline, and the return restarted odometry at the origin. Now nothing stamped in
@@ -81,20 +75,17 @@ def test_one_second_of_far_future_stamps_keeps_the_timeline_and_the_pose() -> No
     the pose is the straight line's."""
     burst = range(51, 101)
     last = 150
-    with odometry_node() as (proc, out), ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        send_first(ex, pub, sink, reading(time.time_ns(), angles(0)))
-        sent: list[int] = []
-        for k in range(1, last + 1):
-            spin_for(ex, 0.02)
-            sent.append(time.time_ns() + (1000 * 10**9 if k in burst else 0))
-            pub.publish(reading(sent[-1], angles(k)))
-        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == sent[-1] for o in sink.odom),
-                          10.0), out.text()
-        dropped = out.wait_for("future_stamp", "50 readings")
-        assert proc.poll() is None, out.text()
+    proc, out, _, ex, pub, sink = odom_rig()
+    send_first(ex, pub, sink, reading(time.time_ns(), angles(0)))
+    sent: list[int] = []
+    for k in range(1, last + 1):
+        spin_for(ex, 0.02)
+        sent.append(time.time_ns() + (1000 * 10**9 if k in burst else 0))
+        pub.publish(reading(sent[-1], angles(k)))
+    assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == sent[-1] for o in sink.odom),
+                      10.0), out.text()
+    dropped = out.wait_for("future_stamp", "50 readings")
+    assert proc.poll() is None, out.text()
     stamps = [ns_of(o.header.stamp) for o in sink.odom]
     assert max(stamps) == sent[-1], "a far-future pose was published"
     assert len(dropped) == 1 and out.matching("clock_jump"), out.text()
@@ -104,22 +95,19 @@ def test_one_second_of_far_future_stamps_keeps_the_timeline_and_the_pose() -> No
     assert final.pose.pose.position.y == 0.0
 
 
-def test_more_positions_than_names_is_refused_with_a_warning() -> None:
+def test_more_positions_than_names_is_refused_with_a_warning(odom_rig: OdomRigs) -> None:
     """3 positions for 2 names between good readings: dropped (bad_array), the pose goes
     on from the good ones. On main the first two values were integrated."""
-    with odometry_node() as (proc, out), ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        send_first(ex, pub, sink, reading(T0_NS, angles(0)))
-        pub.publish(reading(T0_NS + STEP_NS, [0.1, 0.5, 0.1]))  # yaw would jump
-        spin_for(ex, 0.005)
-        end_ns = T0_NS + 2 * STEP_NS
-        pub.publish(reading(end_ns, angles(2)))
-        assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == end_ns for o in sink.odom),
-                          10.0), out.text()
-        warned = out.wait_for("bad_array", "3 entries for 2 names")
-        assert proc.poll() is None, out.text()
+    proc, out, _, ex, pub, sink = odom_rig()
+    send_first(ex, pub, sink, reading(T0_NS, angles(0)))
+    pub.publish(reading(T0_NS + STEP_NS, [0.1, 0.5, 0.1]))  # yaw would jump
+    spin_for(ex, 0.005)
+    end_ns = T0_NS + 2 * STEP_NS
+    pub.publish(reading(end_ns, angles(2)))
+    assert spin_until(ex, lambda: any(ns_of(o.header.stamp) == end_ns for o in sink.odom),
+                      10.0), out.text()
+    warned = out.wait_for("bad_array", "3 entries for 2 names")
+    assert proc.poll() is None, out.text()
     assert len(warned) == 1 and "WARN" in warned[0], out.text()
     assert [ns_of(o.header.stamp) for o in sink.odom] == [T0_NS, end_ns]
     final = sink.odom[-1].pose.pose

@@ -24,9 +24,10 @@ import diffdrive_odom.core
 import diffdrive_odom.settings
 import diffdrive_odom.wire
 
+from paths import ROOT
+
 pytestmark = [pytest.mark.process]
 
-ROOT = Path(__file__).resolve().parent.parent
 # Also pure, as before the layers had packages: the package and each layer's
 # ``__init__`` (a docstring of what the layer may import), and the demo's pure parts.
 ALSO_PURE = ("diffdrive_odom", "diffdrive_odom.ros", "diffdrive_odom.tools",

@@ -13,20 +13,16 @@ import math
 from itertools import pairwise
 
 import pytest
-from sensor_msgs.msg import JointState
 
 from rosutil import (
     STEP_NS,
     T0_NS,
+    OdomRigs,
     R,
-    listen,
     ns_of,
-    odometry_node,
     reading,
-    ros_test_node,
     send_first,
     spin_for,
-    wait_ready,
 )
 
 pytestmark = [pytest.mark.dds, pytest.mark.process]
@@ -35,34 +31,30 @@ RAD_PER_STEP = 0.1  # 5 rad/s at 50 Hz
 BACK_NS = 300_000_000
 
 
-def test_far_future_and_stepped_back_stamps_keep_pose_and_twist() -> None:
-    with odometry_node("-p", "publish_rate:=0.0") as (proc, out), \
-            ros_test_node() as (node, ex):
-        sink = listen(node, "/odom")
-        pub = node.create_publisher(JointState, "/joint_states", 10)
-        wait_ready(ex, pub, sink, proc)
-        send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
+def test_far_future_and_stepped_back_stamps_keep_pose_and_twist(odom_rig: OdomRigs) -> None:
+    proc, out, _, ex, pub, sink = odom_rig("-p", "publish_rate:=0.0")
+    send_first(ex, pub, sink, reading(T0_NS, [0.0, 0.0]))
 
-        def send(k: int, offset_ns: int = 0) -> None:
-            angle = RAD_PER_STEP * k
-            pub.publish(reading(T0_NS + k * STEP_NS + offset_ns, [angle, angle]))
-            spin_for(ex, 0.005)
-
-        for k in range(1, 51):
-            send(k)
-        future_ns = T0_NS + 50 * STEP_NS + 100 * 10**9
-        pub.publish(reading(future_ns, [5.0, 5.0]))  # a lone reading 100 s ahead
+    def send(k: int, offset_ns: int = 0) -> None:
+        angle = RAD_PER_STEP * k
+        pub.publish(reading(T0_NS + k * STEP_NS + offset_ns, [angle, angle]))
         spin_for(ex, 0.005)
-        for k in range(51, 76):
-            send(k)
-        for k in range(76, 100):  # the clock steps back 0.3 s: stamps 1.22 s .. 1.68 s
-            send(k, -BACK_NS)
-        last = 100
-        send_first(ex, pub, sink, reading(T0_NS + last * STEP_NS - BACK_NS,
-                                          [RAD_PER_STEP * last] * 2))
-        outlier = out.wait_for("future_stamp", "100.000 s")
-        spin_for(ex, 0.2)
-        assert proc.poll() is None, out.text()
+
+    for k in range(1, 51):
+        send(k)
+    future_ns = T0_NS + 50 * STEP_NS + 100 * 10**9
+    pub.publish(reading(future_ns, [5.0, 5.0]))  # a lone reading 100 s ahead
+    spin_for(ex, 0.005)
+    for k in range(51, 76):
+        send(k)
+    for k in range(76, 100):  # the clock steps back 0.3 s: stamps 1.22 s .. 1.68 s
+        send(k, -BACK_NS)
+    last = 100
+    send_first(ex, pub, sink, reading(T0_NS + last * STEP_NS - BACK_NS,
+                                      [RAD_PER_STEP * last] * 2))
+    outlier = out.wait_for("future_stamp", "100.000 s")
+    spin_for(ex, 0.2)
+    assert proc.poll() is None, out.text()
     odom = sink.odom
     assert odom and all(
         math.isfinite(v) for o in odom for v in (

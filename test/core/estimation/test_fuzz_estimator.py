@@ -100,22 +100,26 @@ stamp_moves = st.one_of(
     st.integers(1_000_000_001, 10**15),  # far ahead (up to ~11 days)
 )
 absolute_stamps = st.sampled_from([0, -1, -T0, 1])
+# Built once, not at every reading drawn (a new strategy is validated anew each draw).
+one_in_ten = st.integers(0, 9)
+name_faults = st.sampled_from(["ok", "ok", "ok", "shuffled", "missing", "wrong"])
+SIZE_FAULTS = {n: st.sampled_from([0, 0, 0, 0, -1, 1, -n]) for n in range(1, 6)}
 
 
 @st.composite
 def bad_reading(draw: st.DrawFn, shape: Shape, last_ns: int
                 ) -> tuple[int, list[str], list[float], list[float]]:
-    absolute = draw(st.integers(0, 9)) == 0  # one in ten: zero, negative, tiny
+    absolute = draw(one_in_ten) == 0  # one in ten: zero, negative, tiny
     stamp = draw(absolute_stamps) if absolute else last_ns + draw(stamp_moves)
     names = shape.names()
-    kind = draw(st.sampled_from(["ok", "ok", "ok", "shuffled", "missing", "wrong"]))
+    kind = draw(name_faults)
     if kind == "shuffled":
         names = ["caster", *reversed(names)]
     elif kind == "missing":
         names = names[:-1]
     elif kind == "wrong":
         names = [f"wheel_{i}" for i in range(len(names))]
-    size = len(names) + draw(st.sampled_from([0, 0, 0, 0, -1, 1, -len(names)]))
+    size = len(names) + draw(SIZE_FAULTS[len(names)])
     position = draw(st.lists(values, min_size=size, max_size=size))
     velocity: list[float] = []
     if draw(st.booleans()):
