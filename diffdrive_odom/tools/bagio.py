@@ -59,7 +59,7 @@ except ImportError:  # pragma: no cover - an install without the tools extra's o
 
 from diffdrive_odom.core.bulk.readings import JointBlock
 from diffdrive_odom.core.bulk.readings import JointReading as JointReading
-from diffdrive_odom.tools import bulkmcap
+from diffdrive_odom.tools import bulkmcap, recovery
 from diffdrive_odom.tools.outputs import STORAGES as STORAGES
 from diffdrive_odom.wire.cdr import JointBlockDecoder, JointStateDecoder
 from diffdrive_odom.wire.conversions import split_ns, stamp_to_ns
@@ -102,6 +102,10 @@ class _Reader(AnyReader):
             raise BagError(f"{self.paths[0]}: not a readable bag ({err})") from err
 
 
+class _Recovered(_Reader, recovery.RecoveredReader):
+    """A recording cut short (no metadata.yaml, torn, malformed): :mod:`.recovery`."""
+
+
 def open_bag(path: str | Path) -> AnyReader:
     """Return an unopened reader for a rosbag2 dir / ``.mcap`` / ``.db3`` or ROS 1 ``.bag``.
 
@@ -115,6 +119,8 @@ def open_bag(path: str | Path) -> AnyReader:
     if p.is_file() and p.suffix in (".mcap", ".db3") and (p.parent / "metadata.yaml").exists():
         p = p.parent
     try:
+        if recovery.needs_recovery(p):
+            return _Recovered(p, default_typestore=typestore())
         return _Reader([p], default_typestore=typestore())
     except _NOT_A_BAG as err:
         raise BagError(f"{p}: not a readable bag ({err})") from err
