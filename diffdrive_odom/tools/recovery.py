@@ -27,7 +27,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import IO, Any, Self
 
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import (
@@ -113,7 +113,7 @@ class Storage:
         self.torn = False  # the file ends before its last record does (MCAP)
         self._log: list[int] = []
 
-    def __enter__(self) -> Storage:
+    def __enter__(self) -> Self:
         try:
             self.open()
         except (mcapscan.NotMcapError, sqlitescan.NotSqliteError) as err:

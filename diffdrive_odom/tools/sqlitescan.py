@@ -16,7 +16,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-PAGE = 4096  # rows asked for at a time
 _GIVE_UP = 62  # a gallop past damage tries offsets up to 2**this rowids ahead
 
 
@@ -25,13 +24,37 @@ class NotSqliteError(ValueError):
 
 
 def connect(path: Path) -> sqlite3.Connection:
-    """The database opened read-only and immutable (nothing is created beside it)."""
-    uri = f"{path.resolve().as_uri()}?mode=ro&immutable=1"
+    """The database opened read-only and immutable (nothing is created beside it).
+
+    A file cut short is read from memory instead: sqlite would fill a page cut in
+    two with zeros and pass rows from its zeroed part on as data, and a table rooted
+    past the end fails the schema. So its whole pages only, padded with zero pages
+    (which fail when read) to the length its header gives.
+    """
+    with path.open("rb") as f:
+        head = f.read(100)
+        size = f.seek(0, 2)
+    if len(head) < 100 or not head.startswith(b"SQLite format 3\x00"):
+        raise NotSqliteError("not an sqlite database (no sqlite header)")
+    page = int.from_bytes(head[16:18], "big")
+    page = 65536 if page == 1 else page
+    pages = int.from_bytes(head[28:32], "big")
+    if size % page == 0 and size >= pages * page:
+        uri = f"{path.resolve().as_uri()}?mode=ro&immutable=1"
+        try:
+            db = sqlite3.connect(uri, uri=True, check_same_thread=False)
+            db.execute("SELECT name FROM sqlite_master").fetchall()
+            return db
+        except sqlite3.DatabaseError as err:
+            raise NotSqliteError(f"not a readable sqlite database ({err})") from err
+    data = path.read_bytes()
+    data = data[:len(data) // page * page]
     try:
-        db = sqlite3.connect(uri, uri=True, check_same_thread=False)
-        db.execute("SELECT name FROM sqlite_master LIMIT 1").fetchall()
+        db = sqlite3.connect(":memory:", check_same_thread=False)
+        db.deserialize(data + bytes(max(pages * page - len(data), 0)))
+        db.execute("SELECT name FROM sqlite_master").fetchall()
     except sqlite3.DatabaseError as err:
-        raise NotSqliteError(f"not an sqlite database ({err})") from err
+        raise NotSqliteError(f"not a readable sqlite database ({err})") from err
     return db
 
 
@@ -61,40 +84,36 @@ def definitions(db: sqlite3.Connection) -> dict[str, tuple[str, str]]:
     return {r["topic_type"]: (r["encoding"], r["encoded_message_definition"]) for r in rows}
 
 
-def _page(db: sqlite3.Connection, after: int) -> list[tuple[int, int, int]]:
-    return db.execute("SELECT id, topic_id, timestamp FROM messages WHERE id > ? "
-                      "ORDER BY id LIMIT ?", (after, PAGE)).fetchall()
+_AFTER = "SELECT id, topic_id, timestamp FROM messages WHERE id > ? ORDER BY id"
 
 
 def index(db: sqlite3.Connection) -> tuple[list[tuple[int, int, int]], int]:
     """Every (rowid, topic id, log time) that reads, by rowid; and the failed ranges.
 
-    Past a range that fails, the next start that reads is found by galloping (1, 2,
-    4, ... rowids on), then bisected back towards the damage, so little that still
-    reads is skipped.
+    Rows come one at a time, so those before the damage are kept. Past a range that
+    fails, the next start that reads is found by galloping (1, 2, 4, ... rowids on),
+    then bisected back towards the damage, so little that still reads is skipped.
     """
     rows: list[tuple[int, int, int]] = []
     last, failures = -(2**63), 0
     while True:
         try:
-            got = _page(db, last)
+            for row in db.execute(_AFTER, (last,)):
+                rows.append(row)
+                last = row[0]
+            break
         except sqlite3.DatabaseError:
             failures += 1
             resumed = _resume(db, last)
             if resumed is None:
                 break
             last = resumed
-            continue
-        if not got:
-            break
-        rows.extend(got)
-        last = got[-1][0]
     return rows, failures
 
 
 def _reads(db: sqlite3.Connection, after: int) -> bool:
     try:
-        _page(db, after)
+        db.execute(_AFTER + " LIMIT 1", (after,)).fetchall()
     except sqlite3.DatabaseError:
         return False
     return True
