@@ -255,21 +255,32 @@ def _read_all(path: Path) -> list[tuple[int, bytes]]:
         return [(log, bytes(raw)) for _, log, raw in r.messages()]
 
 
-def test_sqlite_with_its_last_transaction_lost_gives_the_committed_messages(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    db, msgs = _sqlite_bag(tmp_path, 200)
+def _commit_to_wal(db: Path, more: list[tuple[int, bytes]]
+                   ) -> tuple[sqlite3.Connection, list[tuple[int, bytes]]]:
+    """One more transaction committed in WAL mode, not checkpointed (still open)."""
     con = sqlite3.connect(db)
     con.execute("PRAGMA journal_mode=WAL")
     con.execute("PRAGMA wal_autocheckpoint=0")
-    more = _run(50, start=msgs[-1][0] + 10**7)
     with con:
         con.executemany("INSERT INTO messages (topic_id, timestamp, data) VALUES (1, ?, ?)",
                         more)
-    folder = tmp_path / "cut"
+    return con, more
+
+
+@pytest.mark.parametrize("wal_left", [False, True])
+def test_sqlite_killed_in_wal_mode_gives_every_transaction_its_files_hold(
+        tmp_path: Path, wal_left: bool, capsys: pytest.CaptureFixture[str]) -> None:
+    """The last transaction committed to ``-wal``: lost with that file, read with it."""
+    db, msgs = _sqlite_bag(tmp_path, 200)
+    con, more = _commit_to_wal(db, _run(50, start=msgs[-1][0] + 10**7))
+    folder = tmp_path / "killed"
     folder.mkdir()
-    shutil.copy(db, folder / "cut_0.db3")  # the -wal with the last transaction is lost
+    for suffix in ("", "-wal") if wal_left else ("",):  # as the killed recorder left them
+        shutil.copy(f"{db}{suffix}", folder / f"killed_0.db3{suffix}")
     con.close()
-    assert _read_all(folder) == msgs
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert _read_all(folder) == msgs + (more if wal_left else [])
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before  # nothing written
     assert capsys.readouterr().err.count("\n") == 1
 
 
@@ -316,3 +327,30 @@ def test_what_is_not_a_recording_is_one_line_and_exit_2(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all(str(path) in e for e in err), err
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_fleet_replay_of_recordings_cut_short_writes_the_intact_bags_csv(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``replay`` with several bags (a fleet, one process): torn MCAP, sqlite3 without
+    metadata; each CSV the very text of the intact bag of the same readings."""
+    msgs = _run(1500)
+    _rosbags_bag(tmp_path / "full", msgs)
+    data = next((tmp_path / "full").glob("*.mcap")).read_bytes()
+    cut = len(data) // 2 + 17
+    kept = _expected(data, msgs, cut, False)
+    broken, whole = tmp_path / "broken", tmp_path / "whole"
+    (broken / "a").mkdir(parents=True)
+    (broken / "a" / "a_0.mcap").write_bytes(data[:cut])
+    _rosbags_bag(broken / "b", msgs, "sqlite3")
+    (broken / "b" / "metadata.yaml").unlink()
+    _rosbags_bag(whole / "a", kept)
+    _rosbags_bag(whole / "b", msgs, "sqlite3")
+    params = write_params(tmp_path / "p.yaml", {"wheel_radius": 0.042, "wheel_separation": 0.2})
+    for top in (broken, whole):
+        assert cli(["replay", str(top / "a"), str(top / "b"), "--params-file", str(params),
+                    "--csv", str(top / "csv"), "--jobs", "1"]) == 0
+    for name in ("a.csv", "b.csv"):
+        got = (broken / "csv" / name).read_text()
+        assert got == (whole / "csv" / name).read_text() and got.count("\n") > 100
+    out = capsys.readouterr()
+    assert out.out.count("[recovery]") + out.err.count("[recovery]") == 2

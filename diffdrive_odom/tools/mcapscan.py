@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import mmap
 import struct
+from array import array
 from collections import OrderedDict
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -69,29 +69,25 @@ class Scan:
     schemas: dict[int, Schema] = field(default_factory=dict)
     channels: dict[int, Channel] = field(default_factory=dict)
     chunks: list[tuple[int, int, str, int]] = field(default_factory=list)
-    log: list[int] = field(default_factory=list)
-    channel: list[int] = field(default_factory=list)
-    source: list[int] = field(default_factory=list)
-    start: list[int] = field(default_factory=list)
-    length: list[int] = field(default_factory=list)
+    located: array[int] = field(default_factory=lambda: array("q"))  # 5 numbers a message
     complete: bool = False  # the footer (or the summary's data end) was reached
     good_bytes: int = 0  # where the last whole record ends
     lost: list[str] = field(default_factory=list)
 
     def add(self, log: int, chan: int, source: int, start: int, length: int) -> None:
         """Locate one message."""
-        self.log.append(log)
-        self.channel.append(chan)
-        self.source.append(source)
-        self.start.append(start)
-        self.length.append(length)
+        self.located.extend((log, chan, source, start, length))
 
-    def order(self) -> npt.NDArray[np.intp]:
-        """Indices in log time order, ties by position in the file (a stable sort)."""
-        log = np.array(self.log, dtype=np.uint64)
+    def columns(self) -> npt.NDArray[np.int64]:
+        """(log, channel, source, start, length) rows in reading order.
+
+        Log time, ties by position in the file: a stable sort (none when in order).
+        """
+        rows = np.frombuffer(self.located, dtype=np.int64).reshape(-1, 5)
+        log = rows[:, 0]
         if len(log) < 2 or bool((log[1:] >= log[:-1]).all()):
-            return np.arange(len(log))
-        return np.argsort(log, kind="stable")
+            return rows.copy()
+        return rows[np.argsort(log, kind="stable")]
 
 
 def _string(buf: bytes | mmap.mmap, pos: int) -> tuple[str, int]:
@@ -258,10 +254,3 @@ def open_map(path: Path) -> mmap.mmap | None:
             return None
         return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
 
-
-def iter_located(found: Scan) -> Iterator[tuple[int, int, int, int, int]]:
-    """(log, channel, source, start, length) of every message, in reading order."""
-    cols = [np.array(c, dtype=np.int64) for c in
-            (found.log, found.channel, found.source, found.start, found.length)]
-    order = found.order()
-    yield from zip(*(c[order].tolist() for c in cols), strict=True)

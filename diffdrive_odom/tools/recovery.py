@@ -25,10 +25,13 @@ import re
 import sqlite3
 import sys
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any, Self
 
+import numpy as np
+import numpy.typing as npt
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import (
     Connection,
@@ -47,6 +50,7 @@ SUFFIXES = (".mcap", ".db3")
 _FORMATS = {"ros2msg": MessageDefinitionFormat.MSG, "ros2idl": MessageDefinitionFormat.IDL,
             "omgidl": MessageDefinitionFormat.IDL}
 _NEVER = 2**63 - 1
+BLOCK = 8192  # index rows turned into Python numbers at a time (memory stays small)
 
 
 class RecoveryError(ValueError):
@@ -111,7 +115,8 @@ class Storage:
         self.size = 0  # the file's bytes, and those that were read (MCAP)
         self.read_bytes = 0
         self.torn = False  # the file ends before its last record does (MCAP)
-        self._log: list[int] = []
+        # (log time, ...) of every message kept, in reading order
+        self._rows: npt.NDArray[np.int64] = np.zeros((0, 3), dtype=np.int64)
 
     def __enter__(self) -> Self:
         try:
@@ -143,17 +148,29 @@ class Storage:
     @property
     def start_time(self) -> int:
         """Log time of the earliest message (ns)."""
-        return min(self._log) if self._log else _NEVER
+        return int(self._rows[:, 0].min()) if len(self._rows) else _NEVER
 
     @property
     def end_time(self) -> int:
         """Just after the latest message (ns; exclusive, as rosbags)."""
-        return max(self._log) + 1 if self._log else 0
+        return int(self._rows[:, 0].max()) + 1 if len(self._rows) else 0
 
     @property
     def message_count(self) -> int:
         """Messages recovered."""
-        return len(self._log)
+        return len(self._rows)
+
+    def _selected(self, connections: Any, start: int | None, stop: int | None,
+                  column: int) -> Iterator[tuple[Connection, list[int]]]:
+        """Rows of the wanted connections (id in ``column``) and times, in blocks."""
+        wanted = {c.id: c for c in (connections or self.connections)}
+        ids = np.array(sorted(wanted), dtype=np.int64)
+        lo, hi = (0 if start is None else start), (_NEVER if stop is None else stop)
+        for k in range(0, len(self._rows), BLOCK):
+            block = self._rows[k:k + BLOCK]
+            keep = np.isin(block[:, column], ids) & (block[:, 0] >= lo) & (block[:, 0] < hi)
+            for row in block[keep].tolist():
+                yield wanted[row[column]], row
 
     @property
     def topics(self) -> dict[str, TopicInfo]:
@@ -178,14 +195,15 @@ class McapStorage(Storage):
         self.torn = not mcap_is_whole(self.path)
         self.whole = found.complete and not found.lost and not self.torn
         self.lost = found.lost
-        known = {cid for cid, ch in found.channels.items() if ch.schema_id in found.schemas}
-        rows = [r for r in mcapscan.iter_located(found) if r[1] in known]
-        if len(rows) < len(found.log):
-            self.lost.append(f"{len(found.log) - len(rows)} messages of unknown channels")
+        known = [cid for cid, ch in found.channels.items() if ch.schema_id in found.schemas]
+        rows = found.columns()
+        kept = np.isin(rows[:, 1], np.array(known, dtype=np.int64))
+        if not kept.all():
+            self.lost.append(f"{int((~kept).sum())} messages of unknown channels")
+            rows = rows[kept]
         self._rows = rows
-        self._log = [r[0] for r in rows]
         self._payloads = mcapscan.Payloads(buf, found.chunks)
-        counts = Counter(r[1] for r in rows)
+        counts = Counter(rows[:, 1].tolist())
         self._connections([
             (cid, ch.topic, (s := found.schemas[ch.schema_id]).name,
              _msgdef(s.encoding, s.data.decode(errors="replace")), ch.encoding,
@@ -196,20 +214,16 @@ class McapStorage(Storage):
         """Unmap the file."""
         buf = self._buf
         if buf is not None:
-            self._rows, self._payloads = [], mcapscan.Payloads(buf, [])
+            self._payloads = mcapscan.Payloads(buf, [])
             buf.close()
             self._buf = None
 
     def messages(self, connections: Any = (), start: int | None = None,
                  stop: int | None = None) -> Any:
         """(connection, log time, bytes) in log time order, ties by position."""
-        wanted = {c.id: c for c in (connections or self.connections)}
-        lo, hi = (0 if start is None else start), (_NEVER if stop is None else stop)
         get = self._payloads.get
-        for log, chan, source, begin, length in self._rows:
-            conn = wanted.get(chan)
-            if conn is not None and lo <= log < hi:
-                yield conn, log, get(source, begin, length)
+        for conn, (log, _, source, begin, length) in self._selected(connections, start, stop, 1):
+            yield conn, log, get(source, begin, length)
 
 
 def _channel_qos(metadata: bytes) -> str:
@@ -238,16 +252,16 @@ class SqliteStorage(Storage):
         tops = sqlitescan.topics(db)
         defs = sqlitescan.definitions(db)
         rows, failures = sqlitescan.index(db)
-        known = {t["id"] for t in tops}
-        kept = sorted((r for r in rows if r[1] in known), key=lambda r: r[2])
+        index = np.frombuffer(rows, dtype=np.int64).reshape(-1, 3)[:, (2, 1, 0)]
+        kept = index[np.isin(index[:, 1], np.array([t["id"] for t in tops], dtype=np.int64))]
+        kept = kept[np.argsort(kept[:, 0], kind="stable")]  # log time, ties by rowid
         if failures:
             self.lost.append(f"{failures} damaged range{'s' if failures > 1 else ''} of rows")
-        if len(kept) < len(rows):
-            self.lost.append(f"{len(rows) - len(kept)} messages of unreadable topics")
+        if len(kept) < len(index):
+            self.lost.append(f"{len(index) - len(kept)} messages of unreadable topics")
         self.whole = not self.lost
         self._rows = kept
-        self._log = [r[2] for r in kept]
-        counts = Counter(r[1] for r in kept)
+        counts = Counter(kept[:, 1].tolist())
         self._connections([
             (t["id"], t["name"], t["type"], _msgdef(*defs.get(t["type"], ("", ""))),
              t.get("serialization_format") or "cdr", _qos(t.get("offered_qos_profiles")))
@@ -264,16 +278,23 @@ class SqliteStorage(Storage):
     def messages(self, connections: Any = (), start: int | None = None,
                  stop: int | None = None) -> Any:
         """(connection, log time, bytes) by log time, ties by rowid."""
-        wanted = {c.id: c for c in (connections or self.connections)}
-        lo, hi = (0 if start is None else start), (_NEVER if stop is None else stop)
-        rows = [r for r in self._rows if r[1] in wanted and lo <= r[2] < hi]
+        pending: list[tuple[Connection, list[int]]] = []
+        for item in self._selected(connections, start, stop, 1):
+            pending.append(item)
+            if len(pending) == sqlitescan.BATCH:
+                yield from self._fetch(pending)
+                pending = []
+        yield from self._fetch(pending)
+
+    def _fetch(self, pending: list[tuple[Connection, list[int]]]
+               ) -> Iterator[tuple[Connection, int, bytes]]:
         assert self._db is not None, "not open"
-        datas = sqlitescan.payloads(self._db, [r[0] for r in rows])
-        for (_, topic_id, log), data in zip(rows, datas, strict=True):
+        datas = sqlitescan.payloads(self._db, [row[2] for _, row in pending])
+        for (conn, row), data in zip(pending, datas, strict=True):
             if data is None:
                 self.unread += 1
                 continue
-            yield wanted[topic_id], log, data
+            yield conn, row[0], data
 
 
 def open_storage(path: Path) -> Storage:

@@ -11,11 +11,15 @@ intact bag's timestamp index gives). A row that does not read is dropped and cou
 
 from __future__ import annotations
 
+import shutil
 import sqlite3
+import tempfile
+from array import array
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+BATCH = 256  # messages' bytes asked for at once
 _GIVE_UP = 62  # a gallop past damage tries offsets up to 2**this rowids ahead
 
 
@@ -31,6 +35,9 @@ def connect(path: Path) -> sqlite3.Connection:
     past the end fails the schema. So its whole pages only, padded with zero pages
     (which fail when read) to the length its header gives.
     """
+    wal = path.with_name(path.name + "-wal")
+    if wal.exists() and wal.stat().st_size:
+        return _with_wal(path, wal)
     with path.open("rb") as f:
         head = f.read(100)
         size = f.seek(0, 2)
@@ -55,6 +62,29 @@ def connect(path: Path) -> sqlite3.Connection:
         db.execute("SELECT name FROM sqlite_master").fetchall()
     except sqlite3.DatabaseError as err:
         raise NotSqliteError(f"not a readable sqlite database ({err})") from err
+    return db
+
+
+def _with_wal(path: Path, wal: Path) -> sqlite3.Connection:
+    """A database whose recorder died in WAL mode, in memory with its ``-wal``.
+
+    Its last committed transactions are in the ``-wal`` file beside it, which
+    immutable mode would ignore. Both are copied to a temporary folder (not the
+    recording's), checkpointed there, and the result kept in memory.
+    """
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp) / "bag.db3"
+        shutil.copyfile(path, copy)
+        shutil.copyfile(wal, Path(tmp) / "bag.db3-wal")
+        try:
+            disk = sqlite3.connect(copy)
+            disk.execute("PRAGMA journal_mode=DELETE")  # the WAL into the copy's pages
+            image = disk.serialize()
+            disk.close()
+        except sqlite3.DatabaseError as err:
+            raise NotSqliteError(f"not a readable sqlite database ({err})") from err
+    db = sqlite3.connect(":memory:", check_same_thread=False)
+    db.deserialize(image)
     return db
 
 
@@ -87,19 +117,19 @@ def definitions(db: sqlite3.Connection) -> dict[str, tuple[str, str]]:
 _AFTER = "SELECT id, topic_id, timestamp FROM messages WHERE id > ? ORDER BY id"
 
 
-def index(db: sqlite3.Connection) -> tuple[list[tuple[int, int, int]], int]:
-    """Every (rowid, topic id, log time) that reads, by rowid; and the failed ranges.
+def index(db: sqlite3.Connection) -> tuple[array[int], int]:
+    """Every (rowid, topic id, log time) that reads, by rowid, flat; the failed ranges.
 
     Rows come one at a time, so those before the damage are kept. Past a range that
     fails, the next start that reads is found by galloping (1, 2, 4, ... rowids on),
     then bisected back towards the damage, so little that still reads is skipped.
     """
-    rows: list[tuple[int, int, int]] = []
+    rows: array[int] = array("q")
     last, failures = -(2**63), 0
     while True:
         try:
             for row in db.execute(_AFTER, (last,)):
-                rows.append(row)
+                rows.extend(row)
                 last = row[0]
             break
         except sqlite3.DatabaseError:
@@ -142,8 +172,8 @@ def _resume(db: sqlite3.Connection, last: int) -> int | None:
 
 def payloads(db: sqlite3.Connection, rowids: list[int]) -> Iterator[bytes | None]:
     """Each rowid's message bytes, in the order given; None for one that does not read."""
-    for k in range(0, len(rowids), 256):
-        batch = rowids[k:k + 256]
+    for k in range(0, len(rowids), BATCH):
+        batch = rowids[k:k + BATCH]
         try:
             marks = ",".join("?" * len(batch))
             got = dict(db.execute(f"SELECT id, data FROM messages WHERE id IN ({marks})",
