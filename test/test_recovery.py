@@ -162,8 +162,13 @@ def test_a_torn_mcap_replays_to_the_bit_as_the_intact_bag_of_its_readings(
     got, want = poses(torn), poses(tmp_path / "intact")
     assert len(got) == len(want) > 0 and got == want
     assert sorted(p.name for p in torn.iterdir()) == before  # nothing written there
+    _rosbags_bag(tmp_path / "indexed", msgs)  # metadata.yaml there, the MCAP torn
+    (mcap,) = (tmp_path / "indexed").glob("*.mcap")
+    mcap.write_bytes(data[:cut])
+    assert poses(tmp_path / "indexed") == want
     line = capsys.readouterr().err.strip().splitlines()
-    assert len(line) == 1 and "no metadata.yaml" in line[0] and f"torn at byte {cut}" in line[0]
+    assert len(line) == 2 and "no metadata.yaml" not in line[1] and "torn" in line[1]
+    assert "no metadata.yaml" in line[0] and f"torn at byte {cut}" in line[0]
     last = kept[-1][0]
     assert f"/joint_states {len(kept)}" in line[0]
     assert f"{last // 10**9}.{last % 10**9:09d}" in line[0]
@@ -308,6 +313,9 @@ def test_a_torn_sqlite_gives_what_still_reads_each_message_whole(
     line = capsys.readouterr().err.strip().splitlines()
     assert len(line) == 1 and "damaged" in line[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["src", "torn.db3"]
+    assert cli(["reindex", str(torn)]) == 0  # a complete copy, beside
+    with AnyReader([tmp_path / "torn.recovered"]) as r:
+        assert [(log, bytes(raw)) for _, log, raw in r.messages()] == got
 
 
 @pytest.mark.parametrize("what", ["text.mcap", "text.db3", "empty_dir", "notes.txt"])

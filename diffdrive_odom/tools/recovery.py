@@ -81,11 +81,12 @@ def mcap_is_whole(path: Path) -> bool:
 def needs_recovery(path: Path) -> bool:
     """Tell whether rosbags alone cannot open ``path`` (a folder or storage file) whole.
 
-    A folder without ``metadata.yaml``; a torn MCAP file; a db3 file (rosbags opens
-    one that is malformed, then fails mid-read on the damage).
+    A folder without ``metadata.yaml`` or with a torn MCAP file; a torn MCAP file; a
+    db3 file (rosbags opens one that is malformed, then fails mid-read on the damage).
     """
     if path.is_dir():
-        return not (path / "metadata.yaml").exists()
+        return not (path / "metadata.yaml").exists() or any(
+            not mcap_is_whole(f) for f in path.glob("*.mcap"))
     if path.suffix == ".db3":
         return True
     return path.suffix == ".mcap" and not mcap_is_whole(path)
@@ -329,7 +330,8 @@ class RecoveredReader(AnyReader):
         self.default_typestore = default_typestore
         self.typestore = get_typestore(Stores.EMPTY)
         self.readers = [open_storage(f) for f in files]
-        self.missing = "no metadata.yaml" if path.is_dir() else ""
+        self.missing = ("no metadata.yaml" if path.is_dir()
+                        and not (path / "metadata.yaml").exists() else "")
         self.note = ""
         self._report = report
 
