@@ -25,7 +25,7 @@ import re
 import sqlite3
 import sys
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any, Self
@@ -162,13 +162,15 @@ class Storage:
         return len(self._rows)
 
     def _selected(self, connections: Any, start: int | None, stop: int | None,
-                  column: int) -> Iterator[tuple[Connection, list[int]]]:
+                  column: int, rows: npt.NDArray[np.int64] | None = None
+                  ) -> Iterator[tuple[Connection, list[int]]]:
         """Rows of the wanted connections (id in ``column``) and times, in blocks."""
         wanted = {c.id: c for c in (connections or self.connections)}
         ids = np.array(sorted(wanted), dtype=np.int64)
         lo, hi = (0 if start is None else start), (_NEVER if stop is None else stop)
-        for k in range(0, len(self._rows), BLOCK):
-            block = self._rows[k:k + BLOCK]
+        rows = self._rows if rows is None else rows
+        for k in range(0, len(rows), BLOCK):
+            block = rows[k:k + BLOCK]
             keep = np.isin(block[:, column], ids) & (block[:, 0] >= lo) & (block[:, 0] < hi)
             for row in block[keep].tolist():
                 yield wanted[row[column]], row
@@ -262,6 +264,8 @@ class SqliteStorage(Storage):
             self.lost.append(f"{len(index) - len(kept)} messages of unreadable topics")
         self.whole = not self.lost
         self._rows = kept
+        # rows in log time order by rowid, none damaged: one streaming query reads them
+        self._streams = not failures and bool((np.diff(index[:, 0]) >= 0).all())
         counts = Counter(kept[:, 1].tolist())
         self._connections([
             (t["id"], t["name"], t["type"], _msgdef(*defs.get(t["type"], ("", ""))),
@@ -279,13 +283,37 @@ class SqliteStorage(Storage):
     def messages(self, connections: Any = (), start: int | None = None,
                  stop: int | None = None) -> Any:
         """(connection, log time, bytes) by log time, ties by rowid."""
+        rows = self._rows
+        if self._streams:
+            last = yield from self._stream(connections, start, stop)
+            if last is None:
+                return
+            rows = rows[rows[:, 2] > last]  # damage the index did not meet: row by row
         pending: list[tuple[Connection, list[int]]] = []
-        for item in self._selected(connections, start, stop, 1):
+        for item in self._selected(connections, start, stop, 1, rows):
             pending.append(item)
             if len(pending) == sqlitescan.BATCH:
                 yield from self._fetch(pending)
                 pending = []
         yield from self._fetch(pending)
+
+    def _stream(self, connections: Any, start: int | None, stop: int | None
+                ) -> Generator[tuple[Connection, int, bytes], None, int | None]:
+        """Every row by rowid in one query; None, or the last rowid read before damage."""
+        assert self._db is not None, "not open"
+        wanted = {c.id: c for c in (connections or self.connections)}
+        lo, hi = (0 if start is None else start), (_NEVER if stop is None else stop)
+        last = -(2**63)
+        try:
+            for rowid, topic_id, log, data in self._db.execute(
+                    "SELECT id, topic_id, timestamp, data FROM messages ORDER BY id"):
+                last = rowid
+                conn = wanted.get(topic_id)
+                if conn is not None and lo <= log < hi:
+                    yield conn, log, data
+        except sqlite3.DatabaseError:
+            return last
+        return None
 
     def _fetch(self, pending: list[tuple[Connection, list[int]]]
                ) -> Iterator[tuple[Connection, int, bytes]]:
