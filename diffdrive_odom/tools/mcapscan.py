@@ -96,7 +96,14 @@ def _string(buf: bytes | mmap.mmap, pos: int) -> tuple[str, int]:
 
 
 def _schema_channel(scan: Scan, op: int, buf: bytes | mmap.mmap, pos: int) -> None:
-    """Parse a schema or channel record body starting at ``pos``."""
+    """Parse a schema or channel record body starting at ``pos`` (a damaged one: noted)."""
+    try:
+        _parse_schema_channel(scan, op, buf, pos)
+    except (struct.error, UnicodeDecodeError):
+        scan.lost.append(f"a damaged {'schema' if op == SCHEMA else 'channel'} record")
+
+
+def _parse_schema_channel(scan: Scan, op: int, buf: bytes | mmap.mmap, pos: int) -> None:
     if op == SCHEMA:
         (sid,) = struct.unpack_from("<H", buf, pos)
         name, pos = _string(buf, pos + 2)

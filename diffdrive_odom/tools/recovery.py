@@ -262,7 +262,8 @@ class SqliteStorage(Storage):
             self.lost.append(f"{failures} damaged range{'s' if failures > 1 else ''} of rows")
         if len(kept) < len(index):
             self.lost.append(f"{len(index) - len(kept)} messages of unreadable topics")
-        self.whole = not self.lost
+        # with a -wal, rosbags (immutable) would miss its commits: not whole for reindex
+        self.whole = not self.lost and sqlitescan.wal_of(self.path) is None
         self._rows = kept
         # rows in log time order by rowid, none damaged: one streaming query reads them
         self._streams = not failures and bool((np.diff(index[:, 0]) >= 0).all())
@@ -387,8 +388,11 @@ def note(reader: RecoveredReader) -> str:
     for s in reader.storages:
         if s.whole:
             continue
-        where = f" torn at byte {s.size}" if s.torn else " damaged"
+        where = (f" torn at byte {s.size}" if s.torn else " damaged" if s.lost
+                 else " left unfinished")
         dropped = f"dropped: {'; '.join(s.lost)}" if s.lost else "no message lost"
+        if isinstance(s, SqliteStorage) and sqlitescan.wal_of(s.path) is not None:
+            dropped += "; its -wal read too"
         damage.append(f"{s.path.name}{where} ({dropped})")
     if not reader.missing and not damage:
         return ""

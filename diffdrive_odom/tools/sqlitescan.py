@@ -27,6 +27,12 @@ class NotSqliteError(ValueError):
     """The file is not an sqlite database of a rosbag2 recording."""
 
 
+def wal_of(path: Path) -> Path | None:
+    """The ``-wal`` file a recorder killed in WAL mode left beside ``path`` (None: none)."""
+    wal = path.with_name(path.name + "-wal")
+    return wal if wal.exists() and wal.stat().st_size else None
+
+
 def connect(path: Path) -> sqlite3.Connection:
     """The database opened read-only and immutable (nothing is created beside it).
 
@@ -35,8 +41,8 @@ def connect(path: Path) -> sqlite3.Connection:
     past the end fails the schema. So its whole pages only, padded with zero pages
     (which fail when read) to the length its header gives.
     """
-    wal = path.with_name(path.name + "-wal")
-    if wal.exists() and wal.stat().st_size:
+    wal = wal_of(path)
+    if wal is not None:
         return _with_wal(path, wal)
     with path.open("rb") as f:
         head = f.read(100)
