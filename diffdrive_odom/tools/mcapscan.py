@@ -86,7 +86,7 @@ class Scan:
         rows = np.frombuffer(self.located, dtype=np.int64).reshape(-1, 5)
         log = rows[:, 0]
         if len(log) < 2 or bool((log[1:] >= log[:-1]).all()):
-            return rows.copy()
+            return rows
         return rows[np.argsort(log, kind="stable")]
 
 
@@ -201,8 +201,10 @@ def scan(buf: mmap.mmap) -> Scan:
     if size < len(MAGIC) or buf[:len(MAGIC)] != MAGIC:
         raise NotMcapError("does not start with the MCAP magic")
     found = Scan(size)
-    pos, head = len(MAGIC), _RECORD.size
+    pos, head, mark = len(MAGIC), _RECORD.size, 0
     while pos < size:
+        if pos > mark + Payloads.RELEASE:  # the pages walked past are not needed now
+            mark = release(buf, mark, pos - mark)
         if pos + head > size:
             found.lost.append(f"the first {size - pos} bytes of a record header")
             break
@@ -233,18 +235,25 @@ class Payloads:
     """The bytes of located messages: the file's own, or from chunks decompressed again.
 
     A few decompressed chunks are kept: in log time order a chunk's messages come
-    together, so each chunk is decompressed about once more.
+    together, so each chunk is decompressed about once more. The mapped pages read are
+    let go every :data:`RELEASE` bytes (the kernel reads them again if asked), so
+    reading a recording does not keep all of it resident.
     """
 
     KEEP = 4
+    RELEASE = 32 << 20
 
     def __init__(self, buf: mmap.mmap, chunks: list[tuple[int, int, str, int]]) -> None:
         self._buf, self._chunks = buf, chunks
         self._cache: OrderedDict[int, bytes] = OrderedDict()
+        self._mark = 0  # pages before this were let go
+        release(buf, 0, len(buf))  # after the scan
 
     def get(self, source: int, start: int, length: int) -> bytes:
         """One message's bytes."""
         if source == IN_FILE:
+            if start > self._mark + self.RELEASE:
+                self._mark = release(self._buf, self._mark, start - self._mark)
             return self._buf[start:start + length]
         raw = self._cache.get(source)
         if raw is None:
@@ -252,6 +261,18 @@ class Payloads:
             if len(self._cache) > self.KEEP:
                 self._cache.popitem(last=False)
         return raw[start:start + length]
+
+
+def release(buf: mmap.mmap, start: int, length: int) -> int:
+    """Let the kernel drop the mapped pages of ``buf[start:start+length]``; where that ends.
+
+    Whole pages only; a no-op where ``madvise`` is missing (not Linux).
+    """
+    begin = start - start % mmap.PAGESIZE
+    end = (start + length) - (start + length) % mmap.PAGESIZE
+    if end > begin and hasattr(buf, "madvise") and hasattr(mmap, "MADV_DONTNEED"):
+        buf.madvise(mmap.MADV_DONTNEED, begin, end - begin)
+    return max(end, start)
 
 
 def open_map(path: Path) -> mmap.mmap | None:
