@@ -362,3 +362,48 @@ def test_a_fleet_replay_of_recordings_cut_short_writes_the_intact_bags_csv(
         assert got == (whole / "csv" / name).read_text() and got.count("\n") > 100
     out = capsys.readouterr()
     assert out.out.count("[recovery]") + out.err.count("[recovery]") == 2
+
+
+def test_a_real_run_torn_at_60_percent_replays_and_evaluates_as_its_intact_readings(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The issue's case: an OptiOdom run (JointStates, mocap, firmware odometry) cut at
+    60 % of its bytes, no metadata.yaml; ``replay --eval`` and ``eval`` give the very
+    figures of an intact bag of the messages whose records end before the cut."""
+    from rosutil import DATA
+
+    src = DATA / "optiodom" / "square_231220200029_run-01"
+    (mcap,) = src.glob("*.mcap")
+    data = mcap.read_bytes()
+    cut = int(len(data) * 0.6)
+    kept, at = [], 0
+    with mcap.open("rb") as f:
+        reader = make_reader(f)
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            at = data.index(message.data, at) + len(message.data)  # file order
+            if at <= cut:
+                assert schema is not None
+                kept.append((channel.topic, schema.name, message.log_time, message.data))
+    torn = tmp_path / "torn"
+    torn.mkdir()
+    (torn / mcap.name).write_bytes(data[:cut])
+    whole = tmp_path / "whole"
+    with Writer(whole, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns: dict[str, Any] = {}
+        for topic, msgtype, log, raw in kept:
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, msgtype, typestore=bagio.typestore())
+            w.write(conns[topic], log, raw)
+    joints = sum(1 for k in kept if k[0] == "/joint_states")
+    assert 0 < joints < 1388
+    params = write_params(tmp_path / "p.yaml", {"wheel_radius": 0.042, "wheel_separation": 0.2})
+    figures = {}
+    for bag in (torn, whole):
+        assert cli(["replay", str(bag), "--params-file", str(params), "--eval",
+                    "--json", str(tmp_path / f"{bag.name}_replay.json")]) == 0
+        assert cli(["eval", str(bag), "--odom", "/firmware/odom",
+                    "--json", str(tmp_path / f"{bag.name}_eval.json")]) == 0
+        figures[bag.name] = [(tmp_path / f"{bag.name}_{k}.json").read_text()
+                             for k in ("replay", "eval")]
+    assert figures["torn"] == figures["whole"]
+    err = capsys.readouterr().err
+    assert f"/joint_states {joints}" in err and "torn at byte" in err
