@@ -346,6 +346,8 @@ class RecoveredReader(AnyReader):
 
     def __init__(self, path: Path, *, default_typestore: Typestore | None = None,
                  report: IO[str] | None = None) -> None:
+        # AnyReader's own __init__ would build rosbags' readers, which refuse these
+        # files: the attributes it sets are set here, over this module's readers.
         if not path.exists():
             raise RecoveryError(f"{path}: no such file or folder")
         files = [path] if path.is_file() else storage_files(path)
