@@ -19,6 +19,8 @@ from rosbags.interfaces import Connection
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from diffdrive_odom.tools import recovery
+
 JOINT_STATE = "sensor_msgs/msg/JointState"
 IMU = "sensor_msgs/msg/Imu"
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -52,6 +54,10 @@ class _Reader(AnyReader):
             raise BagError(f"{self.paths[0]}: not a readable bag ({err})") from err
 
 
+class _Recovered(_Reader, recovery.RecoveredReader):
+    """A recording cut short (no metadata.yaml, torn, malformed): :mod:`.recovery`."""
+
+
 def open_bag(path: str | Path) -> AnyReader:
     """Return an unopened reader for a rosbag2 dir / ``.mcap`` / ``.db3`` or ROS 1 ``.bag``.
 
@@ -65,6 +71,8 @@ def open_bag(path: str | Path) -> AnyReader:
     if p.is_file() and p.suffix in (".mcap", ".db3") and (p.parent / "metadata.yaml").exists():
         p = p.parent
     try:
+        if recovery.needs_recovery(p):
+            return _Recovered(p, default_typestore=typestore())
         return _Reader([p], default_typestore=typestore())
     except _NOT_A_BAG as err:
         raise BagError(f"{p}: not a readable bag ({err})") from err

@@ -36,6 +36,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
                "run the estimator over a bag offline; write bag/CSV"),
     "eval": ("diffdrive_odom.tools.evaluate", "compare odometry with ground truth in a bag"),
     "calibrate": ("diffdrive_odom.tools.calibrate", "fit wheel radii and separation; UMBmark"),
+    "reindex": ("diffdrive_odom.tools.reindex",
+                "a recording cut short: write its metadata.yaml, or a whole copy of a torn one"),
 }
 
 
