@@ -24,7 +24,8 @@ from rclpy.node import Node
 
 from diffdrive_odom.settings.dependencies import missing_text
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE
+from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE, ParamSource
+from diffdrive_odom.settings.shadowed import shadowed_overrides_line
 
 
 def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
@@ -68,6 +69,7 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
                 raise
             print(line, file=sys.stderr)
             return 2
+        _report_shadowed(node, argv)
         executor.add_node(node)
         try:
             spin(lambda: stop.requested)
@@ -146,6 +148,24 @@ class _StopSignals:
 # own SIGINT after the terminal's, a double Ctrl-C); the stop takes SPIN_TIMEOUT_S plus
 # teardown, well under this.
 REPEAT_GRACE_S = 2.0
+
+
+def _param_sources(argv: Sequence[str]) -> list[ParamSource]:
+    """``--params-file`` and ``-p`` of the ROS arguments, in rcl's order."""
+    kinds = {"--params-file": "file", "-p": "param", "--param": "param"}
+    return [(kinds[flag], value) for flag, value in itertools.pairwise(_ros_args(argv))
+            if flag in kinds]
+
+
+def _report_shadowed(node: Node, argv: Sequence[str]) -> None:
+    """Warn once about a ``-p`` that a params file's section overrides (rcl's order)."""
+    try:
+        line = shadowed_overrides_line(
+            _param_sources(argv), node.get_name(), node.get_namespace())
+    except (ParameterError, OSError):
+        return  # rcl has read these already; a form this reading misses is no reason to stop
+    if line:
+        node.get_logger().warning(line)
 
 
 def _first_line(err: BaseException) -> str:
