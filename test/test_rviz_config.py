@@ -10,22 +10,17 @@ RViz2 with it and with a fixed frame the node uses.
 from __future__ import annotations
 
 import ast
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
 
 import pytest
-import rclpy
 import yaml
-from rclpy.context import Context
-from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
 
 from diffdrive_odom.ros.odometry_node import OdometryNode
 from diffdrive_odom.ros.path_follower_node import PathFollowerNode
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS
 
-from rosutil import ROOT
+from rosutil import ROOT, built
 
 CONFIG = ROOT / "rviz" / "diffdrive_odom.rviz"
 PARAMS = ROOT / "config" / "diffdrive_odom.yaml"
@@ -44,20 +39,6 @@ def fixed_frame() -> str:
     return str(doc["Visualization Manager"]["Global Options"]["Fixed Frame"])
 
 
-@contextmanager
-def built(node_class: type[Node]) -> Iterator[Any]:
-    context = Context()
-    rclpy.init(context=context, args=["test", "--ros-args", "--params-file", str(PARAMS)])
-    try:
-        node = node_class(context=context)
-        try:
-            yield node
-        finally:
-            node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=context)
-
-
 def _type(cls: Any) -> str:
     return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
 
@@ -67,9 +48,9 @@ def test_rviz_shows_what_the_nodes_publish_on_their_names() -> None:
     shown = displays()
     assert {"rviz_default_plugins/TF", "rviz_default_plugins/Odometry",
             "rviz_default_plugins/Path"} <= set(shown)
-    with built(OdometryNode) as odom:
+    with built(OdometryNode, "--params-file", str(PARAMS)) as odom:
         published = {p.topic_name: p for p in odom.publishers}
-    with built(PathFollowerNode) as follower:
+    with built(PathFollowerNode, "--params-file", str(PARAMS)) as follower:
         followed = {s.topic_name: s for s in follower.subscriptions}
 
     odometry = shown["rviz_default_plugins/Odometry"]
