@@ -1,7 +1,8 @@
 """Start a base: ``ros2 launch diffdrive_odom base.launch.py [use_sim:=true]``.
 
-``odometry_node`` (through ``odometry.launch.py``, which takes the same arguments) and
-``cmd_vel_node``, all from one params file; with ``use_sim:=true`` also ``sim_node``, a
+``odometry_node`` (through ``odometry.launch.py``, which takes the same arguments:
+``use_imu``, ``enable_odom_tf``, ``rviz``) and ``cmd_vel_node``, all from one params
+file and the ``extra_params_file`` layered after it; with ``use_sim:=true`` also ``sim_node``, a
 simulated base in place of the hardware driver; with ``use_follower:=true`` also
 ``path_follower_node`` (odom in, cmd_vel out, path from the params file's
 ``follower.*`` or the ``path`` topic). The simulation moves with the params
@@ -33,6 +34,7 @@ def generate_launch_description() -> LaunchDescription:
     """The arguments, odometry.launch.py, cmd_vel_node, the optional sim_node and follower."""
     namespace = LaunchConfiguration("namespace")
     params_file = LaunchConfiguration("params_file")
+    extra_params_file = LaunchConfiguration("extra_params_file")
     sim_time = LaunchConfiguration("use_sim_time")
     use_sim_time = ParameterValue(sim_time, value_type=bool)
     wheel_commands = ("wheel_commands", LaunchConfiguration("wheel_commands_topic"))
@@ -42,6 +44,9 @@ def generate_launch_description() -> LaunchDescription:
             default_value=PathJoinSubstitution(
                 [FindPackageShare(PACKAGE), "config", "diffdrive_odom.yaml"]),
             description="ROS 2 params YAML for the nodes (parameters under /**)"),
+        DeclareLaunchArgument(
+            "extra_params_file", default_value=LaunchConfiguration("params_file"),
+            description="A second params YAML applied after params_file (its values win)"),
         DeclareLaunchArgument(
             "namespace", default_value="",
             description="Namespace of the nodes and their relative topics, e.g. robot1"),
@@ -66,6 +71,15 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument(
             "wheel_commands_topic", default_value="wheel_commands",
             description="Wheel velocity commands out of cmd_vel_node (into the driver)"),
+        DeclareLaunchArgument(
+            "use_imu", default_value="",
+            description="Gyrodometry on the imu topic: true or false (empty: the params file's)"),
+        DeclareLaunchArgument(
+            "enable_odom_tf", default_value="",
+            description="Publish odom -> base_link on /tf: true or false (empty: the file's)"),
+        DeclareLaunchArgument(
+            "rviz", default_value="false",
+            description="Also start RViz2 with the odometry, its covariance, TF and the path"),
         IncludeLaunchDescription(PythonLaunchDescriptionSource(
             PathJoinSubstitution([ThisLaunchFileDir(), "odometry.launch.py"]))),
         Node(
@@ -73,7 +87,7 @@ def generate_launch_description() -> LaunchDescription:
             executable="cmd_vel_node",
             name="cmd_vel_node",
             namespace=namespace,
-            parameters=[params_file, {"use_sim_time": use_sim_time}],
+            parameters=[params_file, extra_params_file, {"use_sim_time": use_sim_time}],
             remappings=[("cmd_vel", LaunchConfiguration("cmd_vel_topic")), wheel_commands],
             output="screen",
         ),
@@ -83,7 +97,7 @@ def generate_launch_description() -> LaunchDescription:
             name="sim_node",
             namespace=namespace,
             condition=IfCondition(LaunchConfiguration("use_sim")),
-            parameters=[params_file, {
+            parameters=[params_file, extra_params_file, {
                 **SIM_PARAMETERS, "publish_clock": use_sim_time, "use_sim_time": False}],
             remappings=[
                 ("joint_states", LaunchConfiguration("joint_states_topic")), wheel_commands],
@@ -95,7 +109,7 @@ def generate_launch_description() -> LaunchDescription:
             name="path_follower_node",
             namespace=namespace,
             condition=IfCondition(LaunchConfiguration("use_follower")),
-            parameters=[params_file, {"use_sim_time": use_sim_time}],
+            parameters=[params_file, extra_params_file, {"use_sim_time": use_sim_time}],
             remappings=[("odom", LaunchConfiguration("odom_topic")),
                         ("cmd_vel", LaunchConfiguration("cmd_vel_topic"))],
             output="screen",

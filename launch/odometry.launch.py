@@ -1,33 +1,89 @@
 """Start ``odometry_node``: ``ros2 launch diffdrive_odom odometry.launch.py``.
 
 One params file configures every node (its parameters sit under ``/**``), so the same
-file works in any namespace. The node gets the fully qualified name
-``<namespace>/odometry_node``; the ``use_sim_time`` given here is written to that
-node's own section and so beats a ``use_sim_time`` in the file. With a namespace the
-frames are prefixed with it (``robot1/odom``) unless the file sets ``tf_frame_prefix``;
-``/tf`` stays global, as tf2 expects.
+file works in any namespace; ``extra_params_file`` is layered after it (a robot's own
+values over the shipped defaults). The node gets the fully qualified name
+``<namespace>/odometry_node``; the ``use_sim_time`` given here, and ``use_imu`` /
+``enable_odom_tf`` when given, are written to that node's own section and so beat the
+files. With a namespace the frames are prefixed with it (``robot1/odom``) unless the
+file sets ``tf_frame_prefix``; ``/tf`` stays global, as tf2 expects. ``rviz:=true``
+also starts RViz2 with the package's view of the odometry (its covariance), the TF tree
+and the follower's path.
 """
 
 # ruff: noqa: I001 (ruff takes ./launch for first-party; this is ROS 2 launch)
-from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch import LaunchContext, LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
 PACKAGE = "diffdrive_odom"
+# The switches users flip most, as launch arguments; empty: the params files decide.
+SWITCHES = ("use_imu", "enable_odom_tf")
+_BOOLS = {"true": True, "false": False}
+
+
+def _switches(context: LaunchContext) -> dict[str, bool]:
+    """The switches given on the command line, as booleans (an empty one is left out)."""
+    out = {}
+    for name in SWITCHES:
+        text = LaunchConfiguration(name).perform(context).strip().lower()
+        if text:
+            if text not in _BOOLS:
+                raise ValueError(f"{name}:={text}: give true or false (or leave it out)")
+            out[name] = _BOOLS[text]
+    return out
+
+
+def _nodes(context: LaunchContext) -> list[Node]:
+    """odometry_node with the switches given, and RViz2 with rviz:=true."""
+    use_sim_time = ParameterValue(LaunchConfiguration("use_sim_time"), value_type=bool)
+    namespace = LaunchConfiguration("namespace").perform(context).strip("/")
+    odom = Node(
+        package=PACKAGE,
+        executable="odometry_node",
+        name="odometry_node",
+        namespace=LaunchConfiguration("namespace"),
+        parameters=[LaunchConfiguration("params_file"), LaunchConfiguration("extra_params_file"),
+                    {"use_sim_time": use_sim_time, **_switches(context)}],
+        remappings=[
+            ("joint_states", LaunchConfiguration("joint_states_topic")),
+            ("odom", LaunchConfiguration("odom_topic")),
+        ],
+        output="screen",
+    )
+    # The config names the root-namespace topics; in a namespace they are remapped into
+    # it (/tf stays global) and the fixed frame takes the frame prefix the node uses.
+    rviz = Node(
+        package="rviz2",
+        executable="rviz2",
+        name="rviz2",
+        namespace=LaunchConfiguration("namespace"),
+        condition=IfCondition(LaunchConfiguration("rviz")),
+        arguments=["-d", PathJoinSubstitution(
+            [FindPackageShare(PACKAGE), "rviz", "diffdrive_odom.rviz"]),
+            "-f", f"{namespace}/odom" if namespace else "odom"],
+        parameters=[{"use_sim_time": use_sim_time}],
+        remappings=[("/odom", LaunchConfiguration("odom_topic")), ("/path", "path")],
+        output="screen",
+    )
+    return [odom, rviz]
 
 
 def generate_launch_description() -> LaunchDescription:
-    """The arguments and the node."""
-    use_sim_time = ParameterValue(LaunchConfiguration("use_sim_time"), value_type=bool)
+    """The arguments, the node and the optional RViz2."""
     return LaunchDescription([
         DeclareLaunchArgument(
             "params_file",
             default_value=PathJoinSubstitution(
                 [FindPackageShare(PACKAGE), "config", "diffdrive_odom.yaml"]),
             description="ROS 2 params YAML for the nodes (parameters under /**)"),
+        DeclareLaunchArgument(
+            "extra_params_file", default_value=LaunchConfiguration("params_file"),
+            description="A second params YAML applied after params_file (its values win)"),
         DeclareLaunchArgument(
             "namespace", default_value="",
             description="Namespace of the nodes and their relative topics, e.g. robot1"),
@@ -40,16 +96,14 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument(
             "odom_topic", default_value="odom",
             description="nav_msgs/Odometry output (relative = inside the namespace)"),
-        Node(
-            package=PACKAGE,
-            executable="odometry_node",
-            name="odometry_node",
-            namespace=LaunchConfiguration("namespace"),
-            parameters=[LaunchConfiguration("params_file"), {"use_sim_time": use_sim_time}],
-            remappings=[
-                ("joint_states", LaunchConfiguration("joint_states_topic")),
-                ("odom", LaunchConfiguration("odom_topic")),
-            ],
-            output="screen",
-        ),
+        DeclareLaunchArgument(
+            "use_imu", default_value="",
+            description="Gyrodometry on the imu topic: true or false (empty: the params file's)"),
+        DeclareLaunchArgument(
+            "enable_odom_tf", default_value="",
+            description="Publish odom -> base_link on /tf: true or false (empty: the file's)"),
+        DeclareLaunchArgument(
+            "rviz", default_value="false",
+            description="Also start RViz2 with the odometry, its covariance, TF and the path"),
+        OpaqueFunction(function=_nodes),
     ])

@@ -70,6 +70,21 @@ def node_process(
 
 
 @contextmanager
+def built(node_class: type[Node], *args: str) -> Iterator[Any]:
+    """The node class built in a private Context from ``--ros-args`` ``args``."""
+    context = Context()
+    rclpy.init(context=context, args=["test", "--ros-args", *args])
+    try:
+        node = node_class(context=context)
+        try:
+            yield node
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+@contextmanager
 def ros_test_node(name: str = "test_peer") -> Iterator[tuple[Node, SingleThreadedExecutor]]:
     """A node in a private Context, with its executor; both torn down afterwards."""
     context = Context()

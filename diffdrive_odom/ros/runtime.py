@@ -10,6 +10,7 @@ import itertools
 import os
 import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -23,7 +24,8 @@ from rclpy.node import Node
 
 from diffdrive_odom.settings.dependencies import missing_text
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE
+from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE, ParamSource
+from diffdrive_odom.settings.shadowed import shadowed_overrides_line
 
 
 def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
@@ -34,8 +36,10 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     the right form (exit 2), because rclpy would ignore the first and die with a
     traceback on the second; any other error of rcl's start is one line too.
 
-    A stop signal ends the process within :data:`SPIN_TIMEOUT_S` plus teardown, exit 0
-    (see :class:`_StopSignals` for why rclpy alone does not guarantee that).
+    A stop signal ends the process within :data:`SPIN_TIMEOUT_S` plus teardown, exit 0,
+    also when more follow during the stop, as under ``ros2 launch`` (see
+    :class:`_StopSignals` for why rclpy alone does not guarantee that). This is the
+    process's main: it leaves the stop signals ignored for the interpreter's exit.
     """
     argv = list(args) if args is not None else list(sys.argv)
     problem = _check_command_line(argv)
@@ -65,6 +69,7 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
                 raise
             print(line, file=sys.stderr)
             return 2
+        _report_shadowed(node, argv)
         executor.add_node(node)
         try:
             spin(lambda: stop.requested)
@@ -73,12 +78,14 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
             # mid-take; after shutdown that is the end of the run, not a fault to report.
             if rclpy.ok() and not stop.requested:
                 raise
-    except KeyboardInterrupt:  # a second signal while stopping
+    except KeyboardInterrupt:  # a repeated signal ended a stuck spin
         pass
     finally:
+        stop.tearing_down()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        stop.release()
     return 0
 
 
@@ -97,19 +104,68 @@ class _StopSignals:
     message comes: the spin loop therefore waits at most SPIN_TIMEOUT_S and checks
     ``rclpy.ok()`` and this flag. rclpy then calls the handler found before it, which
     for SIGINT is Python's: its KeyboardInterrupt can land anywhere, even inside the
-    teardown (exit 1, traceback); this handler replaces it. A second signal still
-    ends a stuck process at once.
+    teardown (exit 1, traceback); this handler replaces it.
+
+    Signals come in threes under ``ros2 launch``: Ctrl-C in its terminal reaches the
+    whole process group, launch then sends its own SIGINT, and a second Ctrl-C (or
+    launch's SIGTERM) follows while the node stops. A repeat within
+    :data:`REPEAT_GRACE_S` of the first is part of that one stop and is ignored; a later
+    one ends a stuck spin (KeyboardInterrupt) or a stuck teardown (exit 130) at once.
+    After the teardown, :meth:`release` ignores both signals: Python's exit would
+    otherwise restore the default action, and a repeat landing there ends the process
+    by the signal (``exit code -2`` in launch's log) after a clean stop.
     """
 
     def __init__(self) -> None:
         self.requested = False
+        self._first = 0.0  # monotonic time of the first signal
+        self._teardown = False
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self._on_signal)
 
     def _on_signal(self, signum: int, frame: Any) -> None:
-        if self.requested:
-            raise KeyboardInterrupt
-        self.requested = True
+        now = time.monotonic()
+        if not self.requested:
+            self.requested, self._first = True, now
+            return
+        if now - self._first < REPEAT_GRACE_S:
+            return
+        if self._teardown:
+            os._exit(128 + signum)  # stuck in the teardown: no exception can help there
+        raise KeyboardInterrupt
+
+    def tearing_down(self) -> None:
+        """The spin is over: from here a repeated signal must not raise into the teardown."""
+        self._teardown = True
+
+    def release(self) -> None:
+        """Ignore further stop signals: the node is gone, the interpreter is exiting."""
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
+
+
+# A repeated stop signal this soon [s] after the first belongs to the same stop (launch's
+# own SIGINT after the terminal's, a double Ctrl-C); the stop takes SPIN_TIMEOUT_S plus
+# teardown, well under this.
+REPEAT_GRACE_S = 2.0
+
+
+def _param_sources(argv: Sequence[str]) -> list[ParamSource]:
+    """``--params-file`` and ``-p`` of the ROS arguments, in rcl's order."""
+    kinds = {"--params-file": "file", "-p": "param", "--param": "param"}
+    return [(kinds[flag], value) for flag, value in itertools.pairwise(_ros_args(argv))
+            if flag in kinds]
+
+
+def _report_shadowed(node: Node, argv: Sequence[str]) -> None:
+    """Warn once about a ``-p`` that a params file's section overrides (rcl's order)."""
+    try:
+        line = shadowed_overrides_line(
+            _param_sources(argv), node.get_name(), node.get_namespace())
+    except (ParameterError, OSError):
+        return  # rcl has read these already; a form this reading misses is no reason to stop
+    if line:
+        node.get_logger().warning(line)
 
 
 def _first_line(err: BaseException) -> str:

@@ -19,6 +19,7 @@ from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.settings.params import ParamSource, resolve_parameters
 from diffdrive_odom.settings.registry import unknown_parameters_report
+from diffdrive_odom.settings.shadowed import shadowed_overrides_line
 from diffdrive_odom.tools.outputs import output_problem
 
 NODE_NAME = "odometry_node"
@@ -42,7 +43,8 @@ def load_settings(
     """
     sources = [("file", str(params))] if isinstance(params, (str, Path)) else list(params)
     values = resolve_parameters(sources, node_name, namespace)
-    for line in unknown_parameters_report(list(values)):
+    shadowed = shadowed_overrides_line(sources, node_name, namespace)
+    for line in (*unknown_parameters_report(list(values)), shadowed):
         if line:
             print(f"[replay] {line}", file=sys.stderr)
     return odometry_settings(values, "/" + namespace.strip("/"))

@@ -220,6 +220,13 @@ def report(
         print(metrics.table())
 
 
+def summary_figures(metrics: Metrics) -> dict[str, float]:
+    """A bag's row of a fleet's summary (start aligned, as the error per metre is)."""
+    return {"distance_m": metrics.distance_m,
+            "final_error_m": metrics.final_position_error_aligned_m,
+            "ate_m": metrics.ate_rmse_aligned_m, "error_per_m": metrics.final_error_per_m}
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="diffdrive-odom eval",
@@ -245,6 +252,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="write the figures as JSON (default: not written)")
     ap.add_argument("--plot", metavar="FILE", help="write a PNG plot (default: not written)")
     fleet.add_fleet_arguments(ap)
+    fleet.add_summary_argument(ap)
     return ap
 
 
@@ -261,6 +269,9 @@ def main(argv: Sequence[str]) -> int:
     """
     args = _parser().parse_args(list(argv))
     if len(args.bags) == 1:
+        if args.summary:
+            return fail(PREFIX, "--summary is a fleet's table: give several bags (one bag: "
+                        "--json FILE)")
         args.bag = args.bags[0]
         return run_bag(args)
     if args.reference_bag:
@@ -298,6 +309,7 @@ def run_bag(args: argparse.Namespace) -> int:
                                  "give the bag it replayed as --reference-bag BAG") from None
         ref = read_trajectory(ref_bag, gt, args.child_frame, "--child-frame", notify)
         metrics = evaluate(est, ref, args.segment_length, args.max_gap)
+        fleet.record(args, **summary_figures(metrics))
         report(metrics, est, ref, args.json, args.plot, (args.odom, gt))
     except (bagio.BagError, ValueError) as err:
         return fail(PREFIX, str(err))

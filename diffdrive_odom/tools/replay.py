@@ -248,6 +248,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                     help="progress line on stderr (default: on a terminal, for long bags)")
     fleet.add_fleet_arguments(ap)
+    fleet.add_summary_argument(ap)
     return ap
 
 
@@ -279,6 +280,9 @@ def main(argv: Sequence[str]) -> int:
     """
     args = _parser().parse_args(list(argv))
     if len(args.bags) == 1:
+        if args.summary:
+            return _error("--summary is a fleet's table: give several bags (one bag: "
+                          "--eval --json FILE)")
         args.bag = args.bags[0]
         return run_bag(args)
     return _run_fleet(args)
@@ -329,6 +333,9 @@ def run_bag(args: argparse.Namespace) -> int:
         _remove_outputs(args)
         return _error(_no_usable_reading(stats, args.topic))
     print(stats.summary())
+    gyro = stats.pipeline.gyro
+    fleet.record(args, readings=stats.readings, poses=stats.published,
+                 slips=None if gyro is None else gyro.slips.events)
     for warning in stats.warnings:
         print(f"{PREFIX} {warning}", file=sys.stderr)
     for note, count in stats.notes.items():
@@ -341,6 +348,7 @@ def run_bag(args: argparse.Namespace) -> int:
         try:
             est = traj.trajectory()
             figures = metrics.evaluate(est, ref)
+            fleet.record(args, **evaluate.summary_figures(figures))
             evaluate.report(figures, est, ref, args.json, args.plot,
                             labels=("replay", gt_topic))
         except ValueError as err:

@@ -165,10 +165,11 @@ def _covariances(st: Stretch, n: int) -> tuple[npt.NDArray[np.float64], npt.NDAr
     pose = np.tile(np.asarray(pose_message_covariance(ZERO3), dtype=np.float64), (n, 1))
     twist = np.tile(np.asarray(twist_message_covariance(((0.0, 0.0), (0.0, 0.0))),
                                dtype=np.float64), (n, 1))
+    # Added to the floor the zero matrices' messages hold, as the scalar form adds them.
     for at, src in _POSE_AT:
-        pose[:, at] = st.pose_covariance[:, src]
+        pose[:, at] += st.pose_covariance[:, src]
     for at, src in _TWIST_AT:
-        twist[:, at] = st.twist_covariance[:, src]
+        twist[:, at] += st.twist_covariance[:, src]
     return pose, twist
 
 

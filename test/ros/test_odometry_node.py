@@ -22,6 +22,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from diffdrive_odom.core.uncertainty.propagation import COVARIANCE_FLOOR
 from diffdrive_odom.ros.odometry_node import OdometryNode
 from diffdrive_odom.tools.cli import main as cli
 
@@ -322,15 +323,19 @@ def test_propagated_covariance_grows_along_a_drive_and_replay_writes_the_same(
         o = live[ns]
         s = o.pose.pose.position.x  # distance driven
         c = list(o.pose.covariance)
-        assert math.isclose(c[0], k * s / 2, rel_tol=1e-9, abs_tol=1e-18)
-        assert math.isclose(c[35], 2 * k * s / b**2, rel_tol=1e-9, abs_tol=1e-18)
+        # The model's value on the floor that keeps the message matrix positive definite.
+        assert math.isclose(c[0] - COVARIANCE_FLOOR, k * s / 2, rel_tol=1e-9, abs_tol=1e-18)
+        assert math.isclose(c[35] - COVARIANCE_FLOOR, 2 * k * s / b**2, rel_tol=1e-9,
+                            abs_tol=1e-18)
         assert [c[14], c[21], c[28]] == [1e6, 1e6, 1e6]  # z, roll, pitch: unobserved
         var_x.append(c[0])
-    assert var_x[0] == 0.0 and all(v > u for u, v in itertools.pairwise(var_x))
+    assert var_x[0] == COVARIANCE_FLOOR and all(v > u for u, v in itertools.pairwise(var_x))
     final = live[last]
     dt, h = STEP_NS * 1e-9, r * per_step
-    assert math.isclose(final.twist.covariance[0], 2 * k * h / 4 / dt**2, rel_tol=1e-9)
-    assert math.isclose(final.twist.covariance[35], 2 * k * h / b**2 / dt**2, rel_tol=1e-9)
+    assert math.isclose(final.twist.covariance[0] - COVARIANCE_FLOOR, 2 * k * h / 4 / dt**2,
+                        rel_tol=1e-9)
+    assert math.isclose(final.twist.covariance[35] - COVARIANCE_FLOOR,
+                        2 * k * h / b**2 / dt**2, rel_tol=1e-9)
 
     bag, out = tmp_path / "in", tmp_path / "out"
     _joint_bag(bag, [T0_NS + i * STEP_NS for i in range(steps + 1)],

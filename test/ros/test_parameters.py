@@ -11,16 +11,13 @@ itself is test_ros2_cli's.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import pytest
-import rclpy
 import yaml
 from rcl_interfaces.msg import ParameterType
-from rclpy.context import Context
 from rclpy.exceptions import ParameterNotDeclaredException
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
@@ -41,7 +38,7 @@ from diffdrive_odom.settings.params import (
 )
 from diffdrive_odom.settings.sim import SIM_PARAMS, sim_settings
 
-from rosutil import ROOT
+from rosutil import ROOT, built
 
 CONFIG = ROOT / "config" / "diffdrive_odom.yaml"
 VALID = {"wheel_radius": 0.05, "wheel_separation": 0.3}
@@ -155,21 +152,6 @@ def test_ros2_param_load_reads_numbers_back_as_strings(tmp_path: Path) -> None:
 
 
 # --- the real nodes ------------------------------------------------------------------------
-
-
-@contextmanager
-def built(node_class: type[Node], *args: str) -> Iterator[Any]:
-    """The node class built in a private Context from ``--ros-args`` ``args``."""
-    context = Context()
-    rclpy.init(context=context, args=["test", "--ros-args", *args])
-    try:
-        node = node_class(context=context)
-        try:
-            yield node
-        finally:
-            node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=context)
 
 
 @pytest.mark.dds

@@ -51,6 +51,10 @@ REQUIRED_ARGUMENTS = {"params_file", "namespace", "use_sim_time"}
 EXECUTABLES = {"odometry.launch.py": {"odometry_node"},
                "base.launch.py": {"cmd_vel_node", "sim_node", "path_follower_node"}}
 INCLUDES = {"odometry.launch.py": set[str](), "base.launch.py": {"launch/odometry.launch.py"}}
+# Files of the package's share each names, and what it starts of other packages.
+SHARE_FILES = {"odometry.launch.py": {"config/diffdrive_odom.yaml", "rviz/diffdrive_odom.rviz"},
+               "base.launch.py": {"config/diffdrive_odom.yaml"}}
+FOREIGN = {"odometry.launch.py": {"rviz2/rviz2"}, "base.launch.py": set[str]()}
 NAMESPACE = "robot1"
 MISSING_LAUNCH_ROS = (
     "launch_ros is missing (ROS 2 launch is not on PyPI): on a robot it comes with ROS 2 "
@@ -77,6 +81,7 @@ class Named:
 
     arguments: dict[str, ast.expr | None] = field(default_factory=dict)
     executables: set[str] = field(default_factory=set)
+    foreign: set[str] = field(default_factory=set)  # package/executable of other packages
     share_files: set[str] = field(default_factory=set)  # relative to share/<package>
     includes: set[str] = field(default_factory=set)
 
@@ -114,8 +119,11 @@ def read_launch_file(path: Path) -> Named:
         if kind == "DeclareLaunchArgument":
             named.arguments[text(call.args[0])] = _keyword(call, "default_value")
         elif kind == "Node":
-            assert text(_keyword(call, "package")) == PACKAGE
-            named.executables.add(text(_keyword(call, "executable")))
+            package, exe = text(_keyword(call, "package")), text(_keyword(call, "executable"))
+            if package == PACKAGE:
+                named.executables.add(exe)
+            else:
+                named.foreign.add(f"{package}/{exe}")
         elif kind == "PathJoinSubstitution":
             parts = call.args[0]
             assert isinstance(parts, ast.List) and isinstance(parts.elts[0], ast.Call)
@@ -141,8 +149,9 @@ def test_launch_file_declares_arguments_and_names_installed_files(
     # Defaults a user expects: the root namespace, wall time, the shipped config.
     assert _text(named.arguments["namespace"]) == ""
     assert _text(named.arguments["use_sim_time"]) == "false"
-    assert named.share_files == {"config/diffdrive_odom.yaml"}
+    assert named.share_files == SHARE_FILES[name]
     assert named.executables == EXECUTABLES[name]
+    assert named.foreign == FOREIGN[name]
     assert named.includes == INCLUDES[name]
 
     share, lib = install / "share" / PACKAGE, install / "lib" / PACKAGE
@@ -414,3 +423,51 @@ def test_base_launch_with_sim_closes_the_loop(launch_env: Path, sim_time: bool) 
 def _ns(msg: Any) -> int:
     t = msg.clock if isinstance(msg, Clock) else msg.header.stamp
     return int(t.sec) * 10**9 + int(t.nanosec)
+
+
+# The robot's own file: a /** value over the shipped default, and a node-named section.
+ROBOT_FILE = """\
+/**:
+  ros__parameters:
+    wheel_radius: 0.05
+odometry_node:
+  ros__parameters:
+    enable_odom_tf: false
+"""
+
+
+@pytest.mark.dds
+@pytest.mark.process
+@pytest.mark.launch
+def test_launch_arguments_switch_and_a_second_params_file_layers(
+    launch_env: Path, tmp_path: Path
+) -> None:
+    """extra_params_file is applied after params_file (its /** and its node section win
+    over the shipped defaults, for every node); a switch given beats the files, an
+    empty one leaves the files' value. Root namespace: the file's
+    ``odometry_node`` section is the node's own."""
+    robot = tmp_path / "robot.yaml"
+    robot.write_text(ROBOT_FILE, encoding="utf-8")
+    r_shipped, _ = example_robot()
+    assert r_shipped != 0.05  # or the layering would not show
+
+    def check() -> None:
+        with ros_test_node("launch_peer") as (node, ex):
+            assert get_parameters(node, ex, "/odometry_node", [
+                "wheel_radius", "use_imu", "enable_odom_tf"]) == [0.05, True, False]
+            assert get_parameters(node, ex, "/cmd_vel_node", ["wheel_radius"]) == [0.05]
+
+    run = run_launch(launch_env, "base.launch.py", {
+        "extra_params_file": str(robot), "use_imu": "true"}, check)
+    assert_clean(run, launch_env, {"odometry_node", "cmd_vel_node"})
+
+    def check_switch_off() -> None:
+        with ros_test_node("launch_peer") as (node, ex):
+            assert get_parameters(node, ex, "/odometry_node", [
+                "wheel_radius", "use_imu", "enable_odom_tf"]) == [0.05, False, True]
+
+    # enable_odom_tf given true beats the robot file's node section.
+    run = run_launch(launch_env, "odometry.launch.py", {
+        "extra_params_file": str(robot), "use_imu": "false", "enable_odom_tf": "true"},
+        check_switch_off)
+    assert_clean(run, launch_env, {"odometry_node"})

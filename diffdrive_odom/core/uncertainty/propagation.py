@@ -53,7 +53,12 @@ Messages carry 6x6 row-major matrices over (x, y, z, roll, pitch, yaw) and
 (vx, vy, vz, wx, wy, wz). A planar sensor says nothing of z, roll and pitch and
 their rates: those get :data:`UNOBSERVED_VARIANCE` (large and finite, as
 robot_localization expects of a 2D sensor). Lateral velocity ``vy`` is zero by the
-rolling constraint, so the model gives it no variance. The twist covariance has no geometry
+rolling constraint, which holds only as well as the tyres grip: it gets
+:data:`ROLLING_CONSTRAINT_VARIANCE` (the static model's default, 1 mm/s), so that no
+message matrix is singular (robot_localization and any Cholesky of it need positive
+definite ones). For the same reason the observed block gets :data:`COVARIANCE_FLOOR` on its
+diagonal: the propagated 3x3 is zero at the start and of rank 2 after the first step.
+The twist covariance has no geometry
 term (not modelled: at the default ratios it is a few tenths of a percent of the speed).
 With a gyro (``use_imu``, :mod:`diffdrive_odom.core.estimation.gyro`) a step goes through
 propagate_gyro.
@@ -84,6 +89,11 @@ from diffdrive_odom.core.geometry.mat3 import (
 )
 
 UNOBSERVED_VARIANCE = 1.0e6
+# vy [(m/s)^2]: the rolling constraint's slack, 1 mm/s (1 sigma), as the static default.
+ROLLING_CONSTRAINT_VARIANCE = 1.0e-6
+# Added to the diagonal of the observed block (x, y, yaw; vx, wz) [m^2, rad^2, per s^2 for
+# rates]: (1 um)^2, far below any real term, enough to make the matrices positive definite.
+COVARIANCE_FLOOR = 1.0e-12
 # Defaults for an uncalibrated robot: wheel-travel noise k [m] (a side's arc off by 1 mm,
 # 1 sigma, after 1 m rolled), each radius known to 0.25 % and the separation to 1 %
 # (1 sigma). Chosen on the June 2020 OptiOdom sessions (Sousa et al.) with the nominal
@@ -204,25 +214,33 @@ def quantization_variance(ticks_per_revolution: float, wheels_per_side: int) -> 
 
 
 # z, roll, pitch (or their rates): nothing known. Message rows 0, 1, 5: x (vx), y, yaw (wz).
-_PLANAR = [UNOBSERVED_VARIANCE if i in (14, 21, 28) else 0.0 for i in range(36)]
+# The rows' diagonals start at the floor; the model's values are added to it (the array
+# form in tools/sinks.py adds them the same way, so both give the same floats).
+_POSE = [UNOBSERVED_VARIANCE if i in (14, 21, 28) else COVARIANCE_FLOOR if i in (0, 7, 35)
+         else 0.0 for i in range(36)]
+_TWIST = [ROLLING_CONSTRAINT_VARIANCE if i == 7 else v for i, v in enumerate(_POSE)]
 
 
 def pose_message_covariance(p: Matrix) -> list[float]:
     """3x3 (x, y, yaw) -> the 6x6 row-major pose covariance of an Odometry message."""
     (xx, xy, xt), (yx, yy, yt), (tx, ty, tt) = p
-    cov = _PLANAR.copy()
-    cov[0], cov[1], cov[5] = float(xx), float(xy), float(xt)
-    cov[6], cov[7], cov[11] = float(yx), float(yy), float(yt)
-    cov[30], cov[31], cov[35] = float(tx), float(ty), float(tt)
+    cov = _POSE.copy()
+    cov[0] += float(xx)
+    cov[1], cov[5] = float(xy), float(xt)
+    cov[7] += float(yy)
+    cov[6], cov[11] = float(yx), float(yt)
+    cov[30], cov[31] = float(tx), float(ty)
+    cov[35] += float(tt)
     return cov
 
 
 def twist_message_covariance(t: Matrix) -> list[float]:
-    """2x2 (vx, wz) -> the 6x6 row-major twist covariance (vy: 0 by the rolling constraint)."""
+    """2x2 (vx, wz) -> the 6x6 row-major twist covariance (vy: the rolling constraint's)."""
     (vv, vw), (wv, ww) = t
-    cov = _PLANAR.copy()
-    cov[0], cov[5] = float(vv), float(vw)
-    cov[30], cov[35] = float(wv), float(ww)
+    cov = _TWIST.copy()
+    cov[0] += float(vv)
+    cov[5], cov[30] = float(vw), float(wv)
+    cov[35] += float(ww)
     return cov
 
 

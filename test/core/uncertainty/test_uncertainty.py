@@ -23,7 +23,9 @@ from diffdrive_odom.core.estimation.estimator import OdometryEstimator
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.kinematics import Geometry, wheel_rates
 from diffdrive_odom.core.uncertainty.propagation import (
+    COVARIANCE_FLOOR,
     DEFAULT_K,
+    ROLLING_CONSTRAINT_VARIANCE,
     UNOBSERVED_VARIANCE,
     NoiseModel,
     covariance_matrix,
@@ -176,12 +178,16 @@ def test_quantization_is_a_floor_not_a_per_step_variance() -> None:
 def test_message_layout_is_planar() -> None:
     p = ((1.0, 0.1, 0.2), (0.1, 2.0, 0.3), (0.2, 0.3, 3.0))
     m = np.array(pose_message_covariance(p)).reshape(6, 6)
-    np.testing.assert_array_equal(m[np.ix_([0, 1, 5], [0, 1, 5])], np.array(p))
+    np.testing.assert_array_equal(m[np.ix_([0, 1, 5], [0, 1, 5])],
+                                  np.array(p) + COVARIANCE_FLOOR * np.eye(3))
     assert [m[i, i] for i in (2, 3, 4)] == [UNOBSERVED_VARIANCE] * 3
     assert (m == m.T).all() and np.count_nonzero(m) == 9 + 3
     t = np.array(twist_message_covariance(((4.0, 0.5), (0.5, 6.0)))).reshape(6, 6)
-    assert (t[0, 0], t[0, 5], t[5, 0], t[5, 5]) == (4.0, 0.5, 0.5, 6.0)
-    assert t[1, 1] == 0.0 and [t[i, i] for i in (2, 3, 4)] == [UNOBSERVED_VARIANCE] * 3
+    assert (t[0, 0], t[0, 5], t[5, 0], t[5, 5]) == (
+        4.0 + COVARIANCE_FLOOR, 0.5, 0.5, 6.0 + COVARIANCE_FLOOR)
+    assert t[1, 1] == ROLLING_CONSTRAINT_VARIANCE
+    assert [t[i, i] for i in (2, 3, 4)] == [UNOBSERVED_VARIANCE] * 3
+    assert (t == t.T).all() and np.count_nonzero(t) == 4 + 1 + 3
 
 
 # --- properties -----------------------------------------------------------------------
@@ -344,13 +350,13 @@ def test_static_model_publishes_the_diagonals_propagated_the_model(tmp_path: Pat
     pipe.feed(1, JOINTS, [0.0, 0.0])
     pipe.feed(1 + STEP_NS, JOINTS, [1.0, 1.0])
     pose, _ = pipe.covariances()
-    assert pose[0] == pytest.approx(3e-5 * R / 2, rel=1e-12)
+    assert pose[0] - COVARIANCE_FLOOR == pytest.approx(3e-5 * R / 2, rel=1e-12)
     # A runtime change of the encoder settings keeps the covariance, as it keeps the pose.
     pipe.reconfigure(odometry_settings({**BASE, "wheel_noise_k_left": 3e-5,
                                         "wheel_noise_k_right": 3e-5, "max_wheel_speed": 50.0}))
     assert pipe.covariances()[0] == pose
     pipe.reset()
-    assert pipe.covariances()[0][0] == 0.0
+    assert pipe.covariances()[0][0] == COVARIANCE_FLOOR  # nothing but the floor
 
 
 def test_runtime_changes_of_the_model_carry_the_covariance_on() -> None:
@@ -362,13 +368,15 @@ def test_runtime_changes_of_the_model_carry_the_covariance_on() -> None:
     pipe.reconfigure(odometry_settings({**BASE, "wheel_noise_k_left": 5e-5,
                                         "wheel_noise_k_right": 5e-5}))
     pipe.feed(1 + 2 * STEP_NS, JOINTS, [2.0, 2.0])
-    assert pipe.covariances()[0][0] == pytest.approx((1e-5 + 5e-5) * R / 2, rel=1e-12)
+    assert pipe.covariances()[0][0] - COVARIANCE_FLOOR == pytest.approx(
+        (1e-5 + 5e-5) * R / 2, rel=1e-12)
     pipe.reconfigure(odometry_settings({**BASE, "covariance_model": "static"}))
     assert pipe.estimator.uncertainty is None
     assert pipe.covariances()[0][0] == 0.001  # pose_covariance_diagonal default
     pipe.reconfigure(odometry_settings(BASE))
     pipe.feed(1 + 3 * STEP_NS, JOINTS, [3.0, 3.0])
-    assert pipe.covariances()[0][0] == pytest.approx(DEFAULT_K * R / 2, rel=1e-12)
+    assert pipe.covariances()[0][0] - COVARIANCE_FLOOR == pytest.approx(DEFAULT_K * R / 2,
+                                                                    rel=1e-12)
 
 
 # --- real runs ----------------------------------------------------------------------------
