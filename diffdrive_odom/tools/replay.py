@@ -45,17 +45,7 @@ from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publica
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.core.geometry.integration import Pose2D
-from diffdrive_odom.tools import (
-    bagblocks,
-    bagio,
-    bagreadings,
-    bagwriter,
-    csvout,
-    evaluate,
-    fleet,
-    progress,
-    sinks,
-)
+from diffdrive_odom.tools import evaluate, fleet, progress, sinks
 from diffdrive_odom.tools.args import (
     DEFAULT_REFERENCE,
     add_param_arguments,
@@ -68,7 +58,7 @@ from diffdrive_odom.tools.outputs import STORAGES, staged
 from diffdrive_odom.tools.sinks import Published
 
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
-    pass
+    from diffdrive_odom.tools import bagreadings
 
 __all__ = ["ReplayStats", "main", "replay_readings"]
 
@@ -155,6 +145,8 @@ def replay_readings(
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,
     so nothing is built or checked (the estimator alone, as the benchmarks time it).
     """
+    from diffdrive_odom.tools import bagreadings  # rosbags: only where bags are read
+
     pipe = ReadingPipeline(settings)
     est = pipe.estimator
     stats = ReplayStats()
@@ -305,6 +297,7 @@ def run_bag(args: argparse.Namespace) -> int:
     problem = _output_problem(args)
     if problem:
         return _error(problem)
+    from diffdrive_odom.tools import bagio
 
     ref: metrics.Trajectory | None = None
     gt_topic = ""
@@ -379,6 +372,8 @@ def _remove_outputs(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, sinks.PoseLog]:
     """Replay into staged outputs; they get their names only if the whole replay worked."""
+    from diffdrive_odom.tools import bagblocks, bagio, bagreadings, bagwriter, csvout
+
     traj = sinks.PoseLog()
     with ExitStack() as stack:
         reader = stack.enter_context(bagio.open_bag(args.bag))
