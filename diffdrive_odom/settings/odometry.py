@@ -12,6 +12,11 @@ from typing import Any
 
 from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
 from diffdrive_odom.core.estimation.gyro import GyroConfig
+from diffdrive_odom.core.estimation.open_loop import (
+    DEFAULT_OPEN_LOOP_NOISE,
+    OPEN_LOOP_SOURCES,
+    OpenLoopConfig,
+)
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.uncertainty.propagation import (
     DEFAULT_K,
@@ -20,7 +25,13 @@ from diffdrive_odom.core.uncertainty.propagation import (
     NoiseModel,
 )
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
-from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, build_encoders, build_geometry
+from diffdrive_odom.settings.geometry import (
+    CMD_VEL_TIMEOUT_PARAM,
+    GEOMETRY_PARAMS,
+    STAMPED_CMD_VEL_PARAM,
+    build_encoders,
+    build_geometry,
+)
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
     INF,
@@ -68,6 +79,23 @@ GYRO_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("slip_distance_from_other_wheel", "bool", _G.slip_distance_from_other_wheel,
               "On a slip, take the distance from the wheel with the shorter arc and the "
               "gyro (the spinning wheel read more than it rolled)."),
+)
+
+OPEN_LOOP_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("open_loop", "bool", False,
+              "Odometry from the commanded velocity, not the encoders (a robot without "
+              "them, as diff_drive_controller's open_loop): joint_states is not read; "
+              "each command on open_loop_source is held until the next or cmd_vel_timeout.",
+              read_only=True),
+    ParamSpec("open_loop_source", "string", OPEN_LOOP_SOURCES[0],
+              "With open_loop: cmd_vel (the commands as cmd_vel_node takes them: Twist, or "
+              "TwistStamped with enable_stamped_cmd_vel) or cmd_vel_out (cmd_vel_node's "
+              "limited output, TwistStamped: publish_limited_velocity true).",
+              read_only=True),
+    ParamSpec("open_loop_noise", "double", DEFAULT_OPEN_LOOP_NOISE,
+              "With open_loop: relative 1-sigma of each wheel's executed travel against the "
+              "commanded one (and of the turn, through the separation); the pose covariance "
+              "grows with distance squared.", range=NON_NEGATIVE),
 )
 
 ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
@@ -125,11 +153,14 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "restart), else it is dropped (future_stamp); .inf = off.",
               range=POSITIVE_OR_INF),
     *GYRO_PARAMS,
+    *OPEN_LOOP_PARAMS,
 )
 
 
-# Everything the node declares: the shared geometry rows, then its own.
-ODOMETRY_PARAMS: tuple[ParamSpec, ...] = GEOMETRY_PARAMS + ODOMETRY_OWN_PARAMS
+# Everything the node declares: the shared geometry rows, then its own, then the command
+# rows it shares with cmd_vel_node (open_loop reads the commands as that node does).
+ODOMETRY_PARAMS: tuple[ParamSpec, ...] = (
+    GEOMETRY_PARAMS + ODOMETRY_OWN_PARAMS + (STAMPED_CMD_VEL_PARAM, CMD_VEL_TIMEOUT_PARAM))
 
 
 def _estimator_config(v: Mapping[str, Any]) -> EstimatorConfig:
@@ -215,7 +246,16 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
         noise=_noise_model(v),
         stamp_source=_stamp_source(v["stamp_source"]),
         gyro=_gyro_config(v),
+        open_loop=_open_loop_config(v),
     )
+
+
+def _open_loop_config(v: Mapping[str, Any]) -> OpenLoopConfig | None:
+    """The open-loop settings with ``open_loop`` true (checked even when false), else None."""
+    with as_parameter_error():
+        cfg = OpenLoopConfig(source=v["open_loop_source"], timeout=v["cmd_vel_timeout"],
+                             noise=v["open_loop_noise"])
+    return cfg if v["open_loop"] else None
 
 
 def _gyro_config(v: Mapping[str, Any]) -> GyroConfig | None:
