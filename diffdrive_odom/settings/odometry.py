@@ -254,7 +254,8 @@ def _open_loop_config(v: Mapping[str, Any]) -> OpenLoopConfig | None:
     """The open-loop settings with ``open_loop`` true (checked even when false), else None."""
     with as_parameter_error():
         cfg = OpenLoopConfig(source=v["open_loop_source"], timeout=v["cmd_vel_timeout"],
-                             noise=v["open_loop_noise"])
+                             noise=v["open_loop_noise"],
+                             stamped_cmd_vel=v["enable_stamped_cmd_vel"])
     return cfg if v["open_loop"] else None
 
 

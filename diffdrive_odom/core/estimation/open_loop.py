@@ -65,11 +65,16 @@ class OpenLoopConfigError(ConfigError):
 
 @dataclass(frozen=True)
 class OpenLoopConfig:
-    """``open_loop_source``, ``cmd_vel_timeout`` [s] (0 = never) and ``open_loop_noise``."""
+    """The open-loop parameters, validated.
+
+    ``open_loop_source``, ``cmd_vel_timeout`` [s] (0 = never), ``open_loop_noise`` and
+    ``enable_stamped_cmd_vel`` (the type of ``cmd_vel``; ``cmd_vel_out`` is always stamped).
+    """
 
     source: str = CMD_VEL
     timeout: float = 0.5
     noise: float = DEFAULT_OPEN_LOOP_NOISE
+    stamped_cmd_vel: bool = False
 
     def __post_init__(self) -> None:
         if self.source not in OPEN_LOOP_SOURCES:
@@ -87,6 +92,11 @@ class OpenLoopConfig:
     def topic(self) -> str:
         """The topic the commands are read from (relative, as the node subscribes it)."""
         return self.source
+
+    @property
+    def stamped(self) -> bool:
+        """True when the commands are TwistStamped (the cmd_vel node's output always is)."""
+        return self.source == CMD_VEL_OUT or self.stamped_cmd_vel
 
 
 def publication_rate(publish_rate: float) -> float:
@@ -156,11 +166,13 @@ class OpenLoopOdometry:
 
     def command(self, now_ns: int, linear: float, angular: float,
                 stamp_ns: int | None = None) -> str:
-        """Take the twist ``(linear.x, angular.z)`` arriving at ``now_ns``; '' or the drop code.
+        """Take the twist ``(linear.x, angular.z)`` arriving at ``now_ns``.
 
         ``stamp_ns``: a TwistStamped's own stamp (None: a Twist, or a zero stamp), which
         can only make the command expire sooner, as in the cmd_vel node. A refused command
         is as if it never arrived: the one before it stays in force until its timeout.
+        Returns '' (taken), ``time_reset`` (taken after a restart at the origin, see
+        :meth:`advance`) or the drop code (``non_finite``, ``stale_stamp``).
         """
         self._commands += 1
         code = ""
@@ -171,13 +183,13 @@ class OpenLoopOdometry:
         if code:
             self._dropped[code] = self._dropped.get(code, 0) + 1
             return code
-        self.advance(now_ns)
+        code = self.advance(now_ns)
         if self.stamp_ns is not None and now_ns < self.stamp_ns:
             now_ns = self.stamp_ns  # a little back in time: from where the pose is
         self._watchdog.accept((linear, angular), now_ns, stamp_ns)
         self.linear, self.angular = linear, angular
         self._last_ns = now_ns
-        return ""
+        return code
 
     def advance(self, now_ns: int) -> str:
         """Integrate the command in force up to ``now_ns`` (or its timeout); '' or ``time_reset``.
