@@ -231,31 +231,35 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
     base_frame = prefix + v["base_frame_id"].lstrip("/")
     if odom_frame == base_frame:
         raise ParameterError("base_frame_id", "must differ from odom_frame_id")
+    geometry, encoders, estimator = build_geometry(v), build_encoders(v), _estimator_config(v)
+    pose_diag = _covariance("pose_covariance_diagonal", v["pose_covariance_diagonal"])
+    twist_diag = _covariance("twist_covariance_diagonal", v["twist_covariance_diagonal"])
+    noise = _noise_model(v)
     return OdometrySettings(
-        geometry=build_geometry(v),
-        encoders=build_encoders(v),
-        estimator=_estimator_config(v),
+        geometry=geometry,
+        encoders=encoders,
+        estimator=estimator,
         odom_frame_id=odom_frame,
         base_frame_id=base_frame,
         enable_odom_tf=v["enable_odom_tf"],
         publish_rate=rate,
-        pose_covariance_diagonal=_covariance(
-            "pose_covariance_diagonal", v["pose_covariance_diagonal"]),
-        twist_covariance_diagonal=_covariance(
-            "twist_covariance_diagonal", v["twist_covariance_diagonal"]),
-        noise=_noise_model(v),
+        pose_covariance_diagonal=pose_diag,
+        twist_covariance_diagonal=twist_diag,
+        noise=noise,
         stamp_source=_stamp_source(v["stamp_source"]),
         gyro=_gyro_config(v),
-        open_loop=_open_loop_config(v),
+        open_loop=_open_loop_config(v, pose_diag, twist_diag),
     )
 
 
-def _open_loop_config(v: Mapping[str, Any]) -> OpenLoopConfig | None:
+def _open_loop_config(v: Mapping[str, Any], pose_diag: tuple[float, ...],
+                      twist_diag: tuple[float, ...]) -> OpenLoopConfig | None:
     """The open-loop settings with ``open_loop`` true (checked even when false), else None."""
+    static = (pose_diag, twist_diag) if v["covariance_model"] == "static" else None
     with as_parameter_error():
         cfg = OpenLoopConfig(source=v["open_loop_source"], timeout=v["cmd_vel_timeout"],
                              noise=v["open_loop_noise"],
-                             stamped_cmd_vel=v["enable_stamped_cmd_vel"])
+                             stamped_cmd_vel=v["enable_stamped_cmd_vel"], static=static)
     return cfg if v["open_loop"] else None
 
 

@@ -23,7 +23,15 @@ from tf2_msgs.msg import TFMessage
 
 import oracle
 from diagutil import Peer, diagnosed
-from rosutil import DATA, node_parameters, node_process, spin_for, spin_until, yaw
+from rosutil import (
+    DATA,
+    node_parameters,
+    node_process,
+    ros_test_node,
+    spin_for,
+    spin_until,
+    yaw,
+)
 
 pytestmark = [pytest.mark.dds, pytest.mark.process]
 
@@ -103,7 +111,9 @@ def test_the_shipped_ddc_yaml_with_open_loop_true(tmp_path: Path) -> None:
     assert "open_loop: false" in text
     path = tmp_path / "diffbot_open_loop.yaml"
     path.write_text(text.replace("open_loop: false", "open_loop: true"), encoding="utf-8")
-    args = ["--params-file", str(path), "-r", "__node:=diffbot_base_controller"]
+    # covariance_model static: the file's diagonals, as diff_drive_controller publishes them.
+    args = ["--params-file", str(path), "-r", "__node:=diffbot_base_controller",
+            "-p", "covariance_model:=static"]
     odom: list[Odometry] = []
     with diagnosed("odometry_node", args) as peer:
         node = peer.node
@@ -129,6 +139,8 @@ def test_the_shipped_ddc_yaml_with_open_loop_true(tmp_path: Path) -> None:
     assert (end.header.frame_id, end.child_frame_id) == ("odom", "base_footprint")
     assert end.pose.pose.position.x == pytest.approx(0.3 * 0.8, abs=0.3 * DELAY)
     assert abs(end.pose.pose.position.y) < 1e-12
+    assert list(end.pose.covariance[::7]) == [0.002] * 5 + [0.02]
+    assert list(end.twist.covariance[::7]) == [0.003] * 5 + [0.03]
 
 
 def test_from_the_cmd_vel_nodes_limited_output() -> None:
@@ -168,3 +180,33 @@ def test_from_the_cmd_vel_nodes_limited_output() -> None:
     distance = sum(v * (t1 - t0) for (t0, v), (t1, _) in itertools.pairwise(limited))
     assert odom[-1].pose.pose.position.x == pytest.approx(distance, abs=0.4 * DELAY)
     assert odom[-1].twist.twist.linear.x == 0.0
+
+
+def test_the_managed_node_runs_open_loop_while_active() -> None:
+    """odometry_lifecycle_node takes open_loop too: nothing before activate, then the
+    commanded straight line (commands while inactive are integrated, as readings are)."""
+    from lifecycle_msgs.msg import Transition
+    from test_odometry_lifecycle_node import Manager
+
+    odom: list[Odometry] = []
+    args = ["--ros-args", *OPEN_LOOP, "-p", "cmd_vel_timeout:=0.0"]
+    with node_process("odometry_lifecycle_node", args) as proc, \
+            ros_test_node() as (node, ex):
+        node.create_subscription(Odometry, "/odom", odom.append, 100)
+        pub = node.create_publisher(Twist, "/cmd_vel", 10)
+        manager = Manager(node, ex)
+        assert manager.change(Transition.TRANSITION_CONFIGURE)
+        assert spin_until(ex, lambda: pub.get_subscription_count() > 0, 20.0)
+        msg = Twist()
+        msg.linear.x = 0.2
+        pub.publish(msg)  # inactive: integrated, not published (held: no timeout)
+        spin_for(ex, 1.0)
+        assert not odom
+        assert manager.change(Transition.TRANSITION_ACTIVATE)
+        assert spin_until(ex, lambda: len(odom) > 10, 20.0)
+        assert proc.poll() is None
+    first = odom[0].pose.pose.position.x
+    assert first > 0.2 * 0.5  # the command sent while inactive moved it already
+    assert all(o.pose.pose.position.y == 0.0 for o in odom)
+    xs = [o.pose.pose.position.x for o in odom]
+    assert xs == sorted(xs) and all(o.twist.twist.linear.x == 0.2 for o in odom)

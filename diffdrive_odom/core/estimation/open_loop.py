@@ -15,7 +15,8 @@ travel is taken to differ from the commanded one by ``noise`` (relative, 1 sigma
 the turn by as much through the separation, one draw for the whole run, as the geometry
 term of :mod:`diffdrive_odom.core.uncertainty.propagation` (it grows with distance
 squared, where wheel noise grows with distance); the twist by ``noise`` of each wheel's
-commanded speed.
+commanded speed. With ``covariance_model: static`` the configured diagonals are
+published instead, as diff_drive_controller publishes them in open loop.
 
 Time is one clock: the node's (ROS time, simulated or not) or a bag's log time, the
 command's arrival. The node and ``replay`` make the same calls: :meth:`OpenLoopOdometry.command`
@@ -37,6 +38,7 @@ from diffdrive_odom.core.geometry.mat3 import Matrix, wheel_noise2
 from diffdrive_odom.core.uncertainty.propagation import (
     NoiseModel,
     PoseUncertainty,
+    covariance_matrix,
     pose_message_covariance,
     twist_message_covariance,
 )
@@ -75,6 +77,9 @@ class OpenLoopConfig:
     timeout: float = 0.5
     noise: float = DEFAULT_OPEN_LOOP_NOISE
     stamped_cmd_vel: bool = False
+    # covariance_model static: the pose and twist diagonals published as they are (as
+    # diff_drive_controller does in open loop too); None: the open-loop model.
+    static: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def __post_init__(self) -> None:
         if self.source not in OPEN_LOOP_SOURCES:
@@ -237,6 +242,9 @@ class OpenLoopOdometry:
 
     def covariances(self) -> tuple[list[float], list[float]]:
         """Pose and twist covariance (6x6 row-major), as the node publishes them."""
+        if self.config.static is not None:
+            pose_diag, twist_diag = self.config.static
+            return covariance_matrix(pose_diag), covariance_matrix(twist_diag)
         pose_cov = self.uncertainty.pose_covariance(self.pose, self.geometry)
         return pose_message_covariance(pose_cov), twist_message_covariance(self.twist_covariance())
 

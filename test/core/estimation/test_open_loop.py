@@ -233,3 +233,13 @@ def test_bad_settings_name_the_parameter(field: str, kwargs: dict[str, object]) 
     with pytest.raises(ConfigError) as err:
         OpenLoopConfig(**kwargs)  # type: ignore[arg-type]
     assert err.value.field == field
+
+
+def test_covariance_model_static_publishes_the_diagonals_as_ddc() -> None:
+    pose_diag, twist_diag = (0.002,) * 5 + (0.02,), (0.003,) * 5 + (0.03,)
+    odo = OpenLoopOdometry(OpenLoopConfig(static=(pose_diag, twist_diag)), GEOMETRY)
+    odo.command(T0, 0.5, 0.3)
+    odo.advance(T0 + 10 * 10**9)
+    pose_cov, twist_cov = odo.covariances()
+    assert pose_cov[::7] == list(pose_diag) and twist_cov[::7] == list(twist_diag)
+    assert sum(pose_cov) == sum(pose_diag)  # nothing off the diagonal
