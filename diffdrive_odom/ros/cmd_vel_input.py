@@ -45,6 +45,17 @@ class CommandInput:
         """The message type subscribed, as ``ros2 topic info`` names it."""
         return "geometry_msgs/msg/TwistStamped" if self.stamped else "geometry_msgs/msg/Twist"
 
+    def type_mismatch(self) -> str | None:
+        """The warning when the topic has a publisher of the other type (nothing can arrive)."""
+        topic = self.subscription.topic_name
+        expected = self.type_name
+        for info in self._node.get_publishers_info_by_topic(topic):
+            if info.topic_type != expected:
+                return (f"{topic} has a publisher of type {info.topic_type} but this node "
+                        f"expects {expected}: set enable_stamped_cmd_vel to "
+                        f"{str(expected.endswith('Twist')).lower()}")
+        return None
+
     def destroy(self) -> None:
         """Remove the subscription from the node."""
         self._node.destroy_subscription(self.subscription)

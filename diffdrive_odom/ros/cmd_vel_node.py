@@ -195,17 +195,9 @@ class CmdVelNode(Node):
         if now_ns - self._type_checked_ns < 2_000_000_000:
             return
         self._type_checked_ns = now_ns
-        expected = ("geometry_msgs/msg/TwistStamped" if self._settings.enable_stamped_cmd_vel
-                    else "geometry_msgs/msg/Twist")
-        topic = self._input.subscription.topic_name
-        for info in self.get_publishers_info_by_topic(topic):
-            if info.topic_type != expected:
-                self._log.warning(
-                    f"{topic} has a publisher of type {info.topic_type} but this node "
-                    f"expects {expected}: set enable_stamped_cmd_vel to "
-                    f"{str(expected.endswith('Twist')).lower()}",
-                    throttle_duration_sec=THROTTLE_S)
-                return
+        mismatch = self._input.type_mismatch()
+        if mismatch:
+            self._log.warning(mismatch, throttle_duration_sec=THROTTLE_S)
 
 
 def main(args: list[str] | None = None) -> int:

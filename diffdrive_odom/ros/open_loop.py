@@ -161,6 +161,8 @@ class OpenLoopEndpoints:
     def _diagnose(self) -> Report:
         now = time.monotonic()
         assert self._settings.open_loop is not None
+        if self._last_rx is None and (mismatch := self._input.type_mismatch()):
+            self._throttle.warning("cmd_vel_type", mismatch)  # nothing can ever arrive
         return self._reporter(OpenLoopHealth(
             topic=self._input.subscription.topic_name,
             command_rate_hz=self._commands.rate(now),

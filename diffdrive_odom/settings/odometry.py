@@ -260,6 +260,10 @@ def _open_loop_config(v: Mapping[str, Any], pose_diag: tuple[float, ...],
         cfg = OpenLoopConfig(source=v["open_loop_source"], timeout=v["cmd_vel_timeout"],
                              noise=v["open_loop_noise"],
                              stamped_cmd_vel=v["enable_stamped_cmd_vel"], static=static)
+    if v["open_loop"] and v["use_imu"]:
+        raise ParameterError("use_imu", "cannot be true with open_loop: open loop integrates "
+                             "commands, not wheel readings, so there is no wheel heading for "
+                             "the gyro to aid; set one of them false")
     return cfg if v["open_loop"] else None
 
 

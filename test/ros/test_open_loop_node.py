@@ -210,3 +210,21 @@ def test_the_managed_node_runs_open_loop_while_active() -> None:
     assert all(o.pose.pose.position.y == 0.0 for o in odom)
     xs = [o.pose.pose.position.x for o in odom]
     assert xs == sorted(xs) and all(o.twist.twist.linear.x == 0.2 for o in odom)
+
+
+def test_commands_of_the_other_type_are_named() -> None:
+    """A TwistStamped sender while the node takes Twist: nothing can arrive, and it says so."""
+    with node_process("odometry_node", ["--ros-args", *OPEN_LOOP]) as proc, \
+            ros_test_node() as (node, ex):
+        pub = node.create_publisher(TwistStamped, "/cmd_vel", 10)
+        odom: list[Odometry] = []
+        node.create_subscription(Odometry, "/odom", odom.append, 10)
+        assert spin_until(ex, lambda: bool(odom), 20.0)
+        for _ in range(40):
+            pub.publish(TwistStamped())
+            spin_for(ex, 0.1)
+        assert proc.poll() is None
+    out = proc.stdout.read() if proc.stdout else ""
+    assert ("/cmd_vel has a publisher of type geometry_msgs/msg/TwistStamped but this node "
+            "expects geometry_msgs/msg/Twist: set enable_stamped_cmd_vel to true") in out, out
+    assert "open loop: odometry from the commanded velocity on /cmd_vel (Twist)" in out

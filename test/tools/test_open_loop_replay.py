@@ -159,3 +159,18 @@ def test_eval_of_a_commands_only_bag_says_how_to_judge_it(
     err = capsys.readouterr().err
     assert "topic /odom is not in the bag" in err
     assert "velocity commands (/cmd_vel)" in err and "-p open_loop:=true --eval" in err
+
+
+def test_calibrate_and_the_gyro_refuse_open_loop(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    bag = tmp_path / "commands"
+    write_command_bag(bag, [(T0, 0.5, 0.0)], False, T0 + 10**9)
+    params = write_params(tmp_path / "p.yaml", PARAMS)
+    assert cli(["calibrate", str(bag), "--params-file", str(params),
+                "-p", "open_loop:=true"]) == 2
+    assert "open_loop is true: calibrate fits the wheel geometry" in capsys.readouterr().err
+    assert cli(["replay", str(bag), "--params-file", str(params), "-p", "open_loop:=true",
+                "-p", "use_imu:=true", "--csv", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "invalid parameter 'use_imu': cannot be true with open_loop" in err
+    assert len(err.strip().splitlines()) == 1
