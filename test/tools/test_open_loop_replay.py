@@ -174,3 +174,36 @@ def test_calibrate_and_the_gyro_refuse_open_loop(tmp_path: Path,
     err = capsys.readouterr().err
     assert "invalid parameter 'use_imu': cannot be true with open_loop" in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_the_turtlebot3_bags_commands_end_within_their_covariance(tmp_path: Path) -> None:
+    """A real recording's /cmd_vel (ROS 1 bag, Gazebo): open loop ends metres from Gazebo's
+    /odom, and its covariance says so (within 3 sigma on each axis), read with rosbags."""
+    from rosbags.highlevel import AnyReader
+
+    from bagutil import TB3_PARAMS
+    from rosutil import DATA
+
+    bag = DATA / "turtlebot3_sim" / "turtlebot3.bag"
+    poses = []
+    with AnyReader([bag]) as reader:
+        conns = [c for c in reader.connections if c.topic == "/odom"]
+        for conn, _, raw in reader.messages(connections=conns):
+            p = reader.deserialize(raw, conn.msgtype).pose.pose
+            q = p.orientation
+            poses.append((p.position.x, p.position.y,
+                          math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y**2 + q.z**2))))
+    (x0, y0, t0), (x1, y1, _) = poses[0], poses[-1]
+    c, s = math.cos(t0), math.sin(t0)  # Gazebo's end in the frame of its start
+    gx, gy = c * (x1 - x0) + s * (y1 - y0), -s * (x1 - x0) + c * (y1 - y0)
+    params = write_params(tmp_path / "p.yaml", {**TB3_PARAMS, "open_loop": True})
+    out = tmp_path / "o.csv"
+    assert cli(["replay", str(bag), "--params-file", str(params), "--csv", str(out)]) == 0
+    with open(out) as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == pytest.approx(91.3 * 50, rel=0.01)  # 50 Hz at publish_rate 0
+    last = rows[-1]
+    dx, dy = float(last["x"]) - gx, float(last["y"]) - gy
+    assert math.hypot(dx, dy) > 1.0  # a command is not a measurement ...
+    assert abs(dx) < 3 * math.sqrt(float(last["var_x"]))  # ... and the covariance says so
+    assert abs(dy) < 3 * math.sqrt(float(last["var_y"]))
