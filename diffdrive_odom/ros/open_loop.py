@@ -41,7 +41,9 @@ from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
 DROP_TEXT = {"non_finite": "velocity command with NaN/inf ignored",
-             "stale_stamp": "stale velocity command ignored (stamped over cmd_vel_timeout ago)"}
+             "stale_stamp": "stale velocity command ignored (stamped over cmd_vel_timeout ago)",
+             "no_clock": "velocity command ignored: the node's clock reads zero (use_sim_time "
+                         "and no /clock yet)"}
 
 
 class OpenLoopEndpoints:
@@ -137,6 +139,8 @@ class OpenLoopEndpoints:
 
     def _on_timer(self) -> None:
         now = self._now_ns()
+        if now <= 0:  # simulated time before the first /clock: no stamp to publish with
+            return
         if self._odo.advance(now) == TIME_RESET:
             self._time_reset()
         odo = self._odo

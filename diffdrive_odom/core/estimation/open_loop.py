@@ -59,6 +59,9 @@ DEFAULT_OPEN_LOOP_RATE = 50.0
 NON_FINITE = "non_finite"
 STALE_STAMP = "stale_stamp"
 TIME_RESET = "time_reset"
+# The clock reads zero: simulated time before the first /clock. A command placed there
+# would be integrated from 1970 to the first real time (as far as the timeout lets it).
+NO_CLOCK = "no_clock"
 
 
 class OpenLoopConfigError(ConfigError):
@@ -122,7 +125,8 @@ def publication_times(start_ns: int, end_ns: int, rate: float) -> Iterator[int]:
 class OpenLoopStats:
     """Counters for diagnostics and replay's summary (a snapshot).
 
-    ``commands``: offered; ``dropped``: refused by code (``non_finite``, ``stale_stamp``);
+    ``commands``: offered; ``dropped``: refused by code (``no_clock``, ``non_finite``,
+    ``stale_stamp``);
     ``time_resets``: restarts at the origin after the clock went back;
     ``last_command_ns``: arrival of the last accepted command (None: never);
     ``commanding``: a command is in force (False: none yet, or it timed out).
@@ -177,11 +181,13 @@ class OpenLoopOdometry:
         can only make the command expire sooner, as in the cmd_vel node. A refused command
         is as if it never arrived: the one before it stays in force until its timeout.
         Returns '' (taken), ``time_reset`` (taken after a restart at the origin, see
-        :meth:`advance`) or the drop code (``non_finite``, ``stale_stamp``).
+        :meth:`advance`) or the drop code (``no_clock``, ``non_finite``, ``stale_stamp``).
         """
         self._commands += 1
         code = ""
-        if not (math.isfinite(linear) and math.isfinite(angular)):
+        if now_ns <= 0:
+            code = NO_CLOCK
+        elif not (math.isfinite(linear) and math.isfinite(angular)):
             code = NON_FINITE
         elif stamp_ns is not None and self._watchdog.is_stale(stamp_ns, now_ns):
             code = STALE_STAMP
@@ -203,6 +209,8 @@ class OpenLoopOdometry:
         restarted) restarts at the origin with no command held; less is taken as now.
         """
         start = self.stamp_ns
+        if now_ns <= 0:  # no clock yet (simulated time before /clock): nothing to do
+            return ""
         if start is None or now_ns <= start:
             if start is not None and start - now_ns > self.jump_ns:
                 self.reset()

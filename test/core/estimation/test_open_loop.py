@@ -17,6 +17,7 @@ import pytest
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.open_loop import (
     DEFAULT_OPEN_LOOP_RATE,
+    NO_CLOCK,
     NON_FINITE,
     STALE_STAMP,
     TIME_RESET,
@@ -243,3 +244,14 @@ def test_covariance_model_static_publishes_the_diagonals_as_ddc() -> None:
     pose_cov, twist_cov = odo.covariances()
     assert pose_cov[::7] == list(pose_diag) and twist_cov[::7] == list(twist_diag)
     assert sum(pose_cov) == sum(pose_diag)  # nothing off the diagonal
+
+
+def test_a_command_before_the_clock_started_is_refused() -> None:
+    """Simulated time before the first /clock reads zero: integrating from there would add
+    a timeout's worth (or, with no timeout, decades) of motion at the first real tick."""
+    odo = make(timeout=0.0)
+    assert odo.command(0, 0.5, 0.0) == NO_CLOCK
+    assert odo.advance(0) == ""
+    odo.advance(T0)
+    odo.advance(T0 + 10**9)
+    assert odo.pose.x == 0.0 and dict(odo.stats.dropped) == {NO_CLOCK: 1}
