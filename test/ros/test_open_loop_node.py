@@ -228,3 +228,48 @@ def test_commands_of_the_other_type_are_named() -> None:
     assert ("/cmd_vel has a publisher of type geometry_msgs/msg/TwistStamped but this node "
             "expects geometry_msgs/msg/Twist: set enable_stamped_cmd_vel to true") in out, out
     assert "open loop: odometry from the commanded velocity on /cmd_vel (Twist)" in out
+
+
+def test_on_simulated_time_the_pose_is_the_closed_form() -> None:
+    """use_sim_time: the test owns /clock, so each command's arrival time is known exactly
+    and the published poses are the commanded arcs to rounding, over DDS."""
+    from rosgraph_msgs.msg import Clock
+
+    from rosutil import stamp
+
+    odom: list[Odometry] = []
+    args = ["--ros-args", *OPEN_LOOP, "-p", "use_sim_time:=true", "-p", "cmd_vel_timeout:=0.5"]
+    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
+        clock = node.create_publisher(Clock, "/clock", 10)
+        node.create_subscription(Odometry, "/odom", odom.append, 100)
+        pub = node.create_publisher(Twist, "/cmd_vel", 10)
+        t0 = 100 * 10**9
+
+        def tick(t_ns: int) -> None:
+            clock.publish(Clock(clock=stamp(t_ns)))
+            spin_for(ex, 0.3)  # the node has it before anything else is sent
+
+        assert spin_until(ex, lambda: clock.get_subscription_count() > 0
+                          and pub.get_subscription_count() > 0, 20.0)
+        for _ in range(100):  # until the node has the clock: a pose stamped t0
+            tick(t0)
+            if any(o.header.stamp.sec == 100 for o in odom):
+                break
+        assert odom, "no odometry on simulated time"
+        msg = Twist()
+        msg.linear.x, msg.angular.z = V, W
+        pub.publish(msg)  # arrives at t0 on the node's clock
+        spin_for(ex, 0.3)
+        tick(t0 + 300_000_000)  # the command is followed ...
+        tick(t0 + 2 * 10**9)  # ... until its timeout at t0 + 0.5 s, then at rest
+        tick(t0 + 2 * 10**9 + 100_000_000)
+        assert proc.poll() is None
+    stamps = {o.header.stamp.sec * 10**9 + o.header.stamp.nanosec: o for o in odom}
+    for t_ns, held in ((t0 + 300_000_000, 0.3), (t0 + 2 * 10**9, 0.5)):
+        o = stamps[t_ns]
+        x, y, th = oracle.arc(V * held, W * held)
+        p = o.pose.pose
+        assert abs(p.position.x - x) < 1e-12 and abs(p.position.y - y) < 1e-12, (t_ns, p)
+        assert abs(math.remainder(yaw(p.orientation) - th, math.tau)) < 1e-12
+    assert stamps[t0 + 300_000_000].twist.twist.linear.x == V
+    assert stamps[t0 + 2 * 10**9].twist.twist.linear.x == 0.0
