@@ -29,6 +29,7 @@ from diffdrive_odom.ros.sim_node import SimNode
 from rosutil import (
     assert_refused_in_process,
     assert_refuses_to_start,
+    call_service,
     node_process,
     ros_test_node,
     spin_for,
@@ -224,12 +225,11 @@ def test_counts_per_second_and_bad_commands() -> None:
 
 
 def _set_param(node: Node, ex: Any, name: str, value: ParameterValue) -> Any:
-    client = node.create_client(SetParameters, "/sim_node/set_parameters")
-    assert client.wait_for_service(timeout_sec=10.0)
-    future = client.call_async(
-        SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)]))
-    assert spin_until(ex, future.done, 10.0)
-    return future.result().results[0]
+    """Asked again until answered (CI once lost the first request: DDS reported the
+    service before its reply path matched); setting a value twice is setting it once."""
+    result = call_service(node, ex, SetParameters, "/sim_node/set_parameters",
+                          SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)]))
+    return result.results[0]
 
 
 def test_runtime_parameters_refused_with_reason_or_applied() -> None:
