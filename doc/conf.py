@@ -5,15 +5,33 @@ rosdoc2 copies this folder into a build directory of its own and runs this file 
 taken from where the package is installed or from this checkout, whichever imports.
 """
 
+import re
 import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent if "__file__" in globals() else Path.cwd()
-# The directive extension beside this file (rosdoc2's copy has it too).
+
+
+def _package_root() -> Path:
+    """The checkout's root: beside this file, or, under rosdoc2, where it copied doc/ from.
+
+    rosdoc2 runs a conf.py of its own in a build folder that exec's this file by its
+    original path (``exec(open("<package>/doc/conf.py").read())``): that path names the
+    package, whose sources autodoc and the directive import (the buildfarm installs the
+    package's dependencies, not the package).
+    """
+    if (HERE.parent / "package.xml").is_file():
+        return HERE.parent
+    wrapper = HERE / "conf.py"
+    text = wrapper.read_text(encoding="utf-8") if wrapper.is_file() else ""
+    found = re.search(r'exec\(open\("([^"]+)"\)', text)
+    return Path(found.group(1)).resolve().parent.parent if found else HERE.parent
+
+
+ROOT = _package_root()
+# The directive extension beside this file (rosdoc2's copy has it too), and the package.
 sys.path.insert(0, str(HERE / "_ext"))
-# This checkout's package, when built from the checkout (rosdoc2 imports the installed one).
-if (HERE.parent / "package.xml").is_file():
-    sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(ROOT))
 
 project = "diffdrive_odom"
 author = "diffdrive_odom maintainers"
@@ -21,7 +39,7 @@ copyright = "diffdrive_odom maintainers, Apache-2.0"
 try:
     from xml.etree import ElementTree
 
-    release = (ElementTree.parse(HERE.parent / "package.xml").findtext("version") or "").strip()
+    release = (ElementTree.parse(ROOT / "package.xml").findtext("version") or "").strip()
 except (OSError, ElementTree.ParseError):
     release = ""
 version = ".".join(release.split(".")[:2])

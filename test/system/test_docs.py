@@ -98,6 +98,20 @@ def test_every_core_module_has_an_api_page() -> None:
             assert f".. automodule:: {module}\n" in api, module
 
 
+def test_conf_finds_the_package_from_rosdoc2s_copy(tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """rosdoc2 runs its own conf.py in a build folder that exec's doc/conf.py by path."""
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    conf = (DOC / "conf.py").resolve()
+    wrapper = tmp_path / "conf.py"
+    wrapper.write_text(f'exec(open("{conf}").read())\n', encoding="utf-8")
+    namespace: dict[str, object] = {"__file__": str(wrapper)}
+    exec(compile(wrapper.read_text(encoding="utf-8"), str(wrapper), "exec"), namespace)
+    assert namespace["ROOT"] == ROOT.resolve()
+    assert namespace["release"] and str(ROOT.resolve()) in sys.path
+    assert "incoming" in namespace["exclude_patterns"]  # type: ignore[operator]
+
+
 @pytest.mark.process
 def test_shipped_yaml_is_current() -> None:
     out = subprocess.run([sys.executable, str(ROOT / "scripts" / "gen_config.py")],
