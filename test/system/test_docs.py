@@ -145,6 +145,18 @@ def test_readme_is_short_and_its_links_resolve() -> None:
     assert not (ROOT / "docs").exists(), "the images and references live in doc/"
 
 
+def _parity_table(text: str) -> list[str]:
+    rows = text.split("| | diff_drive_controller | diffdrive_odom |", 1)[1].split("\n\n", 1)[0]
+    return [re.sub(r"\]\((?:\.\./)*(?:doc/)?", "](", row) for row in rows.splitlines()]
+
+
+def test_readme_and_ddc_page_show_one_parity_table() -> None:
+    """The README's table against diff_drive_controller is the ddc page's, row for row."""
+    readme = _parity_table((ROOT / "README.md").read_text(encoding="utf-8"))
+    page = _parity_table((DOC / "ddc.md").read_text(encoding="utf-8"))
+    assert readme == page and len(page) >= 10
+
+
 @pytest.mark.slow
 @pytest.mark.process
 def test_docs_build_with_warnings_as_errors(tmp_path: Path) -> None:
