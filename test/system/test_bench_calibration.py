@@ -48,17 +48,20 @@ def test_calibration_bench_quick_prints_every_section() -> None:
 def test_verdict_bench_quick_counts_both_rules_on_the_squares() -> None:
     """``bench_verdict.py --quick``: the 3-run subsets of the 12 training squares. The
     README's claim there: the verdict that leaves out the folds that cannot judge, with
-    its margin, neither refuses a fit that is better held out nor accepts a worse one."""
+    its margin and its leverage test, neither refuses a fit that is better held out nor
+    accepts a worse one."""
     proc = subprocess.run([sys.executable, str(ROOT / "bench" / "bench_verdict.py"),
                            "--quick"], capture_output=True, text=True, timeout=600, cwd=ROOT,
                           env=dict(os.environ))
     out = proc.stdout
     assert proc.returncode == 0, out + proc.stderr
-    total = re.search(r"^ALL\s+40\s+(\d+)\s+(\d+)\s+(\d+)((?:\s+\|(?:\s+\d+){5}){3})$", out,
-                      re.M)
+    total = re.search(r"^ALL\s+40\s+(\d+)\s+(\d+)\s+(\d+)\s+([\d.]+)-\s*([\d.]+)"
+                      r"((?:\s+\|(?:\s+\d+){5}){4})$", out, re.M)
     assert total, out
-    rules = [[int(v) for v in part.split()] for part in total.group(4).split("|")[1:]]
+    rules = [[int(v) for v in part.split()] for part in total.group(6).split("|")[1:]]
     assert all(sum(r[:3]) == 40 for r in rules), out  # accepted + cannot tell + refused
-    old, _, new = rules
+    old, _, _, new = rules
+    # the squares' folds sit below the leverage the verdict allows: none is left out
+    assert float(total.group(5)) < 3.0, out
     assert new[3] == 0 and new[4] == 0, out  # no false refusal, no false acceptance
     assert old[3] > 0, out  # the rule before refused fits that were better held out

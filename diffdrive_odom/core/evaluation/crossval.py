@@ -154,12 +154,15 @@ class Verdict:
 
 def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
           in_sample: Sequence[float] = (), groups: Sequence[Hashable] | None = None,
-          shapes: Sequence[determinacy.Shape] | None = None) -> Verdict | None:
+          shapes: Sequence[determinacy.Shape] | None = None,
+          max_leverage: float = determinacy.MAX_LEVERAGE) -> Verdict | None:
     """:func:`check` over the folds that can judge the fit, with its margin.
 
     A fold counts when its training runs determine the geometry
-    (:func:`determinacy.coverage`) and its held-out run's end depends on it
-    (:func:`determinacy.judges`). ``results`` from :func:`held_out` with the same
+    (:func:`determinacy.coverage`), its held-out run's end depends on it
+    (:func:`determinacy.judges`) and lies within what the training runs determine
+    (:func:`determinacy.extrapolates`, ``max_leverage``; inf: not asked, the rule
+    before). ``results`` from :func:`held_out` with the same
     ``groups``; ``in_sample``: the full fit's final position error on each run, in
     order (the margin; empty: none); ``shapes`` (one per run, :func:`determinacy.shape`) when the
     caller has them. None when no run could be held out.
@@ -170,18 +173,19 @@ def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
     labels: Sequence[Hashable] = list(range(len(runs))) if groups is None else groups
     shown = list(shapes) if shapes is not None else [determinacy.shape(r, nominal)
                                                      for r in runs]
-    training: dict[Hashable, str] = {}
-    for g in dict.fromkeys(labels):
-        training[g] = determinacy.coverage(
-            [s for s, lab in zip(shown, labels, strict=True) if lab != g]).reason
+    training: dict[Hashable, list[determinacy.Shape]] = {
+        g: [s for s, lab in zip(shown, labels, strict=True) if lab != g]
+        for g in dict.fromkeys(labels)}
+    lacks = {g: determinacy.coverage(t).reason for g, t in training.items()}
     # held_out's order: group by group, each group's runs in their order
     order = [i for g in dict.fromkeys(labels) for i, lab in enumerate(labels) if lab == g]
     kept, left = [], []
     for h, i in zip(results, order, strict=True):
         if h.held_out is None:
             continue
-        why = (f"its training runs do not determine the geometry: {training[h.group]}"
-               if training[h.group] else determinacy.judges(shown[i]))
+        why = (f"its training runs do not determine the geometry: {lacks[h.group]}"
+               if lacks[h.group] else determinacy.judges(shown[i])
+               or determinacy.extrapolates(training[h.group], shown[i], max_leverage))
         if why:
             left.append((h.run, why))
         else:

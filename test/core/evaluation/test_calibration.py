@@ -200,6 +200,46 @@ def test_spins_alone_and_lines_alone_do_not_determine_the_geometry() -> None:
     assert determinacy.coverage([s_line, s_spin]).determined
 
 
+def test_a_line_judged_by_a_fit_to_another_line_extrapolates() -> None:
+    """Leverage, the held-out end's shift per unit of the training runs' residual. A
+    straight line of length S driven at constant speed, whose wheel ratio is off by k,
+    drifts sideways as k s^2; the start yaw the fit eliminates takes its part along s
+    (least squares on uniform samples: 3 S s / 4), leaving k (s^2 - 3 S s / 4), whose
+    RMS over [0, S] is k S^2 sqrt(1/80): the end moves sqrt(80) = 8.9 times that. The
+    heading rows and a spin in training only add information, so the leverage of a line
+    judged by a fit to a line and a spin is at most 8.9, and (the OptiOdom lines: 4.9 to
+    7.4) above MAX_LEVERAGE. Circles both ways: a circle's end moves no more than its
+    path does along the way (OptiOdom circles and squares: 1.0 to 2.1)."""
+    line_a, line_b = (determinacy.shape(simulate(_line(2.0), true=NOMINAL), NOMINAL)
+                      for _ in range(2))
+    spin = determinacy.shape(simulate(_spin(math.pi), true=NOMINAL), NOMINAL)
+    lev = determinacy.leverage([line_a, spin], line_b)
+    assert determinacy.MAX_LEVERAGE < lev <= math.sqrt(80) * 1.01, lev
+    assert "moves" in determinacy.extrapolates([line_a, spin], line_b)
+    cw, ccw, cw2 = (determinacy.shape(simulate(routes.circle(1.0, clockwise=c), true=NOMINAL),
+                                      NOMINAL) for c in (True, False, True))
+    assert determinacy.leverage([cw, ccw], cw2) < determinacy.MAX_LEVERAGE
+    assert determinacy.extrapolates([cw, ccw], cw2) == ""
+    # lines alone leave the separation free: nothing determines the held-out end
+    assert determinacy.leverage([line_a], line_b) == math.inf
+
+
+def test_held_out_verdict_on_lines_and_spins_cannot_tell() -> None:
+    """Two lines and a spin (the OptiOdom lines-and-spins experiments): each line's fold
+    trains on the other line and the spin and extrapolates, the spin's ends in place
+    whatever the geometry: no fold remains, the verdict cannot tell (the rule before,
+    ``max_leverage=inf``, rested on the two line folds)."""
+    runs = [_named(simulate(_line(2.0), slip=0.002, seed=s), f"line{s}") for s in (1, 2)]
+    runs.append(_named(simulate(_spin(math.pi)), "spin"))
+    results = crossval.held_out(runs, NOMINAL)
+    v = crossval.judge(runs, results, NOMINAL)
+    assert v is not None and v.check is None and v.cannot_tell, v
+    assert [run for run, _ in v.left_out] == ["line1", "line2", "spin"]
+    assert all("x more with the geometry" in why for _, why in v.left_out[:2]), v.left_out
+    before = crossval.judge(runs, results, NOMINAL, max_leverage=math.inf)
+    assert before is not None and before.check is not None and before.check.runs == 2
+
+
 def test_held_out_verdict_names_a_one_direction_fold_and_rests_on_the_others() -> None:
     """Two squares clockwise, one counter-clockwise (noise-free, nominal 3 % off): the
     fold that holds out the CCW square trains on CW squares only and is left out, named;
@@ -222,11 +262,13 @@ def test_held_out_verdict_names_a_one_direction_fold_and_rests_on_the_others() -
 
 def test_held_out_verdict_still_refuses_a_geometry_that_really_is_worse() -> None:
     """Runs that the nominal geometry integrates exactly (the true one here), both ways
-    and a figure eight: every fold counts, the least-squares fit leaves ~0 on its own
+    twice and a figure eight: every fold counts (each trains on both ways; with one
+    square each way and the eight, the CW square judged by the CCW one and the eight has
+    leverage 3.4: an extrapolation, left out), the least-squares fit leaves ~0 on its own
     runs (no noise: the margin is ~0). A fitter dragged 2 % off (as a slipping run would
     drag it) ends every held-out run further off than nominal: refused."""
     runs = [_named(simulate(routes.umbmark(SIDE, clockwise=c), true=NOMINAL), n)
-            for c, n in ((True, "cw"), (False, "ccw"))]
+            for c, n in ((True, "cw"), (False, "ccw"), (True, "cw2"), (False, "ccw2"))]
     runs.append(_named(simulate(routes.figure_eight(1.0), true=NOMINAL), "eight"))
     fit = calibration.fit(runs, NOMINAL)
     in_sample = [r.after.final_position_error_aligned_m for r in fit.runs]
