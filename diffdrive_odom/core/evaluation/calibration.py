@@ -93,6 +93,7 @@ class Fit:
     runs: tuple[RunFigures, ...]
     seconds: float
     evaluations: int
+    end_weight: float = 0.0  # see :func:`fit`
 
 
 @dataclass(frozen=True)
@@ -170,6 +171,8 @@ def fit(
         raise CalibrationError("no run to calibrate from")
     if loss not in LOSSES:
         raise CalibrationError(f"loss must be one of {', '.join(LOSSES)}, got {loss!r}")
+    if not (math.isfinite(end_weight) and end_weight >= 0.0):
+        raise CalibrationError(f"end_weight must be finite and >= 0, got {end_weight!r}")
     start = time.perf_counter()
     prepared = [prepare(r, max_gap, ends_only=ends_only) for r in runs]
     w = np.ones(len(runs)) if weights is None else np.asarray(weights, dtype=np.float64)
@@ -221,6 +224,7 @@ def fit(
         runs=run_figures(runs, nominal, fitted, max_gap) if figures else (),
         seconds=time.perf_counter() - start,
         evaluations=evaluations,
+        end_weight=end_weight,
     )
 
 

@@ -48,9 +48,10 @@ MIN_RUNS_FOR_SIGMA = 3
 SEED = 16  # fixed: the same runs print the same sigma
 
 
-def default_fitter(nominal: Geometry) -> Fitter:
+def default_fitter(nominal: Geometry, end_weight: float = 0.0) -> Fitter:
     """The product's fit (:func:`calibration.fit` with its defaults), geometry only."""
-    return lambda runs: calibration.fit(runs, nominal, figures=False).geometry
+    return lambda runs: calibration.fit(runs, nominal, end_weight=end_weight,
+                                        figures=False).geometry
 
 
 @dataclass(frozen=True)
@@ -198,17 +199,18 @@ def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
 
 
 def bootstrap(runs: Sequence[Run], nominal: Geometry, resamples: int = BOOTSTRAP_RUNS,
-              seed: int = SEED, fitter: Callable[[Sequence[float]], FloatArray] | None = None
-              ) -> FloatArray | None:
+              seed: int = SEED, fitter: Callable[[Sequence[float]], FloatArray] | None = None,
+              end_weight: float = 0.0) -> FloatArray | None:
     """3x3 covariance of (left radius, right radius, separation) [m^2]; None below 3 runs.
 
-    ``fitter`` maps per-run weights to fitted values (default: :func:`calibration.fit`).
+    ``fitter`` maps per-run weights to fitted values (default: :func:`calibration.fit`
+    with ``end_weight``).
     """
     if len(runs) < MIN_RUNS_FOR_SIGMA:
         return None
 
     def default(weights: Sequence[float]) -> FloatArray:
-        return values_of(calibration.fit(runs, nominal, weights=weights,
+        return values_of(calibration.fit(runs, nominal, weights=weights, end_weight=end_weight,
                                          figures=False).geometry)
 
     refit = fitter or default

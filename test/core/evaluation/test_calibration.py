@@ -459,6 +459,24 @@ def test_cli_force_prints_a_params_block_the_node_accepts(
         assert line in out
 
 
+def test_cli_end_weight_fits_the_final_positions_and_judges_that_fit(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``--end-weight W``: the block holds :func:`calibration.fit` with ``end_weight=W``,
+    the report names the objective, and the held-out folds refit with the same W."""
+    code = cli(["calibrate", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN),
+                "--ground-truth", "/ground_truth/pose", *NOMINAL_ARGS, "--end-weight", "0.5"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "whole trajectory + end positions x0.5" in out
+    entry = yaml.safe_load(_block(out))["/**"]["ros__parameters"]
+    fit = calibration.fit(_optiodom_runs(), Geometry(0.042, 0.2), end_weight=0.5)
+    assert entry["wheel_separation_multiplier"] == pytest.approx(
+        fit.geometry.wheel_separation_multiplier, rel=1e-6)
+    plain = calibration.fit(_optiodom_runs(), Geometry(0.042, 0.2))
+    assert max(r.after.final_position_error_aligned_m for r in fit.runs) < max(
+        r.after.final_position_error_aligned_m for r in plain.runs)
+
+
 def _arcs_with_a_late_reference(lag: float) -> list[Run]:
     """Four open runs (a line, an arc of 130 or 100 deg either way, a line) on a base that
     IS the nominal one, its reference stamped ``lag`` late (a motion capture's clock; the
@@ -589,6 +607,8 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
     ([str(OPTIODOM / CW_RUN), "--no-mount", *NOMINAL_ARGS], "--no-mount"),
     ([str(OPTIODOM / CW_RUN), "--session-drift", "-0.01", *NOMINAL_ARGS], "--session-drift"),
     ([str(OPTIODOM / CW_RUN), "--session-drift", "nan", *NOMINAL_ARGS], "--session-drift"),
+    ([str(OPTIODOM / CW_RUN), "--end-weight", "-1", *NOMINAL_ARGS], "--end-weight"),
+    ([str(OPTIODOM / CW_RUN), "--end-weight", "inf", *NOMINAL_ARGS], "--end-weight"),
     (["--umbmark", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN), *NOMINAL_ARGS], "--side"),
     (["--umbmark", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN), "--side", "1.7",
       "--cw-end", "1,2", "--ccw-end", "x", *NOMINAL_ARGS], "--ccw-end"),
