@@ -260,7 +260,8 @@ def check_lines(v: crossval.Verdict | None, runs: int, forced: bool) -> str:
     if c is None:
         return "\n".join([
             f"CANNOT TELL on held-out runs: none of the {len(v.left_out)} folds can judge the "
-            "fit (drive both ways, with lines and turns); the block is printed, judge it "
+            "fit (paths that turn both ways as they go, circles or squares each way, judge "
+            "it; straight lines and spins on the spot cannot); the block is printed, judge it "
             "yourself", *left])
     figures = (f"mean final position error {c.fpe_nominal:.4f} m nominal, {c.fpe_held_out:.4f} "
                f"m calibrated; ATE {c.ate_nominal:.4f} -> {c.ate_held_out:.4f} m "

@@ -32,11 +32,13 @@ geometry than its training runs are (:func:`extrapolates`): a fit matches the tr
 runs' residuals only up to what no geometry explains there (slip, the floor, the runs'
 own scatter), and the held-out end moves by up to :func:`leverage` times that misfit
 (``||G A^-1/2||``, ``G`` the held-out end's Jacobian, ``A`` the training runs' information,
-both per relative change of the values, the start yaw eliminated; scale-free). A straight
+both per relative change of the values, the start yaw eliminated). A straight
 line judged by a fit to another line and spins on the spot: 4.9 to 7.4 on the OptiOdom
 runs (its end drifts sideways with the square of the distance, a fit sees the mean of
 it, the start yaw takes the linear part), so one line's own curvature, amplified, is
-what the fold measures; circles and squares: 1.0 to 2.1. :data:`MAX_LEVERAGE` was set
+what the fold measures (it grows with the line's length, as the heading residuals weigh
+less: simulated, 1 m 3.9, 2 m 6.1, 4 m 7.5; circles and squares: 1.0 to 2.1, a square
+of 1, 2, 4 m: 1.7, 1.8, 2.0). :data:`MAX_LEVERAGE` was set
 between the two on the June 2020 experiments (1.96 and 4.90: their geometric mean, 3.1,
 rounded) and holds on the December ones (2.13 and 5.19).
 
