@@ -477,12 +477,12 @@ def test_cli_end_weight_fits_the_final_positions_and_judges_that_fit(
         r.after.final_position_error_aligned_m for r in plain.runs)
 
 
-def _arcs_with_a_late_reference(lag: float) -> list[Run]:
+def _arcs_with_the_reference_clock_off(lag: float) -> list[Run]:
     """Four open runs (a line, an arc of 130 or 100 deg either way, a line) on a base that
-    IS the nominal one, its reference stamped ``lag`` late (a motion capture's clock; the
-    fit takes the lag as 0). The robot stands still for a second at the start and the
-    end, so the start-aligned final errors do not see the lag; the whole-trajectory fit
-    does, and is dragged by it."""
+    IS the nominal one, each reference pose stamped ``lag`` before it happened (a motion
+    capture's clock that far behind; the fit takes the offset as 0). The robot stands
+    still for a second at the start and the end, so the start-aligned final errors do
+    not see the offset; the whole-trajectory fit does, and is dragged by it."""
     runs = []
     for i, turn in enumerate((0.45, -0.45, 0.35, -0.35)):
         route = routes.Route(f"arc{i}", (routes.Segment(1.0, 0.0, 0.0),
@@ -500,15 +500,15 @@ def _arcs_with_a_late_reference(lag: float) -> list[Run]:
 def test_cli_refuses_a_fit_that_is_worse_on_every_held_out_run(
         capsys: pytest.CaptureFixture[str]) -> None:
     """The refused branch end to end, from decoded runs on (calibrate's own fit, held-out
-    folds and verdict; nothing forced): a reference 0.2 s late drags the fitted
-    radii about 4 % up (the reference trails the odometry while driving), and every
+    folds and verdict; nothing forced): a reference clock 0.2 s behind drags the fitted
+    radii about 4 % up (the reference runs ahead of the odometry while driving), and every
     held-out run, judged by its final error (the
     robot at rest: the lag does not touch it), ends further off than with the nominal
     geometry, which is the true one. Every fold counts; the change is beyond the margin:
     NOT BETTER THAN NOMINAL, no block, exit 1."""
     from diffdrive_odom.tools import calibrate
 
-    runs = _arcs_with_a_late_reference(0.2)
+    runs = _arcs_with_the_reference_clock_off(0.2)
     args = calibrate._parser().parse_args(["unused", "-p", "wheel_radius:=0.05",
                                            "-p", "wheel_separation:=0.3"])
     assert calibrate._least_squares(args, SETTINGS, runs) == 1
