@@ -55,7 +55,7 @@ def replay_commands(
     assert cfg is not None, "open_loop is false"
     odo = OpenLoopOdometry(cfg, settings.geometry, settings.estimator.time_jump_threshold)
     rate = publication_rate(settings.publish_rate)
-    stats = ReplayStats()
+    stats = ReplayStats(unit="commands")
     stats.notes[OPEN_LOOP_NOTE.format(topic=topic)] = 1
     start = time.perf_counter()
     published = 0
@@ -83,7 +83,7 @@ def replay_commands(
             tick(pending)
             pending = next(ticks, None)
         code = odo.command(c.log_ns, c.linear, c.angular, c.stamp_ns)
-        stats.statuses["command" if code in ("", TIME_RESET) else "dropped"] += 1
+        stats.statuses["taken" if code in ("", TIME_RESET) else "dropped"] += 1
         if code:
             _count(stats, code, f"velocity command refused ({code}): v={c.linear!r} "
                    f"w={c.angular!r}" if code != TIME_RESET else TIME_RESET_TEXT)

@@ -88,6 +88,7 @@ class ReplayStats:
     final_stamp_ns: int | None = None
     seconds: float = 0.0
     pipeline: PipelineStats = field(default_factory=PipelineStats)
+    unit: str = "readings"  # what was fed: wheel readings, or (open loop) commands
 
     @property
     def usable(self) -> bool:
@@ -100,8 +101,8 @@ class ReplayStats:
         rate = self.readings / self.seconds if self.seconds > 0 else float("inf")
         counts = ", ".join(f"{k} {v}" for k, v in sorted(self.statuses.items()))
         return (
-            f"{self.readings} readings ({counts}) -> {self.published} poses in "
-            f"{self.seconds:.2f} s ({rate:,.0f} readings/s); final pose x={p.x:.6f} m "
+            f"{self.readings} {self.unit} ({counts}) -> {self.published} poses in "
+            f"{self.seconds:.2f} s ({rate:,.0f} {self.unit}/s); final pose x={p.x:.6f} m "
             f"y={p.y:.6f} m yaw={p.theta:.6f} rad"
         ) + self._gyro_summary()
 

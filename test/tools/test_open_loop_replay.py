@@ -114,6 +114,7 @@ def test_replay_of_a_commands_only_bag_is_the_commanded_route(
                 "--csv", str(out), "--eval", "--json", str(figures)]) == 0
     captured = capsys.readouterr()
     assert "open loop: odometry from the commanded velocity on /cmd_vel" in captured.err
+    assert f"{len(commands)} commands (taken {len(commands)}) -> " in captured.out
     with open(out) as f:
         rows = list(csv.DictReader(f))
     # The node's timer: publish_rate 30 Hz from the first command to the end of the bag.
