@@ -27,6 +27,12 @@ from diffdrive_odom.core.estimation.encoders import (
 from diffdrive_odom.core.estimation.estimator import OdometryEstimator, Step
 from diffdrive_odom.core.estimation.gate import GateState, PublishGate
 from diffdrive_odom.core.estimation.gyro import GyroHeading, SlipStats
+from diffdrive_odom.core.estimation.setpose import (
+    PoseRefusal,
+    PoseRequest,
+    SetPoseRule,
+    check_request,
+)
 from diffdrive_odom.core.estimation.stamps import ClockOffsetCheck, StampSource
 from diffdrive_odom.core.estimation.timeline import Status, Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D
@@ -50,6 +56,7 @@ VELOCITY_OFF = "wheel positions are available again: integrating positions"
 IMU_SILENT = ("IMU silent (no usable yaw rate within imu_timeout of a wheel step): wheels "
               "only, the heading covariance grows with the wheels' model again")
 IMU_BACK = "IMU samples again: gyro-aided heading"
+SET_POSE_DROPPED = "set_pose: the held pose is dropped (odometry restarted)"
 
 
 @dataclass(frozen=True)
@@ -174,6 +181,7 @@ class ReadingPipeline:
         self._imu_samples = 0
         self._imu_dropped: dict[str, int] = {}
         self._imu_silent = False  # so a missing IMU is named at the first step
+        self._setpose = SetPoseRule()
         self._attach_gyro(settings)
 
     def _attach_gyro(self, settings: OdometrySettings) -> None:
@@ -294,6 +302,11 @@ class ReadingPipeline:
         elif gyro is not None and gyro.steps != steps and gyro.silent != self._imu_silent:
             self._imu_silent = gyro.silent
             note = IMU_SILENT if gyro.silent else IMU_BACK
+        if self._setpose.pending is not None:  # ~/set_pose held for this reading's stamp
+            if status is Status.TIME_RESET:
+                self._setpose.pending, note = None, note or SET_POSE_DROPPED
+            elif self._setpose.reached(stamp_ns, self._estimator):
+                self._gate.forget()
         publish = verdict.has_new_pose and self._gate.due(stamp_ns)
         if publish:
             self._published += 1
@@ -303,7 +316,8 @@ class ReadingPipeline:
         """The state a bulk integrator starts from (see :class:`Handover`)."""
         est, unc = self._estimator, self._estimator.uncertainty
         return Handover(
-            reference=est.handover(), pose=est.pose, windows=est.twist_windows(),
+            reference=None if self._setpose.pending else est.handover(), pose=est.pose,
+            windows=est.twist_windows(),
             covariance=() if unc is None else unc.covariance,
             sensitivity=() if unc is None else unc.sensitivity,
             rates=() if unc is None else unc.rates, gate=self._gate.state,
@@ -344,6 +358,21 @@ class ReadingPipeline:
         """Pose and twist to the origin; the next reading is published whatever the rate."""
         self._estimator.reset()
         self._gate.forget()
+        self._setpose.pending = None
+
+    def set_pose(self, request: PoseRequest) -> str | PoseRefusal:
+        """``~/set_pose`` (:mod:`~diffdrive_odom.core.estimation.setpose`), checked and set.
+
+        Returns the line that names it in the log, or why it is refused. The next pose
+        published is the first after the pose is set, whatever ``publish_rate``.
+        """
+        accepted = check_request(request, self._settings.odom_frame_id)
+        if isinstance(accepted, PoseRefusal):
+            return accepted
+        line = self._setpose.offer(accepted, self._estimator, self._estimator.uncertainty is None)
+        if self._setpose.pending is None:
+            self._gate.forget()
+        return line
 
     def reconfigure(self, settings: OdometrySettings) -> None:
         """Install validated settings at runtime; the pose carries on without a jump.
