@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from diffdrive_odom.core.estimation import gate as gate_module
 from diffdrive_odom.core.estimation.gate import GateState, PublishGate
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.tools.args import load_settings
@@ -80,9 +81,15 @@ def _stream(rng: random.Random) -> list[int]:
     return out
 
 
+@pytest.mark.parametrize("array_from", [0.0, gate_module.ARRAY_FROM])
 @pytest.mark.parametrize("seed", range(60))
-def test_the_array_form_is_the_scalar_form(seed: int) -> None:
-    """passed() over random chunks, handing the state on, publishes what due() does."""
+def test_the_array_form_is_the_scalar_form(monkeypatch: pytest.MonkeyPatch, seed: int,
+                                           array_from: float) -> None:
+    """passed() over random chunks, handing the state on, publishes what due() does.
+
+    ``array_from`` 0: every chunk in array form, however sparse its readings.
+    """
+    monkeypatch.setattr(gate_module, "ARRAY_FROM", array_from)
     rng = random.Random(seed)
     stamps = _stream(rng)
     rate = rng.choice([0.0, 7.3, 30.0, 50.0, 100.0, 1e6])
