@@ -150,7 +150,9 @@ class PublishGate:
         assert self._anchor is not None
         offsets = s[i:end] - self._anchor
         period, slot = self._period, self._slot
-        slots = np.arange(slot, max(int(offsets[-1] // period) + 2, slot + 1), dtype=np.int64)
+        # Up to the last reading's due time, and no more than readings (each takes one).
+        top = min(max(int(offsets[-1] // period) + 2, slot + 1), slot + len(offsets) + 1)
+        slots = np.arange(slot, top, dtype=np.int64)
         at = np.searchsorted(offsets, slots * period - SLACK_NS, side="left")
         at = at[at < len(offsets)]
         if not len(at):
