@@ -17,7 +17,8 @@ from rosutil import T0_NS, OdomRigs, ns_of, reading, send_first, spin_for, spin_
 pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 
-@pytest.mark.parametrize(("hz", "jitter", "rate"), [(150.0, 1e-3, 50.0), (100.0, 0.0, 30.0)])
+@pytest.mark.parametrize(("hz", "jitter", "rate"), [(150.0, 1e-3, 50.0), (100.0, 0.0, 30.0),
+                                                    (49.0, 1e-3, 50.0)])
 def test_the_node_publishes_at_the_rate_asked(odom_rig: OdomRigs, hz: float, jitter: float,
                                               rate: float) -> None:
     _, out, _, ex, pub, sink = odom_rig("-p", f"publish_rate:={rate}",
