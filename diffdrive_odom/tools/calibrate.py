@@ -33,7 +33,7 @@ from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run, trajectory, values_of
 from diffdrive_odom.core.evaluation.umbmark import Umbmark, reference_end, umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.core.uncertainty.propagation import (
+from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_RADIUS_STDDEV_RATIO,
     DEFAULT_SEPARATION_STDDEV_RATIO,
     SESSION_DRIFT_RATIO,
