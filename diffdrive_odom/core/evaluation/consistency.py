@@ -48,7 +48,9 @@ from diffdrive_odom.core.uncertainty.propagation import ZERO3, geometry_term
 FloatArray = npt.NDArray[np.float64]
 
 # The motion capture's own error (1 sigma): 1 mm in x and y, 0.5 deg in heading.
-REFERENCE_ERROR: FloatArray = np.diag([0.001**2, 0.001**2, math.radians(0.5) ** 2])
+REFERENCE_POSITION_M, REFERENCE_HEADING_DEG = 0.001, 0.5
+REFERENCE_ERROR: FloatArray = np.diag([REFERENCE_POSITION_M**2, REFERENCE_POSITION_M**2,
+                                       math.radians(REFERENCE_HEADING_DEG) ** 2])
 NO_REFERENCE_ERROR: FloatArray = np.zeros((3, 3))
 CHI2_3_95 = 7.815  # chi-square (3 dof) 95 % quantile
 CHI2_3_999 = 16.266  # 99.9 %
@@ -192,3 +194,19 @@ def chi2_band(n: int, dof: int = 3) -> tuple[float, float]:
     c = 2.0 / (9.0 * total)
     lo, hi = (total * (1 - c + z * math.sqrt(c)) ** 3 / n for z in (-1.96, 1.96))
     return lo, hi
+
+
+def held_out_terms(runs: Sequence[Run], geometries: Sequence[Geometry | None],
+                   max_gap: float = 0.5) -> list[RunTerms]:
+    """Each run's terms with the geometry fitted without it (runs with None are skipped).
+
+    The random terms are judged on runs the geometry was not fitted to: in-sample, the
+    fit absorbs part of each run's own random error and the errors read too small.
+    """
+    return [run_terms(r, g, max_gap) for r, g in zip(runs, geometries, strict=True)
+            if g is not None]
+
+
+def reference_error(position_m: float, heading_rad: float) -> FloatArray:
+    """The reference's own error as a covariance: ``position_m`` in x and y, 1 sigma."""
+    return np.diag([position_m**2, position_m**2, heading_rad**2])
