@@ -23,7 +23,7 @@ statistic against 0 is returned with it, so a caller can say how much the data w
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,6 +136,49 @@ def log_likelihood(terms: Sequence[RunTerms], noise: Noise,
             return -math.inf
         total -= 0.5 * (logdet + float(t.error @ np.linalg.solve(c, t.error)))
     return total
+
+
+def joint_log_likelihood(groups: Sequence[Sequence[RunTerms]], noise: Noise,
+                         reference: FloatArray = REFERENCE_ERROR) -> float:
+    """:func:`log_likelihood` with the geometry error one draw per group, not per run.
+
+    The runs of one session share the robot's true geometry: their geometry parts are
+    correlated, ``cov(e_i, e_j) = J_i S J_j^T``, and only the random terms (and the
+    reference's error) are independent between runs. So what repeated runs share is
+    told apart from how they scatter, which is what the random terms must explain.
+    """
+    vr, vb = noise.radius_ratio**2, noise.separation_ratio**2
+    s = np.diag([vr, vr, vb])
+    total = 0.0
+    for ts in groups:
+        e = np.concatenate([t.error for t in ts])
+        js = np.vstack([t.sensitivity for t in ts])
+        c = js @ s @ js.T
+        for i, t in enumerate(ts):
+            c[3 * i:3 * i + 3, 3 * i:3 * i + 3] += (noise.k * t.wheel
+                                                    + noise.k_rotation * t.rotation + reference)
+        sign, logdet = np.linalg.slogdet(c)
+        if sign <= 0:
+            return -math.inf
+        total -= 0.5 * (logdet + float(e @ np.linalg.solve(c, e)))
+    return total
+
+
+def upper_bound(log_likelihood_of: Callable[[float], float], best: float,
+                drop: float = LR_5_PERCENT) -> float:
+    """The largest value whose likelihood ratio against ``best`` stays under ``drop``.
+
+    A one-sided 95 % upper confidence bound for a parameter whose likelihood falls
+    monotonically above ``best`` (searched by decades in 1/16 steps, up to 1 rad).
+    """
+    top = log_likelihood_of(best)
+    value = max(best, 1e-10)
+    while value < 1.0:
+        nxt = value * 10 ** (1 / 16)
+        if 2.0 * (top - log_likelihood_of(nxt)) > drop:
+            return value
+        value = nxt
+    return value
 
 
 @dataclass(frozen=True)

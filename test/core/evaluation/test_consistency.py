@@ -105,3 +105,29 @@ def test_chi2_band_of_the_mean(runs: int) -> None:
     assert hi == pytest.approx(chi2.ppf(0.975, 3 * runs) / runs, rel=0.01)
     assert pytest.approx(chi2.ppf(0.95, 3), abs=1e-3) == consistency.CHI2_3_95
     assert pytest.approx(chi2.ppf(0.999, 3), abs=1e-3) == consistency.CHI2_3_999
+
+
+def test_the_joint_likelihood_shares_the_geometry_error_within_a_group() -> None:
+    """One run a group: the per-run likelihood. Two runs of one path: errors that agree
+    (a shared geometry error) are likelier than errors that disagree by the same size."""
+    terms = _terms_with_errors(1e-4, 2, 3)
+    noise = Noise(1e-6, 1e-4, 0.003, 0.01)
+    alone = consistency.joint_log_likelihood([[t] for t in terms], noise)
+    assert alone == pytest.approx(consistency.log_likelihood(terms, noise), rel=1e-12)
+    a = terms[0]
+    e = a.sensitivity @ np.array([0.0, 0.0, 0.02])  # the error of a 2 % wrong separation
+    same = [RunTerms("a", e, a.wheel, a.rotation, a.sensitivity, a.turned, a.distance),
+            RunTerms("b", e, a.wheel, a.rotation, a.sensitivity, a.turned, a.distance)]
+    opposite = [same[0], RunTerms("b", -e, a.wheel, a.rotation, a.sensitivity, a.turned,
+                                  a.distance)]
+    assert (consistency.joint_log_likelihood([same], noise)
+            > consistency.joint_log_likelihood([opposite], noise))
+
+
+def test_the_upper_bound_is_where_the_likelihood_ratio_reaches_its_threshold() -> None:
+    """A quadratic log-likelihood ``-(x - m)^2 / (2 s^2)``: the bound is ``m + s sqrt(2.706)``
+    (to the search's step of 10^(1/16))."""
+    m, s = 1e-4, 5e-5
+    bound = consistency.upper_bound(lambda x: -((x - m) ** 2) / (2 * s * s), m)
+    want = m + s * math.sqrt(consistency.LR_5_PERCENT)
+    assert want / 10 ** (1 / 16) <= bound <= want
