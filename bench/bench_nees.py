@@ -215,7 +215,8 @@ def main(argv: Sequence[str]) -> int:
     print("\n== 2. Final-pose NEES per run (3 dof): mean (95 % band of the mean), runs above "
           "7.81 (95 %) and 16.27 (99.9 %), worst ==")
     for title, j in judged.items():
-        settings = [("before: k_rot 0 (the old defaults)", 0.0)]
+        settings = [("k_rot 0: before" + (", and the default (June's ML)"
+                                           if DEFAULT_ROTATION_K == 0.0 else ""), 0.0)]
         if DEFAULT_ROTATION_K != 0.0:
             settings.append((f"after: k_rot {DEFAULT_ROTATION_K:g} (the default)",
                              DEFAULT_ROTATION_K))

@@ -78,7 +78,7 @@ def test_nees_bench_quick_prints_the_per_run_table_and_meets_the_goal_held_out()
     out = proc.stdout
     assert proc.returncode == 0, out + proc.stderr
     assert re.search(r"^  June, per run likelihood: k_rot = \S+ rad", out, re.M), out
-    held = out[out.index("held out (Dec 2020 / Jan 2021), before"):]
+    held = out[out.index("held out (Dec 2020 / Jan 2021), k_rot 0: before"):]
     for kind in ("circular", "free", "ivanjko", "square"):
         assert re.search(rf"^  {kind}\s+\d+\s+\S+ \[", held, re.M), out
     row = re.search(r"^  ALL\s+(\d+)\s+(\S+) \[(\S+), (\S+)\] \S+\s+(\d+) \(\s*\S+ %\)\s+(\d+)",
