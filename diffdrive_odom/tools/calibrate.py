@@ -97,7 +97,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="relative 1-sigma drift of the radii and separation between recording "
                     "sessions (tyres, floor), added in quadrature to the bootstrap sigma: what "
                     "the printed sigma covers on other days (chosen on the OptiOdom robot, "
-                    "README 'Calibration'; 0: the bootstrap alone)")
+                    "doc/concepts/calibration.md; 0: the bootstrap alone)")
     ap.add_argument("--reference-error", default="1,0.5", metavar="MM,DEG",
                     help="1-sigma error of the reference itself, position [mm] and heading "
                     "[deg], added to the covariance when rotation_noise_k is fitted (a motion "
@@ -145,7 +145,7 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
         if args.window is not None or args.no_mount:
             return ("--window/--no-mount are gone: the fit uses the whole trajectory with the "
                     "reference's start yaw as its only nuisance (offset from the axle and "
-                    "clock lag fixed at 0); see README 'Calibration'")
+                    "clock lag fixed at 0); see doc/concepts/calibration.md")
     else:
         if args.bags:
             return "--umbmark takes its two bags itself; no other BAG"

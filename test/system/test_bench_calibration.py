@@ -3,7 +3,7 @@ the NEES bench's ``--quick``, nominal geometry only, on all 47 runs).
 
 Figures are the bench's to report; checked here is that every section prints, that the
 product's fit beats the nominal geometry on held-out squares (the real-data claim the
-README makes), and that the bench skips with one line where ../shared is missing.
+calibration page makes), and that the bench skips with one line where ../shared is missing.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def test_calibration_bench_quick_prints_every_section() -> None:
                     reason="../shared/data/optiodom_train is not here (a user's clone)")
 def test_verdict_bench_quick_counts_both_rules_on_the_squares() -> None:
     """``bench_verdict.py --quick``: the 3-run subsets of the 12 training squares. The
-    README's claim there: the verdict that leaves out the folds that cannot judge, with
+    calibration page's claim there: the verdict that leaves out the folds that cannot judge, with
     its margin, neither refuses a fit that is better held out nor accepts a worse one."""
     proc = subprocess.run([sys.executable, str(ROOT / "bench" / "bench_verdict.py"),
                            "--quick"], capture_output=True, text=True, timeout=600, cwd=ROOT,

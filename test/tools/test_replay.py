@@ -474,6 +474,6 @@ def test_replay_eval_finds_a_ground_truth_topic_by_its_name(
     assert cli(["replay", str(bag), "--params-file", str(params), "--eval",
                 "--json", str(figures)]) == 0
     assert "using /ground_truth/odom" in capsys.readouterr().err
-    # run-04 with nominal geometry ends 0.1075 m from motion capture (README figure)
+    # run-04, nominal geometry: 0.1075 m from motion capture (the figure doc/tools/eval.md quotes)
     assert json.loads(figures.read_text())["final_position_error_m"] == pytest.approx(
         0.1075, abs=5e-4)

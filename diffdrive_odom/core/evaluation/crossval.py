@@ -261,10 +261,10 @@ def drift_ratio(values: Sequence[FloatArray], covariances: Sequence[FloatArray])
 
 def pair_z(values_a: FloatArray, printed_a: FloatArray, values_b: FloatArray,
            covariance_b: FloatArray) -> FloatArray:
-    """|v_a - v_b| in units of a's printed sigma with b's own (bootstrap) sigma added.
+    """``|v_a - v_b|`` in units of a's printed sigma with b's own (bootstrap) sigma added.
 
     How the printed sigma is checked: b is another experiment's fit, its geometry up to
-    its own noise; if a's sigma covers b's geometry, |z| < 1 about 68 % of the time.
+    its own noise; if a's sigma covers b's geometry, ``|z| < 1`` about 68 % of the time.
     """
     diff = np.abs(np.asarray(values_a) - np.asarray(values_b))
     return np.asarray(diff / np.sqrt(np.diag(printed_a) + np.diag(covariance_b)),
