@@ -103,6 +103,10 @@ def _parser() -> argparse.ArgumentParser:
                     "[deg], added to the covariance when rotation_noise_k is fitted (a motion "
                     "capture's: tracked point off the axle, markers' yaw; 0,0 for a "
                     "simulator's truth)")
+    ap.add_argument("--end-weight", type=float, default=0.0, metavar="W",
+                    help="also fit each run's final position, its square weighted W^2 times "
+                    "the run's mean squared error along the path (0: the whole trajectory "
+                    "alone; what each gives: doc/concepts/calibration.md)")
     ap.add_argument("--window", default=None, help=argparse.SUPPRESS)  # refused: see below
     ap.add_argument("--no-mount", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--yaml", metavar="FILE",
@@ -142,6 +146,8 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
         if _reference_error(args.reference_error) is None:
             return ("--reference-error: give MM,DEG, two finite numbers >= 0, got "
                     f"{args.reference_error!r}")
+        if not (math.isfinite(args.end_weight) and args.end_weight >= 0.0):
+            return f"--end-weight: give a finite W >= 0, got {args.end_weight!r}"
         if args.window is not None or args.no_mount:
             return ("--window/--no-mount are gone: the fit uses the whole trajectory with the "
                     "reference's start yaw as its only nuisance (offset from the axle and "
@@ -235,11 +241,12 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
     from diffdrive_odom.core.evaluation import calibration, crossval
 
     nominal = settings.geometry
-    result = calibration.fit(runs, nominal)
+    w = args.end_weight
+    result = calibration.fit(runs, nominal, end_weight=w)
     in_sample = [r.after.final_position_error_aligned_m for r in result.runs]
-    folds = crossval.held_out(runs, nominal) if len(runs) >= 2 else []
-    verdict = crossval.judge(runs, folds, nominal, in_sample) if folds else None
-    covariance = crossval.bootstrap(runs, nominal)
+    folds = crossval.held_out(runs, nominal, fitter=crossval.default_fitter(nominal, w))
+    verdict = crossval.judge(runs, folds, nominal, in_sample) if len(runs) >= 2 else None
+    covariance = crossval.bootstrap(runs, nominal, end_weight=w)
     printed = None if covariance is None else crossval.with_drift(result.values, covariance,
                                                                   args.session_drift)
     ratios = None if printed is None else crossval.stddev_ratios(result.values, printed)

@@ -64,7 +64,8 @@ def check_lines(v: crossval.Verdict | None, runs: int, forced: bool) -> str:
     if c is None:
         return "\n".join([
             f"CANNOT TELL on held-out runs: none of the {len(v.left_out)} folds can judge the "
-            "fit (drive both ways, with lines and turns); the block is printed, judge it "
+            "fit (paths that turn both ways as they go, circles or squares each way, judge "
+            "it; straight lines and spins on the spot cannot); the block is printed, judge it "
             "yourself", *left])
     figures = (f"mean final position error {c.fpe_nominal:.4f} m nominal, {c.fpe_held_out:.4f} "
                f"m calibrated; ATE {c.ate_nominal:.4f} -> {c.ate_held_out:.4f} m "
@@ -129,7 +130,9 @@ def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None,
     from diffdrive_odom.core.evaluation import calibration, crossval
 
     nominal = values_of(fit.nominal)
-    lines = [f"calibrated from {len(fit.runs)} run(s): whole trajectory, {fit.samples} "
+    how = "whole trajectory" + (f" + end positions x{fit.end_weight:g}" if fit.end_weight
+                                 else "")
+    lines = [f"calibrated from {len(fit.runs)} run(s): {how}, {fit.samples} "
              f"samples, {fit.loss} loss, {fit.evaluations} evaluations, {fit.seconds:.2f} s",
              f"{'':22s} {'nominal':>10s} {'fitted':>10s} {'bootstrap':>10s} {'1-sigma':>10s}"]
     boot = None if covariance is None else np.sqrt(np.diag(covariance))
