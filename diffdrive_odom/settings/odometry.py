@@ -13,9 +13,10 @@ from typing import Any
 from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
 from diffdrive_odom.core.estimation.gyro import GyroConfig
 from diffdrive_odom.core.estimation.stamps import StampSource
-from diffdrive_odom.core.uncertainty.propagation import (
+from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_K,
     DEFAULT_RADIUS_STDDEV_RATIO,
+    DEFAULT_ROTATION_K,
     DEFAULT_SEPARATION_STDDEV_RATIO,
     NoiseModel,
 )
@@ -95,6 +96,10 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("wheel_noise_k_right", "double", DEFAULT_K,
               "Right wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated).",
               range=NON_NEGATIVE),
+    ParamSpec("rotation_noise_k", "double", DEFAULT_ROTATION_K,
+              "Rotation noise [rad]: a step's heading change dtheta has its own variance "
+              "k * abs(dtheta), slip while turning (propagated, wheels only); calibrate "
+              "prints a fitted value.", range=NON_NEGATIVE),
     ParamSpec("wheel_radius_stddev_ratio", "double", DEFAULT_RADIUS_STDDEV_RATIO,
               "Relative 1-sigma uncertainty of each effective wheel radius (propagated: "
               "its pose term grows with distance squared); calibrate prints it.",
@@ -164,7 +169,8 @@ def _noise_model(v: Mapping[str, Any]) -> NoiseModel | None:
             "covariance_model", f"must be one of {', '.join(COVARIANCE_MODELS)}, got {model!r}")
     with as_parameter_error():
         noise = NoiseModel(v["wheel_noise_k_left"], v["wheel_noise_k_right"],
-                           v["wheel_radius_stddev_ratio"], v["wheel_separation_stddev_ratio"])
+                           v["wheel_radius_stddev_ratio"], v["wheel_separation_stddev_ratio"],
+                           v["rotation_noise_k"])
     return noise if model == "propagated" else None
 
 

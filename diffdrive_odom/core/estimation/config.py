@@ -18,7 +18,7 @@ from diffdrive_odom.core.estimation.encoders import EncoderConfig
 from diffdrive_odom.core.estimation.gyro import GyroConfig
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.core.uncertainty.propagation import NoiseModel
+from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
 
 class EstimatorConfigError(ConfigError):
