@@ -51,13 +51,13 @@ from diffdrive_odom.core.evaluation import calibration, crossval
 from diffdrive_odom.core.evaluation.metrics import Metrics
 from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
 from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.core.uncertainty.propagation import (
+from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_K,
     DEFAULT_RADIUS_STDDEV_RATIO,
     DEFAULT_SEPARATION_STDDEV_RATIO,
     SESSION_DRIFT_RATIO,
-    geometry_term,
 )
+from diffdrive_odom.core.uncertainty.propagation import geometry_term
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools import bagreadings, evaluate
 

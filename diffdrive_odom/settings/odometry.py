@@ -18,9 +18,10 @@ from diffdrive_odom.core.estimation.open_loop import (
     OpenLoopConfig,
 )
 from diffdrive_odom.core.estimation.stamps import StampSource
-from diffdrive_odom.core.uncertainty.propagation import (
+from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_K,
     DEFAULT_RADIUS_STDDEV_RATIO,
+    DEFAULT_ROTATION_K,
     DEFAULT_SEPARATION_STDDEV_RATIO,
     NoiseModel,
 )
@@ -111,7 +112,8 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "time); receive_time: with the time it arrived on this node's clock, as "
               "diff_drive_controller (a driver whose clock is not synced)."),
     ParamSpec("publish_rate", "double", 0.0,
-              "Max odometry publish rate [Hz]; 0 = publish every reading.",
+              "Odometry publish rate [Hz], kept on average in stamp time: min(this, the "
+              "reading rate), real readings only; 0 = publish every reading.",
               range=NON_NEGATIVE),
     ParamSpec("covariance_model", "string", "propagated",
               "propagated: covariance from wheel noise through each step (grows with "
@@ -122,6 +124,10 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("wheel_noise_k_right", "double", DEFAULT_K,
               "Right wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated).",
               range=NON_NEGATIVE),
+    ParamSpec("rotation_noise_k", "double", DEFAULT_ROTATION_K,
+              "Rotation noise [rad]: a step's heading change dtheta has its own variance "
+              "k * abs(dtheta), slip while turning (propagated, wheels only); calibrate "
+              "prints a fitted value.", range=NON_NEGATIVE),
     ParamSpec("wheel_radius_stddev_ratio", "double", DEFAULT_RADIUS_STDDEV_RATIO,
               "Relative 1-sigma uncertainty of each effective wheel radius (propagated: "
               "its pose term grows with distance squared); calibrate prints it.",
@@ -194,7 +200,8 @@ def _noise_model(v: Mapping[str, Any]) -> NoiseModel | None:
             "covariance_model", f"must be one of {', '.join(COVARIANCE_MODELS)}, got {model!r}")
     with as_parameter_error():
         noise = NoiseModel(v["wheel_noise_k_left"], v["wheel_noise_k_right"],
-                           v["wheel_radius_stddev_ratio"], v["wheel_separation_stddev_ratio"])
+                           v["wheel_radius_stddev_ratio"], v["wheel_separation_stddev_ratio"],
+                           v["rotation_noise_k"])
     return noise if model == "propagated" else None
 
 

@@ -6,7 +6,10 @@ own result first: each run integrated with a geometry fitted on the others, agai
 the nominal geometry, over the folds whose training runs determine the geometry (the
 others are named and left out); when the nominal one does better it says so on the
 first line, exits 1 and prints no block (``--force`` prints it anyway); when no fold
-remains it says it cannot tell and prints the block with that warning.
+remains it says it cannot tell and prints the block with that warning. With 3 runs or
+more it also fits ``rotation_noise_k`` (the turn's own noise) by maximum likelihood of the
+held-out final poses (:mod:`diffdrive_odom.core.evaluation.consistency`) and prints it,
+saying when the runs want none. The printed text: :mod:`~.calibration_report`.
 Readings are decoded with the odometry node's own parameters and pipeline
 (:func:`diffdrive_odom.core.bulk.batch.wheel_steps`), ground truth with ``eval``'s readers, so
 a bag that replays or evaluates also calibrates. The result is printed as a
@@ -24,21 +27,16 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-import numpy.typing as npt
-
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.evaluation import metrics
-from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run, trajectory, values_of
-from diffdrive_odom.core.evaluation.umbmark import Umbmark, reference_end, umbmark
+from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run, trajectory
+from diffdrive_odom.core.evaluation.umbmark import reference_end, umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.core.uncertainty.propagation import (
-    DEFAULT_RADIUS_STDDEV_RATIO,
-    DEFAULT_SEPARATION_STDDEV_RATIO,
+from diffdrive_odom.core.uncertainty.noise import (
+    DEFAULT_K,
     SESSION_DRIFT_RATIO,
 )
-from diffdrive_odom.settings.params import yaml_text
 from diffdrive_odom.tools import evaluate, fleet
 from diffdrive_odom.tools.args import (
     add_param_arguments,
@@ -47,10 +45,17 @@ from diffdrive_odom.tools.args import (
     outputs_problem,
     settings_from_args,
 )
+from diffdrive_odom.tools.calibration_report import (
+    check_lines,
+    fit_report,
+    params_block,
+    rotation_line,
+    umbmark_report,
+)
 from diffdrive_odom.tools.cli import HelpFormatter
 
 if TYPE_CHECKING:  # scipy and rosbags (the ``tools`` extra) only where they are used
-    from diffdrive_odom.core.evaluation import crossval
+    from diffdrive_odom.core.evaluation import consistency
     from diffdrive_odom.core.evaluation.calibration import Fit
 
 PREFIX = "[calibrate]"
@@ -93,6 +98,11 @@ def _parser() -> argparse.ArgumentParser:
                     "sessions (tyres, floor), added in quadrature to the bootstrap sigma: what "
                     "the printed sigma covers on other days (chosen on the OptiOdom robot, "
                     "doc/concepts/calibration.md; 0: the bootstrap alone)")
+    ap.add_argument("--reference-error", default="1,0.5", metavar="MM,DEG",
+                    help="1-sigma error of the reference itself, position [mm] and heading "
+                    "[deg], added to the covariance when rotation_noise_k is fitted (a motion "
+                    "capture's: tracked point off the axle, markers' yaw; 0,0 for a "
+                    "simulator's truth)")
     ap.add_argument("--end-weight", type=float, default=0.0, metavar="W",
                     help="also fit each run's final position, its square weighted W^2 times "
                     "the run's mean squared error along the path (0: the whole trajectory "
@@ -133,6 +143,9 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
             return "--side/--cw-end/--ccw-end need --umbmark"
         if not (math.isfinite(args.session_drift) and 0.0 <= args.session_drift < 1.0):
             return f"--session-drift: give a ratio in [0, 1), got {args.session_drift!r}"
+        if _reference_error(args.reference_error) is None:
+            return ("--reference-error: give MM,DEG, two finite numbers >= 0, got "
+                    f"{args.reference_error!r}")
         if not (math.isfinite(args.end_weight) and args.end_weight >= 0.0):
             return f"--end-weight: give a finite W >= 0, got {args.end_weight!r}"
         if args.window is not None or args.no_mount:
@@ -147,6 +160,17 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
         if bool(args.cw_end) != bool(args.ccw_end):
             return "give both --cw-end and --ccw-end, or neither (ground truth from the bags)"
     return outputs_problem(("--yaml", args.yaml), ("--plot", args.plot))
+
+
+def _reference_error(text: str) -> tuple[float, float] | None:
+    """``MM,DEG`` -> (metres, radians), or None if it is not two finite numbers >= 0."""
+    try:
+        mm, deg = (float(p) for p in text.split(","))
+    except ValueError:
+        return None
+    if not (math.isfinite(mm) and math.isfinite(deg) and mm >= 0.0 and deg >= 0.0):
+        return None
+    return mm / 1000.0, math.radians(deg)
 
 
 def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,
@@ -224,8 +248,8 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
     w = args.end_weight
     result = calibration.fit(runs, nominal, end_weight=w)
     in_sample = [r.after.final_position_error_aligned_m for r in result.runs]
-    held = crossval.held_out(runs, nominal, fitter=crossval.default_fitter(nominal, w))
-    verdict = crossval.judge(runs, held, nominal, in_sample) if len(runs) >= 2 else None
+    folds = crossval.held_out(runs, nominal, fitter=crossval.default_fitter(nominal, w))
+    verdict = crossval.judge(runs, folds, nominal, in_sample) if len(runs) >= 2 else None
     covariance = crossval.bootstrap(runs, nominal, end_weight=w)
     printed = None if covariance is None else crossval.with_drift(result.values, covariance,
                                                                   args.session_drift)
@@ -235,10 +259,17 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
     how = f"least squares on {len(runs)} run(s)"
     if verdict is not None and verdict.cannot_tell:
         how += "; held-out check CANNOT TELL, see its first line"
-    text = params_block(result.geometry, ratios, how)
+    rotation = None
+    reference = _reference_error(args.reference_error) or (0.0, 0.0)  # checked at the start
+    if ratios is not None:
+        rotation = rotation_fit(runs, [h.geometry for h in folds], settings, ratios, reference)
+    text = params_block(result.geometry, ratios, how,
+                        None if rotation is None else rotation.noise.k_rotation)
     if args.plot:
         plot(result, runs, args.plot)
     print(fit_report(result, covariance, args.session_drift))
+    if rotation is not None:
+        print(rotation_line(rotation, len(runs), reference))
     if refused and not args.force:
         print(f"{PREFIX} no params block: the nominal geometry did better on held-out runs "
               "(--force prints it anyway)")
@@ -249,39 +280,21 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
     return 0
 
 
-def check_lines(v: crossval.Verdict | None, runs: int, forced: bool) -> str:
-    """The verdict of the held-out check (calibrate's first line), then each fold left out.
+def rotation_fit(runs: Sequence[Run], geometries: Sequence[Geometry | None],
+                 settings: OdometrySettings, ratios: tuple[float, float],
+                 reference: tuple[float, float]) -> consistency.NoiseFit:
+    """``rotation_noise_k`` by maximum likelihood of the held-out final poses.
 
-    First line: ``held-out check: ...`` (better, or cannot be made), ``NOT BETTER THAN
-    NOMINAL ...`` or ``CANNOT TELL ...``; then one ``held-out fold left out: RUN: WHY``
-    line per fold that cannot judge the fit.
+    Each run integrated with the geometry fitted on the others; the wheel noise k (the
+    node's, from the params given) and the printed ratios held fixed.
     """
-    if v is None:
-        return (f"held-out check: cannot be made with {runs} run (give 2 or more runs: each "
-                "is then judged with a geometry fitted on the others)")
-    left = [f"held-out fold left out: {run}: {why}" for run, why in v.left_out]
-    c = v.check
-    if c is None:
-        return "\n".join([
-            f"CANNOT TELL on held-out runs: none of the {len(v.left_out)} folds can judge the "
-            "fit (paths that turn both ways as they go, circles or squares each way, judge "
-            "it; straight lines and spins on the spot cannot); the block is printed, judge it "
-            "yourself", *left])
-    figures = (f"mean final position error {c.fpe_nominal:.4f} m nominal, {c.fpe_held_out:.4f} "
-               f"m calibrated; ATE {c.ate_nominal:.4f} -> {c.ate_held_out:.4f} m "
-               f"(leave-one-run-out over {c.runs} runs"
-               + (f", {len(v.left_out)} left out" if v.left_out else "") + ")")
-    if v.within_margin:
-        head = (f"CANNOT TELL on held-out runs: {figures}; the change is within its noise, "
-                f"{v.margin:.4f} m (the RMS in-sample final error over the square root of "
-                "the folds); the block is printed, judge it yourself")
-    elif v.better:
-        head = ("held-out check: calibrated geometry better than nominal on runs it did not "
-                f"see: {figures}")
-    else:
-        head = ("NOT BETTER THAN NOMINAL on held-out runs"
-                + (" (--force: block printed anyway)" if forced else "") + f": {figures}")
-    return "\n".join([head, *left])
+    from diffdrive_odom.core.evaluation import consistency
+
+    noise = settings.noise
+    k = DEFAULT_K if noise is None else 0.5 * (noise.k_left + noise.k_right)
+    terms = consistency.held_out_terms(runs, geometries)
+    return consistency.fit_noise(terms, consistency.Noise(k, 0.0, *ratios),
+                                 reference=consistency.reference_error(*reference))
 
 
 def _umbmark(args: argparse.Namespace, settings: OdometrySettings) -> int:
@@ -302,105 +315,6 @@ def _umbmark(args: argparse.Namespace, settings: OdometrySettings) -> int:
     print(umbmark_report(result))
     print(text, end="")
     return 0
-
-
-def _num(value: float) -> str:
-    return yaml_text(float(f"{value:.7g}"))
-
-
-def params_block(geometry: Geometry, ratios: tuple[float, float] | None, how: str) -> str:
-    """The ``/**: ros__parameters:`` block for the node (nominal values kept, multipliers set).
-
-    The separation is given as ``wheel_separation_multiplier`` with the nominal
-    ``wheel_separation``, as the radii are: diff_drive_controller's split. ``ratios``:
-    the bootstrap's ``wheel_radius_stddev_ratio`` / ``wheel_separation_stddev_ratio``
-    (None: too few runs for one; the node's defaults describe an uncalibrated robot).
-    """
-    lines = [
-        f"# diffdrive-odom calibrate: {how}",
-        "/**:",
-        "  ros__parameters:",
-        f"    wheel_radius: {_num(geometry.wheel_radius)}",
-        f"    left_wheel_radius_multiplier: {_num(geometry.left_wheel_radius_multiplier)}",
-        f"    right_wheel_radius_multiplier: {_num(geometry.right_wheel_radius_multiplier)}",
-        f"    wheel_separation: {_num(geometry.wheel_separation)}",
-        f"    wheel_separation_multiplier: {_num(geometry.wheel_separation_multiplier)}",
-    ]
-    if ratios is not None:
-        lines += [f"    wheel_radius_stddev_ratio: {_num(ratios[0])}  # printed 1-sigma "
-                  f"(bootstrap + session drift), relative (default "
-                  f"{DEFAULT_RADIUS_STDDEV_RATIO:g})",
-                  f"    wheel_separation_stddev_ratio: {_num(ratios[1])}  # (default "
-                  f"{DEFAULT_SEPARATION_STDDEV_RATIO:g})"]
-    return "\n".join(lines) + "\n"
-
-
-def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None,
-               drift: float = SESSION_DRIFT_RATIO) -> str:
-    """Human lines: values with their sigma, what is fixed, per-run errors.
-
-    ``covariance`` is the bootstrap's; the 1-sigma column adds ``drift`` of each value
-    (:func:`crossval.with_drift`), what the value may move by in another session.
-    """
-    from diffdrive_odom.core.evaluation import calibration, crossval
-
-    nominal = values_of(fit.nominal)
-    how = "whole trajectory" + (f" + end positions x{fit.end_weight:g}" if fit.end_weight
-                                 else "")
-    lines = [f"calibrated from {len(fit.runs)} run(s): {how}, {fit.samples} "
-             f"samples, {fit.loss} loss, {fit.evaluations} evaluations, {fit.seconds:.2f} s",
-             f"{'':22s} {'nominal':>10s} {'fitted':>10s} {'bootstrap':>10s} {'1-sigma':>10s}"]
-    boot = None if covariance is None else np.sqrt(np.diag(covariance))
-    std = None if covariance is None else np.sqrt(np.diag(
-        crossval.with_drift(fit.values, covariance, drift)))
-    for i, (name, n, v) in enumerate(zip(("left wheel radius [m]", "right wheel radius [m]",
-                                          "wheel separation [m]"), nominal, fit.values,
-                                         strict=True)):
-        b, sigma = ("-", "-") if boot is None or std is None else (f"{boot[i]:.6f}",
-                                                                    f"{std[i]:.6f}")
-        lines.append(f"{name:22s} {n:10.6f} {v:10.6f} {b:>10s} {sigma:>10s}")
-    lines.append(
-        f"1-sigma: covers the geometry on other days: bootstrap over runs "
-        f"({crossval.BOOTSTRAP_RUNS} resamples) and a drift between sessions of "
-        f"{100 * drift:.2f} % of each value (--session-drift), in quadrature"
-        if std is not None else
-        f"1-sigma: not given: it needs {crossval.MIN_RUNS_FOR_SIGMA} or more runs; the "
-        "node's default stddev ratios stay")
-    lines.append(f"fitted nuisance: the reference's yaw about the start "
-                 f"{math.degrees(fit.start_yaw):+.3f} deg")
-    for what, value, why in calibration.FIXED:
-        lines.append(f"fixed, not fitted: {what} = {value} ({why})")
-    lines.append(f"RMS residual {fit.rms_before * 1e3:.2f} -> {fit.rms_after * 1e3:.2f} mm")
-    lines.append("in-sample (the runs it was fitted to) final position error, start aligned, "
-                 "nominal -> calibrated; ATE RMSE:")
-    for r in fit.runs:
-        lines.append(f"  {r.name}: {r.before.final_position_error_aligned_m:.4f} -> "
-                     f"{r.after.final_position_error_aligned_m:.4f} m; "
-                     f"{r.before.ate_rmse_aligned_m:.4f} -> {r.after.ate_rmse_aligned_m:.4f} m")
-    return "\n".join(lines)
-
-
-def umbmark_report(u: Umbmark) -> str:
-    """Human lines: the paper's single pass, the converged values, the end errors."""
-    f = u.first
-    n, one, it = (values_of(g) for g in (u.nominal, u.one_pass, u.geometry))
-    lines = [
-        f"UMBmark (Borenstein and Feng), side {u.side:g} m: end errors (measured - odometry) "
-        f"CW ({f.cw_error[0]:+.4f}, {f.cw_error[1]:+.4f}) m, CCW ({f.ccw_error[0]:+.4f}, "
-        f"{f.ccw_error[1]:+.4f}) m",
-        f"  alpha {math.degrees(f.alpha):+.4f} deg (from y {math.degrees(f.alpha_y):+.4f}), "
-        f"beta {math.degrees(f.beta):+.4f} deg (from y {math.degrees(f.beta_y):+.4f}); "
-        f"E_d {f.e_d:.6f}, E_b {f.e_b:.6f}",
-        f"{'':22s} {'nominal':>10s} {'one pass':>10s} {'converged':>10s}",
-    ]
-    for name, a, b, c in zip(("left wheel radius [m]", "right wheel radius [m]",
-                              "wheel separation [m]"), n, one, it, strict=True):
-        lines.append(f"{name:22s} {a:10.6f} {b:10.6f} {c:10.6f}")
-    lines.append(f"converged in {u.passes} passes; end position error CW, CCW: "
-                 f"{u.before[0]:.4f}, {u.before[1]:.4f} -> {u.after[0]:.4f}, "
-                 f"{u.after[1]:.4f} m (E_max,syst {u.e_max_before:.4f} -> "
-                 f"{u.e_max_after:.4f} m)")
-    return "\n".join(lines)
 
 
 def plot(fit: Fit, runs: Sequence[Run], path: str | Path) -> None:
@@ -433,7 +347,8 @@ def plot(fit: Fit, runs: Sequence[Run], path: str | Path) -> None:
     plt.close(fig)
 
 
-__all__ = ["fit_report", "main", "params_block", "plot", "umbmark_report"]
+__all__ = ["check_lines", "fit_report", "main", "params_block", "plot", "rotation_fit",
+           "rotation_line", "umbmark_report"]
 
 if __name__ == "__main__":
     sys.exit(main(sys.argv[1:]))

@@ -295,10 +295,11 @@ def test_propagated_covariance_grows_along_a_drive_and_replay_writes_the_same(
     """
     r, b, k = 0.05, 0.3, 2e-5
     # The wheel-noise part alone (the geometry term has its own closed forms in
-    # test_uncertainty): with the geometry's standard deviations at 0.
+    # test_uncertainty): with the geometry's standard deviations at 0. The rotation term
+    # is on and adds nothing on a straight line (test_rotation_noise has its closed forms).
     params = write_params(tmp_path / "p.yaml", {
         "wheel_radius": r, "wheel_separation": b,
-        "wheel_noise_k_left": k, "wheel_noise_k_right": k,
+        "wheel_noise_k_left": k, "wheel_noise_k_right": k, "rotation_noise_k": 1e-3,
         "wheel_radius_stddev_ratio": 0.0, "wheel_separation_stddev_ratio": 0.0})
     per_step, steps = 0.4, 40  # 2 cm per reading, 0.8 m
     _, _, _, ex, pub, sink = odom_rig("--params-file", str(params), geometry=())

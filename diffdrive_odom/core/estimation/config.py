@@ -19,7 +19,7 @@ from diffdrive_odom.core.estimation.gyro import GyroConfig
 from diffdrive_odom.core.estimation.open_loop import OpenLoopConfig
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.core.uncertainty.propagation import NoiseModel
+from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
 
 class EstimatorConfigError(ConfigError):

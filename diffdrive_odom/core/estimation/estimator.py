@@ -67,7 +67,8 @@ from diffdrive_odom.core.estimation.gyro import GyroHeading
 from diffdrive_odom.core.estimation.timeline import ON_TRIAL, UPDATED, Status, Trial, Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D, compose
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_from_arcs, wheel_arcs
-from diffdrive_odom.core.uncertainty.propagation import NoiseModel, PoseUncertainty
+from diffdrive_odom.core.uncertainty.noise import NoiseModel
+from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty
 
 # m a wheel can roll between two readings, whatever the settings: more is no robot's
 # motion (1 km is 36 km/h for 100 s), and it keeps the pose where a double still

@@ -34,12 +34,8 @@ from itertools import pairwise
 
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.core.uncertainty.propagation import (
-    GyroStep,
-    NoiseModel,
-    joint_variances,
-    wheel_jacobian,
-)
+from diffdrive_odom.core.uncertainty.noise import NoiseModel, joint_variances
+from diffdrive_odom.core.uncertainty.propagation import GyroStep, wheel_jacobian
 
 Matrix = tuple[tuple[float, ...], ...]
 

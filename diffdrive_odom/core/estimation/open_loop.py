@@ -35,8 +35,8 @@ from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.geometry.integration import Pose2D, compose
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix, wheel_noise2
+from diffdrive_odom.core.uncertainty.noise import NoiseModel
 from diffdrive_odom.core.uncertainty.propagation import (
-    NoiseModel,
     PoseUncertainty,
     covariance_matrix,
     pose_message_covariance,
@@ -266,5 +266,6 @@ class OpenLoopOdometry:
 
 
 def _noise_model(config: OpenLoopConfig) -> NoiseModel:
-    """No random wheel term: the command's error is one draw per wheel and separation."""
-    return NoiseModel(0.0, 0.0, config.noise, config.noise)
+    """No random term: the command's error is one draw per wheel and separation."""
+    return NoiseModel(k_left=0.0, k_right=0.0, radius_stddev_ratio=config.noise,
+                      separation_stddev_ratio=config.noise, k_rotation=0.0)

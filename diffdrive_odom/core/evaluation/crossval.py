@@ -38,7 +38,7 @@ from diffdrive_odom.core.evaluation import calibration, determinacy
 from diffdrive_odom.core.evaluation.metrics import Metrics
 from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
 from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.core.uncertainty.propagation import SESSION_DRIFT_RATIO
+from diffdrive_odom.core.uncertainty.noise import SESSION_DRIFT_RATIO
 
 FloatArray = npt.NDArray[np.float64]
 Fitter = Callable[[Sequence[Run]], Geometry]

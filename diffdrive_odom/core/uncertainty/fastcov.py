@@ -3,9 +3,9 @@
 The fast lane's (:mod:`diffdrive_odom.core.bulk.fastlane`) array form of
 :meth:`~diffdrive_odom.core.uncertainty.propagation.PoseUncertainty.propagate` and
 :meth:`~diffdrive_odom.core.uncertainty.propagation.PoseUncertainty.pose_covariance`, same model
-(Chong and Kleeman's wheel noise through the exact CIR step's Jacobians of Furlan,
-Marzorati and Sorrenti; Kelly's geometry sensitivity), tested against the scalar
-recursion.
+(Chong and Kleeman's wheel noise and the turn's own noise, :mod:`~.noise`, through
+the exact CIR step's Jacobians of Furlan, Marzorati and Sorrenti; Kelly's geometry
+sensitivity), tested against the scalar recursion.
 
 Why cumulative sums suffice: the step's Jacobian w.r.t. the previous pose is
 ``F_k = [[1, 0, a_k], [0, 1, b_k], [0, 0, 1]]`` with ``(a_k, b_k) = (-dy_k, dx_k)`` the
@@ -37,11 +37,13 @@ import numpy.typing as npt
 from diffdrive_odom.core.geometry.integration import sinc_derivative_array
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix
-from diffdrive_odom.core.uncertainty.propagation import (
+from diffdrive_odom.core.uncertainty.noise import (
     NoiseModel,
+    joint_variances,
     quantization_variance,
-    wheel_jacobian,
+    rotation_variance,
 )
+from diffdrive_odom.core.uncertainty.propagation import wheel_jacobian
 
 Array = npt.NDArray[np.float64]
 SYM = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # the 6 entries of a symmetric 3x3
@@ -92,6 +94,11 @@ def _noise3(g: Sequence[Array], var_l: Array, var_r: Array) -> Array:
     rows = ((g00, g01), (g10, g11), (g20, g21))
     return np.column_stack([rows[r][0] * rows[c][0] * var_l + rows[r][1] * rows[c][1] * var_r
                             for r, c in SYM])
+
+
+def _outer3(u: Sequence[Array], var: Array) -> Array:
+    """``var u u^T`` for each step's 3-vector ``u``: (m, 6)."""
+    return np.column_stack([u[r] * u[c] * var for r, c in SYM])
 
 
 @dataclass(frozen=True)
@@ -179,11 +186,14 @@ def _bulk_covariance(
     f10, f11 = sh * shd, dcd * shd + 0.5 * chord * ch
     g = (f00 * b00 + f01 * b10, f00 * b01 + f01 * b11, f10 * b00 + f11 * b10,
          f10 * b01 + f11 * b11, np.full_like(ds, b10), np.full_like(ds, b11))
-    var_l = noise.k_left * np.abs(d_left) / geometry.left_radius
-    var_r = noise.k_right * np.abs(d_right) / geometry.right_radius
+    var_l, var_r = joint_variances(noise, geometry, d_left, d_right)
+    var_rot = rotation_variance(noise, dth)
     p0, j0, rates0 = start.covariance, start.sensitivity, start.rates
     a, b = -chord * shd, chord * ch
-    p = propagated(p0, a, b, _noise3(g, var_l, var_r))
+    step_noise = _noise3(g, var_l, var_r)
+    if noise.k_rotation:  # the turn's own noise, through the step's d pose / d dtheta
+        step_noise = step_noise + _outer3((f01, f11, np.ones_like(ds)), var_rot)
+    p = propagated(p0, a, b, step_noise)
     sep = geometry.separation
     hs = 0.5 * dth * sep
     s_l, s_r = ds - hs, ds + hs
@@ -212,7 +222,7 @@ def _bulk_covariance(
     scale = 1.0 / (dt * dt)
     rl, rr = (var_l + q) * scale, (var_r + q) * scale
     rate = np.column_stack((b00 * b00 * rl + b01 * b01 * rr, b00 * b10 * rl + b01 * b11 * rr,
-                            b10 * b10 * rl + b11 * b11 * rr))
+                            b10 * b10 * rl + b11 * b11 * rr + var_rot * scale))
     prior = np.array([(m[0][0], m[0][1], m[1][1]) for m in rates0]).reshape(-1, 3)
     comb = np.vstack((prior, rate))
     m = len(ds)

@@ -1,21 +1,24 @@
 """Pose and twist covariance of wheel odometry, propagated through the CIR step.
 
-Pure Python (no rclpy, no messages). The random part of odometry error is modelled
-as Chong and Kleeman do ("Accurate odometry and error modelling for a mobile robot",
-ICRA 1997): each wheel's ground travel over a step carries zero-mean noise of
-variance ``k |d|``, ``d`` the arc that wheel rolled, ``k`` [m] per side. Variance
-in proportion to distance makes the model independent of the reading rate (ten
-small steps add the same variance as one big one) and zero at rest. Systematic
-error (wrong radii, separation) is not random: it is the geometry term below.
+Pure Python (no rclpy, no messages). The random part of odometry error
+(:mod:`~.noise`): each wheel's ground travel over a step carries zero-mean noise of
+variance ``k |d|`` (Chong and Kleeman, "Accurate odometry and error modelling for a
+mobile robot"), ``d`` the arc that wheel rolled, ``k`` [m] per side, and the step's turn
+its own of variance ``k_rot |dtheta|`` (slip while turning). Variances in proportion to
+what the step did make the model independent of the reading rate and zero at rest.
+Systematic error (wrong radii, separation) is not random: it is the geometry term below.
 
 Each step the 3x3 pose covariance goes through the exact CIR step's Jacobians
 (Furlan, Marzorati and Sorrenti, "2D transforms for the odometry of a differential
 kinematics mobile robot"; :func:`integration.compose_jacobians`), chained with the
 linear wheel -> body map of :func:`kinematics.body_increment`:
 
-    P <- F_pose P F_pose^T + G Q G^T,   G = F_step B,   Q = diag(var_left, var_right)
+    P <- F_pose P F_pose^T + G Q G^T + k_rot |dtheta| u u^T,   G = F_step B,
+    Q = diag(var_left, var_right),   u = F_step (0, 1)^T
 
-with ``B`` the 2x2 Jacobian of ``(ds, dtheta)`` w.r.t. the joint angle increments.
+with ``B`` the 2x2 Jacobian of ``(ds, dtheta)`` w.r.t. the joint angle increments and
+``u`` the step's ``d pose / d dtheta`` (its last entry 1: a spin on the spot by ``a``
+adds ``k_rot |a|`` to the heading variance, a straight line nothing).
 
 Systematic error (the true radii and separation differ from the configured ones) is the
 other part of odometry error (Kelly, "Linearized Error Propagation in Odometry"; Chong
@@ -61,18 +64,17 @@ diagonal: the propagated 3x3 is zero at the start and of rank 2 after the first 
 The twist covariance has no geometry
 term (not modelled: at the default ratios it is a few tenths of a percent of the speed).
 With a gyro (``use_imu``, :mod:`diffdrive_odom.core.estimation.gyro`) a step goes through
-propagate_gyro.
+propagate_gyro, which has no rotation term: there the heading is the gyro's (fused with
+the wheels' by their white variances), not the wheels' alone.
 """
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from itertools import islice
 
-from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.geometry.integration import Pose2D, compose_jacobians
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
 from diffdrive_odom.core.geometry.mat3 import (
@@ -87,6 +89,12 @@ from diffdrive_odom.core.geometry.mat3 import (
     wheel_noise2,
     wheel_noise3,
 )
+from diffdrive_odom.core.uncertainty.noise import (
+    NoiseModel,
+    joint_variances,
+    quantization_variance,
+    rotation_variance,
+)
 
 UNOBSERVED_VARIANCE = 1.0e6
 # vy [(m/s)^2]: the rolling constraint's slack, 1 mm/s (1 sigma), as the static default.
@@ -94,47 +102,7 @@ ROLLING_CONSTRAINT_VARIANCE = 1.0e-6
 # Added to the diagonal of the observed block (x, y, yaw; vx, wz) [m^2, rad^2, per s^2 for
 # rates]: (1 um)^2, far below any real term, enough to make the matrices positive definite.
 COVARIANCE_FLOOR = 1.0e-12
-# Defaults for an uncalibrated robot: wheel-travel noise k [m] (a side's arc off by 1 mm,
-# 1 sigma, after 1 m rolled), each radius known to 0.25 % and the separation to 1 %
-# (1 sigma). Chosen on the June 2020 OptiOdom sessions (Sousa et al.) with the nominal
-# geometry and judged on the December/January ones (bench/bench_calibration.py;
-# doc/concepts/covariance.md): final-pose mean NEES inside the 95 % band on both.
-DEFAULT_K = 1.0e-6
-DEFAULT_RADIUS_STDDEV_RATIO = 0.0025
-DEFAULT_SEPARATION_STDDEV_RATIO = 0.01
-# What a calibration's values drift between recording sessions (tyres, floor), relative,
-# 1 sigma: calibrate adds it to its bootstrap sigma (core.evaluation.crossval.with_drift). Chosen on
-# the June 2020 OptiOdom experiments, checked on the Dec 2020 / Jan 2021 ones
-# (doc/concepts/calibration.md).
-SESSION_DRIFT_RATIO = 0.0019
 ZERO3: Matrix = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-
-
-class UncertaintyConfigError(ConfigError):
-    """A noise setting that cannot work (names the parameter)."""
-
-
-@dataclass(frozen=True)
-class NoiseModel:
-    """Wheel-travel noise and geometry uncertainty: what the propagated covariance covers.
-
-    ``k`` per side [m]: variance ``k * |arc|`` of each step's ground arc. The ratios: the
-    relative 1-sigma uncertainty of each effective radius and of the separation.
-    """
-
-    k_left: float = DEFAULT_K
-    k_right: float = DEFAULT_K
-    radius_stddev_ratio: float = DEFAULT_RADIUS_STDDEV_RATIO
-    separation_stddev_ratio: float = DEFAULT_SEPARATION_STDDEV_RATIO
-
-    def __post_init__(self) -> None:
-        for field, value in (("wheel_noise_k_left", self.k_left),
-                             ("wheel_noise_k_right", self.k_right),
-                             ("wheel_radius_stddev_ratio", self.radius_stddev_ratio),
-                             ("wheel_separation_stddev_ratio", self.separation_stddev_ratio)):
-            if (isinstance(value, bool) or not isinstance(value, (int, float))
-                    or not math.isfinite(value) or value < 0.0):
-                raise UncertaintyConfigError(field, f"must be finite and >= 0, got {value!r}")
 
 
 ZERO_VEC = (0.0, 0.0, 0.0)
@@ -197,20 +165,9 @@ def wheel_jacobian(geometry: Geometry) -> Matrix:
     return ((left[0], right[0]), (left[1], right[1]))
 
 
-def joint_variances(
-    model: NoiseModel, geometry: Geometry, d_left: float, d_right: float
-) -> tuple[float, float]:
-    """Variance [rad^2] of each joint increment: ``k |r d| / r^2 = k |d| / r``."""
-    return (model.k_left * abs(d_left) / geometry.left_radius,
-            model.k_right * abs(d_right) / geometry.right_radius)
-
-
-def quantization_variance(ticks_per_revolution: float, wheels_per_side: int) -> float:
-    """Variance [rad^2] of one reading's joint angle from counting whole ticks (0 = radians)."""
-    if ticks_per_revolution <= 0.0:
-        return 0.0
-    tick = 2.0 * math.pi / ticks_per_revolution
-    return tick * tick / 12.0 / wheels_per_side
+def rotation_column(f_step: Matrix) -> tuple[float, float, float]:
+    """``d pose / d dtheta`` of a step: how its turn's noise enters the pose."""
+    return (f_step[0][1], f_step[1][1], f_step[2][1])
 
 
 # z, roll, pitch (or their rates): nothing known. Message rows 0, 1, 5: x (vx), y, yaw (wz).
@@ -314,16 +271,18 @@ class PoseUncertainty:
         f_pose, f_step = compose_jacobians(pose_before, ds, dtheta)
         b = self._wheel_jacobian(geometry)
         var_l, var_r = joint_variances(self.model, geometry, d_left, d_right)
-        self.covariance = add3(
-            congruence3(f_pose, self.covariance), wheel_noise3(times2x2(f_step, b), var_l, var_r)
-        )
+        var_rot = rotation_variance(self.model, dtheta)
+        p = add3(congruence3(f_pose, self.covariance),
+                 wheel_noise3(times2x2(f_step, b), var_l, var_r))
+        self.covariance = add3(p, outer3(rotation_column(f_step), var_rot)) if var_rot else p
         self.sensitivity = _sensitivity_step(self.sensitivity, f_pose, f_step, ds, dtheta,
                                              geometry.separation)
         if self.bias_sensitivity is not ZERO_VEC:
             self.bias_sensitivity = rotate_sensitivity(f_pose, self.bias_sensitivity)
         q = 2.0 * self._quantum  # the step's two readings
         scale = 1.0 / (dt * dt)
-        self._rates.append(wheel_noise2(b, (var_l + q) * scale, (var_r + q) * scale))
+        (t00, t01), (_, t11) = wheel_noise2(b, (var_l + q) * scale, (var_r + q) * scale)
+        self._rates.append(((t00, t01), (t01, t11 + var_rot * scale)))
 
     def propagate_gyro(
         self,

@@ -37,11 +37,8 @@ from diffdrive_odom.core.uncertainty.fastcov import (
     CovarianceState,
     bulk_covariance,
 )
-from diffdrive_odom.core.uncertainty.propagation import (
-    NoiseModel,
-    PoseUncertainty,
-    pose_message_covariance,
-)
+from diffdrive_odom.core.uncertainty.noise import NoiseModel
+from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty, pose_message_covariance
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools import bagreadings, replay
 from diffdrive_odom.tools.sinks import Published
@@ -171,6 +168,7 @@ def _settings(wheels: int, ticks: float, bits: int, rate: float, window: int, mo
         "ticks_per_revolution": ticks, "encoder_counter_bits": bits, "publish_rate": rate,
         "velocity_rolling_window_size": window, "covariance_model": model,
         "stamp_source": source, "max_wheel_speed": 30.0,
+        "rotation_noise_k": 1e-4,  # both lanes' rotation term (0 by default)
     })
 
 
@@ -374,11 +372,13 @@ def test_headings_in_bulk_are_the_wrapped_sum_bit_for_bit(
     assert fastlane._headings(start, steps).tolist() == expected
 
 
-def test_covariance_cumulative_form_equals_the_recursion() -> None:
-    """P, J and the twist window after 1000 steps, far from the origin, both ways."""
+@pytest.mark.parametrize("k_rot", [0.0, 2e-3])
+def test_covariance_cumulative_form_equals_the_recursion(k_rot: float) -> None:
+    """P, J and the twist window after 1000 steps, far from the origin, both ways; with
+    and without the rotation term."""
     rng = np.random.default_rng(3)
     geo = Geometry(wheel_radius=0.05, wheel_separation=0.3)
-    model = NoiseModel(0.002, 0.003, 0.01, 0.02)
+    model = NoiseModel(0.002, 0.003, 0.01, 0.02, k_rot)
     m = 1000
     d_left = rng.uniform(-0.3, 0.6, m)
     d_right = rng.uniform(-0.3, 0.6, m)

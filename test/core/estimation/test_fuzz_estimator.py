@@ -26,7 +26,7 @@ from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle
-from diffdrive_odom.core.uncertainty.propagation import NoiseModel
+from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
 import oracle
 

@@ -655,3 +655,31 @@ def test_cli_bad_input_is_one_line_and_exit_2(
     lines = [ln for ln in captured.err.splitlines() if ln.strip()]
     assert len(lines) == 1 and needle in lines[0], captured.err
     assert captured.out == ""
+
+
+def test_rotation_noise_fit_on_held_out_runs_goes_into_a_block_the_node_accepts() -> None:
+    """Four runs whose only random error is the wheels' (k = slip^2): each judged with a
+    geometry fitted on the others, the final poses do not want a rotation term (its
+    likelihood ratio against 0 under the 5 % threshold), and the value printed goes into
+    a block the node accepts."""
+    from diffdrive_odom.core.evaluation import consistency
+    from diffdrive_odom.tools.calibrate import params_block, rotation_fit, rotation_line
+
+    slip = 0.002
+    runs = [simulate(routes.umbmark(SIDE, clockwise=True), slip, seed=21),
+            simulate(routes.umbmark(SIDE, clockwise=False), slip, seed=22),
+            simulate(routes.figure_eight(1.0), slip, seed=23),
+            simulate(routes.umbmark(SIDE, clockwise=True), slip, seed=24)]
+    settings = odometry_settings.odometry_settings({
+        "wheel_radius": 0.05, "wheel_separation": 0.30, "wheel_noise_k_left": slip**2,
+        "wheel_noise_k_right": slip**2})
+    folds = crossval.held_out(runs, NOMINAL)
+    fit = rotation_fit(runs, [h.geometry for h in folds], settings, (0.002, 0.004), (0.0, 0.0))
+    assert fit.noise.k == pytest.approx(slip**2) and fit.noise.radius_ratio == 0.002
+    assert fit.lr_rotation < consistency.LR_5_PERCENT, fit
+    text = rotation_line(fit, len(runs), (0.0, 0.0))
+    assert text.startswith("rotation_noise_k: ") and "not distinguishable from 0" in text
+    block = params_block(NOMINAL, (0.002, 0.004), "test", 3.5e-5)
+    entry = yaml.safe_load(block)["/**"]["ros__parameters"]
+    noise = odometry_settings.odometry_settings(entry).noise
+    assert noise is not None and noise.k_rotation == pytest.approx(3.5e-5)

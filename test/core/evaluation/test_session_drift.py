@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from diffdrive_odom.core.evaluation import crossval
-from diffdrive_odom.core.uncertainty.propagation import SESSION_DRIFT_RATIO
+from diffdrive_odom.core.uncertainty.noise import SESSION_DRIFT_RATIO
 
 V = np.array([0.042, 0.042, 0.2])
 

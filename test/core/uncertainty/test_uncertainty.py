@@ -22,12 +22,11 @@ from diffdrive_odom.core.estimation.encoders import EncoderConfig
 from diffdrive_odom.core.estimation.estimator import OdometryEstimator
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.kinematics import Geometry, wheel_rates
+from diffdrive_odom.core.uncertainty.noise import DEFAULT_K, NoiseModel
 from diffdrive_odom.core.uncertainty.propagation import (
     COVARIANCE_FLOOR,
-    DEFAULT_K,
     ROLLING_CONSTRAINT_VARIANCE,
     UNOBSERVED_VARIANCE,
-    NoiseModel,
     covariance_matrix,
     pose_message_covariance,
     twist_message_covariance,

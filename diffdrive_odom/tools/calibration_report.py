@@ -1,0 +1,190 @@
+"""What ``diffdrive-odom calibrate`` prints: the held-out verdict, the fit, the params block.
+
+Text only, from results the core computed (:mod:`diffdrive_odom.core.evaluation`); the
+command line that reads the bags and runs the fits is :mod:`diffdrive_odom.tools.calibrate`.
+scipy is imported where a line needs it, so ``--help`` works without the ``tools`` extra.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+from diffdrive_odom.core.evaluation.recorded_run import values_of
+from diffdrive_odom.core.evaluation.umbmark import Umbmark
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.uncertainty.noise import (
+    DEFAULT_RADIUS_STDDEV_RATIO,
+    DEFAULT_ROTATION_K,
+    DEFAULT_SEPARATION_STDDEV_RATIO,
+    SESSION_DRIFT_RATIO,
+)
+from diffdrive_odom.settings.params import yaml_text
+
+if TYPE_CHECKING:  # scipy (the ``tools`` extra) only where it is used
+    from diffdrive_odom.core.evaluation import consistency, crossval
+    from diffdrive_odom.core.evaluation.calibration import Fit
+
+
+def rotation_line(fit: consistency.NoiseFit, runs: int, reference: tuple[float, float]) -> str:
+    """What the rotation-noise fit found and how much the runs want it (two lines).
+
+    ``reference``: the reference's own error assumed, (m, rad) 1 sigma.
+    """
+    from diffdrive_odom.core.evaluation import consistency
+
+    n = fit.noise
+    wanted = ("the runs want it" if fit.lr_rotation > consistency.LR_5_PERCENT
+              else "not distinguishable from 0")
+    value = (f"{_num(n.k_rotation)} rad" if n.k_rotation > 0.0
+             else "0 (the runs' final poses want none)")
+    return (f"rotation_noise_k: {value}; likelihood ratio against 0: {fit.lr_rotation:.2f}, "
+            f"{wanted} at 5 % (above {consistency.LR_5_PERCENT})\n"
+            f"  maximum likelihood of the {runs} runs' final poses, each with the geometry "
+            f"fitted on the others; held: wheel_noise_k {n.k:g} m, the printed ratios, the "
+            f"reference's own error {1000 * reference[0]:g} mm, "
+            f"{math.degrees(reference[1]):g} deg (--reference-error)")
+
+
+def check_lines(v: crossval.Verdict | None, runs: int, forced: bool) -> str:
+    """The verdict of the held-out check (calibrate's first line), then each fold left out.
+
+    First line: ``held-out check: ...`` (better, or cannot be made), ``NOT BETTER THAN
+    NOMINAL ...`` or ``CANNOT TELL ...``; then one ``held-out fold left out: RUN: WHY``
+    line per fold that cannot judge the fit.
+    """
+    if v is None:
+        return (f"held-out check: cannot be made with {runs} run (give 2 or more runs: each "
+                "is then judged with a geometry fitted on the others)")
+    left = [f"held-out fold left out: {run}: {why}" for run, why in v.left_out]
+    c = v.check
+    if c is None:
+        return "\n".join([
+            f"CANNOT TELL on held-out runs: none of the {len(v.left_out)} folds can judge the "
+            "fit (paths that turn both ways as they go, circles or squares each way, judge "
+            "it; straight lines and spins on the spot cannot); the block is printed, judge it "
+            "yourself", *left])
+    figures = (f"mean final position error {c.fpe_nominal:.4f} m nominal, {c.fpe_held_out:.4f} "
+               f"m calibrated; ATE {c.ate_nominal:.4f} -> {c.ate_held_out:.4f} m "
+               f"(leave-one-run-out over {c.runs} runs"
+               + (f", {len(v.left_out)} left out" if v.left_out else "") + ")")
+    if v.within_margin:
+        head = (f"CANNOT TELL on held-out runs: {figures}; the change is within its noise, "
+                f"{v.margin:.4f} m (the RMS in-sample final error over the square root of "
+                "the folds); the block is printed, judge it yourself")
+    elif v.better:
+        head = ("held-out check: calibrated geometry better than nominal on runs it did not "
+                f"see: {figures}")
+    else:
+        head = ("NOT BETTER THAN NOMINAL on held-out runs"
+                + (" (--force: block printed anyway)" if forced else "") + f": {figures}")
+    return "\n".join([head, *left])
+
+
+def _num(value: float) -> str:
+    return yaml_text(float(f"{value:.7g}"))
+
+
+def params_block(geometry: Geometry, ratios: tuple[float, float] | None, how: str,
+                 rotation: float | None = None) -> str:
+    """The ``/**: ros__parameters:`` block for the node (nominal values kept, multipliers set).
+
+    The separation is given as ``wheel_separation_multiplier`` with the nominal
+    ``wheel_separation``, as the radii are: diff_drive_controller's split. ``ratios``:
+    the bootstrap's ``wheel_radius_stddev_ratio`` / ``wheel_separation_stddev_ratio``
+    (None: too few runs for one; the node's defaults describe an uncalibrated robot);
+    ``rotation``: the fitted ``rotation_noise_k`` (None: not fitted).
+    """
+    lines = [
+        f"# diffdrive-odom calibrate: {how}",
+        "/**:",
+        "  ros__parameters:",
+        f"    wheel_radius: {_num(geometry.wheel_radius)}",
+        f"    left_wheel_radius_multiplier: {_num(geometry.left_wheel_radius_multiplier)}",
+        f"    right_wheel_radius_multiplier: {_num(geometry.right_wheel_radius_multiplier)}",
+        f"    wheel_separation: {_num(geometry.wheel_separation)}",
+        f"    wheel_separation_multiplier: {_num(geometry.wheel_separation_multiplier)}",
+    ]
+    if ratios is not None:
+        lines += [f"    wheel_radius_stddev_ratio: {_num(ratios[0])}  # printed 1-sigma "
+                  f"(bootstrap + session drift), relative (default "
+                  f"{DEFAULT_RADIUS_STDDEV_RATIO:g})",
+                  f"    wheel_separation_stddev_ratio: {_num(ratios[1])}  # (default "
+                  f"{DEFAULT_SEPARATION_STDDEV_RATIO:g})"]
+    if rotation is not None:
+        lines.append(f"    rotation_noise_k: {_num(rotation)}  # maximum likelihood, held out "
+                     f"(default {DEFAULT_ROTATION_K:g})")
+    return "\n".join(lines) + "\n"
+
+
+def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None,
+               drift: float = SESSION_DRIFT_RATIO) -> str:
+    """Human lines: values with their sigma, what is fixed, per-run errors.
+
+    ``covariance`` is the bootstrap's; the 1-sigma column adds ``drift`` of each value
+    (:func:`crossval.with_drift`), what the value may move by in another session.
+    """
+    from diffdrive_odom.core.evaluation import calibration, crossval
+
+    nominal = values_of(fit.nominal)
+    how = "whole trajectory" + (f" + end positions x{fit.end_weight:g}" if fit.end_weight
+                                 else "")
+    lines = [f"calibrated from {len(fit.runs)} run(s): {how}, {fit.samples} "
+             f"samples, {fit.loss} loss, {fit.evaluations} evaluations, {fit.seconds:.2f} s",
+             f"{'':22s} {'nominal':>10s} {'fitted':>10s} {'bootstrap':>10s} {'1-sigma':>10s}"]
+    boot = None if covariance is None else np.sqrt(np.diag(covariance))
+    std = None if covariance is None else np.sqrt(np.diag(
+        crossval.with_drift(fit.values, covariance, drift)))
+    for i, (name, n, v) in enumerate(zip(("left wheel radius [m]", "right wheel radius [m]",
+                                          "wheel separation [m]"), nominal, fit.values,
+                                         strict=True)):
+        b, sigma = ("-", "-") if boot is None or std is None else (f"{boot[i]:.6f}",
+                                                                    f"{std[i]:.6f}")
+        lines.append(f"{name:22s} {n:10.6f} {v:10.6f} {b:>10s} {sigma:>10s}")
+    lines.append(
+        f"1-sigma: covers the geometry on other days: bootstrap over runs "
+        f"({crossval.BOOTSTRAP_RUNS} resamples) and a drift between sessions of "
+        f"{100 * drift:.2f} % of each value (--session-drift), in quadrature"
+        if std is not None else
+        f"1-sigma: not given: it needs {crossval.MIN_RUNS_FOR_SIGMA} or more runs; the "
+        "node's default stddev ratios stay")
+    lines.append(f"fitted nuisance: the reference's yaw about the start "
+                 f"{math.degrees(fit.start_yaw):+.3f} deg")
+    for what, value, why in calibration.FIXED:
+        lines.append(f"fixed, not fitted: {what} = {value} ({why})")
+    lines.append(f"RMS residual {fit.rms_before * 1e3:.2f} -> {fit.rms_after * 1e3:.2f} mm")
+    lines.append("in-sample (the runs it was fitted to) final position error, start aligned, "
+                 "nominal -> calibrated; ATE RMSE:")
+    for r in fit.runs:
+        lines.append(f"  {r.name}: {r.before.final_position_error_aligned_m:.4f} -> "
+                     f"{r.after.final_position_error_aligned_m:.4f} m; "
+                     f"{r.before.ate_rmse_aligned_m:.4f} -> {r.after.ate_rmse_aligned_m:.4f} m")
+    return "\n".join(lines)
+
+
+def umbmark_report(u: Umbmark) -> str:
+    """Human lines: the paper's single pass, the converged values, the end errors."""
+    f = u.first
+    n, one, it = (values_of(g) for g in (u.nominal, u.one_pass, u.geometry))
+    lines = [
+        f"UMBmark (Borenstein and Feng), side {u.side:g} m: end errors (measured - odometry) "
+        f"CW ({f.cw_error[0]:+.4f}, {f.cw_error[1]:+.4f}) m, CCW ({f.ccw_error[0]:+.4f}, "
+        f"{f.ccw_error[1]:+.4f}) m",
+        f"  alpha {math.degrees(f.alpha):+.4f} deg (from y {math.degrees(f.alpha_y):+.4f}), "
+        f"beta {math.degrees(f.beta):+.4f} deg (from y {math.degrees(f.beta_y):+.4f}); "
+        f"E_d {f.e_d:.6f}, E_b {f.e_b:.6f}",
+        f"{'':22s} {'nominal':>10s} {'one pass':>10s} {'converged':>10s}",
+    ]
+    for name, a, b, c in zip(("left wheel radius [m]", "right wheel radius [m]",
+                              "wheel separation [m]"), n, one, it, strict=True):
+        lines.append(f"{name:22s} {a:10.6f} {b:10.6f} {c:10.6f}")
+    lines.append(f"converged in {u.passes} passes; end position error CW, CCW: "
+                 f"{u.before[0]:.4f}, {u.before[1]:.4f} -> {u.after[0]:.4f}, "
+                 f"{u.after[1]:.4f} m (E_max,syst {u.e_max_before:.4f} -> "
+                 f"{u.e_max_after:.4f} m)")
+    return "\n".join(lines)
+
+
