@@ -37,16 +37,26 @@ class StampSource(StrEnum):
     RECEIVE_TIME = "receive_time"  # when the reading arrived, on the receiver's clock
 
 
-def clock_offset_text(offset_ns: int) -> str:
-    """The one warning about a driver's clock ``offset_ns`` off the receiver's."""
+def clock_offset_text(offset_ns: int, topic: str = "joint_states") -> str:
+    """The one warning about a driver's clock ``offset_ns`` off the receiver's.
+
+    ``topic``: ``joint_states`` (the wheels, ``stamp_source``) or ``imu``
+    (``imu_stamp_source``: its samples are then placed against the wheels' steps).
+    """
     seconds = offset_ns * 1e-9
     side = "ahead of" if seconds > 0 else "behind"
+    if topic == "imu":
+        harm, param = ("the gyro's samples are placed against the wheels' steps by them, so "
+                       "they are refused or miss every step (wheels only, no bias "
+                       "estimate)"), "imu_stamp_source"
+    else:
+        harm, param = ("odometry and TF are stamped with them, so TF lookups elsewhere "
+                       "fail"), "stamp_source"
     return (
-        f"joint_states header stamps are {abs(seconds):.3f} s {side} the time they were "
-        "received (this node's clock; in a bag, the log time): odometry and TF are stamped "
-        "with them, so TF lookups elsewhere fail. Sync the driver's clock with this "
-        "computer's (chrony/NTP, or stamp with ROS time), or set stamp_source: "
-        "receive_time to stamp readings when they arrive"
+        f"{topic} header stamps are {abs(seconds):.3f} s {side} the time they were "
+        f"received (this node's clock; in a bag, the log time): {harm}. Sync the "
+        "driver's clock with this computer's (chrony/NTP, or stamp with ROS time), or set "
+        f"{param}: receive_time to stamp them when they arrive"
     )
 
 
@@ -69,8 +79,9 @@ def in_sync(offset_ns: int | npt.NDArray[np.int64]) -> bool | npt.NDArray[np.boo
 class ClockOffsetCheck:
     """Names a driver's clock once: the first reading stamped far from its receive time."""
 
-    def __init__(self) -> None:
+    def __init__(self, topic: str = "joint_states") -> None:
         self.offset_ns: int | None = None  # the offset named, once it has been
+        self.topic = topic
 
     def check(self, stamp_ns: int, receive_ns: int) -> str:
         """The warning for this reading ('' if none): said the first time only."""
@@ -80,4 +91,4 @@ class ClockOffsetCheck:
         if in_sync(offset):
             return ""
         self.offset_ns = offset
-        return clock_offset_text(offset)
+        return clock_offset_text(offset, self.topic)
