@@ -14,7 +14,7 @@ import pytest
 from sensor_msgs.msg import Imu, JointState
 
 from diagutil import diagnosed
-from rosutil import GEOMETRY, NAMES, STEP_NS, T0_NS, listen, send_first, spin_for, stamp, wait_ready
+from rosutil import GEOMETRY, NAMES, STEP_NS, T0_NS, gyro_rig, send_first, spin_for, stamp
 
 pytestmark = [pytest.mark.dds, pytest.mark.process]
 
@@ -40,10 +40,7 @@ def gyro(ns: int) -> Imu:
 def test_a_gyro_stamping_early_still_gets_its_bias_estimated_standing() -> None:
     with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true"]) as peer:
         ex = peer.executor
-        joints = peer.node.create_publisher(JointState, "joint_states", 50)
-        imu = peer.node.create_publisher(Imu, "imu", 50)
-        sink = listen(peer.node, "odom")
-        wait_ready(ex, joints, sink)
+        joints, imu, sink = gyro_rig(peer.node, ex)
         send_first(ex, joints, sink, reading(0))
         readings = 75
         for k in range(readings + 1):
