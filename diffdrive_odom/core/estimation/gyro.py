@@ -264,7 +264,7 @@ class GyroHeading:
         self.silent = False
         still = self.standstill
         still.grow(t1, cfg.bias_random_walk)
-        raw = self.samples.integrate(t0, t1)
+        raw = self._provisional(geometry, t0, t1, arcs)
         decided = self._judge(geometry, dt_ns * 1e-9, d_left, d_right, arcs, raw,
                               still.bias, still.variance)
         interval = _Interval(geometry, t0, t1, d_left, d_right, arcs, still.bias,
@@ -281,6 +281,21 @@ class GyroHeading:
             self._debt = (0.0, 0.0)
         self._prune(t1)
         return out
+
+    def _provisional(self, geometry: Geometry, t0: int, t1: int,
+                     arcs: tuple[float, float]) -> float:
+        """The gyro angle over ``[t0, t1]`` as far as samples came; the wheels' beyond.
+
+        The part past the newest sample is filled with the wheels' turn over it (plus
+        the bias the gyro would add): the step is judged on what the gyro saw, and a
+        late IMU does not hold an old rate for long. The final judgement replaces it.
+        """
+        last = self.samples.last
+        if last is None or last >= t1:
+            return self.samples.integrate(t0, t1)
+        cut = max(last, t0)
+        rate = (arcs[1] - arcs[0]) / geometry.separation / ((t1 - t0) * 1e-9) + self.bias
+        return self.samples.integrate(t0, cut) + rate * (t1 - cut) * 1e-9
 
     def _settle(self, now: int) -> None:
         """Judge for good the pending steps the samples now cover; give up stale ones."""
