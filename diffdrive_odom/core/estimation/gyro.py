@@ -17,12 +17,12 @@ stamps, linear between samples, the rate held at the ends
 (:mod:`~diffdrive_odom.core.estimation.gyrosamples`). An IMU on its own clock gives
 no order: the samples covering a step may come before the wheel reading, with it or
 an IMU period or a latency later. So each step is decided at once on what has come
-(the part past the newest sample extrapolated with the newest rate), kept pending,
+(the part past the newest sample filled with the wheels' turn), kept pending,
 and judged again when the samples covering it have come: the slip event
 (:mod:`~diffdrive_odom.core.estimation.slips`) and the zero-velocity update
 (:mod:`~diffdrive_odom.core.estimation.standstill`) are decided then only, and what
 the final judgement changes in the step's heading and distance is added to the next
-step, so no extrapolation error stays in the pose. A step the samples never cover
+step, so the provisional part leaves no error in the pose. A step the samples never cover
 is given up ``imu_timeout`` after its end. A hole in the samples longer than
 ``imu_timeout`` makes the step wheels-only (IMU silent): each step takes its
 heading change from one source or the other, so switching never makes the pose jump.
