@@ -104,6 +104,10 @@ TIMINGS = (
     Timing("one period late", imu_latency=5e-3, imu_latency_jitter=1e-3),
     # A fixed latency of 20 ms (a USB IMU behind a driver's buffer).
     Timing("20 ms latency", imu_latency=20e-3),
+    # Stamped 15 ms early and arriving 15 ms late: each sample 30 ms behind, more than a
+    # wheel period (the wheels' steps go on before any sample of them has come).
+    Timing("30 ms behind", imu_hz=186.0, imu_phase=9.8e-3, imu_offset=-15e-3,
+           imu_latency=15e-3, imu_latency_jitter=0.5e-3),
     # Jittered stamps and transport, 173 Hz (no multiple of 50), its own phase.
     Timing("173 Hz jittered", imu_hz=173.0, imu_phase=1.7e-3, imu_stamp_jitter=0.5e-3,
            imu_latency=3e-3, imu_latency_jitter=2.5e-3, wheel_latency_jitter=1e-3),

@@ -231,10 +231,12 @@ class GyroHeading:
         return self.samples.covers(a, b, self.config.timeout * 1e9)
 
     def skip(self, t1: int) -> None:
-        """The wheels took ``t1`` as a reference without a step: the next step starts there."""
+        """The wheels took ``t1`` as a reference without a step: the next step starts there.
+
+        Samples up to ``t1`` that come later are still taken: nothing was judged on them,
+        and an IMU lagging more than a wheel period must not have every sample refused.
+        """
         self.wheel_stamp_ns = t1
-        if not self._pending:
-            self._judged_to = t1 if self._judged_to is None else max(self._judged_to, t1)
         self._prune(t1)
 
     def _prune(self, t1: int) -> None:
