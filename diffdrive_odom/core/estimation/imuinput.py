@@ -17,7 +17,11 @@ from statistics import median
 from types import MappingProxyType
 
 from diffdrive_odom.core.estimation.gyro import GyroHeading
-from diffdrive_odom.core.estimation.stamps import ClockOffsetCheck, StampSource
+from diffdrive_odom.core.estimation.stamps import (
+    CLOCK_OFFSET_WARN_S,
+    ClockOffsetCheck,
+    StampSource,
+)
 
 # Samples whose stamps give the IMU's period before its covariance is judged.
 COVARIANCE_AFTER = 50
@@ -42,7 +46,9 @@ class ImuInput:
         self.gyro = gyro
         self.samples = 0
         self._dropped: dict[str, int] = {}
-        self._clock = ClockOffsetCheck("imu")
+        # Named from imu_timeout on where that is shorter than the wheels' limit: samples
+        # further off than it cover no wheel step (the IMU would only seem silent).
+        self._clock = ClockOffsetCheck("imu", min(CLOCK_OFFSET_WARN_S, gyro.config.timeout))
         self._warnings: list[str] = []
         self._stamps: list[int] = []  # the first samples' stamps (the period)
         self._variance: float | None = None  # the message's yaw-rate variance, if set

@@ -199,6 +199,14 @@ def test_an_imu_on_its_own_device_clock_is_named_once_and_receive_time_fixes_it(
     assert heading_error(fixed, ISSUE_ROUTE) < math.radians(3.3)
 
 
+def test_an_imu_clock_off_by_more_than_imu_timeout_is_named() -> None:
+    # 0.6 s: under the wheels' 1 s, but no sample is within imu_timeout (0.5 s) of a step.
+    _, seen = run(ISSUE_ROUTE, Timing("0.6 s off", imu_offset=-0.6))
+    assert "imu header stamps are 0.60" in seen.warnings[0], seen.warnings
+    _, seen = run(ISSUE_ROUTE, Timing("0.4 s off", imu_offset=-0.4))
+    assert not any("header stamps" in w for w in seen.warnings), seen.warnings
+
+
 def test_the_imus_own_covariance_is_compared_with_gyro_noise_density() -> None:
     d = Timing("plain")
     for var, said in ((ND ** 2 * 200.0, False), ((10 * ND) ** 2 * 200.0, True)):
