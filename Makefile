@@ -11,7 +11,7 @@ SHARED_LAUNCH ?= ../shared/launch
 LAUNCH_STAMP := $(VENV)/.launch-installed
 PIP_QUIET := 2>&1 | grep -v '^WARNING: Location' || true
 
-.PHONY: venv demo test test-fast test-dds lint check bench clean
+.PHONY: venv demo test test-fast test-dds lint docs check bench clean
 
 venv: $(STAMP) $(if $(wildcard $(SHARED_LAUNCH)/install.sh),$(LAUNCH_STAMP))
 
@@ -46,11 +46,18 @@ test-dds: venv
 	$(PY) -m pytest -q -m dds
 
 lint: venv
-	$(VENV)/bin/ruff check diffdrive_odom test bench scripts launch
+	$(VENV)/bin/ruff check diffdrive_odom test bench scripts launch doc/_ext doc/conf.py
 	$(VENV)/bin/mypy
 	$(VENV)/bin/lint-imports
 
-check: test lint
+# The HTML documentation (doc/, as rosdoc2 builds it for docs.ros.org) into build/docs/html.
+# -W: any warning fails, -n: every reference must resolve (with MyST's heading anchors,
+# every internal link); -E: read every page again (no stale state), so it checks every page.
+DOCS_OUT ?= build/docs
+docs: venv
+	$(VENV)/bin/sphinx-build -W --keep-going -n -E -q -b html doc $(DOCS_OUT)/html
+
+check: test lint docs
 
 bench: venv
 	set -e; for f in bench/bench_*.py; do echo "== $$f"; $(PY) $$f; done

@@ -17,7 +17,7 @@ Modes: wheels only; the IMU's yaw replacing the wheels' (what turtlebot3_node's
 gyrodometry without and with the distance from the other wheel (the default).
 
 The simulated TurtleBot3 bag of test/data (fuse tutorials): final error of both modes
-against Gazebo's own /odom (``--plot PNG``: the README's figure).
+against Gazebo's own /odom (``--plot PNG``: the figure in doc/images/gyrodometry.png).
 
 CPU: microseconds per message through the pipeline at 1 kHz JointState alone and
 with a 1 kHz Imu beside it (the core's cost); ``--live``: the real ``odometry_node``

@@ -1,6 +1,6 @@
 """The held-out verdict of ``calibrate`` judged on runs it never saw: false refusals, acceptances.
 
-    .venv/bin/python bench/bench_verdict.py [--rule old|folds|new|all] [--jobs N] [--quick]
+    .venv/bin/python bench/bench_verdict.py [--rule old|folds|margin|new|all] [--jobs N] [--quick]
 
 Data: ``../shared/data/optiodom_train`` (45 runs of one real robot, 8 experiments; Sousa
 et al., "OptiOdom: a Generic Approach for Odometry Calibration of Wheeled Mobile
@@ -19,9 +19,17 @@ or a tie (within 1 mm). The verdict on the subset itself is the CLI's:
   judge (training runs that determine the geometry, a held-out run whose end depends
   on it: ``core.determinacy``), "cannot tell" when none remains (the block is printed
   with a warning, exit 0);
-- new: ``crossval.judge`` as ``calibrate`` calls it: "cannot tell" also when the
-  held-out change of the mean final error is within the median final error the fit
-  leaves on its own runs.
+- margin: the rule at 1bec3f3, ``crossval.judge`` with its margin and without the
+  leverage test: "cannot tell" also when the held-out change of the mean final error is
+  within the RMS final error the fit leaves on its own runs over the square root of the
+  folds counted;
+- new: ``crossval.judge`` as ``calibrate`` calls it: also leaves out a fold whose
+  held-out run's end moves far more with the geometry than its training runs' residuals
+  do (``determinacy.extrapolates``: a line judged by a fit to another line).
+
+The leverage of every fold that passes the other tests is printed per experiment, and
+the totals per half of the data: the June 2020 experiments (where ``MAX_LEVERAGE`` was
+chosen) and the December 2020 ones (judged).
 
 Counted per experiment and in total: false refusals (held out better, refused: no
 block), false acceptances (held out worse, block without warning) and "cannot tell".
@@ -34,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import math
 import multiprocessing
 import sys
 from collections.abc import Sequence
@@ -55,7 +64,7 @@ from bench_calibration import NOMINAL, PARAMS, TRAIN  # noqa: E402
 TIE_M = 0.001
 SIZES = (3, 4)
 OUTCOMES = ("accepted", "cannot tell", "refused")
-RULES = ("old", "folds", "new")
+RULES = ("old", "folds", "margin", "new")
 
 
 def load(bag: Path) -> Run:
@@ -85,9 +94,11 @@ class Tally:
     false_refusal: dict[str, int] = field(default_factory=dict)
     false_acceptance: dict[str, int] = field(default_factory=dict)
     examples: list[str] = field(default_factory=list)
+    leverage: list[float] = field(default_factory=list)  # folds that pass the other tests
 
     def add(self, other: Tally) -> None:
         self.subsets += other.subsets
+        self.leverage += other.leverage
         for k, v in other.truth.items():
             self.truth[k] += v
         for rule, counts in other.outcome.items():
@@ -106,8 +117,9 @@ def outcome(rule: str, runs: Sequence[Run], results: Sequence[crossval.HeldOut],
     if rule == "old":
         c = crossval.check(results)
         return "accepted" if c is not None and c.better else "refused"
-    v = crossval.judge(runs, results, NOMINAL, in_sample if rule == "new" else (),
-                       shapes=shapes)
+    v = crossval.judge(runs, results, NOMINAL, in_sample if rule in ("margin", "new") else (),
+                       shapes=shapes,
+                       max_leverage=determinacy.MAX_LEVERAGE if rule == "new" else math.inf)
     assert v is not None
     if v.cannot_tell:
         return "cannot tell"
@@ -151,6 +163,10 @@ def judge_experiment(job: tuple[str, list[Path], tuple[str, ...], tuple[int, ...
             tally.subsets += 1
             tally.truth[truth] += 1
             results = crossval.held_out(sub, NOMINAL, fitter=fit)
+            for i in chosen:
+                training = [shapes[j] for j in chosen if j != i]
+                if not (determinacy.coverage(training).reason or determinacy.judges(shapes[i])):
+                    tally.leverage.append(determinacy.leverage(training, shapes[i]))
             for rule in rules:
                 got = outcome(rule, sub, results, [shapes[i] for i in chosen], in_sample)
                 tally.outcome[rule][got] += 1
@@ -168,8 +184,9 @@ def judge_experiment(job: tuple[str, list[Path], tuple[str, ...], tuple[int, ...
 
 
 def row(label: str, t: Tally, rules: Sequence[str]) -> str:
+    lev = (f"{min(t.leverage):5.2f}-{max(t.leverage):5.2f}" if t.leverage else f"{'-':>11s}")
     line = (f"{label:24s} {t.subsets:4d} {t.truth['better']:4d} {t.truth['tie']:4d} "
-            f"{t.truth['worse']:4d}")
+            f"{t.truth['worse']:4d} {lev}")
     for rule in rules:
         o = t.outcome[rule]
         line += (f" | {o['accepted']:4d} {o['cannot tell']:4d} {o['refused']:4d} "
@@ -181,7 +198,8 @@ def main(argv: Sequence[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rule", choices=(*RULES, "all"), default="all",
                     help="which verdict to count (old: every fold, the rule at 13dd1c3; "
-                    "folds: the folds that can judge, no margin; new: the product's)")
+                    "folds: the folds that can judge, no margin; margin: with the margin, "
+                    "no leverage test, the rule at 1bec3f3; new: the product's)")
     ap.add_argument("--jobs", type=int, default=2, help="processes, 1 or 2 (default 2)")
     ap.add_argument("--quick", action="store_true",
                     help="the squares' 3-run subsets only (the test's run)")
@@ -205,19 +223,26 @@ def main(argv: Sequence[str]) -> int:
     print(f"\nEvery {'- and '.join(map(str, sizes))}-run subset of an experiment, judged on "
           f"its other runs (worst final position error, start aligned, tie within "
           f"{1000 * TIE_M:g} mm)")
-    head = f"{'experiment':24s} {'sets':>4s} {'bet.':>4s} {'tie':>4s} {'wor.':>4s}"
+    head = (f"{'experiment':24s} {'sets':>4s} {'bet.':>4s} {'tie':>4s} {'wor.':>4s} "
+            f"{'leverage':>11s}")
     for rule in rules:
         head += f" | {rule + ': acc':>9s} {'?':>4s} {'ref':>4s} {'FR':>4s} {'FA':>4s}"
     print(head)
-    total = Tally()
+    total, halves = Tally(), {"June 2020": Tally(), "December 2020": Tally()}
     for name in groups:
         if name in done:
             print(row(name, done[name], rules))
             total.add(done[name])
+            halves["June 2020" if name.split("/")[1][2:4] == "06" else "December 2020"].add(
+                done[name])
+    for label, half in halves.items():
+        if half.subsets:
+            print(row(label, half, rules))
     print(row("ALL", total, rules))
     print("acc: block printed without warning; ?: cannot tell (block with a warning); ref: "
           "refused (no block); FR: false refusals (held out better, refused); FA: false "
-          "acceptances (held out worse, accepted)")
+          "acceptances (held out worse, accepted); leverage: range over the folds that pass "
+          f"the other tests (new leaves out those above {determinacy.MAX_LEVERAGE:g})")
     for rule in rules:
         better = max(total.truth["better"], 1)
         print(f"{rule}: false refusals {total.false_refusal[rule]} of {total.subsets} subsets "

@@ -1,6 +1,6 @@
 """Write config/diffdrive_odom.yaml from the parameter tables in diffdrive_odom.
 
-Why generated: the YAML, the nodes and the README must agree on every name and
+Why generated: the YAML, the nodes and the docs must agree on every name and
 default; test_docs.py checks the committed file against the tables.
 
 Why one ``/**`` section: it matches every node name and namespace (``-r __ns:=``,

@@ -92,3 +92,21 @@ def route_end(segments: Iterable[SegmentLike], start: Pose = ORIGIN,
             seg.linear, seg.angular)
         pose = arc(v * seg.duration, w * seg.duration, pose)
     return pose
+
+
+def sensor_clock(rate_hz: float, seconds: float, jitter_s: float = 0.0, phase_s: float = 0.0,
+                 seed: int = 0, t0_ns: int = 1_700_000_000 * 10**9) -> list[int]:
+    """Header stamps [ns] of a driver on its own clock: ``rate_hz`` with a phase and a
+    uniform jitter of +-``jitter_s`` on each stamp (a driver's timer, not a clean grid)."""
+    import random
+
+    rng = random.Random(seed)
+    period = 1.0 / rate_hz
+    count = int(seconds * rate_hz) + 1
+    return [t0_ns + round((phase_s + k * period + rng.uniform(-jitter_s, jitter_s)) * 1e9)
+            for k in range(count)]
+
+
+def mean_rate(stamps_ns: list[int]) -> float:
+    """Average rate [Hz] of a stream: intervals over the time they span."""
+    return (len(stamps_ns) - 1) / ((stamps_ns[-1] - stamps_ns[0]) * 1e-9)

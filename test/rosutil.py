@@ -24,7 +24,9 @@ import pytest
 import rclpy
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import Odometry
-from rcl_interfaces.srv import GetParameters, ListParameters
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterValue
+from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -232,6 +234,16 @@ def node_parameters(node: Node, ex: Any, fqn: str, names: list[str],
                           GetParameters.Request(names=names), timeout)
     assert result is not None
     return {n: parameter_value_to_python(v) for n, v in zip(names, result.values, strict=True)}
+
+
+def set_parameter(node: Node, ex: Any, fqn: str, name: str, value: ParameterValue) -> Any:
+    """The SetParametersResult of one parameter set on the running node ``fqn``.
+
+    Asked again until answered (CI once lost a first request: DDS reported the
+    service before its reply path matched); setting a value twice is setting it once.
+    """
+    request = SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)])
+    return call_service(node, ex, SetParameters, f"{fqn}/set_parameters", request).results[0]
 
 
 # --- the peer side of an odometry node ------------------------------------------------

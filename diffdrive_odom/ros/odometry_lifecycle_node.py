@@ -2,7 +2,7 @@
 
 For stacks brought up by a lifecycle manager (Nav2's nav2_lifecycle_manager), which
 configures and activates nodes by name through lifecycle_msgs' ChangeState service.
-Same parameters, topics, QoS, frames, /diagnostics and reset service as
+Same parameters, topics, QoS, frames, /diagnostics, reset service and ~/set_pose as
 ``odometry_node``: both run :class:`diffdrive_odom.ros.odometry_node.OdometryEndpoints`.
 
 unconfigured: parameters declared, nothing else. configure: parameters validated (a

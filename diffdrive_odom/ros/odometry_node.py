@@ -40,6 +40,7 @@ from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS, TF_QOS
 from diffdrive_odom.ros.runtime import run
+from diffdrive_odom.ros.set_pose import SetPoseSubscription
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, odometry_settings
 from diffdrive_odom.settings.params import ParamValue
@@ -86,6 +87,7 @@ class OdometryEndpoints:
         self._imu_sub = None if settings.gyro is None else node.create_subscription(
             Imu, "imu", self._on_imu, SENSOR_IN_QOS, raw=True)
         self._reset_srv = node.create_service(Trigger, "~/reset_odometry", self._on_reset)
+        self._set_pose = SetPoseSubscription(node, self._pipeline, self._throttle)
         # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
         # and a missing clock is one of the mistakes this warning is for.
         self._input_timer = node.create_timer(
@@ -111,6 +113,7 @@ class OdometryEndpoints:
         self._diagnostics.destroy()
         node.destroy_timer(self._input_timer)
         node.destroy_service(self._reset_srv)
+        self._set_pose.destroy()
         node.destroy_subscription(self._sub)
         if self._imu_sub is not None:
             node.destroy_subscription(self._imu_sub)

@@ -258,7 +258,7 @@ def usage(node_factory: Callable[[], Node], argv: Sequence[str] = ()) -> str:
         f"  {program} --ros-args --params-file my_robot.yaml -p wheel_radius:=0.033 "
         "-r __ns:=/robot1",
         "Every parameter, its default and meaning: config/diffdrive_odom.yaml (installed in",
-        f"share/diffdrive_odom/config) and the '{program}' section of the package's README.md.",
+        f"share/diffdrive_odom/config) and the package's page doc/nodes/{program}.md.",
     ]
     return "\n".join(lines)
 

@@ -91,7 +91,8 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "time); receive_time: with the time it arrived on this node's clock, as "
               "diff_drive_controller (a driver whose clock is not synced)."),
     ParamSpec("publish_rate", "double", 0.0,
-              "Max odometry publish rate [Hz]; 0 = publish every reading.",
+              "Odometry publish rate [Hz], kept on average in stamp time: min(this, the "
+              "reading rate), real readings only; 0 = publish every reading.",
               range=NON_NEGATIVE),
     ParamSpec("covariance_model", "string", "propagated",
               "propagated: covariance from wheel noise through each step (grows with "

@@ -8,7 +8,7 @@ The tables themselves live with their node, one settings module each
 (``geometry_settings``: the rows every node shares; ``odometry_settings``,
 ``cmd_vel_settings``, ``sim_settings``, ``follower_settings``). One table serves four
 readers: the node (declare + validate), the offline tools (same params YAML),
-``config/diffdrive_odom.yaml`` and the README's parameter tables. The nodes declare
+``config/diffdrive_odom.yaml`` and the documentation's parameter tables. The nodes declare
 every parameter with its type fixed, as generate_parameter_library does; the rule of
 :func:`as_declared_type` turns what ROS hands over in another type but with the same
 meaning (``-p wheel_radius:=1`` is an integer) into the declared type first.

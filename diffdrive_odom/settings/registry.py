@@ -1,7 +1,8 @@
 """Every node's parameter table, listed once.
 
-The unknown-name check, the README's tables (``scripts/param_tables.py``) and the shipped
-YAML (``scripts/gen_config.py``) all read :data:`TABLES`, so a new node or parameter is
+The unknown-name check, the documentation's tables (``doc/_ext/param_tables.py``, through
+:func:`table_rows`) and the shipped YAML (``scripts/gen_config.py``) all read
+:data:`TABLES`, so a new node or parameter is
 added in one place. The shipped YAML holds every parameter of every node (the sim's too)
 under one ``/**`` section, so a name several nodes declare is written once and must mean
 the same to each of them (``test_params`` checks which names are shared).
@@ -18,15 +19,15 @@ from diffdrive_odom.settings.cmd_vel import CMD_VEL_OWN_PARAMS, CMD_VEL_PARAMS
 from diffdrive_odom.settings.follower import FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS
 from diffdrive_odom.settings.odometry import ODOMETRY_OWN_PARAMS, ODOMETRY_PARAMS
-from diffdrive_odom.settings.params import ParamSpec
+from diffdrive_odom.settings.params import ParamSpec, yaml_text
 from diffdrive_odom.settings.sim import SIM_PARAMS
 
 
 @dataclass(frozen=True)
 class Table:
-    """One parameter table: its README marker, its YAML title, its rows."""
+    """One parameter table: its name in the docs, its YAML title, its rows."""
 
-    name: str  # the README's ``<!-- name -->`` marker
+    name: str  # what the docs' ``param-table`` directive names
     title: str  # the group's heading in the shipped YAML
     own: tuple[ParamSpec, ...]  # rows listed in this table (shared rows are listed once)
     declared: tuple[ParamSpec, ...]  # everything the node(s) declare
@@ -47,8 +48,21 @@ TABLES: tuple[Table, ...] = (
 
 
 def table(name: str) -> Table:
-    """The table with README marker ``name``."""
+    """The table named ``name`` (StopIteration for an unknown one)."""
     return next(t for t in TABLES if t.name == name)
+
+
+TABLE_HEADER = ("parameter", "type", "default", "meaning")
+
+
+def table_rows(name: str) -> tuple[tuple[str, str, str, str], ...]:
+    """The rows the docs print for table ``name``: name, type, default (YAML text), meaning.
+
+    One function for every rendering (the Sphinx directive, ``scripts/param_tables.py``),
+    so a page shows what the node declares and the default as the shipped YAML writes it.
+    """
+    return tuple((s.name, s.kind, yaml_text(s.default), s.description)
+                 for s in table(name).own)
 
 
 def config_groups() -> tuple[tuple[str, tuple[ParamSpec, ...]], ...]:

@@ -92,7 +92,11 @@ def _parser() -> argparse.ArgumentParser:
                     help="relative 1-sigma drift of the radii and separation between recording "
                     "sessions (tyres, floor), added in quadrature to the bootstrap sigma: what "
                     "the printed sigma covers on other days (chosen on the OptiOdom robot, "
-                    "README 'Calibration'; 0: the bootstrap alone)")
+                    "doc/concepts/calibration.md; 0: the bootstrap alone)")
+    ap.add_argument("--end-weight", type=float, default=0.0, metavar="W",
+                    help="also fit each run's final position, its square weighted W^2 times "
+                    "the run's mean squared error along the path (0: the whole trajectory "
+                    "alone; what each gives: doc/concepts/calibration.md)")
     ap.add_argument("--window", default=None, help=argparse.SUPPRESS)  # refused: see below
     ap.add_argument("--no-mount", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--yaml", metavar="FILE",
@@ -129,10 +133,12 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
             return "--side/--cw-end/--ccw-end need --umbmark"
         if not (math.isfinite(args.session_drift) and 0.0 <= args.session_drift < 1.0):
             return f"--session-drift: give a ratio in [0, 1), got {args.session_drift!r}"
+        if not (math.isfinite(args.end_weight) and args.end_weight >= 0.0):
+            return f"--end-weight: give a finite W >= 0, got {args.end_weight!r}"
         if args.window is not None or args.no_mount:
             return ("--window/--no-mount are gone: the fit uses the whole trajectory with the "
                     "reference's start yaw as its only nuisance (offset from the axle and "
-                    "clock lag fixed at 0); see README 'Calibration'")
+                    "clock lag fixed at 0); see doc/concepts/calibration.md")
     else:
         if args.bags:
             return "--umbmark takes its two bags itself; no other BAG"
@@ -211,11 +217,12 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
     from diffdrive_odom.core.evaluation import calibration, crossval
 
     nominal = settings.geometry
-    result = calibration.fit(runs, nominal)
+    w = args.end_weight
+    result = calibration.fit(runs, nominal, end_weight=w)
     in_sample = [r.after.final_position_error_aligned_m for r in result.runs]
-    verdict = (crossval.judge(runs, crossval.held_out(runs, nominal), nominal, in_sample)
-               if len(runs) >= 2 else None)
-    covariance = crossval.bootstrap(runs, nominal)
+    held = crossval.held_out(runs, nominal, fitter=crossval.default_fitter(nominal, w))
+    verdict = crossval.judge(runs, held, nominal, in_sample) if len(runs) >= 2 else None
+    covariance = crossval.bootstrap(runs, nominal, end_weight=w)
     printed = None if covariance is None else crossval.with_drift(result.values, covariance,
                                                                   args.session_drift)
     ratios = None if printed is None else crossval.stddev_ratios(result.values, printed)
@@ -253,7 +260,8 @@ def check_lines(v: crossval.Verdict | None, runs: int, forced: bool) -> str:
     if c is None:
         return "\n".join([
             f"CANNOT TELL on held-out runs: none of the {len(v.left_out)} folds can judge the "
-            "fit (drive both ways, with lines and turns); the block is printed, judge it "
+            "fit (paths that turn both ways as they go, circles or squares each way, judge "
+            "it; straight lines and spins on the spot cannot); the block is printed, judge it "
             "yourself", *left])
     figures = (f"mean final position error {c.fpe_nominal:.4f} m nominal, {c.fpe_held_out:.4f} "
                f"m calibrated; ATE {c.ate_nominal:.4f} -> {c.ate_held_out:.4f} m "
@@ -333,7 +341,9 @@ def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None,
     from diffdrive_odom.core.evaluation import calibration, crossval
 
     nominal = values_of(fit.nominal)
-    lines = [f"calibrated from {len(fit.runs)} run(s): whole trajectory, {fit.samples} "
+    how = "whole trajectory" + (f" + end positions x{fit.end_weight:g}" if fit.end_weight
+                                 else "")
+    lines = [f"calibrated from {len(fit.runs)} run(s): {how}, {fit.samples} "
              f"samples, {fit.loss} loss, {fit.evaluations} evaluations, {fit.seconds:.2f} s",
              f"{'':22s} {'nominal':>10s} {'fitted':>10s} {'bootstrap':>10s} {'1-sigma':>10s}"]
     boot = None if covariance is None else np.sqrt(np.diag(covariance))

@@ -226,7 +226,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--odom-topic", default="/odom", help="odometry topic in the output bag")
     ap.add_argument("--tf-topic", default="/tf", help="transform topic in the output bag")
     ap.add_argument("--csv", metavar="FILE",
-                    help="write published poses as CSV, columns in the README (default: none)")
+                    help="write published poses as CSV, columns in doc/tools/replay.md "
+                         "(default: none)")
     ap.add_argument("--keep-input", action="store_true",
                     help="copy every input topic into the output bag (ROS 1 -> CDR) "
                     "(default: only the replayed odom and /tf)")

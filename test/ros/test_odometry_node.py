@@ -14,10 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
-from rcl_interfaces.srv import SetParameters
-from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -35,9 +32,11 @@ from rosutil import (
     OdomRigs,
     assert_refused_in_process,
     assert_refuses_to_start,
+    call_service,
     drive_straight,
     ns_of,
     send_first,
+    set_parameter,
     spin_for,
     spin_until,
     stamp,
@@ -128,11 +127,9 @@ def test_params_file_namespace_remap_and_reset_service(odom_rig: OdomRigs) -> No
     assert before.header.frame_id == "robot1/odom"
     assert before.child_frame_id == "robot1/base_link"
 
-    client = node.create_client(Trigger, "/robot1/odometry_node/reset_odometry")
-    assert client.wait_for_service(timeout_sec=10.0)
-    future = client.call_async(Trigger.Request())
-    assert spin_until(ex, future.done, 10.0)
-    result = future.result()
+    # Asked again until answered: with no reading in between, two resets are one.
+    result = call_service(node, ex, Trigger, "/robot1/odometry_node/reset_odometry",
+                          Trigger.Request())
     assert result is not None and result.success
 
     # Drive on from where the wheels are: no jump, 0.25 m more from the origin.
@@ -168,23 +165,14 @@ def test_a_bad_parameter_stops_the_process_with_exit_2_and_one_line() -> None:
     assert_refuses_to_start("odometry_node", "wheel_radius", BAD_PARAMETERS["wheel_radius"])
 
 
-def _set_param(node: Node, ex: Any, name: str, value: ParameterValue) -> Any:
-    client = node.create_client(SetParameters, "/odometry_node/set_parameters")
-    assert client.wait_for_service(timeout_sec=10.0)
-    req = SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)])
-    future = client.call_async(req)
-    assert spin_until(ex, future.done, 10.0)
-    return future.result().results[0]
-
-
 def test_runtime_parameter_refused_with_reason_and_bad_messages_dropped(odom_rig: OdomRigs) -> None:
     r, b = 0.1, 0.4
     args = ["-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}"]
     proc, _, node, ex, pub, sink = odom_rig(*args, geometry=())
-    bad = _set_param(node, ex, "wheel_radius",
+    bad = set_parameter(node, ex, "/odometry_node", "wheel_radius",
                      ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=-1.0))
     assert not bad.successful and "wheel_radius" in bad.reason
-    ok = _set_param(node, ex, "wheel_radius",
+    ok = set_parameter(node, ex, "/odometry_node", "wheel_radius",
                     ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.2))
     assert ok.successful
 

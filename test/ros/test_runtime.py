@@ -12,6 +12,7 @@ gets its signal at its own moment.
 from __future__ import annotations
 
 import math
+import os
 import random
 import signal
 import subprocess
@@ -142,7 +143,10 @@ def signal_mix(terms: int, ints: int, rng: random.Random) -> list[signal.Signals
 
 @pytest.mark.slow
 def test_odometry_node_stops_within_a_second_of_sigterm_or_sigint_during_a_burst() -> None:
-    """50 SIGTERM and 50 SIGINT trials, ten processes started at a time."""
+    """Half SIGTERM, half SIGINT, ten processes started at a time: 30 trials in make
+    test (the race they once caught has its own deterministic test above), more with
+    SIGNAL_TRIAL_ROUNDS=10 (the 100 trials the fix was judged on: about 110 s)."""
+    rounds = int(os.environ.get("SIGNAL_TRIAL_ROUNDS", "3"))
     rng = random.Random(20261201)
     topics = [f"/signal_test/joint_states_{i}" for i in range(10)]
 
@@ -152,10 +156,10 @@ def test_odometry_node_stops_within_a_second_of_sigterm_or_sigint_during_a_burst
 
     results = []
     with burst(JointState, topics, joint_state) as source:
-        for _ in range(10):
+        for _ in range(rounds):
             results += stop_times("odometry_node", args, source, signal_mix(5, 5, rng), rng)
         assert source.sent > 0
-    assert sorted(sig for sig, *_ in results) == ["SIGINT"] * 50 + ["SIGTERM"] * 50
+    assert sorted(sig for sig, *_ in results) == ["SIGINT"] * 5 * rounds + ["SIGTERM"] * 5 * rounds
     assert_all_stopped(results)
 
 

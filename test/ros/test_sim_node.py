@@ -16,9 +16,7 @@ from typing import Any
 
 import pytest
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
-from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -31,6 +29,7 @@ from rosutil import (
     assert_refuses_to_start,
     node_process,
     ros_test_node,
+    set_parameter,
     spin_for,
     spin_until,
 )
@@ -223,24 +222,16 @@ def test_counts_per_second_and_bad_commands() -> None:
     assert "dropped" in output(sim)
 
 
-def _set_param(node: Node, ex: Any, name: str, value: ParameterValue) -> Any:
-    client = node.create_client(SetParameters, "/sim_node/set_parameters")
-    assert client.wait_for_service(timeout_sec=10.0)
-    future = client.call_async(
-        SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)]))
-    assert spin_until(ex, future.done, 10.0)
-    return future.result().results[0]
-
-
 def test_runtime_parameters_refused_with_reason_or_applied() -> None:
     with node_process("sim_node", ["--ros-args"]) as sim, ros_test_node() as (node, ex):
         double = ParameterType.PARAMETER_DOUBLE
-        bad = _set_param(node, ex, "slip_stddev", ParameterValue(type=double, double_value=-1.0))
+        bad = set_parameter(node, ex, "/sim_node", "slip_stddev",
+                            ParameterValue(type=double, double_value=-1.0))
         assert not bad.successful and "slip_stddev" in bad.reason
-        fixed = _set_param(node, ex, "joint_state_rate",
+        fixed = set_parameter(node, ex, "/sim_node", "joint_state_rate",
                            ParameterValue(type=double, double_value=10.0))
         assert not fixed.successful  # read-only: the rate is the simulation's step
-        ok = _set_param(node, ex, "true_right_wheel_radius",
+        ok = set_parameter(node, ex, "/sim_node", "true_right_wheel_radius",
                         ParameterValue(type=double, double_value=0.034))
         assert ok.successful
         assert sim.poll() is None

@@ -162,17 +162,17 @@ def test_launch_file_declares_arguments_and_names_installed_files(
         assert (share / rel).is_file(), f"{name} names {rel}, not installed in {share}"
 
 
-def test_base_declares_what_it_passes_on_and_readme_lists_every_argument() -> None:
+def test_base_declares_what_it_passes_on_and_the_docs_list_every_argument() -> None:
     """base.launch.py declares odometry.launch.py's arguments too (``--show-args`` cannot
-    look into an include found at run time), and the README's table lists each one."""
+    look into an include found at run time), and doc/robot.md's table lists each one."""
     odo = read_launch_file(ROOT / "launch" / "odometry.launch.py").arguments
     base = read_launch_file(ROOT / "launch" / "base.launch.py").arguments
     assert set(odo) <= set(base)
     for name in odo:
         assert ast.dump(odo[name] or ast.Constant(None)) == ast.dump(
             base[name] or ast.Constant(None)), f"{name}: defaults differ"
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    section = readme.split("\n## Launch\n", 1)[1].split("\n## ", 1)[0]
+    page = (ROOT / "doc" / "robot.md").read_text(encoding="utf-8")
+    section = page.split("\n## Launch\n", 1)[1].split("\n## ", 1)[0]
     rows = {line.split("|")[1].strip(" `"): line.split("|")[3].strip()
             for line in section.splitlines() if line.startswith("| `")}
     assert rows == {**dict.fromkeys(base, "base"), **dict.fromkeys(odo, "both")}

@@ -21,8 +21,8 @@ from diffdrive_odom.tools.cli import main as cli
 from rosutil import ROOT, executable
 
 NODES = ("odometry_node", "cmd_vel_node", "sim_node")
-# The topics each node's README section documents (default parameters, no namespace).
-README_TOPICS = {
+# The topics each node's page (doc/nodes/) documents (default parameters, no namespace).
+PAGE_TOPICS = {
     "odometry_node": ("/joint_states", "/odom", "/tf", "reset_odometry"),
     "cmd_vel_node": ("/cmd_vel", "/wheel_commands"),
     "sim_node": ("/wheel_commands", "/joint_states", "/ground_truth/odom"),
@@ -107,9 +107,10 @@ def test_node_help_prints_topics_and_where_parameters_go(node: str) -> None:
     assert done.returncode == 0, done.stdout + done.stderr
     out = done.stdout
     assert out.startswith(f"usage: {node}")
-    for topic in README_TOPICS[node]:
+    for topic in PAGE_TOPICS[node]:
         assert topic in out, (node, topic, out)
-    assert f"{node} --ros-args --params-file" in out and "README" in out
+    assert f"{node} --ros-args --params-file" in out and f"doc/nodes/{node}.md" in out
+    assert (ROOT / "doc" / "nodes" / f"{node}.md").is_file()
     # The same with a namespace: the listed names are the node's own, resolved.
     ns = _run(node, "--ros-args", "-r", "__ns:=/robot1", "--", "--help")
     expected = "/robot1/odom" if node == "odometry_node" else "/robot1/wheel_commands"

@@ -214,8 +214,8 @@ def test_publish_rate_and_frames_follow_the_params(tmp_path: Path) -> None:
     odoms = [m for _, _, m in mcap_messages(out)]
     assert all(m.child_frame_id == "base_footprint" for m in odoms)  # and no /tf at all
     stamps = [_ns(m.header.stamp) for m in odoms]
-    assert min(np.diff(stamps)) >= 0.2e9 - 1e3
-    assert len(stamps) == pytest.approx(69.2 * 5, abs=2)  # 20 Hz data, 5 Hz out
+    assert oracle.mean_rate(stamps) == pytest.approx(5.0, rel=0.01)  # 20 Hz data, 5 Hz out
+    assert len(stamps) == pytest.approx(69.2 * 5, abs=2)
 
 
 def _write_run(path: Path, stamps: list[int], wheels: list[tuple[float, float]],
@@ -474,6 +474,6 @@ def test_replay_eval_finds_a_ground_truth_topic_by_its_name(
     assert cli(["replay", str(bag), "--params-file", str(params), "--eval",
                 "--json", str(figures)]) == 0
     assert "using /ground_truth/odom" in capsys.readouterr().err
-    # run-04 with nominal geometry ends 0.1075 m from motion capture (README figure)
+    # run-04, nominal geometry: 0.1075 m from motion capture (the figure doc/tools/eval.md quotes)
     assert json.loads(figures.read_text())["final_position_error_m"] == pytest.approx(
         0.1075, abs=5e-4)

@@ -7,7 +7,7 @@ decides nothing on its own, and where it needs a rule in array form it calls the
 that lives beside the scalar one in the rule's own module (the counter unwrap and the
 increments: :func:`~diffdrive_odom.core.estimation.encoders.position_increments`; the
 plausibility limits: :func:`~diffdrive_odom.core.estimation.estimator.plausible_steps`;
-the publish gate: :meth:`~diffdrive_odom.core.estimation.pipeline.PublishGate.passed`;
+the publish gate: :meth:`~diffdrive_odom.core.estimation.gate.PublishGate.passed`;
 the chord: :func:`~diffdrive_odom.core.geometry.integration.chord_array`; whether bulk
 is allowed at all:
 :attr:`~diffdrive_odom.core.estimation.config.OdometrySettings.takes_bulk`). A
@@ -54,12 +54,8 @@ from diffdrive_odom.core.estimation.encoders import (
     position_increments,
 )
 from diffdrive_odom.core.estimation.estimator import Step, plausible_steps
-from diffdrive_odom.core.estimation.pipeline import (
-    Handover,
-    Outcome,
-    PublishGate,
-    ReadingPipeline,
-)
+from diffdrive_odom.core.estimation.gate import PublishGate
+from diffdrive_odom.core.estimation.pipeline import Handover, Outcome, ReadingPipeline
 from diffdrive_odom.core.estimation.stamps import StampSource, in_sync
 from diffdrive_odom.core.geometry.integration import Pose2D, chord_array
 from diffdrive_odom.core.geometry.kinematics import body_from_arcs, wheel_arcs
@@ -358,9 +354,8 @@ def _bulk(
     linear, angular = lin_sum / counts, ang_sum / counts
     windows = (tuple(np.concatenate((state.windows[0], ds / dt))[-size:].tolist()),
                tuple(np.concatenate((state.windows[1], dth / dt))[-size:].tolist()))
-    gate = PublishGate(settings.publish_rate, state.gate_last_ns)
-    published = gate.passed(c.stamps[i + 1:j + 1].tolist())
-    pub = np.array(published, dtype=np.int64)
+    gate = PublishGate(settings.publish_rate, state.gate)
+    pub = gate.passed(c.stamps[i + 1:j + 1])
     cov = CovarianceState(covariance=state.covariance, sensitivity=state.sensitivity,
                           rates=state.rates)
     static = pipe.covariances()
@@ -389,8 +384,8 @@ def _bulk(
     end = Handover(reference=ref,
                    pose=Pose2D(float(x[-1]), float(y[-1]), float(thetas[-1])),
                    windows=windows, covariance=cov.covariance, sensitivity=cov.sensitivity,
-                   rates=cov.rates, gate_last_ns=gate.last_ns, clock_named=state.clock_named)
-    pipe.take_back(end, j - i, len(published),
+                   rates=cov.rates, gate=gate.state, clock_named=state.clock_named)
+    pipe.take_back(end, j - i, len(pub),
                    WheelIncrement(float(c.dt[k]), float(c.d_left[k]), float(c.d_right[k]),
                                   float(c.peak[k])),
                    Step(float(c.dt[k]), float(c.ds[k]), float(c.dtheta[k])))

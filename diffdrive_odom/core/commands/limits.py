@@ -5,16 +5,16 @@ Pure Python (no rclpy): the cmd_vel node, the simulator and the tests share it.
 The parameters keep diff_drive_controller's names *and signs* so a user's YAML
 carries over (``linear.x.*`` and ``angular.z.*``; NaN = no limit):
 
-==========================  ====  ==================================================
-name                        sign  bounds the change of velocity ...
-==========================  ====  ==================================================
-max_velocity / min_velocity +/-   the velocity itself (min defaults to -max)
-max_acceleration            > 0   speeding up forwards (and from rest)
-max_deceleration            < 0   slowing down while moving forwards
-max_acceleration_reverse    < 0   speeding up backwards (and from rest)
-max_deceleration_reverse    > 0   slowing down while moving backwards
-max_jerk / min_jerk         +/-   the change of acceleration while it builds up
-==========================  ====  ==================================================
+===========================  ====  ==================================================
+name                         sign  bounds the change of velocity ...
+===========================  ====  ==================================================
+max_velocity / min_velocity  +/-   the velocity itself (min defaults to -max)
+max_acceleration             > 0   speeding up forwards (and from rest)
+max_deceleration             < 0   slowing down while moving forwards
+max_acceleration_reverse     < 0   speeding up backwards (and from rest)
+max_deceleration_reverse     > 0   slowing down while moving backwards
+max_jerk / min_jerk          +/-   the change of acceleration while it builds up
+===========================  ====  ==================================================
 
 Unset (NaN) values fall back as in control_toolbox's RateLimiter:
 ``max_acceleration_reverse = -max_acceleration``, ``max_deceleration =

@@ -8,6 +8,7 @@ texts: :mod:`diffdrive_odom.core.estimation.timeline`).
 
 Rules that make it safe to feed anything (no exception escapes, no state is ever
 non-finite):
+
 - the first reading (and the first after a reset or a re-anchor) is the reference:
   it is never integrated as motion, whatever its value;
 - a reading that cannot be used (bad arrays, NaN, a count outside the counter's range,

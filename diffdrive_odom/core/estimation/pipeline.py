@@ -14,8 +14,7 @@ each step's heading from :mod:`diffdrive_odom.core.estimation.gyro` (gyrodometry
 
 from __future__ import annotations
 
-import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
@@ -26,8 +25,15 @@ from diffdrive_odom.core.estimation.encoders import (
     WheelReading,
 )
 from diffdrive_odom.core.estimation.estimator import OdometryEstimator, Step
+from diffdrive_odom.core.estimation.gate import GateState, PublishGate
 from diffdrive_odom.core.estimation.gyro import GyroHeading, SlipStats
 from diffdrive_odom.core.estimation.imuinput import ImuInput
+from diffdrive_odom.core.estimation.setpose import (
+    PoseRefusal,
+    PoseRequest,
+    SetPoseRule,
+    check_request,
+)
 from diffdrive_odom.core.estimation.stamps import ClockOffsetCheck, StampSource
 from diffdrive_odom.core.estimation.timeline import Status, Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D
@@ -51,6 +57,7 @@ VELOCITY_OFF = "wheel positions are available again: integrating positions"
 IMU_SILENT = ("IMU silent (no usable yaw rate within imu_timeout of a wheel step): wheels "
               "only, the heading covariance grows with the wheels' model again")
 IMU_BACK = "IMU samples again: gyro-aided heading"
+SET_POSE_DROPPED = "set_pose: the held pose is dropped (odometry restarted)"
 
 
 @dataclass(frozen=True)
@@ -132,53 +139,6 @@ class Outcome:
     stamp_ns: int = 0
 
 
-def publish_period_ns(rate: float) -> float:
-    """Least stamp spacing [ns] of two published poses at ``rate`` [Hz]; -inf: no limit.
-
-    One period less 1 us of slack for stamp jitter; a rate <= 0 publishes every pose.
-    """
-    return 1e9 / rate - 1e3 if rate > 0.0 else -math.inf
-
-
-class PublishGate:
-    """The ``publish_rate`` rule shared by the node, replay and the fast lane.
-
-    At most one pose per period of *measurement* time (header stamps), so a bag
-    replayed at any speed, live or offline, publishes the same poses. :meth:`due` is the
-    rule for one pose, :meth:`passed` the same rule over a stretch of them.
-    """
-
-    def __init__(self, rate: float, last_ns: int | None = None) -> None:
-        self.rate = rate
-        self.last_ns = last_ns
-
-    @property
-    def rate(self) -> float:
-        """Poses per second of measurement time (<= 0: every pose)."""
-        return self._rate
-
-    @rate.setter
-    def rate(self, rate: float) -> None:
-        self._rate = rate
-        self._period = publish_period_ns(rate)
-
-    def due(self, stamp_ns: int) -> bool:
-        """Tell whether a pose stamped ``stamp_ns`` is published (and remember it if so).
-
-        A stamp before the last published one (time went back) is published at once.
-        """
-        last = self.last_ns
-        if last is None or stamp_ns < last or (stamp_ns - last) >= self._period:
-            self.last_ns = stamp_ns
-            return True
-        return False
-
-    def passed(self, stamps: Iterable[int]) -> list[int]:
-        """The indices of ``stamps`` (in order) that :meth:`due` publishes."""
-        due = self.due
-        return [k for k, stamp in enumerate(stamps) if due(stamp)]
-
-
 @dataclass(frozen=True)
 class Handover:
     """The pipeline's state where a bulk integrator takes over or hands back.
@@ -197,7 +157,7 @@ class Handover:
     covariance: Matrix
     sensitivity: Matrix
     rates: tuple[Matrix, ...]
-    gate_last_ns: int | None
+    gate: GateState
     clock_named: bool
 
 
@@ -223,6 +183,7 @@ class ReadingPipeline:
         self._gyro: GyroHeading | None = None
         self._imu: ImuInput | None = None
         self._imu_silent = False  # so a missing IMU is named at the first step
+        self._setpose = SetPoseRule()
         self._attach_gyro(settings)
 
     def _attach_gyro(self, settings: OdometrySettings) -> None:
@@ -346,6 +307,11 @@ class ReadingPipeline:
             note = IMU_SILENT if gyro.silent else IMU_BACK
         if self._imu is not None and not warning:
             warning = self._imu.take_warning()
+        if self._setpose.pending is not None:  # ~/set_pose held for this reading's stamp
+            if status is Status.TIME_RESET:
+                self._setpose.pending, note = None, note or SET_POSE_DROPPED
+            elif self._setpose.reached(stamp_ns, self._estimator):
+                self._gate.forget()
         publish = verdict.has_new_pose and self._gate.due(stamp_ns)
         if publish:
             self._published += 1
@@ -355,10 +321,11 @@ class ReadingPipeline:
         """The state a bulk integrator starts from (see :class:`Handover`)."""
         est, unc = self._estimator, self._estimator.uncertainty
         return Handover(
-            reference=est.handover(), pose=est.pose, windows=est.twist_windows(),
+            reference=None if self._setpose.pending else est.handover(), pose=est.pose,
+            windows=est.twist_windows(),
             covariance=() if unc is None else unc.covariance,
             sensitivity=() if unc is None else unc.sensitivity,
-            rates=() if unc is None else unc.rates, gate_last_ns=self._gate.last_ns,
+            rates=() if unc is None else unc.rates, gate=self._gate.state,
             clock_named=self._clock.offset_ns is not None)
 
     def take_back(self, state: Handover, readings: int, published: int,
@@ -374,7 +341,7 @@ class ReadingPipeline:
         if unc is not None:
             unc.covariance, unc.sensitivity = state.covariance, state.sensitivity
             unc.set_rates(state.rates)
-        self._gate.last_ns = state.gate_last_ns
+        self._gate.state = state.gate
         self._readings += readings
         self._published += published
         self._last_usable_ns = state.reference.stamp_ns
@@ -395,7 +362,22 @@ class ReadingPipeline:
     def reset(self) -> None:
         """Pose and twist to the origin; the next reading is published whatever the rate."""
         self._estimator.reset()
-        self._gate.last_ns = None
+        self._gate.forget()
+        self._setpose.pending = None
+
+    def set_pose(self, request: PoseRequest) -> str | PoseRefusal:
+        """``~/set_pose`` (:mod:`~diffdrive_odom.core.estimation.setpose`), checked and set.
+
+        Returns the line that names it in the log, or why it is refused. The next pose
+        published is the first after the pose is set, whatever ``publish_rate``.
+        """
+        accepted = check_request(request, self._settings.odom_frame_id)
+        if isinstance(accepted, PoseRefusal):
+            return accepted
+        line = self._setpose.offer(accepted, self._estimator, self._estimator.uncertainty is None)
+        if self._setpose.pending is None:
+            self._gate.forget()
+        return line
 
     def reconfigure(self, settings: OdometrySettings) -> None:
         """Install validated settings at runtime; the pose carries on without a jump.
@@ -407,7 +389,8 @@ class ReadingPipeline:
         old = self._settings
         self._settings = settings
         self._static = _static_covariances(settings)
-        self._gate.rate = settings.publish_rate
+        if settings.publish_rate != old.publish_rate:
+            self._gate.rate = settings.publish_rate
         if (settings.encoders != old.encoders or settings.estimator != old.estimator
                 or settings.stamp_source != old.stamp_source):
             before = self._estimator

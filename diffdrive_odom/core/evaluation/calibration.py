@@ -35,6 +35,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -92,6 +93,7 @@ class Fit:
     runs: tuple[RunFigures, ...]
     seconds: float
     evaluations: int
+    end_weight: float = 0.0  # see :func:`fit`
 
 
 @dataclass(frozen=True)
@@ -124,8 +126,12 @@ def prepare(run: Run, max_gap: float, stride: int = STRIDE,
 
 
 def residuals(p: _Prepared, geometry: Geometry, start_yaw: float,
-              heading_length: float) -> FloatArray:
-    """(samples, 3): odometry minus reference (turned by ``start_yaw``), in metres."""
+              heading_length: float, end_weight: float = 0.0) -> FloatArray:
+    """(samples, 3): odometry minus reference (turned by ``start_yaw``), in metres.
+
+    ``end_weight`` > 0 appends one row: the end position's error in the reference's own
+    start frame (not turned: the start-aligned final error users read), times it.
+    """
     x, y, th = integrate_steps(p.run.steps, geometry)
     i = p.index
     c, s = math.cos(start_yaw), math.sin(start_yaw)
@@ -133,7 +139,10 @@ def residuals(p: _Prepared, geometry: Geometry, start_yaw: float,
     d = np.column_stack((x[i] - (c * ref[:, 0] - s * ref[:, 1]),
                          y[i] - (s * ref[:, 0] + c * ref[:, 1]),
                          heading_length * wrap_angles(th[i] - ref[:, 2])))
-    return d
+    if end_weight <= 0.0:
+        return d
+    end = end_weight * np.array([[x[i[-1]] - ref[-1, 0], y[i[-1]] - ref[-1, 1], 0.0]])
+    return np.concatenate((d, end))
 
 
 def fit(
@@ -143,6 +152,7 @@ def fit(
     loss: str = "cauchy",
     fit_start_yaw: bool = True,
     ends_only: bool = False,
+    end_weight: float = 0.0,
     weights: Sequence[float] | None = None,
     max_gap: float = 0.5,
     figures: bool = True,
@@ -150,18 +160,24 @@ def fit(
     """Fit both wheel radii and the separation to the runs' references (see the module).
 
     ``ends_only`` matches the end poses only (OptiOdom's objective, kept for the
-    benchmark's comparison); ``weights`` repeat runs (a bootstrap); ``figures=False``
+    benchmark's comparison); ``end_weight`` W > 0 adds each run's end position error
+    (start frame, not turned by the start yaw) so that its square counts W^2 times the
+    run's mean squared residual, in plain squares beside the robust loss (measured on
+    the OptiOdom runs, doc/incoming/verdict2.md: not the default, it overfits a free
+    path fitted alone); ``weights`` repeat runs (a bootstrap); ``figures=False``
     skips the per-run metrics. Raises CalibrationError for a run that cannot be used.
     """
     if not runs:
         raise CalibrationError("no run to calibrate from")
     if loss not in LOSSES:
         raise CalibrationError(f"loss must be one of {', '.join(LOSSES)}, got {loss!r}")
+    if not (math.isfinite(end_weight) and end_weight >= 0.0):
+        raise CalibrationError(f"end_weight must be finite and >= 0, got {end_weight!r}")
     start = time.perf_counter()
     prepared = [prepare(r, max_gap, ends_only=ends_only) for r in runs]
     w = np.ones(len(runs)) if weights is None else np.asarray(weights, dtype=np.float64)
-    used = [(p, math.sqrt(wi / (1.0 if ends_only else len(p.index))))
-            for p, wi in zip(prepared, w, strict=True) if wi > 0.0]
+    used = [(p, math.sqrt(wi / n), n) for p, wi in zip(prepared, w, strict=True) if wi > 0.0
+            for n in [1 if ends_only else len(p.index)]]
     x0 = values_of(nominal)
     heading_length = 0.5 * nominal.separation
     evaluations = 0
@@ -174,8 +190,9 @@ def fit(
         nonlocal evaluations
         evaluations += 1
         g, yaw = geometry_at(x), float(x[3]) if fit_start_yaw else 0.0
-        return np.concatenate([sw * residuals(p, g, yaw, heading_length).ravel()
-                               for p, sw in used])
+        return np.concatenate([sw * residuals(p, g, yaw, heading_length,
+                                              end_weight * math.sqrt(n)).ravel()
+                               for p, sw, n in used])
 
     n = 4 if fit_start_yaw else 3
     start_x = np.concatenate((np.ones(3), np.zeros(n - 3)))
@@ -186,10 +203,12 @@ def fit(
                                  xtol=1e-12, ftol=1e-12, gtol=1e-12)
     if loss != "linear":
         r = np.asarray(sol.fun)
-        scale = 1.4826 * float(np.median(np.abs(r - np.median(r)))) or 1e-6
-        sol = optimize.least_squares(res, sol.x, method="trf", bounds=bounds, loss=loss,
-                                     f_scale=scale, x_scale=x_scale,
-                                     xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        ends = _end_rows([len(p.index) + (end_weight > 0.0) for p, _, _ in used], end_weight)
+        along = r[~ends]
+        scale = 1.4826 * float(np.median(np.abs(along - np.median(along)))) or 1e-6
+        sol = optimize.least_squares(res, sol.x, method="trf", bounds=bounds,
+                                     loss=_robust_along(loss, ends), f_scale=scale,
+                                     x_scale=x_scale, xtol=1e-12, ftol=1e-12, gtol=1e-12)
     xs = np.asarray(sol.x, dtype=np.float64)
     fitted = geometry_at(xs)
     r = np.asarray(sol.fun, dtype=np.float64)
@@ -199,13 +218,51 @@ def fit(
         values=values_of(fitted),
         start_yaw=float(xs[3]) if fit_start_yaw else 0.0,
         loss=loss,
-        samples=sum(len(p.index) for p, _ in used),
+        samples=sum(len(p.index) for p, _, _ in used),
         rms_before=float(np.sqrt(np.mean(r0**2))),
         rms_after=float(np.sqrt(np.mean(r**2))),
         runs=run_figures(runs, nominal, fitted, max_gap) if figures else (),
         seconds=time.perf_counter() - start,
         evaluations=evaluations,
+        end_weight=end_weight,
     )
+
+
+def _end_rows(rows: Sequence[int], end_weight: float) -> npt.NDArray[np.bool_]:
+    """Mask of the residual vector's end-position entries (each run's last row)."""
+    mask = [np.zeros(3 * n, dtype=bool) for n in rows]
+    if end_weight > 0.0:
+        for m in mask:
+            m[-3:] = True
+    return np.concatenate(mask)
+
+
+def _robust_along(loss: str, ends: npt.NDArray[np.bool_]) -> Any:
+    """``loss`` on the samples along the runs, plain squares on the end rows.
+
+    The ends are what the user reads (the final error), not outliers to discount.
+    """
+    if not ends.any():
+        return loss
+
+    def rho(z: FloatArray) -> FloatArray:
+        out = np.empty((3, z.size))
+        if loss == "cauchy":
+            out[0], out[1] = np.log1p(z), 1.0 / (1.0 + z)
+            out[2] = -out[1] ** 2
+        elif loss == "soft_l1":
+            t = 1.0 + z
+            out[0], out[1], out[2] = 2.0 * (np.sqrt(t) - 1.0), t ** -0.5, -0.5 * t ** -1.5
+        else:  # huber
+            small = z <= 1.0
+            zs = np.where(small, 1.0, z)
+            out[0] = np.where(small, z, 2.0 * np.sqrt(zs) - 1.0)
+            out[1] = np.where(small, 1.0, zs ** -0.5)
+            out[2] = np.where(small, 0.0, -0.5 * zs ** -1.5)
+        out[0, ends], out[1, ends], out[2, ends] = z[ends], 1.0, 0.0
+        return out
+
+    return rho
 
 
 def run_figures(runs: Sequence[Run], nominal: Geometry, fitted: Geometry,

@@ -48,9 +48,10 @@ MIN_RUNS_FOR_SIGMA = 3
 SEED = 16  # fixed: the same runs print the same sigma
 
 
-def default_fitter(nominal: Geometry) -> Fitter:
+def default_fitter(nominal: Geometry, end_weight: float = 0.0) -> Fitter:
     """The product's fit (:func:`calibration.fit` with its defaults), geometry only."""
-    return lambda runs: calibration.fit(runs, nominal, figures=False).geometry
+    return lambda runs: calibration.fit(runs, nominal, end_weight=end_weight,
+                                        figures=False).geometry
 
 
 @dataclass(frozen=True)
@@ -154,12 +155,15 @@ class Verdict:
 
 def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
           in_sample: Sequence[float] = (), groups: Sequence[Hashable] | None = None,
-          shapes: Sequence[determinacy.Shape] | None = None) -> Verdict | None:
+          shapes: Sequence[determinacy.Shape] | None = None,
+          max_leverage: float = determinacy.MAX_LEVERAGE) -> Verdict | None:
     """:func:`check` over the folds that can judge the fit, with its margin.
 
     A fold counts when its training runs determine the geometry
-    (:func:`determinacy.coverage`) and its held-out run's end depends on it
-    (:func:`determinacy.judges`). ``results`` from :func:`held_out` with the same
+    (:func:`determinacy.coverage`), its held-out run's end depends on it
+    (:func:`determinacy.judges`) and lies within what the training runs determine
+    (:func:`determinacy.extrapolates`, ``max_leverage``; inf: not asked, the rule
+    before). ``results`` from :func:`held_out` with the same
     ``groups``; ``in_sample``: the full fit's final position error on each run, in
     order (the margin; empty: none); ``shapes`` (one per run, :func:`determinacy.shape`) when the
     caller has them. None when no run could be held out.
@@ -170,18 +174,19 @@ def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
     labels: Sequence[Hashable] = list(range(len(runs))) if groups is None else groups
     shown = list(shapes) if shapes is not None else [determinacy.shape(r, nominal)
                                                      for r in runs]
-    training: dict[Hashable, str] = {}
-    for g in dict.fromkeys(labels):
-        training[g] = determinacy.coverage(
-            [s for s, lab in zip(shown, labels, strict=True) if lab != g]).reason
+    training: dict[Hashable, list[determinacy.Shape]] = {
+        g: [s for s, lab in zip(shown, labels, strict=True) if lab != g]
+        for g in dict.fromkeys(labels)}
+    lacks = {g: determinacy.coverage(t).reason for g, t in training.items()}
     # held_out's order: group by group, each group's runs in their order
     order = [i for g in dict.fromkeys(labels) for i, lab in enumerate(labels) if lab == g]
     kept, left = [], []
     for h, i in zip(results, order, strict=True):
         if h.held_out is None:
             continue
-        why = (f"its training runs do not determine the geometry: {training[h.group]}"
-               if training[h.group] else determinacy.judges(shown[i]))
+        why = (f"its training runs do not determine the geometry: {lacks[h.group]}"
+               if lacks[h.group] else determinacy.judges(shown[i])
+               or determinacy.extrapolates(training[h.group], shown[i], max_leverage))
         if why:
             left.append((h.run, why))
         else:
@@ -194,17 +199,18 @@ def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
 
 
 def bootstrap(runs: Sequence[Run], nominal: Geometry, resamples: int = BOOTSTRAP_RUNS,
-              seed: int = SEED, fitter: Callable[[Sequence[float]], FloatArray] | None = None
-              ) -> FloatArray | None:
+              seed: int = SEED, fitter: Callable[[Sequence[float]], FloatArray] | None = None,
+              end_weight: float = 0.0) -> FloatArray | None:
     """3x3 covariance of (left radius, right radius, separation) [m^2]; None below 3 runs.
 
-    ``fitter`` maps per-run weights to fitted values (default: :func:`calibration.fit`).
+    ``fitter`` maps per-run weights to fitted values (default: :func:`calibration.fit`
+    with ``end_weight``).
     """
     if len(runs) < MIN_RUNS_FOR_SIGMA:
         return None
 
     def default(weights: Sequence[float]) -> FloatArray:
-        return values_of(calibration.fit(runs, nominal, weights=weights,
+        return values_of(calibration.fit(runs, nominal, weights=weights, end_weight=end_weight,
                                          figures=False).geometry)
 
     refit = fitter or default
@@ -261,10 +267,10 @@ def drift_ratio(values: Sequence[FloatArray], covariances: Sequence[FloatArray])
 
 def pair_z(values_a: FloatArray, printed_a: FloatArray, values_b: FloatArray,
            covariance_b: FloatArray) -> FloatArray:
-    """|v_a - v_b| in units of a's printed sigma with b's own (bootstrap) sigma added.
+    """``|v_a - v_b|`` in units of a's printed sigma with b's own (bootstrap) sigma added.
 
     How the printed sigma is checked: b is another experiment's fit, its geometry up to
-    its own noise; if a's sigma covers b's geometry, |z| < 1 about 68 % of the time.
+    its own noise; if a's sigma covers b's geometry, ``|z| < 1`` about 68 % of the time.
     """
     diff = np.abs(np.asarray(values_a) - np.asarray(values_b))
     return np.asarray(diff / np.sqrt(np.diag(printed_a) + np.diag(covariance_b)),

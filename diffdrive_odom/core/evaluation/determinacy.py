@@ -27,6 +27,21 @@ geometry (a turn on the spot): :func:`judges` asks that a 1 % change of the valu
 the run's end by :data:`MIN_END_SHIFT_M` or more (turns on the spot: 1.4 mm; the
 OptiOdom lines, circles and squares: 80 mm or more).
 
+A fold also judges nothing when its held-out run's end is far more sensitive to the
+geometry than its training runs are (:func:`extrapolates`): a fit matches the training
+runs' residuals only up to what no geometry explains there (slip, the floor, the runs'
+own scatter), and the held-out end moves by up to :func:`leverage` times that misfit
+(``||G A^-1/2||``, ``G`` the held-out end's Jacobian, ``A`` the training runs' information,
+both per relative change of the values, the start yaw eliminated). A straight
+line judged by a fit to another line and spins on the spot: 4.9 to 7.4 on the OptiOdom
+runs (its end drifts sideways with the square of the distance, a fit sees the mean of
+it, the start yaw takes the linear part), so one line's own curvature, amplified, is
+what the fold measures (it grows with the line's length, as the heading residuals weigh
+less: simulated, 1 m 3.9, 2 m 6.1, 4 m 7.5; circles and squares: 1.0 to 2.1, a square
+of 1, 2, 4 m: 1.7, 1.8, 2.0). :data:`MAX_LEVERAGE` was set
+between the two on the June 2020 experiments (1.96 and 4.90: their geometric mean, 3.1,
+rounded) and holds on the December ones (2.13 and 5.19).
+
 The thresholds: :data:`MIN_TRAVEL_M` and :data:`MIN_TURN_RAD` are where a 1 % error of
 the scale or of the separation moves a run by 10 mm or 0.9 deg, well above a motion
 capture's own error (1 mm, 0.5 deg); :data:`MAX_MIRROR_RATIO` lies between the balanced
@@ -54,6 +69,7 @@ MIN_TRAVEL_M = 1.0  # arc length driven, all runs together
 MIN_TURN_RAD = math.pi / 2  # heading span of the run that turns most
 MAX_MIRROR_RATIO = 100.0
 MIN_END_SHIFT_M = 0.01  # end moved by a 1 % change of the values, at worst
+MAX_LEVERAGE = 3.0  # held-out end shift per unit of training residual, at worst
 _STEP = 1e-5  # relative step of the central differences
 
 
@@ -64,9 +80,14 @@ class Shape:
     travel: float  # sum of |arc length| [m]
     turn_span: float  # max - min heading [rad]
     net_turn: float  # end heading [rad], + counter-clockwise
-    end_shift: float  # how far a 1 % change of the values moves the end, at most [m]
+    end_jacobian: FloatArray  # 2x3: end position per relative change of the values [m]
     information: FloatArray  # 4x4 J^T J: log radii, log separation, start yaw
     mirrored: FloatArray  # the same for the run mirrored
+
+    @property
+    def end_shift(self) -> float:
+        """How far a 1 % change of the three values moves the run's end, at most [m]."""
+        return 0.01 * float(np.linalg.norm(self.end_jacobian, 2))
 
 
 @dataclass(frozen=True)
@@ -114,8 +135,8 @@ def information(run: Run, nominal: Geometry, max_gap: float = 0.5) -> FloatArray
     return np.asarray(jac.T @ jac, dtype=np.float64)
 
 
-def end_shift(run: Run, nominal: Geometry) -> float:
-    """How far a 1 % change of the three values moves the run's end, at most [m]."""
+def end_jacobian(run: Run, nominal: Geometry) -> FloatArray:
+    """2x3: the run's end position per relative change of the three values [m]."""
     base = values_of(nominal)
 
     def end(x: FloatArray) -> FloatArray:
@@ -124,9 +145,8 @@ def end_shift(run: Run, nominal: Geometry) -> float:
                                                            float(v[1]), float(v[2])))
         return np.array([x_[-1], y_[-1]])
 
-    jac = np.column_stack([(end(_STEP * e) - end(-_STEP * e)) / (2 * _STEP)
-                           for e in np.eye(3)])
-    return 0.01 * float(np.linalg.norm(jac, 2))
+    return np.column_stack([(end(_STEP * e) - end(-_STEP * e)) / (2 * _STEP)
+                            for e in np.eye(3)])
 
 
 def shape(run: Run, nominal: Geometry, max_gap: float = 0.5) -> Shape:
@@ -135,7 +155,7 @@ def shape(run: Run, nominal: Geometry, max_gap: float = 0.5) -> Shape:
     _, _, th = integrate_steps(run.steps, nominal)
     heading = np.concatenate(([0.0], th))
     return Shape(float(np.sum(np.abs(ds))), float(np.ptp(heading)), float(heading[-1]),
-                 end_shift(run, nominal), information(run, nominal, max_gap),
+                 end_jacobian(run, nominal), information(run, nominal, max_gap),
                  information(mirrored(run), nominal, max_gap))
 
 
@@ -146,6 +166,30 @@ def judges(held_out: Shape) -> str:
     return (f"the held-out run ends in place whatever the geometry (a 1 % change moves its "
             f"end {1000 * held_out.end_shift:.1f} mm; {1000 * MIN_END_SHIFT_M:g} mm or more "
             "needed)")
+
+
+def leverage(training: Sequence[Shape], held_out: Shape) -> float:
+    """How far the held-out end can move per unit of the training runs' residual.
+
+    ``||G A^-1/2||`` (spectral norm); inf when the training runs leave a combination of
+    the values free.
+    """
+    info = geometry_part(sum((s.information for s in training), np.zeros((4, 4))))
+    w, u = np.linalg.eigh(info)
+    if w[0] <= 1e-12 * max(float(w[-1]), 1e-300):
+        return math.inf
+    return float(np.linalg.norm(held_out.end_jacobian @ (u / np.sqrt(w)), 2))
+
+
+def extrapolates(training: Sequence[Shape], held_out: Shape,
+                 max_leverage: float = MAX_LEVERAGE) -> str:
+    """Why a fold's held-out run lies beyond what its training runs determine ("" if not)."""
+    lev = leverage(training, held_out)
+    if lev <= max_leverage:
+        return ""
+    return (f"the held-out run's end moves {lev:.1f}x more with the geometry than its training "
+            f"runs' residuals do (an extrapolation: what those runs leave unexplained decides "
+            f"it; {max_leverage:g}x or less needed)")
 
 
 def geometry_part(info: FloatArray) -> FloatArray:

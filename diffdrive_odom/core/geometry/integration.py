@@ -1,7 +1,7 @@
 """The CIR elementary transform and its composition with the pose.
 
 After Furlan, Marzorati and Sorrenti, "2D transforms for the odometry of a
-differential kinematics mobile robot" (see docs/references.md).
+differential kinematics mobile robot" (see doc/references.md).
 
 Between two encoder readings the robot turns by ``dtheta`` about the instantaneous
 centre of rotation (CIR), a distance ``R = ds / dtheta`` to its left. Composing the

@@ -9,7 +9,7 @@ angle is multiplied by its side's ``sign`` to get the angle that rolls the robot
 forward when positive; the Caltech ME/CS 133 notes ("Kinematics and Odometry for a
 Differential Drive Vehicle") flip the right wheel, Kumar ("Kinematics of Wheeled
 Robots") both, real robots either (see ``left_wheel_sign`` / ``right_wheel_sign``).
-The papers are listed in docs/references.md.
+The papers are listed in doc/references.md.
 """
 
 from __future__ import annotations

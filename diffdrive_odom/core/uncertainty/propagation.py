@@ -97,15 +97,15 @@ COVARIANCE_FLOOR = 1.0e-12
 # Defaults for an uncalibrated robot: wheel-travel noise k [m] (a side's arc off by 1 mm,
 # 1 sigma, after 1 m rolled), each radius known to 0.25 % and the separation to 1 %
 # (1 sigma). Chosen on the June 2020 OptiOdom sessions (Sousa et al.) with the nominal
-# geometry and judged on the December/January ones (bench/bench_calibration.py; README
-# "Uncertainty"): final-pose mean NEES inside the 95 % band on both.
+# geometry and judged on the December/January ones (bench/bench_calibration.py;
+# doc/concepts/covariance.md): final-pose mean NEES inside the 95 % band on both.
 DEFAULT_K = 1.0e-6
 DEFAULT_RADIUS_STDDEV_RATIO = 0.0025
 DEFAULT_SEPARATION_STDDEV_RATIO = 0.01
 # What a calibration's values drift between recording sessions (tyres, floor), relative,
 # 1 sigma: calibrate adds it to its bootstrap sigma (core.evaluation.crossval.with_drift). Chosen on
-# the June 2020 OptiOdom experiments, checked on the Dec 2020 / Jan 2021 ones (README
-# "Calibration").
+# the June 2020 OptiOdom experiments, checked on the Dec 2020 / Jan 2021 ones
+# (doc/concepts/calibration.md).
 SESSION_DRIFT_RATIO = 0.0019
 ZERO3: Matrix = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -21,7 +22,7 @@ import yaml
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.evaluation import calibration, crossval, determinacy, umbmark
 from diffdrive_odom.core.evaluation.metrics import Trajectory
-from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
+from diffdrive_odom.core.evaluation.recorded_run import Run, start_stamp, values_of
 from diffdrive_odom.core.geometry.kinematics import Geometry, wheel_rates
 from diffdrive_odom.core.motion import routes
 from diffdrive_odom.settings import odometry as odometry_settings
@@ -131,6 +132,23 @@ def test_fit_with_wheel_noise_is_within_its_bootstrap_uncertainty() -> None:
     assert crossval.bootstrap(runs[:2], NOMINAL) is None  # 2 runs: no sigma
 
 
+def test_end_weight_trades_the_path_for_the_final_error() -> None:
+    """``end_weight`` adds each run's end position error (start frame, not turned by the
+    start yaw: the figure users read) to the whole-trajectory residuals, in plain squares
+    beside the robust loss. With slip, no geometry fits every sample: a heavy end weight
+    brings the worst final error down (towards the end-pose fit), at the path's cost."""
+    runs = [simulate(routes.umbmark(SIDE, clockwise=c), slip=0.01, seed=s)
+            for c, s in ((True, 3), (False, 4))]
+
+    def worst(end_weight: float = 0.0, loss: str = "cauchy") -> float:
+        fit = calibration.fit(runs, NOMINAL, end_weight=end_weight, loss=loss)
+        return max(r.after.final_position_error_aligned_m for r in fit.runs)
+
+    plain, heavy = worst(), worst(end_weight=10.0)
+    assert heavy < plain, (heavy, plain)
+    assert worst(end_weight=10.0, loss="linear") < worst(loss="linear")
+
+
 def test_held_out_check_beats_nominal_on_simulated_runs() -> None:
     """The nominal geometry is wrong by ~3 %: a geometry fitted on the other runs wins."""
     runs = [simulate(routes.umbmark(SIDE, clockwise=True), 0.002, seed=5),
@@ -200,6 +218,46 @@ def test_spins_alone_and_lines_alone_do_not_determine_the_geometry() -> None:
     assert determinacy.coverage([s_line, s_spin]).determined
 
 
+def test_a_line_judged_by_a_fit_to_another_line_extrapolates() -> None:
+    """Leverage, the held-out end's shift per unit of the training runs' residual. A
+    straight line of length S driven at constant speed, whose wheel ratio is off by k,
+    drifts sideways as k s^2; the start yaw the fit eliminates takes its part along s
+    (least squares on uniform samples: 3 S s / 4), leaving k (s^2 - 3 S s / 4), whose
+    RMS over [0, S] is k S^2 sqrt(1/80): the end moves sqrt(80) = 8.9 times that. The
+    heading rows and a spin in training only add information, so the leverage of a line
+    judged by a fit to a line and a spin is at most 8.9, and (the OptiOdom lines: 4.9 to
+    7.4) above MAX_LEVERAGE. Circles both ways: a circle's end moves no more than its
+    path does along the way (OptiOdom circles and squares: 1.0 to 2.1)."""
+    line_a, line_b = (determinacy.shape(simulate(_line(2.0), true=NOMINAL), NOMINAL)
+                      for _ in range(2))
+    spin = determinacy.shape(simulate(_spin(math.pi), true=NOMINAL), NOMINAL)
+    lev = determinacy.leverage([line_a, spin], line_b)
+    assert determinacy.MAX_LEVERAGE < lev <= math.sqrt(80) * 1.01, lev
+    assert "moves" in determinacy.extrapolates([line_a, spin], line_b)
+    cw, ccw, cw2 = (determinacy.shape(simulate(routes.circle(1.0, clockwise=c), true=NOMINAL),
+                                      NOMINAL) for c in (True, False, True))
+    assert determinacy.leverage([cw, ccw], cw2) < determinacy.MAX_LEVERAGE
+    assert determinacy.extrapolates([cw, ccw], cw2) == ""
+    # lines alone leave the separation free: nothing determines the held-out end
+    assert determinacy.leverage([line_a], line_b) == math.inf
+
+
+def test_held_out_verdict_on_lines_and_spins_cannot_tell() -> None:
+    """Two lines and a spin (the OptiOdom lines-and-spins experiments): each line's fold
+    trains on the other line and the spin and extrapolates, the spin's ends in place
+    whatever the geometry: no fold remains, the verdict cannot tell (the rule before,
+    ``max_leverage=inf``, rested on the two line folds)."""
+    runs = [_named(simulate(_line(2.0), slip=0.002, seed=s), f"line{s}") for s in (1, 2)]
+    runs.append(_named(simulate(_spin(math.pi)), "spin"))
+    results = crossval.held_out(runs, NOMINAL)
+    v = crossval.judge(runs, results, NOMINAL)
+    assert v is not None and v.check is None and v.cannot_tell, v
+    assert [run for run, _ in v.left_out] == ["line1", "line2", "spin"]
+    assert all("x more with the geometry" in why for _, why in v.left_out[:2]), v.left_out
+    before = crossval.judge(runs, results, NOMINAL, max_leverage=math.inf)
+    assert before is not None and before.check is not None and before.check.runs == 2
+
+
 def test_held_out_verdict_names_a_one_direction_fold_and_rests_on_the_others() -> None:
     """Two squares clockwise, one counter-clockwise (noise-free, nominal 3 % off): the
     fold that holds out the CCW square trains on CW squares only and is left out, named;
@@ -222,11 +280,13 @@ def test_held_out_verdict_names_a_one_direction_fold_and_rests_on_the_others() -
 
 def test_held_out_verdict_still_refuses_a_geometry_that_really_is_worse() -> None:
     """Runs that the nominal geometry integrates exactly (the true one here), both ways
-    and a figure eight: every fold counts, the least-squares fit leaves ~0 on its own
+    twice and a figure eight: every fold counts (each trains on both ways; with one
+    square each way and the eight, the CW square judged by the CCW one and the eight has
+    leverage 3.4: an extrapolation, left out), the least-squares fit leaves ~0 on its own
     runs (no noise: the margin is ~0). A fitter dragged 2 % off (as a slipping run would
     drag it) ends every held-out run further off than nominal: refused."""
     runs = [_named(simulate(routes.umbmark(SIDE, clockwise=c), true=NOMINAL), n)
-            for c, n in ((True, "cw"), (False, "ccw"))]
+            for c, n in ((True, "cw"), (False, "ccw"), (True, "cw2"), (False, "ccw2"))]
     runs.append(_named(simulate(routes.figure_eight(1.0), true=NOMINAL), "eight"))
     fit = calibration.fit(runs, NOMINAL)
     in_sample = [r.after.final_position_error_aligned_m for r in fit.runs]
@@ -399,6 +459,101 @@ def test_cli_force_prints_a_params_block_the_node_accepts(
         assert line in out
 
 
+def test_cli_end_weight_fits_the_final_positions_and_judges_that_fit(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``--end-weight W``: the block holds :func:`calibration.fit` with ``end_weight=W``,
+    the report names the objective, and the held-out folds refit with the same W."""
+    code = cli(["calibrate", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN),
+                "--ground-truth", "/ground_truth/pose", *NOMINAL_ARGS, "--end-weight", "0.5"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "whole trajectory + end positions x0.5" in out
+    entry = yaml.safe_load(_block(out))["/**"]["ros__parameters"]
+    fit = calibration.fit(_optiodom_runs(), Geometry(0.042, 0.2), end_weight=0.5)
+    assert entry["wheel_separation_multiplier"] == pytest.approx(
+        fit.geometry.wheel_separation_multiplier, rel=1e-6)
+    plain = calibration.fit(_optiodom_runs(), Geometry(0.042, 0.2))
+    assert max(r.after.final_position_error_aligned_m for r in fit.runs) < max(
+        r.after.final_position_error_aligned_m for r in plain.runs)
+
+
+def _arcs_with_the_reference_clock_off(lag: float) -> list[Run]:
+    """Four open runs (a line, an arc of 130 or 100 deg either way, a line) on a base that
+    IS the nominal one, each reference pose stamped ``lag`` before it happened (a motion
+    capture's clock that far behind; the fit takes the offset as 0). The robot stands
+    still for a second at the start and the end, so the start-aligned final errors do
+    not see the offset; the whole-trajectory fit does, and is dragged by it."""
+    runs = []
+    for i, turn in enumerate((0.45, -0.45, 0.35, -0.35)):
+        route = routes.Route(f"arc{i}", (routes.Segment(1.0, 0.0, 0.0),
+                                         routes.Segment(2.0, 0.3, 0.0),
+                                         routes.Segment(5.0, 0.3, turn),
+                                         routes.Segment(2.0, 0.3, 0.0)))
+        run = simulate(route, true=NOMINAL)
+        assert run.reference is not None
+        late = dataclasses.replace(run.reference,
+                                   stamp_ns=run.reference.stamp_ns - round(lag * 1e9))
+        runs.append(dataclasses.replace(run, name=f"arc{i}", reference=late))
+    return runs
+
+
+def _write_bag(path: Path, run: Run) -> None:
+    """``run`` as a recording: /joint_states (wheel angles from 0 at the start, stamped
+    and logged at each reading) and /ground_truth/odom (the reference, at its stamps)."""
+    from diffdrive_odom.tools import bagio, bagwriter
+
+    from bagutil import OdomMessages
+
+    steps, ref = run.steps, run.reference
+    assert ref is not None
+    stamps = np.concatenate(([start_stamp(steps)], steps.stamp_ns))
+    left = np.concatenate(([0.0], np.cumsum(steps.d_left)))
+    right = np.concatenate(([0.0], np.cumsum(steps.d_right)))
+    cov = [0.0] * 36
+    with bagwriter.BagWriter(path) as w:
+        w.add_topic("/joint_states", bagio.JOINT_STATE)
+        w.add_topic("/ground_truth/odom", bagio.ODOMETRY)
+        t = w.typestore.types
+        odom = OdomMessages(w.typestore, "world", "base_link")
+        for ns, x, y, yaw in zip(ref.stamp_ns, ref.x, ref.y, ref.yaw, strict=True):
+            w.write("/ground_truth/odom", int(ns), odom.odometry(
+                int(ns), float(x), float(y), float(yaw), linear=0.0, angular=0.0,
+                pose_covariance=cov, twist_covariance=cov))
+        for ns, lw, rw in zip(stamps, left, right, strict=True):
+            sec, nsec = divmod(int(ns), 10**9)
+            w.write("/joint_states", int(ns), t[bagio.JOINT_STATE](
+                header=t["std_msgs/msg/Header"](
+                    stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
+                    frame_id=""),
+                name=["left_wheel_joint", "right_wheel_joint"],
+                position=np.array([lw, rw]), velocity=np.zeros(0), effort=np.zeros(0)))
+
+
+def test_cli_refuses_a_fit_that_is_worse_on_every_held_out_run(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The refused branch end to end, bags in (calibrate's own fit, held-out folds and
+    verdict; nothing forced): a reference clock 0.2 s behind drags the fitted radii
+    about 4 % up (the reference runs ahead of the odometry while driving), and every
+    held-out run, judged by its final error (the robot at rest: the offset does not touch
+    it), ends further off than with the nominal geometry, which is the true one. Every
+    fold counts; the change is beyond the margin: NOT BETTER THAN NOMINAL, no block,
+    exit 1."""
+    bags = []
+    for run in _arcs_with_the_reference_clock_off(0.2):
+        bags.append(str(tmp_path / run.name))
+        _write_bag(tmp_path / run.name, run)
+    code = cli(["calibrate", *bags, "-p", "wheel_radius:=0.05", "-p", "wheel_separation:=0.3"])
+    out = capsys.readouterr().out
+    assert code == 1, out
+    first = out.splitlines()[0]
+    assert first.startswith("NOT BETTER THAN NOMINAL on held-out runs"), out
+    assert "left out" not in out, out  # every fold judged
+    assert "ros__parameters" not in out and "no params block" in out, out
+    nominal, held_out = (float(v) for v in re.findall(r"([\d.]+) m (?:nominal|calibrated)",
+                                                       first))
+    assert nominal < 1e-3 and held_out > 0.02, first
+
+
 def test_cli_with_one_run_says_the_check_cannot_be_made(
     capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -484,6 +639,8 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
     ([str(OPTIODOM / CW_RUN), "--no-mount", *NOMINAL_ARGS], "--no-mount"),
     ([str(OPTIODOM / CW_RUN), "--session-drift", "-0.01", *NOMINAL_ARGS], "--session-drift"),
     ([str(OPTIODOM / CW_RUN), "--session-drift", "nan", *NOMINAL_ARGS], "--session-drift"),
+    ([str(OPTIODOM / CW_RUN), "--end-weight", "-1", *NOMINAL_ARGS], "--end-weight"),
+    ([str(OPTIODOM / CW_RUN), "--end-weight", "inf", *NOMINAL_ARGS], "--end-weight"),
     (["--umbmark", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN), *NOMINAL_ARGS], "--side"),
     (["--umbmark", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN), "--side", "1.7",
       "--cw-end", "1,2", "--ccw-end", "x", *NOMINAL_ARGS], "--ccw-end"),

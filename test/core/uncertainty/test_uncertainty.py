@@ -385,7 +385,7 @@ def test_runtime_changes_of_the_model_carry_the_covariance_on() -> None:
 @pytest.mark.parametrize("run", ["square_231220200029_run-01", "square_231220200029_run-04"])
 def test_final_pose_nees_of_the_optiodom_squares_with_the_defaults(run: str) -> None:
     """The node's defaults (nominal geometry) on two real squares: the final pose's NEES
-    against motion capture, whose own error (1 mm, 0.5 deg; README "Uncertainty") is
+    against motion capture, whose own error (1 mm, 0.5 deg; doc/concepts/covariance.md) is
     added, lies below chi-square(3)'s 99 % quantile and is not vanishingly small (a
     covariance inflated until nothing can fail is no better than an overconfident one).
     """

@@ -1,0 +1,48 @@
+"""``~/set_pose`` on the odometry node: geometry_msgs/PoseWithCovarianceStamped in.
+
+Private (``~/``), like ``~/reset_odometry``, so it cannot meet robot_localization's own
+``set_pose`` (relative, same type) that usually runs beside this node. The rule (what is
+refused, when the pose takes effect) is the core's
+(:mod:`diffdrive_odom.core.estimation.setpose`); here the message becomes a request and
+the outcome a log line: an accepted pose named once (INFO), a refused one with its
+reason (WARN, throttled per reason).
+"""
+
+from __future__ import annotations
+
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from rclpy.node import Node
+
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.setpose import PoseRefusal, PoseRequest
+from diffdrive_odom.ros.throttle import KeyedThrottle
+
+TOPIC = "~/set_pose"
+
+
+def pose_request(msg: PoseWithCovarianceStamped) -> PoseRequest:
+    """The message's fields as the core takes them."""
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    return PoseRequest(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
+                       msg.header.frame_id, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w),
+                       tuple(msg.pose.covariance))
+
+
+class SetPoseSubscription:
+    """The ``~/set_pose`` subscription of one odometry node, feeding its pipeline."""
+
+    def __init__(self, node: Node, pipeline: ReadingPipeline, throttle: KeyedThrottle) -> None:
+        self._node, self._pipeline, self._throttle = node, pipeline, throttle
+        self._sub = node.create_subscription(PoseWithCovarianceStamped, TOPIC, self._on_pose, 10)
+
+    def destroy(self) -> None:
+        """Remove the subscription from the node."""
+        self._node.destroy_subscription(self._sub)
+
+    def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        out = self._pipeline.set_pose(pose_request(msg))
+        if isinstance(out, PoseRefusal):
+            self._throttle.warning(f"set_pose_{out.code}",
+                                   f"set_pose refused [{out.code}]: {out.reason}")
+        else:
+            self._node.get_logger().info(out)
