@@ -299,6 +299,18 @@ def wait_ready(executor: Any, pub: Any, sink: Sink, proc: Any = None) -> None:
         "odometry_node and this test never matched: " + output_if_ended(proc))
 
 
+def gyro_rig(node: Node, executor: Any) -> tuple[Any, Any, Sink]:
+    """JointState and Imu publishers and an odom sink, matched with a use_imu node."""
+    from sensor_msgs.msg import Imu
+
+    joints = node.create_publisher(JointState, "joint_states", 50)
+    imu = node.create_publisher(Imu, "imu", 50)
+    sink = listen(node, "odom")
+    wait_ready(executor, joints, sink)
+    assert spin_until(executor, lambda: imu.get_subscription_count() > 0, 15.0)
+    return joints, imu, sink
+
+
 def send_first(executor: Any, pub: Any, sink: Sink, msg: JointState) -> None:
     """Send the reference reading until the node answers it.
 

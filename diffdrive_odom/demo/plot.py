@@ -15,7 +15,7 @@ from pathlib import Path
 from diffdrive_odom.core.evaluation.metrics import Trajectory, match, path_length
 from diffdrive_odom.core.motion.paths import Point
 
-from .report import FIT, GYRO, NOMINAL, UMBMARK, slip_bursts
+from .report import FIT, GYRO, NOMINAL, UMBMARK
 
 # key -> colour, line style, legend label. The wheels-only replay is not drawn: it is
 # the nominal line (the node's own odometry) to the encoder tick.
@@ -32,8 +32,9 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
          slips: Sequence[tuple[int, float]] = ()) -> None:
     """Where the robot was told to go, believed it went, really went; the gap growing.
 
-    ``slips``: the slip events, (stamp, size) (:func:`.report.slip_bursts` of them marked
-    on the truth and on the distance axis).
+    ``slips``: the slip events, (stamp, size), by the one rule
+    (:mod:`~diffdrive_odom.core.estimation.slips`), marked on the truth and on the
+    distance axis.
     """
     import matplotlib
 
@@ -54,7 +55,7 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
         if key in odometry:
             traj = odometry[key]
             ax1.plot(traj.x, traj.y, style, color=color, lw=1.3, label=label)
-    marks = [t for t, _ in slip_bursts(slips)]
+    marks = [t for t, _ in slips]
     if marks and len(truth):
         at = np.clip(np.searchsorted(truth.stamp_ns, np.asarray(marks, dtype=np.int64)),
                      0, len(truth) - 1)

@@ -25,6 +25,7 @@ import numpy as np
 
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.estimation.gyro import GyroConfig
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.evaluation import calibration
@@ -44,7 +45,8 @@ from .settings import DemoError
 # Table rows, in the order printed; the keys of ``results.json``'s "rows".
 NOMINAL, FIT, UMBMARK, TRUE = "nominal", "fit", "umbmark", "true"
 WHEELS, GYRO = "wheels", "gyro"  # the replays: nominal geometry, without and with the gyro
-MIN_SLIP_RAD = math.radians(0.5)  # smaller slips are not named in the table or the plot
+# Smaller slips are no slip events (the one rule: core.estimation.slips, slip_min_angle).
+MIN_SLIP_RAD = GyroConfig().slip_min_angle
 LABELS = {
     NOMINAL: "nominal (odometry_node as run)",
     FIT: "calibrated: fit to ground truth",
@@ -206,12 +208,11 @@ class DemoResult:
                      "nominal mean wheel radius, a closed square cannot see the scale)")
         if GYRO in self.rows:
             t0 = self.squares[0].start_ns
-            bursts = slip_bursts(self.slips)
             at = ", ".join(f"{(t - t0) * 1e-9:.1f} s ({math.degrees(a):.1f} deg)"
-                           for t, a in bursts)
+                           for t, a in self.slips)
             lines += [
                 f"wheel slip over {math.degrees(MIN_SLIP_RAD):g} deg: the gyro-aided "
-                f"replay found {len(bursts)}" + (f", at {at} into the route" if at else "")
+                f"replay found {len(self.slips)}" + (f", at {at} into the route" if at else "")
                 + "; slip inflates the nominal and calibrated rows",
                 "(the fit and UMBmark take its heading for geometry). Replays: the recorded "
                 "readings through the node's pipeline with the nominal geometry; the live "
@@ -303,27 +304,6 @@ def calibrate_rows(rec: Recording, odo: OdometrySettings, true: Geometry,
     return rows, paths
 
 
-def slip_bursts(slips: Sequence[tuple[int, float]], within_ns: int = 1_000_000_000,
-                least: float = MIN_SLIP_RAD) -> list[tuple[int, float]]:
-    """Slip events as a reader counts slips: (start, size [rad]), the small ones left out.
-
-    Events less than ``within_ns`` after the previous one are one slip (sizes added):
-    a wheel spinning for a second is one slip, though the per-step decision may find
-    a few runs of slipping steps in it (steps whose spin is within the noise are fused,
-    not counted). Slips under ``least`` are left out: at a standstill the decision
-    also flags a single encoder tick (0.3 mrad here), which is no wheel spinning.
-    """
-    bursts: list[tuple[int, float]] = []
-    last: int | None = None
-    for t, size in sorted(slips):
-        if last is not None and t - last < within_ns:
-            bursts[-1] = (bursts[-1][0], bursts[-1][1] + size)
-        else:
-            bursts.append((t, size))
-        last = t
-    return [b for b in bursts if b[1] >= least]
-
-
 def replay(readings: Sequence[JointSample], odo: OdometrySettings,
            imu: Sequence[ImuReading] = ()
            ) -> tuple[Trajectory, tuple[tuple[int, float], ...]]:
@@ -333,7 +313,8 @@ def replay(readings: Sequence[JointSample], odo: OdometrySettings,
     :meth:`ReadingPipeline.feed_imu` in stamp order, each before a wheel reading of the
     same or a later stamp (as replay's merge by stamp feeds them). Returns the pose
     after every reading the estimator used, and each slip event the gyrodometry found
-    (the stamp of its first step, the heading the wheels got wrong over it [rad]).
+    (the stamp of its first step, the heading the wheels got wrong over it [rad]), by
+    the one rule the node and ``replay`` count with (:mod:`diffdrive_odom.core.estimation.slips`).
     """
     pipe = ReadingPipeline(odo)
     events: list[tuple[int, int, JointSample | ImuReading]] = [
@@ -342,28 +323,21 @@ def replay(readings: Sequence[JointSample], odo: OdometrySettings,
     events.sort(key=lambda e: (e[0], e[1]))
     stamps: list[int] = []
     poses: list[tuple[float, float, float]] = []
-    slips: list[tuple[int, float]] = []
     for _, _, item in events:
         if isinstance(item, ImuReading):
             pipe.feed_imu(item.stamp_ns, item.wx, item.wy, item.wz)
             continue
-        gyro = pipe.gyro
-        before = None if gyro is None else gyro.slips
         verdict = pipe.feed(item.stamp_ns, item.names, item.position, item.velocity).verdict
         if verdict.status in (Status.DROPPED, Status.HELD):
             continue
-        if gyro is not None and before is not None and gyro.slips.steps > before.steps:
-            if gyro.slips.events > before.events:  # a new event: its first step
-                slips.append((item.stamp_ns, gyro.slips.last_size))
-            else:  # the event goes on: its size so far
-                slips[-1] = (slips[-1][0], gyro.slips.last_size)
         p = pipe.estimator.pose
         stamps.append(item.stamp_ns)
         poses.append((p.x, p.y, p.theta))
     if len(stamps) < 2:
         raise DemoError("too little data to replay")
     x, y, th = zip(*poses, strict=True)
-    return Trajectory.from_arrays(stamps, x, y, th), tuple(slips)
+    slips = () if pipe.gyro is None else tuple(pipe.gyro.slip_events)
+    return Trajectory.from_arrays(stamps, x, y, th), slips
 
 
 def replay_rows(rec: Recording, odo: OdometrySettings, gyro: OdometrySettings

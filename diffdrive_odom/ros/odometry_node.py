@@ -44,7 +44,7 @@ from diffdrive_odom.ros.set_pose import SetPoseSubscription
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, odometry_settings
 from diffdrive_odom.settings.params import ParamValue
-from diffdrive_odom.wire.imu import decode_imu
+from diffdrive_odom.wire.imu import ImuFields, decode_imu
 from diffdrive_odom.wire.jointstate import JointArrays, JointStateDecoder
 from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
@@ -172,8 +172,11 @@ class OdometryEndpoints:
         got = self._decode(raw, decode_imu, IMU_FALLBACK)
         if got is None:
             return
-        sec, nanosec, wx, wy, wz = got
-        code = self._pipeline.feed_imu(sec * 1_000_000_000 + nanosec, wx, wy, wz)
+        sec, nanosec, wx, wy, wz, cov = got
+        clock = self._node.get_clock()  # the receive time, as for joint_states
+        code = self._pipeline.feed_imu(
+            sec * 1_000_000_000 + nanosec, wx, wy, wz, receive_ns=clock.now().nanoseconds,
+            check_clock=not getattr(clock, "ros_time_is_active", False), covariance=cov)
         if code:
             self._throttle.warning(f"imu_{code}", f"imu sample dropped [{code}]: stamp "
                                    f"{sec}.{nanosec:09d}, angular_velocity "
@@ -285,9 +288,10 @@ def _joint_fields(msg: JointState) -> JointArrays:
                        tuple(msg.velocity))
 
 
-def _imu_fields(msg: Imu) -> tuple[int, int, float, float, float]:
+def _imu_fields(msg: Imu) -> ImuFields:
     w = msg.angular_velocity
-    return (msg.header.stamp.sec, msg.header.stamp.nanosec, w.x, w.y, w.z)
+    return (msg.header.stamp.sec, msg.header.stamp.nanosec, w.x, w.y, w.z,
+            tuple(float(c) for c in msg.angular_velocity_covariance))
 
 
 JOINT_STATE_FALLBACK = Fallback(msg_type=JointState, fields=_joint_fields, key="undecodable",

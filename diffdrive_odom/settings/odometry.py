@@ -80,6 +80,14 @@ GYRO_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("slip_distance_from_other_wheel", "bool", _G.slip_distance_from_other_wheel,
               "On a slip, take the distance from the wheel with the shorter arc and the "
               "gyro (the spinning wheel read more than it rolled)."),
+    ParamSpec("slip_min_angle", "double", _G.slip_min_angle,
+              "A slip event is a run of slipping steps whose wheels got the heading wrong "
+              "by at least this much [rad] (0.5 deg); smaller ones are fused, not named.",
+              range=NON_NEGATIVE),
+    ParamSpec("imu_stamp_source", "string", "header",
+              "header: each Imu sample at its header stamp (the measurement time); "
+              "receive_time: at the time it arrived on this node's clock (an IMU stamping "
+              "on its own device clock), as stamp_source does for the wheels."),
 )
 
 OPEN_LOOP_PARAMS: tuple[ParamSpec, ...] = (
@@ -183,13 +191,13 @@ def _estimator_config(v: Mapping[str, Any]) -> EstimatorConfig:
 COVARIANCE_MODELS = ("propagated", "static")
 
 
-def _stamp_source(value: str) -> StampSource:
-    """The ``stamp_source`` value, or ParameterError naming the choices."""
+def _stamp_source(value: str, name: str = "stamp_source") -> StampSource:
+    """The ``stamp_source`` (or ``name``) value, or ParameterError naming the choices."""
     try:
         return StampSource(value)
     except ValueError:
         choices = ", ".join(StampSource)
-        raise ParameterError("stamp_source", f"must be one of {choices}, got {value!r}") from None
+        raise ParameterError(name, f"must be one of {choices}, got {value!r}") from None
 
 
 def _noise_model(v: Mapping[str, Any]) -> NoiseModel | None:
@@ -288,5 +296,7 @@ def _gyro_config(v: Mapping[str, Any]) -> GyroConfig | None:
             max_rate=v["gyro_max_rate"], timeout=v["imu_timeout"],
             slip_sigmas=v["slip_threshold_sigmas"],
             zero_velocity_speed=v["zero_velocity_speed"],
-            slip_distance_from_other_wheel=v["slip_distance_from_other_wheel"])
+            slip_distance_from_other_wheel=v["slip_distance_from_other_wheel"],
+            slip_min_angle=v["slip_min_angle"],
+            stamp_source=_stamp_source(v["imu_stamp_source"], "imu_stamp_source"))
     return cfg if v["use_imu"] else None

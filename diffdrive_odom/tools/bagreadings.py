@@ -33,6 +33,7 @@ class ImuSample:
     wx: float
     wy: float
     wz: float
+    covariance: tuple[float, ...] = ()  # angular_velocity_covariance (REP-145)
 
 
 def _reading(msg: Any, log_ns: int) -> JointReading:
@@ -88,12 +89,15 @@ def iter_sensor_readings(
     passthrough: Passthrough | None = None,
     window: int = REORDER_WINDOW,
     jump_back_ns: int = 1_000_000_000,
+    imu_by_log_time: bool = False,
 ) -> Iterator[JointReading | ImuSample]:
     """JointState readings (and Imu samples of ``imu_topic``) by header stamp, streaming.
 
     Both go through one reordering by stamp (:class:`Reorder`), so a wheel reading
     comes after the gyro samples up to its stamp. With ``passthrough``, every message
     of the bag is also handed to it raw, in log time order (``replay --keep-input``).
+    ``imu_by_log_time`` (``imu_stamp_source: receive_time``): an Imu sample's stamp is
+    its log time (the IMU's own stamps are on another clock).
     """
     joints = connections_for(reader, topic, (JOINT_STATE,))
     imus = [] if imu_topic is None else connections_for(reader, imu_topic, (IMU,))
@@ -109,7 +113,10 @@ def iter_sensor_readings(
             item = decode(raw, conn.msgtype, log_ns)
         elif id(conn) in imu_ids:
             w = (msg := reader.deserialize(raw, conn.msgtype)).angular_velocity
-            item = ImuSample(stamp_to_ns(msg.header.stamp), log_ns, w.x, w.y, w.z)
+            cov = tuple(float(c) for c in msg.angular_velocity_covariance)
+            # imu_stamp_source receive_time: ordered (and fed) by the log time.
+            stamp = log_ns if imu_by_log_time else stamp_to_ns(msg.header.stamp)
+            item = ImuSample(stamp, log_ns, w.x, w.y, w.z, cov)
         else:
             continue
         yield from order.push(item)

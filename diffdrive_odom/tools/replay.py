@@ -42,6 +42,7 @@ from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.encoders import Reason
 from diffdrive_odom.core.estimation.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
+from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.core.geometry.integration import Pose2D
@@ -117,7 +118,8 @@ class ReplayStats:
             f", last at {s.last_stamp_ns * 1e-9:.3f} s ({s.last_size:.4f} rad)")
         return (f"; gyro: {g.samples} IMU samples ({dropped} dropped), {s.events} slip "
                 f"events over {s.steps} steps ({s.total_size:.4f} rad){last}, bias "
-                f"{g.bias:.6f} +- {g.bias_stddev:.6f} rad/s"
+                f"{g.bias:.6f} +- {g.bias_stddev:.6f} rad/s from {g.zero_velocity_updates} "
+                f"zero-velocity updates over {g.standing_s:.1f} s standing still"
                 + (", IMU silent at the end" if g.silent else ""))
 
 
@@ -159,7 +161,8 @@ def replay_readings(
         for item in rs:
             for r in item if isinstance(item, JointBlock) else (item,):
                 if isinstance(r, bagreadings.ImuSample):  # use_imu: gyro samples, as the node's
-                    pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz)
+                    pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz, r.log_ns,
+                                  covariance=r.covariance)
                     continue
                 yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 
@@ -411,9 +414,11 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
         if settings.takes_bulk and passthrough is None:  # runs of alike messages at once
             readings = bagblocks.iter_joint_blocks(reader, args.topic, jump_back_ns=jump)
         else:
+            gyro = settings.gyro
             readings = bagreadings.iter_sensor_readings(
-                reader, args.topic, None if settings.gyro is None else args.imu_topic,
-                passthrough, jump_back_ns=jump)
+                reader, args.topic, None if gyro is None else args.imu_topic,
+                passthrough, jump_back_ns=jump, imu_by_log_time=gyro is not None
+                and gyro.stamp_source is StampSource.RECEIVE_TIME)
         if progress.wanted(args.progress, total):
             readings = progress.progress(readings, total, PREFIX, weight=reading_count)
         sink = sinks.output_sink(settings, writer, csv_out, traj if args.eval else None,

@@ -1,4 +1,4 @@
-"""sensor_msgs/Imu bytes -> the stamp and the angular velocity (``use_imu``).
+"""sensor_msgs/Imu bytes -> the stamp, the angular velocity and its covariance (``use_imu``).
 
 Why: the gyro takes only the stamp and the rates, and at 1 kHz rclpy's message object
 (with its three covariance arrays) costs several times the gyro's own work. The header
@@ -11,14 +11,17 @@ import struct
 
 from diffdrive_odom.wire.cdr import align, header
 
-_RATES = struct.Struct("<3d")
+_RATES = struct.Struct("<12d")  # the rates, then their covariance (REP-145)
+ImuFields = tuple[int, int, float, float, float, tuple[float, ...]]
 # After the header: orientation (4 doubles) and its covariance (9) before the rates,
 # then the rates' covariance (9), linear_acceleration (3) and its covariance (9).
 _TO_RATES, _AFTER_RATES = 8 * 13, 8 * (3 + 9 + 3 + 9)
 
 
-def decode_imu(buf: bytes) -> tuple[int, int, float, float, float] | None:
-    """sensor_msgs/Imu bytes -> (sec, nanosec, wx, wy, wz); None if not little-endian CDR.
+def decode_imu(buf: bytes) -> ImuFields | None:
+    """sensor_msgs/Imu bytes -> (sec, nanosec, wx, wy, wz, angular_velocity_covariance).
+
+    None if not little-endian CDR.
 
     Raises ValueError if the bytes end early.
     """
@@ -29,5 +32,5 @@ def decode_imu(buf: bytes) -> tuple[int, int, float, float, float] | None:
     off = align(off, 8) + _TO_RATES
     if off + _AFTER_RATES > len(buf):
         raise ValueError(f"Imu bytes end early: {len(buf)} bytes")
-    wx, wy, wz = _RATES.unpack_from(buf, off)
-    return sec, nanosec, wx, wy, wz
+    wx, wy, wz, *cov = _RATES.unpack_from(buf, off)
+    return sec, nanosec, wx, wy, wz, tuple(cov)

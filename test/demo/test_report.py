@@ -96,8 +96,8 @@ def _result(plot: str | None = None) -> DemoResult:
             UMBMARK: row(0.04995, 0.05005, 0.3027, 0.002), TRUE: row(0.05, 0.0501, 0.303, 0.0),
             WHEELS: row(0.05, 0.05, 0.30, 0.5), GYRO: row(0.05, 0.05, 0.30, 0.02)}
     sq = (Square(True, ((0.1, 0.0), (1.0, 0.0)), 0, 10), Square(False, ((0.1, 0.0),), 10, 20))
-    # Two events 0.4 s apart are one slip of 0.1 rad; a single tick at a standstill none.
-    slips = ((2_000_000_000, 0.06), (2_400_000_000, 0.04), (9_000_000_000, 0.0003))
+    # The slip events as the one rule gave them (core.estimation.slips): one of 0.1 rad.
+    slips = ((2_000_000_000, 0.1),)
     return DemoResult("umbmark", 4.0, 32.0, 100.0, 25.0, (0.0, 0.0, 0.0), rows, 0.05, 0.2,
                       sq, {"/odom": 3}, None, plot, slips)
 
@@ -114,14 +114,14 @@ def test_the_table_shows_every_row_against_the_true_geometry() -> None:
     assert "+0.00%" in lines[report.LABELS[TRUE]]
     assert "CW then CCW" in text and "5.0 cm" in text and "20.0 cm" in text
     assert "0.0200 m" in lines[report.LABELS[GYRO]]
-    # The slip line: one slip (two events 0.4 s apart), 2 s into the route, 0.1 rad.
+    # The slip line: one slip, 2 s into the route, 0.1 rad.
     assert "found 1, at 2.0 s (5.7 deg) into the route" in text, text
 
 
 def test_results_json_round_trips() -> None:
     d = json.loads(json.dumps(_result().as_dict()))
     assert set(d["rows"]) == {NOMINAL, FIT, UMBMARK, TRUE, WHEELS, GYRO}
-    assert d["slip_events"][1] == {"stamp_ns": 2_400_000_000, "size_rad": 0.04}
+    assert d["slip_events"][0] == {"stamp_ns": 2_000_000_000, "size_rad": 0.1}
     assert d["rows"][FIT]["right_radius"] == 0.0501
     assert d["squares"][0]["clockwise"] is True and d["squares"][1]["start_ns"] == 10
     assert d["follower"]["max_distance_truth_to_path_m"] == 0.2
@@ -138,16 +138,6 @@ def test_the_plot_is_written(tmp_path: Path) -> None:
     plot(path, truth, {NOMINAL: odom, FIT: truth, GYRO: truth}, [[(0.0, 0.0), (1.0, 0.0)]],
          "t", [(2 * 10**9, 0.1)])
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-
-
-def test_slip_events_close_together_are_one_slip_and_single_ticks_none() -> None:
-    second = 1_000_000_000
-    events = [(5 * second, 0.05), (2 * second, 0.02), (2 * second + second // 2, 0.03),
-              (3 * second + second // 10, 0.01), (9 * second, 0.0003)]
-    # 2.0, 2.5 and 3.1 s: each within 1 s of the previous, one slip of 0.06 rad.
-    assert report.slip_bursts(events) == [(2 * second, pytest.approx(0.06)),
-                                          (5 * second, 0.05)]
-    assert report.slip_bursts(events, least=0.0)[-1] == (9 * second, 0.0003)
 
 
 def test_settings_run_the_node_wheels_only_and_replay_it_with_the_gyro() -> None:
@@ -208,7 +198,7 @@ def test_the_gyro_aided_replay_keeps_the_heading_through_a_wheel_slip() -> None:
     assert rows[GYRO].position_m < 0.005, rows[GYRO]
     assert set(paths) == {WHEELS, GYRO}
     # One slip, where it began, of the heading the wheels got wrong.
-    (start, size), = report.slip_bursts(slips)
+    (start, size), = slips
     assert abs((start - T0) * 1e-9 - SLIP_T) <= 0.04
     assert abs(size - turned) < 0.1 * turned
 

@@ -22,13 +22,12 @@ from rosutil import (
     NAMES,
     STEP_NS,
     T0_NS,
-    listen,
+    gyro_rig,
     ns_of,
     send_first,
     spin_for,
     spin_until,
     stamp,
-    wait_ready,
     yaw,
 )
 
@@ -56,11 +55,7 @@ def gyro(ns: int) -> Imu:
 def test_gyro_aided_node_names_the_slip_keeps_the_heading_and_falls_back() -> None:
     with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true"]) as peer:
         ex = peer.executor
-        joints = peer.node.create_publisher(JointState, "joint_states", 50)
-        imu = peer.node.create_publisher(Imu, "imu", 50)
-        sink = listen(peer.node, "odom")
-        wait_ready(ex, joints, sink)
-        assert spin_until(ex, lambda: imu.get_subscription_count() > 0, 15.0)
+        joints, imu, sink = gyro_rig(peer.node, ex)
         for ns in (T0_NS - 10_000_000, T0_NS):
             imu.publish(gyro(ns))
         send_first(ex, joints, sink, reading(0))

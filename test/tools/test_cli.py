@@ -23,7 +23,7 @@ from rosutil import ROOT, executable
 NODES = ("odometry_node", "cmd_vel_node", "sim_node")
 # The topics each node's page (doc/nodes/) documents (default parameters, no namespace).
 PAGE_TOPICS = {
-    "odometry_node": ("/joint_states", "/odom", "/tf", "reset_odometry"),
+    "odometry_node": ("/joint_states", "/odom", "/tf", "reset_odometry", "set_pose"),
     "cmd_vel_node": ("/cmd_vel", "/wheel_commands"),
     "sim_node": ("/wheel_commands", "/joint_states", "/ground_truth/odom"),
 }

@@ -28,7 +28,8 @@ def test_decoder_reads_what_rclpy_wrote() -> None:
         frame = "x" * rng.randint(0, 9) if n % 3 else "imu_link"
         sec, nsec = rng.randint(-2**31, 2**31 - 1), rng.randint(0, 999_999_999)
         w = (rng.uniform(-40, 40), rng.uniform(-40, 40), rng.uniform(-40, 40))
-        assert decode_imu(serialize_message(imu(sec, nsec, frame, w))) == (sec, nsec, *w)
+        cov = (0.0, 0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.0)
+        assert decode_imu(serialize_message(imu(sec, nsec, frame, w))) == (sec, nsec, *w, cov)
 
 
 def test_cut_short_bytes_are_refused_and_another_encoding_left_to_rclpy() -> None:

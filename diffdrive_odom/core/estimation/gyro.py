@@ -13,13 +13,19 @@ still (a zero-velocity update: a scalar Kalman filter on the bias, whose varianc
 grows by the bias random walk between updates).
 
 Time: the yaw rate is integrated over exactly each wheel step's interval by header
-stamps, linear between samples, the rate held at the ends. A step whose end lies
-past the newest sample (the IMU's next message still in flight) is extrapolated
-with the newest rate; the next step subtracts what was extrapolated and integrates
-the samples that arrived meanwhile, so the headings telescope and no extrapolation
-error stays in the pose. A hole in the samples longer than ``imu_timeout`` makes the
-step wheels-only (IMU silent): each step takes its heading change from one source or
-the other, so switching never makes the pose jump.
+stamps, linear between samples, the rate held at the ends
+(:mod:`~diffdrive_odom.core.estimation.gyrosamples`). An IMU on its own clock gives
+no order: the samples covering a step may come before the wheel reading, with it or
+an IMU period or a latency later. So each step is decided at once on what has come
+(the part past the newest sample filled with the wheels' turn), kept pending,
+and judged again when the samples covering it have come: the slip event
+(:mod:`~diffdrive_odom.core.estimation.slips`) and the zero-velocity update
+(:mod:`~diffdrive_odom.core.estimation.standstill`) are decided then only, and what
+the final judgement changes in the step's heading and distance is added to the next
+step, so the provisional part leaves no error in the pose. A step the samples never cover
+is given up ``imu_timeout`` after its end. A hole in the samples longer than
+``imu_timeout`` makes the step wheels-only (IMU silent): each step takes its
+heading change from one source or the other, so switching never makes the pose jump.
 
 Pure Python: the pipeline feeds samples (:meth:`GyroHeading.add`) and the estimator
 asks for each step's heading (:meth:`GyroHeading.step`).
@@ -28,19 +34,20 @@ asks for each step's heading (:meth:`GyroHeading.step`).
 from __future__ import annotations
 
 import math
-from bisect import bisect_left, bisect_right, insort
-from dataclasses import dataclass
-from itertools import pairwise
+from collections import deque
+from dataclasses import dataclass, replace
 
 from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.estimation.gyrosamples import GyroSamples
+from diffdrive_odom.core.estimation.slips import SlipEvents, SlipStats
+from diffdrive_odom.core.estimation.stamps import StampSource
+from diffdrive_odom.core.estimation.standstill import Standstill
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel, joint_variances
 from diffdrive_odom.core.uncertainty.propagation import GyroStep, wheel_jacobian
 
 Matrix = tuple[tuple[float, ...], ...]
-
-# Samples kept at most (wheels silent while the IMU goes on): 10 s at 1 kHz.
-MAX_SAMPLES = 10_000
+__all__ = ["GyroConfig", "GyroConfigError", "GyroHeading", "SlipStats"]
 
 
 class GyroConfigError(ConfigError):
@@ -62,6 +69,8 @@ class GyroConfig:
     slip_sigmas: float = 5.0  # disagreement (in combined sigmas) that is a slip
     zero_velocity_speed: float = 0.001  # m/s: both wheels slower = standing still
     slip_distance_from_other_wheel: bool = True
+    slip_min_angle: float = math.radians(0.5)  # rad: a smaller slip is no slip event
+    stamp_source: StampSource = StampSource.HEADER  # imu_stamp_source
 
     def __post_init__(self) -> None:
         if len(self.orientation) != 3 or not all(math.isfinite(a) for a in self.orientation):
@@ -80,6 +89,7 @@ class GyroConfig:
             ("imu_timeout", self.timeout, True),
             ("slip_threshold_sigmas", self.slip_sigmas, True),
             ("zero_velocity_speed", self.zero_velocity_speed, False),
+            ("slip_min_angle", self.slip_min_angle, False),
         ):
             if not (math.isfinite(value) and (value > 0.0 if positive else value >= 0.0)):
                 raise GyroConfigError(name, f"must be finite and {'>' if positive else '>='} 0, "
@@ -96,46 +106,28 @@ class GyroConfig:
 
 
 @dataclass(frozen=True, slots=True)
-class SlipStats:
-    """Slip events so far: a run of consecutive slipping steps is one event.
+class _Judged:
+    """One step's decision: slipped or not, the wheels' heading error, the step."""
 
-    ``size``: the heading the wheels got wrong over the last event [rad];
-    ``last_stamp_ns``: when it last slipped (None: never).
-    """
-
-    events: int = 0
-    steps: int = 0
-    last_stamp_ns: int | None = None
-    last_size: float = 0.0
-    total_size: float = 0.0
+    slip: bool
+    error: float  # rad: the wheels' heading change minus the gyro's
+    step: GyroStep
 
 
-def _interp(ts: list[int], ws: list[float], t: int) -> float:
-    """The rate at ``t``: linear between samples, held beyond the ends."""
-    i = bisect_right(ts, t)
-    if i == 0:
-        return ws[0]
-    if i == len(ts):
-        return ws[-1]
-    t0, t1 = ts[i - 1], ts[i]
-    f = (t - t0) / (t1 - t0)
-    return ws[i - 1] + f * (ws[i] - ws[i - 1])
+@dataclass(frozen=True, slots=True)
+class _Interval:
+    """What a step was decided on, so it can be judged again once its samples came."""
 
-
-def integrate(ts: list[int], ws: list[float], a: int, b: int) -> float:
-    """``integral of w dt`` [rad] over ``[a, b]`` (stamps in ns), trapezoids on the samples."""
-    if b <= a or not ts:
-        return 0.0
-    lo = bisect_right(ts, a)
-    hi = bisect_left(ts, b)
-    total = 0.0
-    t_prev, w_prev = a, _interp(ts, ws, a)
-    for i in range(lo, hi):
-        t, w = ts[i], ws[i]
-        total += 0.5 * (w + w_prev) * (t - t_prev)
-        t_prev, w_prev = t, w
-    total += 0.5 * (w_prev + _interp(ts, ws, b)) * (b - t_prev)
-    return total * 1e-9
+    geometry: Geometry
+    t0: int
+    t1: int
+    d_left: float
+    d_right: float
+    arcs: tuple[float, float]
+    bias: float
+    bias_variance: float
+    standing: bool
+    decided: _Judged
 
 
 class GyroHeading:
@@ -150,20 +142,15 @@ class GyroHeading:
         self._axis = config.yaw_axis
         self._jump_ns = time_jump_threshold * 1e9
         self._future_ns = max_reading_gap * 1e9  # inf: no check
-        self._ts: list[int] = []
-        self._ws: list[float] = []
-        self.bias = config.bias
-        self.bias_variance = config.bias_stddev ** 2
-        self._bias_t: int | None = None  # stamp the bias variance was last grown to
-        # The last step's end, how far real samples covered it, what was extrapolated.
-        self._mark: int | None = None
-        self._real = 0
-        self._extra = 0.0
+        self.samples = GyroSamples()
+        self.standstill = Standstill(config.bias, config.bias_stddev)
+        self._slips = SlipEvents(config.slip_min_angle)
+        # Steps decided before the samples covering them came, oldest first.
+        self._pending: deque[_Interval] = deque()
+        self._judged_to: int | None = None  # end of the last step judged for good
+        self._debt = (0.0, 0.0)  # (ds, dtheta) the final judgements add to the next step
         self.wheel_stamp_ns: int | None = None  # newest wheel stamp (future check)
-        self.slips = SlipStats()
-        self._slipping = False
         self.silent = True  # no usable samples for the last step (or none yet)
-        self.zero_velocity_updates = 0
         self.steps = 0  # wheel steps asked about
         self._geometry: Geometry | None = None
         self._b: Matrix = ()
@@ -172,6 +159,36 @@ class GyroHeading:
         """New settings at runtime; the bias estimate carries on (its start value is for starts)."""
         self.config = config
         self._axis = config.yaw_axis
+        self._slips.min_angle = config.slip_min_angle
+
+    @property
+    def bias(self) -> float:
+        """The bias estimate [rad/s]."""
+        return self.standstill.bias
+
+    @bias.setter
+    def bias(self, value: float) -> None:
+        self.standstill.bias = value
+
+    @property
+    def bias_variance(self) -> float:
+        """Its variance [(rad/s)^2]."""
+        return self.standstill.variance
+
+    @property
+    def zero_velocity_updates(self) -> int:
+        """Bias updates so far (steps standing still, their samples in)."""
+        return self.standstill.updates
+
+    @property
+    def slips(self) -> SlipStats:
+        """Slip events so far (:mod:`~diffdrive_odom.core.estimation.slips`)."""
+        return self._slips.stats
+
+    @property
+    def slip_events(self) -> list[tuple[int, float]]:
+        """Each slip event's (stamp of its first step, size [rad]), oldest first."""
+        return self._slips.events
 
     # --- samples -------------------------------------------------------------------
 
@@ -185,97 +202,151 @@ class GyroHeading:
             return "saturated"
         if stamp_ns <= 0:
             return "zero_stamp"
-        ts = self._ts
-        if ts and stamp_ns < ts[-1] - self._jump_ns:
-            self._ts.clear()  # the IMU's clock went back (a bag loop): start over
-            self._ws.clear()
-            self._mark = None
-        elif self._mark is not None and stamp_ns <= self._real:
-            return "stale_stamp"  # that part of the timeline is integrated already
+        last = self.samples.last
+        if last is not None and stamp_ns < last - self._jump_ns:
+            self._start_over()  # the IMU's clock went back (a bag loop)
+        elif self._judged_to is not None and stamp_ns <= self._judged_to:
+            return "stale_stamp"  # that part of the timeline is judged already
         wheel = self.wheel_stamp_ns
         if wheel is not None and stamp_ns - wheel > self._future_ns:
             return "future_stamp"
-        if ts and stamp_ns == ts[-1]:
+        if not self.samples.insert(stamp_ns, w):
             return "stale_stamp"  # a duplicate
-        if not ts or stamp_ns > ts[-1]:
-            ts.append(stamp_ns)
-            self._ws.append(w)
-        else:
-            i = bisect_left(ts, stamp_ns)
-            if ts[i] == stamp_ns:
-                return "stale_stamp"
-            insort(ts, stamp_ns)
-            self._ws.insert(i, w)
-        if len(ts) > MAX_SAMPLES:
-            del ts[0], self._ws[0]
+        if self._pending and stamp_ns >= self._pending[0].t1:
+            self._settle(wheel if wheel is not None else stamp_ns)
         return ""
 
-    def _prune(self, keep_from: int) -> None:
-        """Drop samples no later step needs (keep the last one at or before ``keep_from``)."""
-        i = bisect_right(self._ts, keep_from) - 1
-        if i > 0:
-            del self._ts[:i], self._ws[:i]
+    def _start_over(self) -> None:
+        self.samples.clear()
+        self._pending.clear()
+        self._judged_to = None
+        self._debt = (0.0, 0.0)
 
     def covers(self, a: int, b: int) -> bool:
         """True when samples reach within ``imu_timeout`` of both ends and no hole is longer."""
-        ts = self._ts
-        limit = self.config.timeout * 1e9
-        pts = ts[bisect_left(ts, a - limit):bisect_right(ts, b + limit)]
-        if not pts or pts[0] > a + limit or pts[-1] < b - limit:
-            return False
-        return all(q - p <= limit for p, q in pairwise(pts) if q > a and p < b)
-
-    # --- one wheel step ------------------------------------------------------------
-
-    def _angle(self, t0: int, t1: int) -> tuple[float, bool]:
-        """Raw gyro angle over ``[t0, t1]`` (telescoping); True if all of it was measured."""
-        ts, ws = self._ts, self._ws
-        if self._mark != t0:
-            self._mark, self._real, self._extra = t0, t0, 0.0
-        start = min(self._real, t0)
-        last = ts[-1]
-        real_end = max(self._real, min(t1, last))
-        measured = integrate(ts, ws, start, real_end)
-        extra = integrate(ts, ws, real_end, t1) if t1 > real_end else 0.0
-        angle = measured + extra - self._extra
-        self._mark, self._real, self._extra = t1, real_end, extra
-        self._prune(min(real_end, t1))
-        return angle, t1 <= last
+        return self.samples.covers(a, b, self.config.timeout * 1e9)
 
     def skip(self, t1: int) -> None:
-        """The wheels took ``t1`` as a reference without a step: the next step starts there."""
-        self._mark, self._real, self._extra = t1, t1, 0.0
+        """The wheels took ``t1`` as a reference without a step: the next step starts there.
+
+        Samples up to ``t1`` that come later are still taken: nothing was judged on them,
+        and an IMU lagging more than a wheel period must not have every sample refused.
+        """
         self.wheel_stamp_ns = t1
         self._prune(t1)
 
-    def _grow_bias(self, t1: int) -> None:
-        last = self._bias_t
-        if last is not None and t1 > last:
-            rw = self.config.bias_random_walk
-            self.bias_variance += rw * rw * (t1 - last) * 1e-9
-        self._bias_t = t1 if last is None or t1 > last else last
+    def _prune(self, t1: int) -> None:
+        self.samples.prune(self._pending[0].t0 if self._pending else t1)
+
+    # --- one wheel step ------------------------------------------------------------
 
     def step(self, geometry: Geometry, t0: int, t1: int,
              d_left: float, d_right: float, arcs: tuple[float, float]) -> GyroStep | None:
         """Heading (and distance) of the step ``t0 -> t1``; None: wheels only (IMU silent)."""
         self.wheel_stamp_ns = t1
         self.steps += 1
-        dt = (t1 - t0) * 1e-9
-        if dt <= 0.0 or not self.covers(self._real if self._mark == t0 else t0, t1):
+        cfg = self.config
+        dt_ns = t1 - t0
+        standing = dt_ns > 0 and (max(abs(arcs[0]), abs(arcs[1]))
+                                  <= cfg.zero_velocity_speed * dt_ns * 1e-9)
+        if standing:
+            self.standstill.stood(dt_ns)
+        self._settle(t1)
+        if dt_ns <= 0 or not self.covers(t0, t1):
             self.silent = True
+            if standing:
+                self.standstill.miss("silent")
+            self._give_up()
             self.skip(t1)
-            self._slipping = False
             return None
         self.silent = False
-        self._grow_bias(t1)
-        raw, measured = self._angle(t0, t1)
+        still = self.standstill
+        still.grow(t1, cfg.bias_random_walk)
+        raw = self._provisional(geometry, t0, t1, arcs)
+        decided = self._judge(geometry, dt_ns * 1e-9, d_left, d_right, arcs, raw,
+                              still.bias, still.variance)
+        interval = _Interval(geometry, t0, t1, d_left, d_right, arcs, still.bias,
+                             still.variance, standing, decided)
+        last = self.samples.last
+        if not self._pending and last is not None and last >= t1:
+            self._judged(interval, decided, raw)  # its samples are all in: final now
+        else:
+            self._pending.append(interval)
+        out = decided.step
+        ds, dtheta = self._debt
+        if ds or dtheta:
+            out = replace(out, ds=out.ds + ds, dtheta=out.dtheta + dtheta)
+            self._debt = (0.0, 0.0)
+        self._prune(t1)
+        return out
+
+    def _provisional(self, geometry: Geometry, t0: int, t1: int,
+                     arcs: tuple[float, float]) -> float:
+        """The gyro angle over ``[t0, t1]`` as far as samples came; the wheels' beyond.
+
+        The part past the newest sample is filled with the wheels' turn over it (plus
+        the bias the gyro would add): the step is judged on what the gyro saw, and a
+        late IMU does not hold an old rate for long. The final judgement replaces it.
+        """
+        last = self.samples.last
+        if last is None or last >= t1:
+            return self.samples.integrate(t0, t1)
+        cut = max(last, t0)
+        rate = (arcs[1] - arcs[0]) / geometry.separation / ((t1 - t0) * 1e-9) + self.bias
+        return self.samples.integrate(t0, cut) + rate * (t1 - cut) * 1e-9
+
+    def _settle(self, now: int) -> None:
+        """Judge for good the pending steps the samples now cover; give up stale ones."""
+        pending = self._pending
+        last = self.samples.last
+        limit = self.config.timeout * 1e9
+        while pending:
+            p = pending[0]
+            if last is not None and last >= p.t1:
+                raw = self.samples.integrate(p.t0, p.t1)
+                final = self._judge(p.geometry, (p.t1 - p.t0) * 1e-9, p.d_left, p.d_right,
+                                    p.arcs, raw, p.bias, p.bias_variance)
+                ds, dtheta = self._debt
+                self._debt = (ds + final.step.ds - p.decided.step.ds,
+                              dtheta + final.step.dtheta - p.decided.step.dtheta)
+                self._judged(p, final, raw)
+            elif now - p.t1 > limit:
+                self._judged(p, p.decided, None)
+            else:
+                break
+            pending.popleft()
+
+    def _give_up(self) -> None:
+        """The IMU fell silent: the pending steps stay as decided, nothing more is owed."""
+        while self._pending:
+            p = self._pending.popleft()
+            self._judged(p, p.decided, None)
+        self._debt = (0.0, 0.0)
+
+    def _judged(self, p: _Interval, judged: _Judged, raw: float | None) -> None:
+        """A step judged for good: its slip counted, a standstill's bias update."""
+        self._slips.step(judged.slip, p.t1, judged.error)
+        self._judged_to = p.t1
+        if not p.standing:
+            return
+        if raw is None:
+            self.standstill.miss("unmeasured")
+        else:  # unless the gyro turned while the wheels stood (by hand): no bias
+            dt = (p.t1 - p.t0) * 1e-9
+            self.standstill.offer(raw / dt, dt, self.config.noise_density,
+                                  self.config.slip_sigmas)
+
+    def _judge(self, geometry: Geometry, dt: float, d_left: float, d_right: float,
+               arcs: tuple[float, float], raw: float, bias: float,
+               bias_variance: float) -> _Judged:
+        """The step's decision on the gyro angle ``raw`` [rad] (no state changes)."""
         cfg = self.config
         s_l, s_r = arcs
         sep = geometry.separation
         ds_w, dth_w = 0.5 * (s_l + s_r), (s_r - s_l) / sep
         var_white = cfg.noise_density ** 2 * dt
-        g = raw - self.bias * dt
-        var_g = var_white + self.bias_variance * dt * dt
+        g = raw - bias * dt
+        var_g = var_white + bias_variance * dt * dt
         if geometry is not self._geometry:
             self._geometry, self._b = geometry, wheel_jacobian(geometry)
         b = self._b
@@ -286,52 +357,27 @@ class GyroHeading:
                  + rr * (s_l * s_l + s_r * s_r) / (sep * sep) + sr * dth_w * dth_w)
         diff = g - dth_w
         slip = diff * diff > cfg.slip_sigmas ** 2 * (var_w + var_g)
-        self._count_slip(slip, t1, abs(diff))
-        if measured and not slip and max(abs(s_l), abs(s_r)) <= cfg.zero_velocity_speed * dt:
-            # Standing still and the gyro agrees (a robot turned by hand is no bias).
-            self._zero_velocity_update(raw / dt, dt)
         geo_ds = (0.5 * s_l, 0.5 * s_r, 0.0)
         geo_th = (-s_l / sep, s_r / sep, -dth_w)
         if not slip:
             w_g = var_w / (var_w + var_g) if var_w + var_g > 0.0 else 0.0
             w_w = 1.0 - w_g
-            return GyroStep(ds=ds_w, dtheta=w_w * dth_w + w_g * g,
-                            b=(b[0], (w_w * b[1][0], w_w * b[1][1])), c=(0.0, w_g),
-                            var_gyro=var_white, dt=dt,
-                            geometry=(geo_ds, tuple(w_w * v for v in geo_th)), slip=False)
+            return _Judged(False, -diff, GyroStep(
+                ds=ds_w, dtheta=w_w * dth_w + w_g * g,
+                b=(b[0], (w_w * b[1][0], w_w * b[1][1])), c=(0.0, w_g), var_gyro=var_white,
+                dt=dt, geometry=(geo_ds, tuple(w_w * v for v in geo_th)), slip=False))
         if not cfg.slip_distance_from_other_wheel:
-            return GyroStep(ds=ds_w, dtheta=g, b=(b[0], (0.0, 0.0)), c=(0.0, 1.0),
+            step = GyroStep(ds=ds_w, dtheta=g, b=(b[0], (0.0, 0.0)), c=(0.0, 1.0),
                             var_gyro=var_white, dt=dt, geometry=(geo_ds, (0.0, 0.0, 0.0)),
                             slip=True)
-        half = 0.5 * sep
-        if abs(s_l) <= abs(s_r):  # the right wheel spun: the left one and the gyro
-            return GyroStep(ds=s_l + half * g, dtheta=g, b=((2.0 * b[0][0], 0.0), (0.0, 0.0)),
+        elif abs(s_l) <= abs(s_r):  # the right wheel spun: the left one and the gyro
+            half = 0.5 * sep
+            step = GyroStep(ds=s_l + half * g, dtheta=g, b=((2.0 * b[0][0], 0.0), (0.0, 0.0)),
                             c=(half, 1.0), var_gyro=var_white, dt=dt,
                             geometry=((s_l, 0.0, half * g), (0.0, 0.0, 0.0)), slip=True)
-        return GyroStep(ds=s_r - half * g, dtheta=g, b=((0.0, 2.0 * b[0][1]), (0.0, 0.0)),
-                        c=(-half, 1.0), var_gyro=var_white, dt=dt,
-                        geometry=((0.0, s_r, -half * g), (0.0, 0.0, 0.0)), slip=True)
-
-    def _zero_velocity_update(self, z: float, dt: float) -> None:
-        """The wheels stand still: the mean rate ``z`` over ``dt`` measures the bias."""
-        r = self.config.noise_density ** 2 / dt
-        p = self.bias_variance
-        k = p / (p + r) if p + r > 0.0 else 0.0
-        self.bias += k * (z - self.bias)
-        self.bias_variance = (1.0 - k) * p
-        self.zero_velocity_updates += 1
-
-    def _count_slip(self, slip: bool, stamp_ns: int, size: float) -> None:
-        s = self.slips
-        if not slip:
-            self._slipping = False
-            return
-        new = not self._slipping
-        self._slipping = True
-        self.slips = SlipStats(
-            events=s.events + (1 if new else 0),
-            steps=s.steps + 1,
-            last_stamp_ns=stamp_ns,
-            last_size=size if new else s.last_size + size,
-            total_size=s.total_size + size,
-        )
+        else:
+            half = 0.5 * sep
+            step = GyroStep(ds=s_r - half * g, dtheta=g, b=((0.0, 2.0 * b[0][1]), (0.0, 0.0)),
+                            c=(-half, 1.0), var_gyro=var_white, dt=dt,
+                            geometry=((0.0, s_r, -half * g), (0.0, 0.0, 0.0)), slip=True)
+        return _Judged(True, -diff, step)

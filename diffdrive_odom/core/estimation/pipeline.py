@@ -27,6 +27,7 @@ from diffdrive_odom.core.estimation.encoders import (
 from diffdrive_odom.core.estimation.estimator import OdometryEstimator, Step
 from diffdrive_odom.core.estimation.gate import GateState, PublishGate
 from diffdrive_odom.core.estimation.gyro import GyroHeading, SlipStats
+from diffdrive_odom.core.estimation.imuinput import ImuInput
 from diffdrive_odom.core.estimation.setpose import (
     PoseRefusal,
     PoseRequest,
@@ -107,7 +108,8 @@ class GyroStats:
     ``samples``: IMU messages offered; ``dropped``: refused by code (``non_finite``,
     ``saturated``, ``zero_stamp``, ``stale_stamp``, ``future_stamp``); ``silent``: the
     last step was wheels only for want of samples; ``bias`` [rad/s] and its standard
-    deviation; ``zero_velocity_updates``: bias updates while standing still; ``slips``.
+    deviation; ``zero_velocity_updates``: bias updates while standing still;
+    ``standing_s``: how long the wheels stood still; ``slips``.
     """
 
     samples: int = 0
@@ -117,6 +119,7 @@ class GyroStats:
     bias_stddev: float = 0.0
     zero_velocity_updates: int = 0
     slips: SlipStats = field(default_factory=SlipStats)
+    standing_s: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -178,8 +181,7 @@ class ReadingPipeline:
         self._velocity = False
         self._clock = ClockOffsetCheck()
         self._gyro: GyroHeading | None = None
-        self._imu_samples = 0
-        self._imu_dropped: dict[str, int] = {}
+        self._imu: ImuInput | None = None
         self._imu_silent = False  # so a missing IMU is named at the first step
         self._setpose = SetPoseRule()
         self._attach_gyro(settings)
@@ -193,6 +195,7 @@ class ReadingPipeline:
             est = settings.estimator
             self._gyro = GyroHeading(cfg, settings.noise, est.time_jump_threshold,
                                      est.max_reading_gap)
+            self._imu = ImuInput(self._gyro)
         else:
             self._gyro.set_config(cfg)
             self._gyro.noise = self._gyro.noise if settings.noise is None else settings.noise
@@ -205,20 +208,20 @@ class ReadingPipeline:
         """The gyro's state (bias, slips), None with ``use_imu`` false."""
         return self._gyro
 
-    def feed_imu(self, stamp_ns: int, wx: float, wy: float, wz: float) -> str:
+    def feed_imu(self, stamp_ns: int, wx: float, wy: float, wz: float,
+                 receive_ns: int | None = None, check_clock: bool = True,
+                 covariance: tuple[float, ...] = ()) -> str:
         """Offer one IMU sample (angular velocity in the IMU's frame, header stamp).
 
         Returns '' when kept, else the drop code (counted in ``stats.gyro.dropped``).
-        With ``use_imu`` false nothing happens ('').
+        With ``use_imu`` false nothing happens (''). ``receive_ns``, ``check_clock``: as
+        :meth:`feed`'s, for ``imu_stamp_source``; ``covariance``: the message's
+        angular_velocity_covariance (:mod:`~diffdrive_odom.core.estimation.imuinput`).
         """
-        gyro = self._gyro
-        if gyro is None:
+        imu = self._imu
+        if imu is None or self._gyro is None:
             return ""
-        self._imu_samples += 1
-        code = gyro.add(stamp_ns, wx, wy, wz)
-        if code:
-            self._imu_dropped[code] = self._imu_dropped.get(code, 0) + 1
-        return code
+        return imu.feed(stamp_ns, wx, wy, wz, receive_ns, check_clock, covariance)
 
     @property
     def estimator(self) -> OdometryEstimator:
@@ -242,10 +245,10 @@ class ReadingPipeline:
             time_resets=self._time_resets,
             last_usable_stamp_ns=self._last_usable_ns,
             velocity_fallback=self._velocity,
-            gyro=None if (g := self._gyro) is None else GyroStats(
-                self._imu_samples, MappingProxyType(dict(self._imu_dropped)),
-                g.silent and g.steps > 0,
-                g.bias, g.bias_variance ** 0.5, g.zero_velocity_updates, g.slips),
+            gyro=None if (g := self._gyro) is None or (imu := self._imu) is None else GyroStats(
+                imu.samples, imu.dropped, g.silent and g.steps > 0,
+                g.bias, g.bias_variance ** 0.5, g.zero_velocity_updates, g.slips,
+                g.standstill.standing_ns * 1e-9),
         )
 
     def feed(
@@ -302,6 +305,8 @@ class ReadingPipeline:
         elif gyro is not None and gyro.steps != steps and gyro.silent != self._imu_silent:
             self._imu_silent = gyro.silent
             note = IMU_SILENT if gyro.silent else IMU_BACK
+        if self._imu is not None and not warning:
+            warning = self._imu.take_warning()
         if self._setpose.pending is not None:  # ~/set_pose held for this reading's stamp
             if status is Status.TIME_RESET:
                 self._setpose.pending, note = None, note or SET_POSE_DROPPED

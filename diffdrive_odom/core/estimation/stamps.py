@@ -37,30 +37,43 @@ class StampSource(StrEnum):
     RECEIVE_TIME = "receive_time"  # when the reading arrived, on the receiver's clock
 
 
-def clock_offset_text(offset_ns: int) -> str:
-    """The one warning about a driver's clock ``offset_ns`` off the receiver's."""
+def clock_offset_text(offset_ns: int, topic: str = "joint_states") -> str:
+    """The one warning about a driver's clock ``offset_ns`` off the receiver's.
+
+    ``topic``: ``joint_states`` (the wheels, ``stamp_source``) or ``imu``
+    (``imu_stamp_source``: its samples are then placed against the wheels' steps).
+    """
     seconds = offset_ns * 1e-9
     side = "ahead of" if seconds > 0 else "behind"
+    if topic == "imu":
+        harm, param = ("the gyro's samples are placed against the wheels' steps by them, so "
+                       "they are refused or miss every step (wheels only, no bias "
+                       "estimate)"), "imu_stamp_source"
+    else:
+        harm, param = ("odometry and TF are stamped with them, so TF lookups elsewhere "
+                       "fail"), "stamp_source"
     return (
-        f"joint_states header stamps are {abs(seconds):.3f} s {side} the time they were "
-        "received (this node's clock; in a bag, the log time): odometry and TF are stamped "
-        "with them, so TF lookups elsewhere fail. Sync the driver's clock with this "
-        "computer's (chrony/NTP, or stamp with ROS time), or set stamp_source: "
-        "receive_time to stamp readings when they arrive"
+        f"{topic} header stamps are {abs(seconds):.3f} s {side} the time they were "
+        f"received (this node's clock; in a bag, the log time): {harm}. Sync the "
+        "driver's clock with this computer's (chrony/NTP, or stamp with ROS time), or set "
+        f"{param}: receive_time to stamp them when they arrive"
     )
 
 
 @overload
-def in_sync(offset_ns: int) -> bool: ...
+def in_sync(offset_ns: int, limit_s: float = CLOCK_OFFSET_WARN_S) -> bool: ...
 @overload
-def in_sync(offset_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]: ...
-def in_sync(offset_ns: int | npt.NDArray[np.int64]) -> bool | npt.NDArray[np.bool_]:
-    """True where a header stamp is within CLOCK_OFFSET_WARN_S of its receive time.
+def in_sync(offset_ns: npt.NDArray[np.int64],
+            limit_s: float = CLOCK_OFFSET_WARN_S) -> npt.NDArray[np.bool_]: ...
+def in_sync(offset_ns: int | npt.NDArray[np.int64],
+            limit_s: float = CLOCK_OFFSET_WARN_S) -> bool | npt.NDArray[np.bool_]:
+    """True where a header stamp is within ``limit_s`` of its receive time.
 
     ``offset_ns``: stamp minus receive time, one (the node's check) or an array of them
-    (the fast lane's), by the same arithmetic.
+    (the fast lane's), by the same arithmetic. ``limit_s``: CLOCK_OFFSET_WARN_S, or for
+    the IMU ``imu_timeout`` where that is shorter.
     """
-    limit = CLOCK_OFFSET_WARN_S * 1e9
+    limit = limit_s * 1e9
     if isinstance(offset_ns, np.ndarray):
         return np.abs(offset_ns) <= limit
     return abs(offset_ns) <= limit
@@ -69,15 +82,17 @@ def in_sync(offset_ns: int | npt.NDArray[np.int64]) -> bool | npt.NDArray[np.boo
 class ClockOffsetCheck:
     """Names a driver's clock once: the first reading stamped far from its receive time."""
 
-    def __init__(self) -> None:
+    def __init__(self, topic: str = "joint_states", limit_s: float = CLOCK_OFFSET_WARN_S) -> None:
         self.offset_ns: int | None = None  # the offset named, once it has been
+        self.topic = topic
+        self.limit_s = limit_s  # the IMU's: imu_timeout where that is shorter
 
     def check(self, stamp_ns: int, receive_ns: int) -> str:
         """The warning for this reading ('' if none): said the first time only."""
         if self.offset_ns is not None:
             return ""
         offset = stamp_ns - receive_ns
-        if in_sync(offset):
+        if in_sync(offset, self.limit_s):
             return ""
         self.offset_ns = offset
-        return clock_offset_text(offset)
+        return clock_offset_text(offset, self.topic)

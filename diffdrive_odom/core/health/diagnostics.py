@@ -21,6 +21,7 @@ from enum import IntEnum
 from typing import Generic, TypeVar
 
 from diffdrive_odom.core.estimation.pipeline import GyroStats
+from diffdrive_odom.core.estimation.standstill import STAND_WARN_S
 
 H = TypeVar("H")
 
@@ -236,6 +237,9 @@ def _gyro(now: GyroStats | None, before: GyroStats | None,
         return []
     if now.silent:
         problems.append((Level.WARN, "IMU silent: wheels only"))
+    if now.standing_s >= STAND_WARN_S and now.zero_velocity_updates == 0:
+        problems.append((Level.WARN, f"stood still {now.standing_s:.1f} s, no zero-velocity "
+                                     "update: gyro bias not estimated (IMU stamps?)"))
     dropped = increase_since(now.dropped, before.dropped if before else None)
     if any(dropped.values()):
         problems.append((Level.WARN, f"dropped {sum(dropped.values())} IMU samples "
@@ -254,4 +258,5 @@ def _gyro(now: GyroStats | None, before: GyroStats | None,
         ("gyro bias [rad/s]", f"{finite(now.bias):.6g}"),
         ("gyro bias stddev [rad/s]", f"{finite(now.bias_stddev):.6g}"),
         ("zero-velocity updates", str(now.zero_velocity_updates)),
+        ("standing still [s]", f"{finite(now.standing_s):.1f}"),
     ]

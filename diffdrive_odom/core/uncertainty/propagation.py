@@ -11,7 +11,7 @@ Systematic error (wrong radii, separation) is not random: it is the geometry ter
 Each step the 3x3 pose covariance goes through the exact CIR step's Jacobians
 (Furlan, Marzorati and Sorrenti, "2D transforms for the odometry of a differential
 kinematics mobile robot"; :func:`integration.compose_jacobians`), chained with the
-linear wheel -> body map of :func:`kinematics.body_increment`:
+linear wheel -> body map of :func:`kinematics.body_increment`::
 
     P <- F_pose P F_pose^T + G Q G^T + k_rot |dtheta| u u^T,   G = F_step B,
     Q = diag(var_left, var_right),   u = F_step (0, 1)^T

@@ -267,6 +267,8 @@ def test_imu_samples_arriving_after_the_wheel_reading_are_caught_up() -> None:
     ("imu_timeout", -1.0),
     ("gyro_bias", math.nan),
     ("slip_threshold_sigmas", 0.0),
+    ("slip_min_angle", -0.01),
+    ("imu_stamp_source", "device"),
 ])
 def test_bad_gyro_parameters_are_named(name: str, value: object) -> None:
     from diffdrive_odom.settings.errors import ParameterError

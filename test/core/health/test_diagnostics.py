@@ -92,6 +92,21 @@ def test_odometry_ok_while_readings_flow() -> None:
     assert v["error after [s]"] == "5"
 
 
+def test_odometry_warns_when_the_robot_stood_and_no_zero_velocity_update_ran() -> None:
+    from diffdrive_odom.core.estimation.pipeline import GyroStats
+
+    ran = GyroStats(samples=400, silent=False, zero_velocity_updates=100, standing_s=2.0)
+    r = odometry_report(health(gyro=ran), None, TH)
+    assert r.level is Level.OK
+    v = dict(r.values)
+    assert v["zero-velocity updates"] == "100" and v["standing still [s]"] == "2.0"
+    none = GyroStats(samples=400, silent=False, zero_velocity_updates=0, standing_s=2.0)
+    r = odometry_report(health(gyro=none), None, TH)
+    assert r.level is Level.WARN and "stood still 2.0 s, no zero-velocity update" in r.message
+    short = GyroStats(samples=40, silent=False, zero_velocity_updates=0, standing_s=0.5)
+    assert odometry_report(health(gyro=short), None, TH).level is Level.OK
+
+
 def test_odometry_says_when_it_integrates_velocities() -> None:
     r = odometry_report(health(velocity_fallback=True), None, TH)
     assert (r.level, r.message) == (Level.OK, "integrating wheel velocities")

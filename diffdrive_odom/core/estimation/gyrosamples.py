@@ -1,0 +1,92 @@
+"""The gyro's sample buffer: yaw rates by stamp, integrated over any interval.
+
+Why apart from the gyrodometry decision (:mod:`~diffdrive_odom.core.estimation.gyro`):
+the buffer's rules (which sample is kept, where a hole makes the IMU silent, how a
+rate is integrated between samples) are the same whatever is decided with them, and
+the decision is easier to read without them. Time is the header stamp in ns; the
+rate is linear between samples and held beyond the ends.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_left, bisect_right, insort
+from itertools import pairwise
+
+# Samples kept at most (wheels silent while the IMU goes on): 10 s at 1 kHz.
+MAX_SAMPLES = 10_000
+
+
+class GyroSamples:
+    """Yaw rates [rad/s] by stamp [ns], in stamp order whatever order they came in."""
+
+    def __init__(self) -> None:
+        self.ts: list[int] = []
+        self.ws: list[float] = []
+
+    @property
+    def last(self) -> int | None:
+        """The newest stamp (None: no sample)."""
+        return self.ts[-1] if self.ts else None
+
+    def clear(self) -> None:
+        """Forget every sample (the IMU's clock went back)."""
+        self.ts.clear()
+        self.ws.clear()
+
+    def insert(self, stamp_ns: int, w: float) -> bool:
+        """Keep one sample; False for a duplicate stamp."""
+        ts = self.ts
+        if not ts or stamp_ns > ts[-1]:
+            ts.append(stamp_ns)
+            self.ws.append(w)
+        else:
+            i = bisect_left(ts, stamp_ns)
+            if ts[i] == stamp_ns:
+                return False
+            insort(ts, stamp_ns)
+            self.ws.insert(i, w)
+        if len(ts) > MAX_SAMPLES:
+            del ts[0], self.ws[0]
+        return True
+
+    def prune(self, keep_from: int) -> None:
+        """Drop samples no later interval needs (keep the last one at or before ``keep_from``)."""
+        i = bisect_right(self.ts, keep_from) - 1
+        if i > 0:
+            del self.ts[:i], self.ws[:i]
+
+    def rate(self, t: int) -> float:
+        """The rate at ``t``: linear between samples, held beyond the ends."""
+        ts, ws = self.ts, self.ws
+        i = bisect_right(ts, t)
+        if i == 0:
+            return ws[0]
+        if i == len(ts):
+            return ws[-1]
+        t0, t1 = ts[i - 1], ts[i]
+        f = (t - t0) / (t1 - t0)
+        return ws[i - 1] + f * (ws[i] - ws[i - 1])
+
+    def integrate(self, a: int, b: int) -> float:
+        """``integral of w dt`` [rad] over ``[a, b]`` (stamps in ns), trapezoids on the samples."""
+        ts, ws = self.ts, self.ws
+        if b <= a or not ts:
+            return 0.0
+        lo = bisect_right(ts, a)
+        hi = bisect_left(ts, b)
+        total = 0.0
+        t_prev, w_prev = a, self.rate(a)
+        for i in range(lo, hi):
+            t, w = ts[i], ws[i]
+            total += 0.5 * (w + w_prev) * (t - t_prev)
+            t_prev, w_prev = t, w
+        total += 0.5 * (w_prev + self.rate(b)) * (b - t_prev)
+        return total * 1e-9
+
+    def covers(self, a: int, b: int, limit_ns: float) -> bool:
+        """True when samples reach within ``limit_ns`` of both ends and no hole is longer."""
+        ts = self.ts
+        pts = ts[bisect_left(ts, a - limit_ns):bisect_right(ts, b + limit_ns)]
+        if not pts or pts[0] > a + limit_ns or pts[-1] < b - limit_ns:
+            return False
+        return all(q - p <= limit_ns for p, q in pairwise(pts) if q > a and p < b)
