@@ -7,9 +7,9 @@ zero-stamp rule), on ``cmd_vel`` or the cmd_vel node's limited ``cmd_vel_out``
 (``open_loop_source``), each at its arrival on the node's clock. There are no readings to
 publish on, so a timer on the node's clock (simulated time included) publishes the pose
 at ``publish_rate`` (50 Hz when 0). ``joint_states`` is not subscribed: a fixed switch,
-as in diff_drive_controller, not a fallback. Same topics, frames, QoS, reset service and
-publication rule (nothing non-finite goes out) as with encoders; ``/diagnostics`` says
-"open loop".
+as in diff_drive_controller, not a fallback. Same topics, frames, QoS, reset service,
+``~/set_pose`` and publication rule (nothing non-finite goes out) as with encoders;
+``/diagnostics`` says "open loop".
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from diffdrive_odom.core.estimation.open_loop import (
     publication_rate,
 )
 from diffdrive_odom.core.estimation.publication import Refusal, publication
+from diffdrive_odom.core.estimation.setpose import PoseRefusal, PoseRequest
 from diffdrive_odom.core.health.diagnostics import RateMeter, Report, Reporter
 from diffdrive_odom.core.health.open_loop_health import OpenLoopHealth, open_loop_report
 from diffdrive_odom.ros.cmd_vel_input import CommandInput, Vector
@@ -34,6 +35,7 @@ from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, TF_QOS
+from diffdrive_odom.ros.set_pose import SetPoseSubscription
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
@@ -71,6 +73,7 @@ class OpenLoopEndpoints:
         self._tf_pub = create_publisher(node, TFMessage, "/tf", TF_QOS)
         self._input = CommandInput(node, cfg.topic, cfg.stamped, self._on_command)
         self._reset_srv = node.create_service(Trigger, "~/reset_odometry", self._on_reset)
+        self._set_pose = SetPoseSubscription(node, self, self._throttle)
         self._rate_hz = publication_rate(settings.publish_rate)
         self._timer = node.create_timer(1.0 / self._rate_hz, self._on_timer)
         self._last_rx: float | None = None
@@ -91,6 +94,7 @@ class OpenLoopEndpoints:
         self._diagnostics.destroy()
         node.destroy_timer(self._timer)
         node.destroy_service(self._reset_srv)
+        self._set_pose.destroy()
         self._input.destroy()
         destroy_publisher(node, self._tf_pub)
         destroy_publisher(node, self._odom_pub)
@@ -154,6 +158,10 @@ class OpenLoopEndpoints:
                                                  out.angular))
         if self._settings.enable_odom_tf:
             self._tf_pub.publish(self._tf.planar(now, pose.x, pose.y, pose.theta))
+
+    def set_pose(self, request: PoseRequest) -> str | PoseRefusal:
+        """``~/set_pose`` (the same subscription as with encoders), in the odom frame."""
+        return self._odo.set_pose(request, self._settings.odom_frame_id)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self._odo.reset()

@@ -273,3 +273,26 @@ def test_on_simulated_time_the_pose_is_the_closed_form() -> None:
         assert abs(math.remainder(yaw(p.orientation) - th, math.tau)) < 1e-12
     assert stamps[t0 + 300_000_000].twist.twist.linear.x == V
     assert stamps[t0 + 2 * 10**9].twist.twist.linear.x == 0.0
+
+
+def test_set_pose_in_open_loop() -> None:
+    """~/set_pose works in open loop as with encoders: stamped zero, the pose now."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    odom: list[Odometry] = []
+    with node_process("odometry_node", ["--ros-args", *OPEN_LOOP]) as proc, \
+            ros_test_node() as (node, ex):
+        node.create_subscription(Odometry, "/odom", odom.append, 100)
+        pub = node.create_publisher(PoseWithCovarianceStamped, "/odometry_node/set_pose", 10)
+        assert spin_until(ex, lambda: pub.get_subscription_count() > 0 and bool(odom), 20.0)
+        msg = PoseWithCovarianceStamped()
+        msg.header.frame_id = "odom"
+        msg.pose.pose.position.x, msg.pose.pose.position.y = 1.5, -2.0
+        msg.pose.pose.orientation.w = 1.0
+        msg.pose.covariance[0] = msg.pose.covariance[7] = msg.pose.covariance[35] = 0.04
+        pub.publish(msg)
+        assert spin_until(ex, lambda: odom[-1].pose.pose.position.x == 1.5, 10.0)
+        assert proc.poll() is None
+    last = odom[-1]
+    assert (last.pose.pose.position.x, last.pose.pose.position.y) == (1.5, -2.0)
+    assert last.pose.covariance[0] == pytest.approx(0.04, rel=1e-6)

@@ -26,6 +26,7 @@ from diffdrive_odom.core.estimation.open_loop import (
     publication_rate,
     publication_times,
 )
+from diffdrive_odom.core.estimation.setpose import PoseRefusal, PoseRequest
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.motion import routes
 
@@ -255,3 +256,37 @@ def test_a_command_before_the_clock_started_is_refused() -> None:
     odo.advance(T0)
     odo.advance(T0 + 10**9)
     assert odo.pose.x == 0.0 and dict(odo.stats.dropped) == {NO_CLOCK: 1}
+
+
+def _request(stamp_ns: int, x: float, y: float, yaw: float, frame: str = "odom",
+             var: float = 0.01) -> PoseRequest:
+    cov = [0.0] * 36
+    for i in (0, 7, 35):
+        cov[i] = var
+    return PoseRequest(stamp_ns, frame, (x, y, 0.0), (0.0, 0.0, math.sin(yaw / 2),
+                                                      math.cos(yaw / 2)), cov)
+
+
+def test_set_pose_now_and_ahead_then_the_commanded_arc_from_there() -> None:
+    odo = make(timeout=0.0)
+    odo.command(T0, 0.5, 0.0)
+    odo.advance(T0 + 10**9)
+    line = odo.set_pose(_request(0, 3.0, -1.0, 0.0), "odom")  # stamp 0: now
+    assert isinstance(line, str) and "as the pose at" in line
+    assert (odo.pose.x, odo.pose.y) == (3.0, -1.0)
+    pose_cov, _ = odo.covariances()
+    assert pose_cov[0] == pytest.approx(0.01, rel=1e-9)  # the given covariance, then grows
+    # Ahead: held until the clock reaches it, then the held command's arc from there.
+    line = odo.set_pose(_request(T0 + 2 * 10**9, 1.0, 2.0, math.pi / 2), "odom")
+    assert isinstance(line, str) and "held" in line
+    odo.advance(T0 + 3 * 10**9)
+    want = oracle.arc(0.5 * 1.0, 0.0, (1.0, 2.0, math.pi / 2))
+    assert pose_error((odo.pose.x, odo.pose.y, odo.pose.theta), want) < 1e-15
+
+
+def test_set_pose_refusals_change_nothing() -> None:
+    odo = make()
+    odo.advance(T0)
+    refused = odo.set_pose(_request(0, 1.0, 1.0, 0.0, frame="map"), "odom")
+    assert isinstance(refused, PoseRefusal) and refused.code == "frame"
+    assert (odo.pose.x, odo.pose.y) == (0.0, 0.0)
