@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any, cast
 
-from geometry_msgs.msg import Twist, TwistStamped
+from geometry_msgs.msg import TwistStamped
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.node import Node
@@ -23,9 +23,10 @@ from std_msgs.msg import Float64MultiArray
 from diffdrive_odom.core.commands.cmd_vel_pipeline import CommandPipeline, Tick
 from diffdrive_odom.core.health.base_diagnostics import CommandHealth, CommandState, cmd_vel_report
 from diffdrive_odom.core.health.diagnostics import RateMeter, Report, Reporter
+from diffdrive_odom.ros.cmd_vel_input import CommandInput, Vector
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
-from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, qos
+from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS
 from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.ros.throttle import WARN_THROTTLE_S, KeyedThrottle
 from diffdrive_odom.settings.cmd_vel import (
@@ -34,15 +35,10 @@ from diffdrive_odom.settings.cmd_vel import (
     CmdVelSettings,
     cmd_vel_settings,
 )
-from diffdrive_odom.wire.conversions import stamp_to_ns
 
 NODE_NAME = "cmd_vel_node"
 DIAGNOSTIC_TASK = "cmd_vel"  # status "cmd_vel_node: cmd_vel" on /diagnostics
 THROTTLE_S = WARN_THROTTLE_S
-
-# Best effort matches reliable and best-effort publishers alike (teleop, Nav2,
-# joystick drivers); only the newest command matters, so the queue is short.
-CMD_IN_QOS = qos(5, reliable=False)
 
 
 class CmdVelNode(Node):
@@ -65,7 +61,6 @@ class CmdVelNode(Node):
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._moving = False  # a command is being followed (for the timeout log)
         self._received = False
-        self._zero_stamp_warned = False
         self._type_checked_ns = 0
         self._guard = ParameterGuard(self, values, cmd_vel_settings, self._apply)
         self._init_diagnostics()
@@ -79,11 +74,7 @@ class CmdVelNode(Node):
         self._limited_pub: Any = None
         if s.publish_limited_velocity:
             self._make_limited_pub()
-        if s.enable_stamped_cmd_vel:
-            self._sub = self.create_subscription(
-                TwistStamped, "cmd_vel", self._on_twist_stamped, CMD_IN_QOS)
-        else:
-            self._sub = self.create_subscription(Twist, "cmd_vel", self._on_twist, CMD_IN_QOS)
+        self._input = CommandInput(self, "cmd_vel", s.enable_stamped_cmd_vel, self._accept)
         self._timer = self._make_timer(s.wheel_command_rate)
         g = s.geometry
         self._log.info(
@@ -118,32 +109,17 @@ class CmdVelNode(Node):
 
     # --- input ------------------------------------------------------------------
 
-    def _on_twist(self, msg: Twist) -> None:
-        self._accept(msg, None)
-
-    def _on_twist_stamped(self, msg: TwistStamped) -> None:
-        stamp_ns: int | None = stamp_to_ns(msg.header.stamp)
-        if stamp_ns == 0:
-            if not self._zero_stamp_warned:
-                self._zero_stamp_warned = True
-                self._log.warning(
-                    "cmd_vel header stamp is zero: taken as 'now' (this warning is shown "
-                    "once; stamp commands so that delayed ones can be recognised)")
-            stamp_ns = None
-        self._accept(msg.twist, stamp_ns)
-
-    def _accept(self, twist: Twist, stamp_ns: int | None) -> None:
+    def _accept(self, lin: Vector, ang: Vector, stamp_ns: int | None) -> None:
         self._received = True
-        lin, ang = twist.linear, twist.angular
         now_ns = self._steady.now().nanoseconds
-        refusal = self._pipeline.accept((lin.x, lin.y, lin.z), (ang.x, ang.y, ang.z), now_ns,
+        refusal = self._pipeline.accept(lin, ang, now_ns,
                                         self.get_clock().now().nanoseconds, stamp_ns)
         if refusal is not None:
             self._throttle.warning(refusal.reason, refusal.text)
             return
         self._accepted_ns = now_ns
         self._command_rate.add(now_ns * 1e-9)
-        self._last_moving = any(p != 0.0 for p in (lin.x, lin.y, lin.z, ang.x, ang.y, ang.z))
+        self._last_moving = any(p != 0.0 for p in (*lin, *ang))
 
     # --- output -----------------------------------------------------------------
 
@@ -219,17 +195,9 @@ class CmdVelNode(Node):
         if now_ns - self._type_checked_ns < 2_000_000_000:
             return
         self._type_checked_ns = now_ns
-        expected = ("geometry_msgs/msg/TwistStamped" if self._settings.enable_stamped_cmd_vel
-                    else "geometry_msgs/msg/Twist")
-        topic = self._sub.topic_name
-        for info in self.get_publishers_info_by_topic(topic):
-            if info.topic_type != expected:
-                self._log.warning(
-                    f"{topic} has a publisher of type {info.topic_type} but this node "
-                    f"expects {expected}: set enable_stamped_cmd_vel to "
-                    f"{str(expected.endswith('Twist')).lower()}",
-                    throttle_duration_sec=THROTTLE_S)
-                return
+        mismatch = self._input.type_mismatch()
+        if mismatch:
+            self._log.warning(mismatch, throttle_duration_sec=THROTTLE_S)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -3,7 +3,8 @@
 For stacks brought up by a lifecycle manager (Nav2's nav2_lifecycle_manager), which
 configures and activates nodes by name through lifecycle_msgs' ChangeState service.
 Same parameters, topics, QoS, frames, /diagnostics, reset service and ~/set_pose as
-``odometry_node``: both run :class:`diffdrive_odom.ros.odometry_node.OdometryEndpoints`.
+``odometry_node``: both run :class:`diffdrive_odom.ros.odometry_node.OdometryEndpoints`
+(or, with ``open_loop``, :class:`diffdrive_odom.ros.open_loop.OpenLoopEndpoints`).
 
 unconfigured: parameters declared, nothing else. configure: parameters validated (a
 bad one fails the transition with one line naming it), endpoints created; inactive:
@@ -14,17 +15,20 @@ activate (REP 105: odom never jumps). cleanup forgets the pose; shutdown from an
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lifecycle_msgs.srv import ChangeState
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
-from diffdrive_odom.ros.odometry_node import OdometryEndpoints
+from diffdrive_odom.ros.odometry_node import OdometryEndpoints, odometry_endpoints
 from diffdrive_odom.ros.parameters import declare, parameter_values
 from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS
+
+if TYPE_CHECKING:
+    from diffdrive_odom.ros.open_loop import OpenLoopEndpoints
 
 NODE_NAME = "odometry_lifecycle_node"
 
@@ -42,7 +46,7 @@ class OdometryLifecycleNode(LifecycleNode):
         declare(self, ODOMETRY_PARAMS, self._refused)
         self.add_post_set_parameters_callback(
             lambda params: [self._refused.pop(p.name, None) for p in params])
-        self._odometry: OdometryEndpoints | None = None
+        self._odometry: OdometryEndpoints | OpenLoopEndpoints | None = None
         service = self._service_change_state
         self._change_state = service.callback
         service.callback = self._on_change_state
@@ -68,7 +72,7 @@ class OdometryLifecycleNode(LifecycleNode):
         try:
             for err in self._refused.values():
                 raise err
-            self._odometry = OdometryEndpoints(
+            self._odometry = odometry_endpoints(
                 self, parameter_values(self, ODOMETRY_PARAMS))
         except ParameterError as err:
             self.get_logger().error(f"configure failed: {err}")

@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
@@ -47,6 +47,9 @@ from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.wire.imu import ImuFields, decode_imu
 from diffdrive_odom.wire.jointstate import JointArrays, JointStateDecoder
 from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
+
+if TYPE_CHECKING:
+    from diffdrive_odom.ros.open_loop import OpenLoopEndpoints
 
 NODE_NAME = "odometry_node"
 T = TypeVar("T")
@@ -297,12 +300,22 @@ IMU_FALLBACK = Fallback(msg_type=Imu, fields=_imu_fields, key="imu_undecodable",
                         a_type="an Imu")
 
 
+def odometry_endpoints(node: Node, values: dict[str, ParamValue]
+                       ) -> OdometryEndpoints | OpenLoopEndpoints:
+    """The endpoints the parameters ask for: from the encoders, or open loop (read-only)."""
+    if values.get("open_loop") is True:
+        from diffdrive_odom.ros.open_loop import OpenLoopEndpoints
+
+        return OpenLoopEndpoints(node, values)
+    return OdometryEndpoints(node, values)
+
+
 class OdometryNode(Node):
     """Publishes wheel odometry computed from encoder readings, from its start."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self.odometry = OdometryEndpoints(self, declare(self, ODOMETRY_PARAMS))
+        self.odometry = odometry_endpoints(self, declare(self, ODOMETRY_PARAMS))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -10,10 +10,11 @@ reason (WARN, throttled per reason).
 
 from __future__ import annotations
 
+from typing import Protocol
+
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.node import Node
 
-from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.estimation.setpose import PoseRefusal, PoseRequest
 from diffdrive_odom.ros.throttle import KeyedThrottle
 
@@ -28,10 +29,18 @@ def pose_request(msg: PoseWithCovarianceStamped) -> PoseRequest:
                        tuple(msg.pose.covariance))
 
 
+class PoseTaker(Protocol):
+    """What takes a set pose: the reading pipeline, or open loop's odometry."""
+
+    def set_pose(self, request: PoseRequest) -> str | PoseRefusal:
+        """The line naming the pose set (or held), or why it is refused."""
+        ...
+
+
 class SetPoseSubscription:
     """The ``~/set_pose`` subscription of one odometry node, feeding its pipeline."""
 
-    def __init__(self, node: Node, pipeline: ReadingPipeline, throttle: KeyedThrottle) -> None:
+    def __init__(self, node: Node, pipeline: PoseTaker, throttle: KeyedThrottle) -> None:
         self._node, self._pipeline, self._throttle = node, pipeline, throttle
         self._sub = node.create_subscription(PoseWithCovarianceStamped, TOPIC, self._on_pose, 10)
 

@@ -30,12 +30,12 @@ from diffdrive_odom.core.commands.limits import AxisLimits, CommandLimits, ddc_a
 from diffdrive_odom.core.estimation.encoders import EncoderConfig
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
 from diffdrive_odom.settings.geometry import (
+    CMD_VEL_TIMEOUT_PARAM,
     GEOMETRY_PARAMS,
     STAMPED_CMD_VEL_PARAM,
     build_geometry,
 )
 from diffdrive_odom.settings.params import (
-    NON_NEGATIVE,
     POSITIVE,
     ParamSpec,
     ParamValue,
@@ -98,9 +98,7 @@ CMD_VEL_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "Output on wheel_commands: float64_array (std_msgs/Float64MultiArray, rad/s), "
               "joint_state (sensor_msgs/JointState velocity, rad/s) or ticks_per_second "
               "(Float64MultiArray, encoder counts/s).", read_only=True),
-    ParamSpec("cmd_vel_timeout", "double", 0.5,
-              "Publish zeros when no valid command arrived for this long [s]; 0 = never.",
-              range=NON_NEGATIVE),
+    CMD_VEL_TIMEOUT_PARAM,
     ParamSpec("wheel_command_rate", "double", 50.0,
               "Rate of wheel_commands [Hz], steady whether or not commands arrive (> 0); "
               "not publish_rate, which is the odometry node's.",

@@ -84,3 +84,11 @@ STAMPED_CMD_VEL_PARAM = ParamSpec(
     "enable_stamped_cmd_vel", "bool", False,
     "Subscribe geometry_msgs/TwistStamped (true) or Twist (false) on cmd_vel "
     "(Nav2's name and Jazzy default).", read_only=True)
+
+# The command timeout: the cmd_vel node's watchdog and open-loop odometry (odometry_node
+# with open_loop) hold a command this long, so one row gives both the same value.
+CMD_VEL_TIMEOUT_PARAM = ParamSpec(
+    "cmd_vel_timeout", "double", 0.5,
+    "A command is followed for this long [s] unless another arrives, then velocity zero "
+    "(cmd_vel_node publishes zeros; odometry_node with open_loop integrates zero); "
+    "0 = never.", range=NON_NEGATIVE)

@@ -12,6 +12,11 @@ from typing import Any
 
 from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
 from diffdrive_odom.core.estimation.gyro import GyroConfig
+from diffdrive_odom.core.estimation.open_loop import (
+    DEFAULT_OPEN_LOOP_NOISE,
+    OPEN_LOOP_SOURCES,
+    OpenLoopConfig,
+)
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_K,
@@ -21,7 +26,13 @@ from diffdrive_odom.core.uncertainty.noise import (
     NoiseModel,
 )
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
-from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, build_encoders, build_geometry
+from diffdrive_odom.settings.geometry import (
+    CMD_VEL_TIMEOUT_PARAM,
+    GEOMETRY_PARAMS,
+    STAMPED_CMD_VEL_PARAM,
+    build_encoders,
+    build_geometry,
+)
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
     INF,
@@ -77,6 +88,23 @@ GYRO_PARAMS: tuple[ParamSpec, ...] = (
               "header: each Imu sample at its header stamp (the measurement time); "
               "receive_time: at the time it arrived on this node's clock (an IMU stamping "
               "on its own device clock), as stamp_source does for the wheels."),
+)
+
+OPEN_LOOP_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("open_loop", "bool", False,
+              "Odometry from the commanded velocity, not the encoders (a robot without "
+              "them, as diff_drive_controller's open_loop): joint_states is not read; "
+              "each command on open_loop_source is held until the next or cmd_vel_timeout.",
+              read_only=True),
+    ParamSpec("open_loop_source", "string", OPEN_LOOP_SOURCES[0],
+              "With open_loop: cmd_vel (the commands as cmd_vel_node takes them: Twist, or "
+              "TwistStamped with enable_stamped_cmd_vel) or cmd_vel_out (cmd_vel_node's "
+              "limited output, TwistStamped: publish_limited_velocity true).",
+              read_only=True),
+    ParamSpec("open_loop_noise", "double", DEFAULT_OPEN_LOOP_NOISE,
+              "With open_loop: relative 1-sigma of each wheel's executed travel against the "
+              "commanded one (and of the turn, through the separation); the pose covariance "
+              "grows with distance squared.", range=NON_NEGATIVE),
 )
 
 ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
@@ -139,11 +167,14 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "restart), else it is dropped (future_stamp); .inf = off.",
               range=POSITIVE_OR_INF),
     *GYRO_PARAMS,
+    *OPEN_LOOP_PARAMS,
 )
 
 
-# Everything the node declares: the shared geometry rows, then its own.
-ODOMETRY_PARAMS: tuple[ParamSpec, ...] = GEOMETRY_PARAMS + ODOMETRY_OWN_PARAMS
+# Everything the node declares: the shared geometry rows, then its own, then the command
+# rows it shares with cmd_vel_node (open_loop reads the commands as that node does).
+ODOMETRY_PARAMS: tuple[ParamSpec, ...] = (
+    GEOMETRY_PARAMS + ODOMETRY_OWN_PARAMS + (STAMPED_CMD_VEL_PARAM, CMD_VEL_TIMEOUT_PARAM))
 
 
 def _estimator_config(v: Mapping[str, Any]) -> EstimatorConfig:
@@ -215,22 +246,40 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
     base_frame = prefix + v["base_frame_id"].lstrip("/")
     if odom_frame == base_frame:
         raise ParameterError("base_frame_id", "must differ from odom_frame_id")
+    geometry, encoders, estimator = build_geometry(v), build_encoders(v), _estimator_config(v)
+    pose_diag = _covariance("pose_covariance_diagonal", v["pose_covariance_diagonal"])
+    twist_diag = _covariance("twist_covariance_diagonal", v["twist_covariance_diagonal"])
+    noise = _noise_model(v)
     return OdometrySettings(
-        geometry=build_geometry(v),
-        encoders=build_encoders(v),
-        estimator=_estimator_config(v),
+        geometry=geometry,
+        encoders=encoders,
+        estimator=estimator,
         odom_frame_id=odom_frame,
         base_frame_id=base_frame,
         enable_odom_tf=v["enable_odom_tf"],
         publish_rate=rate,
-        pose_covariance_diagonal=_covariance(
-            "pose_covariance_diagonal", v["pose_covariance_diagonal"]),
-        twist_covariance_diagonal=_covariance(
-            "twist_covariance_diagonal", v["twist_covariance_diagonal"]),
-        noise=_noise_model(v),
+        pose_covariance_diagonal=pose_diag,
+        twist_covariance_diagonal=twist_diag,
+        noise=noise,
         stamp_source=_stamp_source(v["stamp_source"]),
         gyro=_gyro_config(v),
+        open_loop=_open_loop_config(v, pose_diag, twist_diag),
     )
+
+
+def _open_loop_config(v: Mapping[str, Any], pose_diag: tuple[float, ...],
+                      twist_diag: tuple[float, ...]) -> OpenLoopConfig | None:
+    """The open-loop settings with ``open_loop`` true (checked even when false), else None."""
+    static = (pose_diag, twist_diag) if v["covariance_model"] == "static" else None
+    with as_parameter_error():
+        cfg = OpenLoopConfig(source=v["open_loop_source"], timeout=v["cmd_vel_timeout"],
+                             noise=v["open_loop_noise"],
+                             stamped_cmd_vel=v["enable_stamped_cmd_vel"], static=static)
+    if v["open_loop"] and v["use_imu"]:
+        raise ParameterError("use_imu", "cannot be true with open_loop: open loop integrates "
+                             "commands, not wheel readings, so there is no wheel heading for "
+                             "the gyro to aid; set one of them false")
+    return cfg if v["open_loop"] else None
 
 
 def _gyro_config(v: Mapping[str, Any]) -> GyroConfig | None:

@@ -86,7 +86,6 @@ def config_groups() -> tuple[tuple[str, tuple[ParamSpec, ...]], ...]:
 # diff_drive_controller parameters that have no meaning for these nodes: a ddc file
 # is welcome, these are named once at start as ignored instead of warned about.
 DDC_IGNORED: tuple[str, ...] = (
-    "open_loop",  # odometry here always comes from the encoders (joint_states)
     "position_feedback",  # positions are used when present, else velocities
     "wheels_per_side",  # the wheel name lists say it
     "use_stamped_vel",  # Humble's name; enable_stamped_cmd_vel selects the type here

@@ -219,6 +219,10 @@ def main(argv: Sequence[str]) -> int:
     settings = settings_from_args(args)
     if isinstance(settings, str):
         return _error(settings)
+    if settings.open_loop is not None:
+        return _error("open_loop is true: calibrate fits the wheel geometry to encoder "
+                      "readings (joint_states), which open loop does not read; set "
+                      "open_loop:=false for the calibration")
     from diffdrive_odom.tools import bagio
 
     try:

@@ -296,8 +296,11 @@ def run_bag(args: argparse.Namespace) -> int:
 
     ref_bag = args.reference_bag or args.bag
     try:
-        est = read_trajectory(args.bag, args.odom, args.odom_child_frame,
-                              "--odom-child-frame", notify)
+        try:
+            est = read_trajectory(args.bag, args.odom, args.odom_child_frame,
+                                  "--odom-child-frame", notify)
+        except bagio.BagError as err:
+            raise bagio.BagError(f"{err}{_commands_only_hint(args.bag)}") from None
         exclude = [args.odom] if ref_bag == args.bag else []
         try:
             gt = reference_topic(ref_bag, args.ground_truth, exclude, notify)
@@ -316,6 +319,19 @@ def run_bag(args: argparse.Namespace) -> int:
     except OSError as err:  # the output vanished or filled up after the check
         return fail(PREFIX, f"cannot write: {err}")
     return 0
+
+
+def _commands_only_hint(bag: str | Path) -> str:
+    """For a bag without odometry but with velocity commands: how to judge them (open loop)."""
+    from diffdrive_odom.tools import bagcommands, bagio
+
+    with bagio.open_bag(bag) as reader:
+        topics = bagcommands.command_topics(reader)
+    if not topics:
+        return ""
+    return (f". It holds velocity commands ({', '.join(topics)}): integrate them in open loop "
+            f"and judge that: diffdrive-odom replay {bag} --params-file ROBOT.yaml -p "
+            "open_loop:=true --eval (--cmd-topic TOPIC)")
 
 
 if __name__ == "__main__":

@@ -89,6 +89,7 @@ class ReplayStats:
     final_stamp_ns: int | None = None
     seconds: float = 0.0
     pipeline: PipelineStats = field(default_factory=PipelineStats)
+    unit: str = "readings"  # what was fed: wheel readings, or (open loop) commands
 
     @property
     def usable(self) -> bool:
@@ -101,8 +102,8 @@ class ReplayStats:
         rate = self.readings / self.seconds if self.seconds > 0 else float("inf")
         counts = ", ".join(f"{k} {v}" for k, v in sorted(self.statuses.items()))
         return (
-            f"{self.readings} readings ({counts}) -> {self.published} poses in "
-            f"{self.seconds:.2f} s ({rate:,.0f} readings/s); final pose x={p.x:.6f} m "
+            f"{self.readings} {self.unit} ({counts}) -> {self.published} poses in "
+            f"{self.seconds:.2f} s ({rate:,.0f} {self.unit}/s); final pose x={p.x:.6f} m "
             f"y={p.y:.6f} m yaw={p.theta:.6f} rad"
         ) + self._gyro_summary()
 
@@ -219,6 +220,10 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bag")
     ap.add_argument("--imu-topic", default="/imu",
                     help="Imu topic in the bag, read when the parameters set use_imu")
+    ap.add_argument("--cmd-topic", default=None, metavar="TOPIC",
+                    help="Twist/TwistStamped topic in the bag, read when the parameters set "
+                    "open_loop (default: /cmd_vel, or /cmd_vel_out with open_loop_source "
+                    "cmd_vel_out)")
     ap.add_argument("-o", "--output", metavar="OUT_BAG",
                     help="output rosbag2 directory, must not exist (default: none)")
     ap.add_argument("--storage", choices=STORAGES, default="mcap",
@@ -328,7 +333,7 @@ def run_bag(args: argparse.Namespace) -> int:
         return 130
     if not stats.usable:
         _remove_outputs(args)
-        return _error(_no_usable_reading(stats, args.topic))
+        return _error(_no_usable_reading(stats, args.cmd_topic or args.topic))
     print(stats.summary())
     gyro = stats.pipeline.gyro
     fleet.record(args, readings=stats.readings, poses=stats.published,
@@ -399,6 +404,11 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
                 writer.add_topic(args.tf_topic, bagio.TF_MESSAGE)
             if args.keep_input:
                 passthrough = sinks.keep_input(reader, writer, args.odom_topic)
+        if settings.open_loop is not None:  # commands, not wheel readings
+            from diffdrive_odom.tools import openloop_replay
+
+            return openloop_replay.replay_bag(reader, settings, args, traj, writer, csv_out,
+                                              passthrough), traj
         jump = int(settings.estimator.time_jump_threshold * 1e9)
         readings: Iterable[JointReading | bagreadings.ImuSample | JointBlock]
         if settings.takes_bulk and passthrough is None:  # runs of alike messages at once

@@ -38,7 +38,7 @@ FQN = "/diffbot_base_controller"
 R, B = 0.04, 0.24
 R_LEFT, R_RIGHT, SEP = R * 0.99, R * 1.01, B * 1.02
 IGNORED = "diff_drive_controller parameters with no meaning here (ignored): " \
-          "open_loop, position_feedback, use_stamped_vel"
+          "position_feedback, use_stamped_vel"
 
 
 def report_lines(out: str) -> tuple[list[str], list[str]]:

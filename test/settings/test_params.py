@@ -213,7 +213,8 @@ def names(specs: tuple[ParamSpec, ...]) -> list[str]:
 def all_package_params() -> tuple[ParamSpec, ...]:
     """Every node's rows in the shipped file's order, a name shared by nodes once."""
     first: dict[str, ParamSpec] = {}
-    for spec in ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS + SIM_PARAMS + FOLLOWER_OWN_PARAMS:
+    for spec in (GEOMETRY_PARAMS + ODOMETRY_OWN_PARAMS + CMD_VEL_OWN_PARAMS + SIM_PARAMS
+                 + FOLLOWER_OWN_PARAMS):
         first.setdefault(spec.name, spec)
     return tuple(first.values())
 
@@ -252,8 +253,14 @@ def test_config_file_applies_under_any_name_and_namespace(node: str, namespace: 
 
 def test_no_two_nodes_share_a_name_with_different_meanings() -> None:
     """One /** section feeds every node: only the geometry rows may be shared (and the
-    follower's enable_stamped_cmd_vel, the cmd_vel node's own row: same topic, same type)."""
+    follower's enable_stamped_cmd_vel, the cmd_vel node's own row: same topic, same type;
+    the odometry node's open loop reads cmd_vel as the cmd_vel node does: its type and
+    cmd_vel_timeout)."""
     assert not set(names(ODOMETRY_OWN_PARAMS)) & set(names(CMD_VEL_OWN_PARAMS))
+    cmd_rows = {s.name: s for s in CMD_VEL_OWN_PARAMS}
+    odometry_cmd = [s for s in ODOMETRY_PARAMS if s.name in cmd_rows]
+    assert names(tuple(odometry_cmd)) == ["enable_stamped_cmd_vel", "cmd_vel_timeout"]
+    assert all(cmd_rows[s.name] is s for s in odometry_cmd)  # the very same spec
     assert "wheel_command_rate" in names(CMD_VEL_OWN_PARAMS)
     own = set(names(FOLLOWER_OWN_PARAMS))
     assert all(n.startswith("follower.") for n in own)
@@ -404,11 +411,12 @@ def test_unknown_names_get_the_closest_real_one() -> None:
     warning, info = unknown_parameters_report(
         ["wheel_radius", "wheel_seperation_multiplier", "wheel_radious", "publish_rate",
          "wheel_command_rate", "use_sim_time", "qos_overrides./tf.publisher.depth",
-         "open_loop", "position_feedback"])
+         "use_stamped_vel", "position_feedback"])
     assert warning is not None and "\n" not in warning
     assert "wheel_seperation_multiplier (did you mean wheel_separation_multiplier?)" in warning
     assert "wheel_radious (did you mean wheel_radius?)" in warning
     for known in ("publish_rate", "wheel_command_rate", "use_sim_time", "qos_overrides"):
         assert known not in warning
-    assert info is not None and "open_loop" in info and "position_feedback" in info
+    assert info is not None and "use_stamped_vel" in info and "position_feedback" in info
+    assert "open_loop" not in info  # a parameter of odometry_node now (open-loop odometry)
     assert unknown_parameters_report(["wheel_radius", "publish_rate"]) == (None, None)

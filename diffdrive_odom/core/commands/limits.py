@@ -1,4 +1,4 @@
-"""Velocity / acceleration / jerk limiting of body commands, and the command watchdog.
+"""Velocity / acceleration / jerk limiting of body commands (the watchdog: ``core.watchdog``).
 
 Pure Python (no rclpy): the cmd_vel node, the simulator and the tests share it.
 
@@ -41,15 +41,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Generic, TypeVar
 
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.geometry.kinematics import Geometry, scale_to_wheel_limit, wheel_rates
+from diffdrive_odom.core.watchdog import Held as Held
+from diffdrive_odom.core.watchdog import Watchdog as Watchdog
 
 NAN = math.nan
 INF = math.inf
 
-C = TypeVar("C")
 
 # Why a step's output differs from its target, as LimitedCommand.limited names it.
 LIMIT_REASONS = ("velocity", "acceleration", "jerk", "wheel_saturation")
@@ -330,50 +330,3 @@ class TwistLimiter:
         if scale != 1.0:
             v, w = v * scale, w * scale  # the IK is linear: the twist these wheels give
         return v, w, left, right, scale
-
-
-@dataclass(frozen=True)
-class Held(Generic[C]):
-    """A command with its arrival time (steady clock) and its own stamp (ROS time) if any."""
-
-    command: C
-    arrival_ns: int
-    stamp_ns: int | None
-
-
-class Watchdog(Generic[C]):
-    """Holds the latest valid command until it is ``timeout`` old; ``timeout`` 0 = forever.
-
-    Age counts from the arrival on a steady clock (immune to /clock pauses and jumps)
-    and, for stamped commands, also from the stamp in ROS time, so a command delayed
-    in transit expires no later than its sender intended.
-    """
-
-    def __init__(self, timeout_s: float) -> None:
-        self.timeout_ns = round(timeout_s * 1e9)
-        self._held: Held[C] | None = None
-
-    def is_stale(self, stamp_ns: int, ros_now_ns: int) -> bool:
-        """Tell whether a stamped command is older than the timeout already on arrival."""
-        return self.timeout_ns > 0 and ros_now_ns - stamp_ns > self.timeout_ns
-
-    def accept(self, command: C, arrival_ns: int, stamp_ns: int | None = None) -> None:
-        """Take ``command`` as the one to follow from now on."""
-        self._held = Held(command, arrival_ns, stamp_ns)
-
-    def clear(self) -> None:
-        """Drop the held command (stop)."""
-        self._held = None
-
-    def current(self, steady_now_ns: int, ros_now_ns: int) -> C | None:
-        """Return the command to follow now, or None once it timed out (it stays dropped)."""
-        held = self._held
-        if held is None:
-            return None
-        if self.timeout_ns > 0 and (
-            steady_now_ns - held.arrival_ns > self.timeout_ns
-            or (held.stamp_ns is not None and ros_now_ns - held.stamp_ns > self.timeout_ns)
-        ):
-            self._held = None
-            return None
-        return held.command

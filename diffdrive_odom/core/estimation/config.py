@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.encoders import EncoderConfig
 from diffdrive_odom.core.estimation.gyro import GyroConfig
+from diffdrive_odom.core.estimation.open_loop import OpenLoopConfig
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
@@ -77,6 +78,7 @@ class OdometrySettings:
     noise: NoiseModel | None  # None: covariance_model static (the diagonals above)
     stamp_source: StampSource = StampSource.HEADER
     gyro: GyroConfig | None = None  # use_imu false: None (wheels only, as before)
+    open_loop: OpenLoopConfig | None = None  # open_loop true: from commands, not encoders
 
     @property
     def takes_bulk(self) -> bool:

@@ -1,0 +1,298 @@
+"""odometry_node with ``open_loop: true`` over real DDS: fed velocity commands, odometry checked.
+
+The node runs as its own process; a peer publishes Twist on ``cmd_vel`` and listens to
+``odom``, ``/tf`` and ``/diagnostics``. A constant command (v, w) is a circle of radius
+v / w through the origin: every published pose must lie on it whatever the arrival times
+(closed form, independent of the transport's jitter); how far along it the robot got
+depends on when the commands arrived and stopped (the node's clock), checked against the
+sender's own clock within the transport's delay.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from pathlib import Path
+
+import pytest
+from geometry_msgs.msg import Twist, TwistStamped
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import JointState
+from tf2_msgs.msg import TFMessage
+
+import oracle
+from diagutil import Peer, diagnosed
+from rosutil import (
+    DATA,
+    node_parameters,
+    node_process,
+    ros_test_node,
+    spin_for,
+    spin_until,
+    yaw,
+)
+
+pytestmark = [pytest.mark.dds, pytest.mark.process]
+
+GEOMETRY = ["-p", "wheel_radius:=0.05", "-p", "wheel_separation:=0.3"]
+OPEN_LOOP = [*GEOMETRY, "-p", "open_loop:=true", "-p", "publish_rate:=40.0"]
+V, W = 0.2, 0.5  # m/s, rad/s: a circle of radius 0.4 m
+OK = 0
+DELAY = 0.05  # s: the transport's delay on a loaded two-core machine, with margin
+
+
+def drive(peer: Peer, pub: object, seconds: float, rate: float = 20.0) -> tuple[float, float]:
+    """Publish (V, W) at ``rate`` for ``seconds``; the first and last send times (monotonic)."""
+    msg = Twist()
+    msg.linear.x, msg.angular.z = V, W
+    first = last = time.monotonic()
+    while last - first < seconds:
+        last = time.monotonic()
+        pub.publish(msg)  # type: ignore[attr-defined]
+        spin_for(peer.executor, 1.0 / rate)
+    return first, last
+
+
+def on_circle(o: Odometry, radius: float) -> float:
+    """Distance of a pose from the circle through the origin, centre (0, radius)."""
+    p = o.pose.pose.position
+    return abs(math.hypot(p.x, p.y - radius) - radius)
+
+
+def test_commands_are_integrated_on_the_commanded_circle_and_stop_at_the_timeout() -> None:
+    odom: list[Odometry] = []
+    tf: list[TFMessage] = []
+    with diagnosed("odometry_node", OPEN_LOOP) as peer:
+        node = peer.node
+        node.create_subscription(Odometry, "odom", odom.append, 100)
+        node.create_subscription(TFMessage, "/tf", tf.append, 100)
+        pub = node.create_publisher(Twist, "cmd_vel", 10)
+        assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0
+                          and len(odom) > 3, 20.0)
+        assert node.count_subscribers("/joint_states") == 0  # a fixed switch, no fallback
+        at_rest = peer.wait_for(lambda s: s.values.get("commands") == "0", 10.0)
+        first, last = drive(peer, pub, 2.0)
+        n_moving = len(odom)
+        spin_for(peer.executor, 1.5)  # past cmd_vel_timeout (0.5 s)
+        after = peer.wait_for(lambda s: s.values.get("commanding") == "false"
+                              and s.values.get("commands") != "0", 10.0)
+    assert at_rest.level == OK and at_rest.message.startswith("open loop")
+    assert "waiting for the first command" in at_rest.message
+    assert after.level == OK and after.message.startswith("open loop"), after.message
+    assert "no command for cmd_vel_timeout" in after.message
+    assert after.values["mode"] == "open loop"
+    radius = V / W
+    assert max(on_circle(o, radius) for o in odom) < 1e-9
+    end = odom[-1]
+    held = (last - first) + 0.5  # the last command is followed for cmd_vel_timeout
+    want = oracle.arc(V * held, W * held)
+    assert abs(math.remainder(yaw(end.pose.pose.orientation) - want[2], math.tau)) \
+        < W * DELAY
+    assert math.hypot(end.pose.pose.position.x - want[0],
+                      end.pose.pose.position.y - want[1]) < V * DELAY
+    # At rest after the timeout: zero twist, the pose still published (TF stays fresh).
+    assert end.twist.twist.linear.x == 0.0 and end.twist.twist.angular.z == 0.0
+    assert len(odom) > n_moving + 20
+    moving = [o for o in odom if o.twist.twist.linear.x != 0.0]
+    assert moving and all(o.twist.twist.linear.x == V and o.twist.twist.angular.z == W
+                          for o in moving)
+    # A command is not a measurement: the heading's variance grows fast with the turn.
+    assert end.pose.covariance[35] > 0.01
+    assert moving[-1].twist.covariance[0] > 0.0
+    assert (end.header.frame_id, end.child_frame_id) == ("odom", "base_link")
+    assert tf and tf[-1].transforms[0].child_frame_id == "base_link"
+
+
+def test_the_shipped_ddc_yaml_with_open_loop_true(tmp_path: Path) -> None:
+    """diff_drive_controller's file with ``open_loop: true``: no longer ignored, and its
+    ``cmd_vel_timeout`` (0.8 s) is the one the odometry holds a command for."""
+    text = (DATA / "diffbot_controllers.yaml").read_text(encoding="utf-8")
+    assert "open_loop: false" in text
+    path = tmp_path / "diffbot_open_loop.yaml"
+    path.write_text(text.replace("open_loop: false", "open_loop: true"), encoding="utf-8")
+    # covariance_model static: the file's diagonals, as diff_drive_controller publishes them.
+    args = ["--params-file", str(path), "-r", "__node:=diffbot_base_controller",
+            "-p", "covariance_model:=static"]
+    odom: list[Odometry] = []
+    with diagnosed("odometry_node", args) as peer:
+        node = peer.node
+        got = node_parameters(node, peer.executor, "/diffbot_base_controller",
+                              ["open_loop", "cmd_vel_timeout", "publish_rate"])
+        assert got == {"open_loop": True, "cmd_vel_timeout": 0.8, "publish_rate": 25.0}
+        node.create_subscription(Odometry, "/odom", odom.append, 100)
+        pub = node.create_publisher(Twist, "/cmd_vel", 10)
+        js = node.create_publisher(JointState, "/joint_states", 10)
+        assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0
+                          and bool(odom), 20.0)
+        msg = Twist()
+        msg.linear.x = 0.3
+        start = time.monotonic()
+        pub.publish(msg)  # one command, then silence: 0.8 s of 0.3 m/s
+        while time.monotonic() - start < 2.0:
+            js.publish(JointState(name=["wheel_l_joint", "wheel_r_joint"],
+                                  position=[5.0, 9.0]))  # ignored: open loop
+            spin_for(peer.executor, 0.05)
+        status = peer.wait_for(lambda s: s.values.get("commands") == "1", 10.0)
+    end = odom[-1]
+    assert status.message.startswith("open loop")
+    assert (end.header.frame_id, end.child_frame_id) == ("odom", "base_footprint")
+    assert end.pose.pose.position.x == pytest.approx(0.3 * 0.8, abs=0.3 * DELAY)
+    assert abs(end.pose.pose.position.y) < 1e-12
+    assert list(end.pose.covariance[::7]) == [0.002] * 5 + [0.02]
+    assert list(end.twist.covariance[::7]) == [0.003] * 5 + [0.03]
+
+
+def test_from_the_cmd_vel_nodes_limited_output() -> None:
+    """``open_loop_source: cmd_vel_out``: what cmd_vel_node really asked the wheels for
+    (ramped at linear.x.max_acceleration), not the raw command."""
+    limits = [*GEOMETRY, "-p", "publish_limited_velocity:=true",
+              "-p", "linear.x.max_acceleration:=0.5"]
+    odom: list[Odometry] = []
+    limited: list[tuple[float, float]] = []  # (receive time, linear.x)
+    args = [*OPEN_LOOP, "-p", "open_loop_source:=cmd_vel_out"]
+    with node_process("cmd_vel_node", ["--ros-args", *limits]) as base, \
+            diagnosed("odometry_node", args) as peer:
+        node = peer.node
+        node.create_subscription(Odometry, "odom", odom.append, 100)
+        node.create_subscription(
+            TwistStamped, "cmd_vel_out",
+            lambda m: limited.append((time.monotonic(), m.twist.linear.x)), 100)
+        pub = node.create_publisher(Twist, "cmd_vel", 10)
+        assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0
+                          and bool(odom) and bool(limited), 20.0)
+        status = peer.wait_for(lambda s: "/cmd_vel_out" in s.message, 10.0)
+        msg = Twist()
+        msg.linear.x = 0.4
+        start = time.monotonic()
+        while time.monotonic() - start < 2.0:
+            pub.publish(msg)
+            spin_for(peer.executor, 0.05)
+        spin_for(peer.executor, 2.5)  # cmd_vel_node's timeout, its ramp down, ours
+        assert base.poll() is None
+    assert status.message.startswith("open loop")
+    speeds = [o.twist.twist.linear.x for o in odom]
+    assert max(speeds) == pytest.approx(0.4, abs=1e-12)
+    ramp = [v for v in speeds if 0.0 < v < 0.4]
+    assert len(ramp) > 10  # 0.8 s of acceleration at 40 Hz: the limited twist, not 0.4 at once
+    # The distance is the integral of the limited twist over its arrivals (the sender's
+    # 50 Hz heartbeat), as the test received it: within the transport's delay.
+    distance = sum(v * (t1 - t0) for (t0, v), (t1, _) in itertools.pairwise(limited))
+    assert odom[-1].pose.pose.position.x == pytest.approx(distance, abs=0.4 * DELAY)
+    assert odom[-1].twist.twist.linear.x == 0.0
+
+
+def test_the_managed_node_runs_open_loop_while_active() -> None:
+    """odometry_lifecycle_node takes open_loop too: nothing before activate, then the
+    commanded straight line (commands while inactive are integrated, as readings are)."""
+    from lifecycle_msgs.msg import Transition
+    from test_odometry_lifecycle_node import Manager
+
+    odom: list[Odometry] = []
+    args = ["--ros-args", *OPEN_LOOP, "-p", "cmd_vel_timeout:=0.0"]
+    with node_process("odometry_lifecycle_node", args) as proc, \
+            ros_test_node() as (node, ex):
+        node.create_subscription(Odometry, "/odom", odom.append, 100)
+        pub = node.create_publisher(Twist, "/cmd_vel", 10)
+        manager = Manager(node, ex)
+        assert manager.change(Transition.TRANSITION_CONFIGURE)
+        assert spin_until(ex, lambda: pub.get_subscription_count() > 0, 20.0)
+        msg = Twist()
+        msg.linear.x = 0.2
+        pub.publish(msg)  # inactive: integrated, not published (held: no timeout)
+        spin_for(ex, 1.0)
+        assert not odom
+        assert manager.change(Transition.TRANSITION_ACTIVATE)
+        assert spin_until(ex, lambda: len(odom) > 10, 20.0)
+        assert proc.poll() is None
+    first = odom[0].pose.pose.position.x
+    assert first > 0.2 * 0.5  # the command sent while inactive moved it already
+    assert all(o.pose.pose.position.y == 0.0 for o in odom)
+    xs = [o.pose.pose.position.x for o in odom]
+    assert xs == sorted(xs) and all(o.twist.twist.linear.x == 0.2 for o in odom)
+
+
+def test_commands_of_the_other_type_are_named() -> None:
+    """A TwistStamped sender while the node takes Twist: nothing can arrive, and it says so."""
+    with node_process("odometry_node", ["--ros-args", *OPEN_LOOP]) as proc, \
+            ros_test_node() as (node, ex):
+        pub = node.create_publisher(TwistStamped, "/cmd_vel", 10)
+        odom: list[Odometry] = []
+        node.create_subscription(Odometry, "/odom", odom.append, 10)
+        assert spin_until(ex, lambda: bool(odom), 20.0)
+        for _ in range(40):
+            pub.publish(TwistStamped())
+            spin_for(ex, 0.1)
+        assert proc.poll() is None
+    out = proc.stdout.read() if proc.stdout else ""
+    assert ("/cmd_vel has a publisher of type geometry_msgs/msg/TwistStamped but this node "
+            "expects geometry_msgs/msg/Twist: set enable_stamped_cmd_vel to true") in out, out
+    assert "open loop: odometry from the commanded velocity on /cmd_vel (Twist)" in out
+
+
+def test_on_simulated_time_the_pose_is_the_closed_form() -> None:
+    """use_sim_time: the test owns /clock, so each command's arrival time is known exactly
+    and the published poses are the commanded arcs to rounding, over DDS."""
+    from rosgraph_msgs.msg import Clock
+
+    from rosutil import stamp
+
+    odom: list[Odometry] = []
+    args = ["--ros-args", *OPEN_LOOP, "-p", "use_sim_time:=true", "-p", "cmd_vel_timeout:=0.5"]
+    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
+        clock = node.create_publisher(Clock, "/clock", 10)
+        node.create_subscription(Odometry, "/odom", odom.append, 100)
+        pub = node.create_publisher(Twist, "/cmd_vel", 10)
+        t0 = 100 * 10**9
+
+        def tick(t_ns: int) -> None:
+            clock.publish(Clock(clock=stamp(t_ns)))
+            spin_for(ex, 0.3)  # the node has it before anything else is sent
+
+        assert spin_until(ex, lambda: clock.get_subscription_count() > 0
+                          and pub.get_subscription_count() > 0, 20.0)
+        for _ in range(100):  # until the node has the clock: a pose stamped t0
+            tick(t0)
+            if any(o.header.stamp.sec == 100 for o in odom):
+                break
+        assert odom, "no odometry on simulated time"
+        msg = Twist()
+        msg.linear.x, msg.angular.z = V, W
+        pub.publish(msg)  # arrives at t0 on the node's clock
+        spin_for(ex, 0.3)
+        tick(t0 + 300_000_000)  # the command is followed ...
+        tick(t0 + 2 * 10**9)  # ... until its timeout at t0 + 0.5 s, then at rest
+        tick(t0 + 2 * 10**9 + 100_000_000)
+        assert proc.poll() is None
+    stamps = {o.header.stamp.sec * 10**9 + o.header.stamp.nanosec: o for o in odom}
+    for t_ns, held in ((t0 + 300_000_000, 0.3), (t0 + 2 * 10**9, 0.5)):
+        o = stamps[t_ns]
+        x, y, th = oracle.arc(V * held, W * held)
+        p = o.pose.pose
+        assert abs(p.position.x - x) < 1e-12 and abs(p.position.y - y) < 1e-12, (t_ns, p)
+        assert abs(math.remainder(yaw(p.orientation) - th, math.tau)) < 1e-12
+    assert stamps[t0 + 300_000_000].twist.twist.linear.x == V
+    assert stamps[t0 + 2 * 10**9].twist.twist.linear.x == 0.0
+
+
+def test_set_pose_in_open_loop() -> None:
+    """~/set_pose works in open loop as with encoders: stamped zero, the pose now."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    odom: list[Odometry] = []
+    with node_process("odometry_node", ["--ros-args", *OPEN_LOOP]) as proc, \
+            ros_test_node() as (node, ex):
+        node.create_subscription(Odometry, "/odom", odom.append, 100)
+        pub = node.create_publisher(PoseWithCovarianceStamped, "/odometry_node/set_pose", 10)
+        assert spin_until(ex, lambda: pub.get_subscription_count() > 0 and bool(odom), 20.0)
+        msg = PoseWithCovarianceStamped()
+        msg.header.frame_id = "odom"
+        msg.pose.pose.position.x, msg.pose.pose.position.y = 1.5, -2.0
+        msg.pose.pose.orientation.w = 1.0
+        msg.pose.covariance[0] = msg.pose.covariance[7] = msg.pose.covariance[35] = 0.04
+        pub.publish(msg)
+        assert spin_until(ex, lambda: odom[-1].pose.pose.position.x == 1.5, 10.0)
+        assert proc.poll() is None
+    last = odom[-1]
+    assert (last.pose.pose.position.x, last.pose.pose.position.y) == (1.5, -2.0)
+    assert last.pose.covariance[0] == pytest.approx(0.04, rel=1e-6)
