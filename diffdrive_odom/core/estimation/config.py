@@ -16,9 +16,13 @@ from dataclasses import dataclass
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.encoders import EncoderConfig
 from diffdrive_odom.core.estimation.gyro import GyroConfig
+from diffdrive_odom.core.estimation.online_geometry import OnlineConfig
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
+
+ONLINE_NEEDS_IMU = ("online_calibration is monitor but use_imu is false: online "
+                    "calibration disabled (it needs the gyro)")
 
 
 class EstimatorConfigError(ConfigError):
@@ -77,6 +81,13 @@ class OdometrySettings:
     noise: NoiseModel | None  # None: covariance_model static (the diagonals above)
     stamp_source: StampSource = StampSource.HEADER
     gyro: GyroConfig | None = None  # use_imu false: None (wheels only, as before)
+    # online_calibration: monitor (None: disabled; without use_imu it does nothing).
+    online: OnlineConfig | None = None
+
+    @property
+    def online_note(self) -> str:
+        """Why online calibration does nothing though asked for ('' when it runs or is off)."""
+        return ONLINE_NEEDS_IMU if self.online is not None and self.gyro is None else ""
 
     @property
     def takes_bulk(self) -> bool:
