@@ -185,7 +185,6 @@ class OnlineGeometry:
         self.distance = 0.0
         self._updated_ns: int | None = None
         self._warned_ns: int | None = None
-        self._outside = False
         self._warning = ""
         # (stamp, estimate) after updates, thinned to at most TRACE_MAX: replay prints it.
         self.trace: list[tuple[int, OnlineEstimate]] = []
@@ -290,18 +289,15 @@ class OnlineGeometry:
                 self.trace = self.trace[::2]
                 self._trace_every *= 2
         if not est.outside:
-            self._outside = False
             return
-        last = self._warned_ns
-        if (not self._outside or last is None
-                or stamp_ns - last >= WARN_INTERVAL_S * 1e9):
+        last = self._warned_ns  # throttled whether or not it came back inside meanwhile
+        if last is None or stamp_ns - last >= WARN_INTERVAL_S * 1e9:
             self._warned_ns = stamp_ns
             self._warning = (
                 "online calibration: the configured geometry is outside the estimate's "
                 f"3-sigma region (Mahalanobis d^2 {est.mahalanobis2:.1f} > "
                 f"{CHI2_2DOF_3SIGMA:.2f}): the robot changed, recalibrate; estimate: "
                 + est.line())
-        self._outside = True
 
     def take_warning(self) -> str:
         """The warning due (once, then throttled), '' if none; taking it clears it."""

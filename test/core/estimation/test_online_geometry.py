@@ -184,3 +184,8 @@ def test_settings_modes() -> None:
     off = ReadingPipeline(odometry_settings({**base, "use_imu": True,
                                              "online_calibration": "disabled"}))
     assert off.stats.online is None and off.settings.online_note == ""
+    # At runtime: monitor -> disabled -> monitor (a fresh estimate), the gyro carries on.
+    gyro.reconfigure(off.settings)
+    assert gyro.stats.online is None and gyro.gyro is not None and gyro.gyro.observer is None
+    gyro.reconfigure(odometry_settings({**base, "use_imu": True}))
+    assert gyro.stats.online is not None and gyro.gyro.observer is not None
