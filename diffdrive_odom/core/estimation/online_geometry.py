@@ -112,7 +112,7 @@ class OnlineEstimate:
     ``stddevs`` their 1-sigma; ``mahalanobis2``: the configured geometry's squared
     distance from the estimate over the two ratios; ``outside``: determined and beyond
     :data:`CHI2_2DOF_3SIGMA`. ``turned``: radians turned (left, right) over counted
-    windows; ``steps``: steps counted; ``excluded``: by reason (:data:`EXCLUDED`).
+    windows; ``steps``: moving steps counted; ``excluded``: by reason (:data:`EXCLUDED`).
     """
 
     determined: bool
@@ -195,7 +195,7 @@ class OnlineGeometry:
         self._w0: int | None = None
         self._w1: int | None = None
         self._sum = [0.0, 0.0, 0.0, 0.0, 0.0]  # phi_R, phi_L, gyro angle, var_R, var_L
-        self._n = 0
+        self._n = 0  # steps in it, standing ones not counted
         self._dist = 0.0
         self._rates = (0.0, 0.0)  # the turn rate of its first and of its last step
 
@@ -229,9 +229,10 @@ class OnlineGeometry:
         s[3] += noise.k_right * abs(phi_r) / geometry.right_radius
         s[4] += noise.k_left * abs(phi_l) / geometry.left_radius
         self._dist += 0.5 * abs(arcs[0] + arcs[1])
-        self._n += 1
         if standing:
             self.excluded["standstill"] += 1
+        else:
+            self._n += 1
         if (t1 - self._w0) * 1e-9 >= WINDOW_S:
             self._flush()
 
