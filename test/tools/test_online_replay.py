@@ -17,7 +17,8 @@ from gyrostreams import ISSUE_ROUTE, TIMINGS, B, R, Route, stream, truth
 
 from diffdrive_odom.tools.cli import main as cli
 
-from bagutil import write_params, write_sensor_bag
+from bagutil import TB3_PARAMS, write_params, write_sensor_bag
+from rosutil import DATA
 
 TRUE = (R, R * 1.005, B * 1.01)
 MIXED = Route(ISSUE_ROUTE.segments * 2)
@@ -63,3 +64,20 @@ def test_replay_says_when_not_determined_and_needs_the_gyro(
     assert "_multiplier:" not in out
     code, _, err = _replay(tmp_path, capsys, straight)  # use_imu false
     assert code != 0 and "--online-calibration needs the gyro" in err
+
+
+def test_replay_of_the_turtlebot3_bag_excludes_its_slips_and_warns_throttled(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Recorded (Gazebo) data whose wheels slip: the estimate is determined, the slipping
+    steps are left out, and the warning, whose d^2 crosses 11.83 back and forth early
+    on, is said once and then once a minute at most (the bag is 100 s long)."""
+    bag = DATA / "turtlebot3_sim" / "turtlebot3.bag"
+    params = write_params(tmp_path / "p.yaml", {**TB3_PARAMS, "use_imu": True})
+    code = cli(["replay", str(bag), "--params-file", str(params), "--online-calibration"])
+    said = capsys.readouterr()
+    assert code == 0, said.err
+    final = next(line for line in said.out.splitlines() if "final:" in line)
+    assert final.endswith(": determined")
+    slips = int(re.search(r"excluded: .*slip (\d+)", said.out).group(1))  # type: ignore[union-attr]
+    assert slips > 100
+    assert 1 <= said.err.count("online calibration: the configured geometry") <= 2
