@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import math
 import random
+import statistics
 import time
 from dataclasses import dataclass
 
@@ -168,11 +169,18 @@ def cpu(seconds: float) -> None:
     imu = [(T0 + k * 1_000_000, "i", 0.0, 0.0) for k in range(n)]
     both = sorted(joints + imu)
     _, wheels = run(joints, {"use_imu": False})
-    _, gyro = run(both, {"use_imu": True})
+    # Interleaved, medians: the gyro mode without and with the online geometry estimate.
+    plain, online = [], []
+    for _ in range(5):
+        plain.append(run(both, {"use_imu": True, "online_calibration": "disabled"})[1])
+        online.append(run(both, {"use_imu": True, "online_calibration": "monitor"})[1])
+    gyro, mon = statistics.median(plain), statistics.median(online)
     print(f"\nCPU through the pipeline, {seconds:g} s of messages at 1 kHz:")
     print(f"  wheels only (1 kHz JointState):          {wheels / n * 1e6:7.1f} us per reading")
     print(f"  gyro-aided (1 kHz JointState + 1 kHz Imu): {gyro / n * 1e6:7.1f} us per reading "
           f"+ its IMU sample ({gyro / wheels:.2f} x)")
+    print(f"  gyro-aided + online calibration (monitor): {mon / n * 1e6:7.1f} us per reading "
+          f"+ its IMU sample ({mon / gyro:.2f} x gyro-aided; medians of 5 interleaved runs)")
 
 
 def turtlebot3(plot: str | None) -> None:

@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from gyrostreams import NAMES
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from diffdrive_odom.tools.bagio import ODOMETRY, TF_MESSAGE
 from diffdrive_odom.wire.conversions import yaw_to_quaternion
+
+STORE = get_typestore(Stores.ROS2_JAZZY)
+JS, IMU = "sensor_msgs/msg/JointState", "sensor_msgs/msg/Imu"
 
 OPTIODOM_PARAMS = {"wheel_radius": 0.042, "wheel_separation": 0.200}
 TB3_PARAMS = {
@@ -113,3 +119,44 @@ class OdomMessages:
             header=self._header(ns), child_frame_id=self.base_frame, transform=transform
         )
         return t[TF_MESSAGE](transforms=[stamped])
+
+
+def _stamp(ns: int) -> Any:
+    sec, nsec = divmod(ns, 10**9)
+    return STORE.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
+
+
+def _header(ns: int, frame: str) -> Any:
+    return STORE.types["std_msgs/msg/Header"](stamp=_stamp(ns), frame_id=frame)
+
+
+def write_sensor_bag(path: Path, messages: Iterable[tuple[str, int, int, float, float]],
+                     imu_hz: float, noise_density: float = 3e-4) -> None:
+    """An MCAP bag of ``gyrostreams`` messages, each logged at its receive time.
+
+    JointStates on /joint_states (positions), Imu on /imu (the yaw rate, its
+    angular_velocity_covariance honest: the density squared times the rate).
+    """
+    t = STORE.types
+    zero3 = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    cov = np.zeros(9)
+    cov[8] = noise_density ** 2 * imu_hz
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    with writer:
+        joints = writer.add_connection("/joint_states", JS, typestore=STORE)
+        imu = writer.add_connection("/imu", IMU, typestore=STORE)
+        for kind, rx, stamp, a, b in messages:
+            if kind == "j":
+                msg = t[JS](header=_header(stamp, ""), name=list(NAMES),
+                            position=np.array([a, b]), velocity=np.zeros(0),
+                            effort=np.zeros(0))
+                writer.write(joints, rx, bytes(STORE.serialize_cdr(msg, JS)))
+            else:
+                msg = t[IMU](
+                    header=_header(stamp, "base_link"),
+                    orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                    orientation_covariance=np.array([-1.0, *[0.0] * 8]),
+                    angular_velocity=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=a),
+                    angular_velocity_covariance=cov, linear_acceleration=zero3,
+                    linear_acceleration_covariance=np.zeros(9))
+                writer.write(imu, rx, bytes(STORE.serialize_cdr(msg, IMU)))

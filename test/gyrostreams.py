@@ -146,8 +146,12 @@ def _knots(route: Route) -> tuple[list[float], list[float], list[float]]:
     return ts, vs, ws
 
 
-def truth(route: Route) -> Truth:
-    """Integrate the route on the grid (see the module for how exact)."""
+def truth(route: Route, r_left: float = R, r_right: float = R, sep: float = B) -> Truth:
+    """Integrate the route on the grid (see the module for how exact).
+
+    ``r_left``, ``r_right``, ``sep``: the robot's true geometry, which its joint angles
+    follow (the nominal R, R, B by default).
+    """
     n = round(route.seconds / GRID)
     t = np.arange(n + 1) * GRID
     ts, vs, ws = _knots(route)
@@ -161,8 +165,8 @@ def truth(route: Route) -> Truth:
     vm = 0.5 * (v[1:] + v[:-1])
     x = np.concatenate(([0.0], np.cumsum(vm * np.cos(mid) * GRID)))
     y = np.concatenate(([0.0], np.cumsum(vm * np.sin(mid) * GRID)))
-    left = cumulative((v - 0.5 * B * w) / R)
-    right = cumulative((v + 0.5 * B * w) / R)
+    left = cumulative((v - 0.5 * sep * w) / r_left)
+    right = cumulative((v + 0.5 * sep * w) / r_right)
     for s in route.slips:
         extra = s.rate * np.clip(t - s.start, 0.0, s.seconds)
         if s.right:

@@ -36,6 +36,7 @@ from diffdrive_odom.core.health.diagnostics import (
     odometry_report,
 )
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
+from diffdrive_odom.ros.geometry_estimate import GeometryEstimatePublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS, TF_QOS
@@ -101,6 +102,11 @@ class OdometryEndpoints:
         self._rate = RateMeter(start=self._started)
         self._reporter = Reporter(odometry_report)
         self._diagnostics = DiagnosticsPublisher(node, "odometry", self._diagnose)
+        # With the gyro (read-only) the online estimate may run: monitor at any time.
+        self._estimate_pub = None if settings.gyro is None else GeometryEstimatePublisher(
+            node, lambda: self._pipeline.stats.online)
+        if settings.online_note:
+            node.get_logger().info(settings.online_note)
         g = settings.geometry
         node.get_logger().info(
             f"wheel odometry: r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
@@ -114,6 +120,8 @@ class OdometryEndpoints:
         node = self._node
         self._guard.close()
         self._diagnostics.destroy()
+        if self._estimate_pub is not None:
+            self._estimate_pub.destroy()
         node.destroy_timer(self._input_timer)
         node.destroy_service(self._reset_srv)
         self._set_pose.destroy()
@@ -165,6 +173,7 @@ class OdometryEndpoints:
             time_resets=stats.time_resets,
             velocity_fallback=stats.velocity_fallback,
             gyro=stats.gyro,
+            online=stats.online,
         ))
 
     def _on_imu(self, raw: bytes) -> None:

@@ -12,6 +12,7 @@ from typing import Any
 
 from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
 from diffdrive_odom.core.estimation.gyro import GyroConfig
+from diffdrive_odom.core.estimation.online_geometry import OnlineConfig
 from diffdrive_odom.core.estimation.open_loop import (
     DEFAULT_OPEN_LOOP_NOISE,
     OPEN_LOOP_SOURCES,
@@ -107,6 +108,23 @@ OPEN_LOOP_PARAMS: tuple[ParamSpec, ...] = (
               "grows with distance squared.", range=NON_NEGATIVE),
 )
 
+_O = OnlineConfig()
+ONLINE_MODES = ("disabled", "monitor")
+ONLINE_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("online_calibration", "string", "monitor",
+              "monitor: estimate the wheel geometry from the gyro while driving (use_imu "
+              "only), publish it on ~/geometry_estimate and /diagnostics, warn when the "
+              "configured one leaves its 3-sigma region; disabled: not at all (apply is "
+              "not implemented yet)."),
+    ParamSpec("online_calibration_min_turn", "double", _O.min_turn,
+              "Radians to turn each way before the online estimate is determined (and "
+              "the configured geometry tested against it).", range=NON_NEGATIVE),
+    ParamSpec("online_calibration_random_walk", "double", _O.random_walk,
+              "How fast the wheel geometry may change [1/sqrt(s)], relative: each ratio's "
+              "variance grows by its square times the ratio squared per second.",
+              range=NON_NEGATIVE),
+)
+
 ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("odom_frame_id", "string", "odom", "Frame of the published pose."),
     ParamSpec("base_frame_id", "string", "base_link", "Child frame (the robot)."),
@@ -168,6 +186,7 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               range=POSITIVE_OR_INF),
     *GYRO_PARAMS,
     *OPEN_LOOP_PARAMS,
+    *ONLINE_PARAMS,
 )
 
 
@@ -264,6 +283,7 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
         stamp_source=_stamp_source(v["stamp_source"]),
         gyro=_gyro_config(v),
         open_loop=_open_loop_config(v, pose_diag, twist_diag),
+        online=_online_config(v),
     )
 
 
@@ -280,6 +300,21 @@ def _open_loop_config(v: Mapping[str, Any], pose_diag: tuple[float, ...],
                              "commands, not wheel readings, so there is no wheel heading for "
                              "the gyro to aid; set one of them false")
     return cfg if v["open_loop"] else None
+
+
+def _online_config(v: Mapping[str, Any]) -> OnlineConfig | None:
+    """``online_calibration``'s settings with ``monitor``, None with ``disabled``."""
+    mode = v["online_calibration"]
+    if mode == "apply":
+        raise ParameterError("online_calibration",
+                             "apply is not implemented yet (use monitor or disabled)")
+    if mode not in ONLINE_MODES:
+        raise ParameterError("online_calibration",
+                             f"must be one of {', '.join(ONLINE_MODES)}, got {mode!r}")
+    with as_parameter_error():
+        cfg = OnlineConfig(min_turn=v["online_calibration_min_turn"],
+                           random_walk=v["online_calibration_random_walk"])
+    return cfg if mode == "monitor" else None
 
 
 def _gyro_config(v: Mapping[str, Any]) -> GyroConfig | None:

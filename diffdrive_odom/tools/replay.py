@@ -40,13 +40,14 @@ from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.core.bulk.readings import count as reading_count
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.encoders import Reason
+from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
 from diffdrive_odom.core.estimation.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.core.geometry.integration import Pose2D
-from diffdrive_odom.tools import evaluate, fleet, progress, sinks
+from diffdrive_odom.tools import evaluate, fleet, online_report, progress, sinks
 from diffdrive_odom.tools.args import (
     DEFAULT_REFERENCE,
     add_param_arguments,
@@ -90,6 +91,7 @@ class ReplayStats:
     seconds: float = 0.0
     pipeline: PipelineStats = field(default_factory=PipelineStats)
     unit: str = "readings"  # what was fed: wheel readings, or (open loop) commands
+    online_trace: list[tuple[int, OnlineEstimate]] = field(default_factory=list)
 
     @property
     def usable(self) -> bool:
@@ -194,6 +196,7 @@ def replay_readings(
                                verdict.status, out.pose_covariance, out.twist_covariance))
     stats.seconds = time.perf_counter() - start
     stats.pipeline = pipe.stats
+    stats.online_trace = [] if pipe.online is None else pipe.online.trace
     stats.readings = stats.pipeline.readings
     stats.published = stats.pipeline.published - sum(stats.refused.values())
     stats.final_pose = est.pose
@@ -246,6 +249,9 @@ def _parser() -> argparse.ArgumentParser:
                     help="with --eval: write the figures as JSON (default: none)")
     ap.add_argument("--plot", metavar="FILE",
                     help="with --eval: write a PNG plot (default: none)")
+    ap.add_argument("--online-calibration", action="store_true",
+                    help="print the gyro's online geometry estimate over the run and a block "
+                    "to paste (needs use_imu)")
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                     help="progress line on stderr (default: on a terminal, for long bags)")
     fleet.add_fleet_arguments(ap)
@@ -262,9 +268,9 @@ def _error(text: str) -> int:
 
 def _output_problem(args: argparse.Namespace) -> str | None:
     """Why the asked-for outputs cannot be written (checked before any work), or None."""
-    if not (args.output or args.csv or args.eval):
-        return ("nothing to do: give -o OUT_BAG, --csv FILE and/or --eval "
-                "(see diffdrive-odom replay --help)")
+    if not (args.output or args.csv or args.eval or args.online_calibration):
+        return ("nothing to do: give -o OUT_BAG, --csv FILE, --eval and/or "
+                "--online-calibration (see diffdrive-odom replay --help)")
     if (args.json or args.plot) and not args.eval:
         return "--json/--plot need --eval"
     if args.output and Path(args.output).exists():
@@ -301,6 +307,8 @@ def _run_fleet(args: argparse.Namespace) -> int:
 def run_bag(args: argparse.Namespace) -> int:
     """One bag (``args.bag``) with the parsed flags: what ``replay BAG ...`` does."""
     settings = settings_from_args(args)
+    if not isinstance(settings, str) and args.online_calibration:
+        settings = online_report.online_settings(settings)
     if isinstance(settings, str):
         return _error(settings)
     problem = _output_problem(args)
@@ -335,6 +343,8 @@ def run_bag(args: argparse.Namespace) -> int:
         _remove_outputs(args)
         return _error(_no_usable_reading(stats, args.cmd_topic or args.topic))
     print(stats.summary())
+    if args.online_calibration:
+        print(online_report.report(stats.online_trace, stats.pipeline.online))
     gyro = stats.pipeline.gyro
     fleet.record(args, readings=stats.readings, poses=stats.published,
                  slips=None if gyro is None else gyro.slips.events)

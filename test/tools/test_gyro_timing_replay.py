@@ -11,56 +11,19 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
-from typing import Any
 
-import numpy as np
 import pytest
-from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, R, Timing, stream, truth
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_typestore
+from gyrostreams import ISSUE_ROUTE, TIMINGS, B, R, Timing, stream, truth
 
 from diffdrive_odom.tools.cli import main as cli
 
-from bagutil import write_params
+from bagutil import write_params, write_sensor_bag
 
-STORE = get_typestore(Stores.ROS2_JAZZY)
-JS, IMU = "sensor_msgs/msg/JointState", "sensor_msgs/msg/Imu"
 BIAS = math.radians(0.3)
 
 
-def _stamp(ns: int) -> Any:
-    sec, nsec = divmod(ns, 10**9)
-    return STORE.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
-
-
-def _header(ns: int, frame: str) -> Any:
-    return STORE.types["std_msgs/msg/Header"](stamp=_stamp(ns), frame_id=frame)
-
-
 def _write(path: Path, timing: Timing) -> None:
-    t = STORE.types
-    zero3 = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
-    cov = np.zeros(9)
-    cov[8] = 3e-4 ** 2 * timing.imu_hz  # honest: the density times the rate
-    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
-    with writer:
-        joints = writer.add_connection("/joint_states", JS, typestore=STORE)
-        imu = writer.add_connection("/imu", IMU, typestore=STORE)
-        for kind, rx, stamp, a, b in stream(ISSUE_ROUTE, timing, BIAS, 3e-4):
-            if kind == "j":
-                msg = t[JS](header=_header(stamp, ""), name=list(NAMES),
-                            position=np.array([a, b]), velocity=np.zeros(0),
-                            effort=np.zeros(0))
-                writer.write(joints, rx, bytes(STORE.serialize_cdr(msg, JS)))
-            else:
-                msg = t[IMU](
-                    header=_header(stamp, "base_link"),
-                    orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-                    orientation_covariance=np.array([-1.0, *[0.0] * 8]),
-                    angular_velocity=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=a),
-                    angular_velocity_covariance=cov, linear_acceleration=zero3,
-                    linear_acceleration_covariance=np.zeros(9))
-                writer.write(imu, rx, bytes(STORE.serialize_cdr(msg, IMU)))
+    write_sensor_bag(path, stream(ISSUE_ROUTE, timing, BIAS, 3e-4), timing.imu_hz)
 
 
 def _replay(tmp_path: Path, bag: Path, capsys: pytest.CaptureFixture[str],

@@ -16,10 +16,14 @@ from dataclasses import dataclass
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.encoders import EncoderConfig
 from diffdrive_odom.core.estimation.gyro import GyroConfig
+from diffdrive_odom.core.estimation.online_geometry import OnlineConfig
 from diffdrive_odom.core.estimation.open_loop import OpenLoopConfig
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
+
+ONLINE_NEEDS_IMU = ("online_calibration is monitor but use_imu is false: online "
+                    "calibration disabled (it needs the gyro)")
 
 
 class EstimatorConfigError(ConfigError):
@@ -79,6 +83,13 @@ class OdometrySettings:
     stamp_source: StampSource = StampSource.HEADER
     gyro: GyroConfig | None = None  # use_imu false: None (wheels only, as before)
     open_loop: OpenLoopConfig | None = None  # open_loop true: from commands, not encoders
+    # online_calibration: monitor (None: disabled; without use_imu it does nothing).
+    online: OnlineConfig | None = None
+
+    @property
+    def online_note(self) -> str:
+        """Why online calibration does nothing though asked for ('' when it runs or is off)."""
+        return ONLINE_NEEDS_IMU if self.online is not None and self.gyro is None else ""
 
     @property
     def takes_bulk(self) -> bool:

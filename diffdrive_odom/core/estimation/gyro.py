@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from diffdrive_odom.core.errors import ConfigError
@@ -47,6 +48,9 @@ from diffdrive_odom.core.uncertainty.noise import NoiseModel, joint_variances
 from diffdrive_odom.core.uncertainty.propagation import GyroStep, wheel_jacobian
 
 Matrix = tuple[tuple[float, ...], ...]
+# A step judged for good: (geometry, t0, t1, arcs, gyro angle or None, slip, standing).
+Observer = Callable[[Geometry, int, int, tuple[float, float], "float | None", bool, bool],
+                    None]
 __all__ = ["GyroConfig", "GyroConfigError", "GyroHeading", "SlipStats"]
 
 
@@ -154,6 +158,8 @@ class GyroHeading:
         self.steps = 0  # wheel steps asked about
         self._geometry: Geometry | None = None
         self._b: Matrix = ()
+        # Told of each step judged for good (online calibration), None: nobody listens.
+        self.observer: Observer | None = None
 
     def set_config(self, config: GyroConfig) -> None:
         """New settings at runtime; the bias estimate carries on (its start value is for starts)."""
@@ -256,6 +262,8 @@ class GyroHeading:
             self.silent = True
             if standing:
                 self.standstill.miss("silent")
+            if self.observer is not None:
+                self.observer(geometry, t0, t1, arcs, None, False, standing)
             self._give_up()
             self.skip(t1)
             return None
@@ -327,6 +335,8 @@ class GyroHeading:
         """A step judged for good: its slip counted, a standstill's bias update."""
         self._slips.step(judged.slip, p.t1, judged.error)
         self._judged_to = p.t1
+        if self.observer is not None:
+            self.observer(p.geometry, p.t0, p.t1, p.arcs, raw, judged.slip, p.standing)
         if not p.standing:
             return
         if raw is None:

@@ -14,6 +14,7 @@ each step's heading from :mod:`diffdrive_odom.core.estimation.gyro` (gyrodometry
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -28,6 +29,7 @@ from diffdrive_odom.core.estimation.estimator import OdometryEstimator, Step
 from diffdrive_odom.core.estimation.gate import GateState, PublishGate
 from diffdrive_odom.core.estimation.gyro import GyroHeading, SlipStats
 from diffdrive_odom.core.estimation.imuinput import ImuInput
+from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate, OnlineGeometry
 from diffdrive_odom.core.estimation.setpose import (
     PoseRefusal,
     PoseRequest,
@@ -38,6 +40,7 @@ from diffdrive_odom.core.estimation.stamps import ClockOffsetCheck, StampSource
 from diffdrive_odom.core.estimation.timeline import Status, Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.mat3 import Matrix
+from diffdrive_odom.core.uncertainty.noise import quantization_variance
 from diffdrive_odom.core.uncertainty.propagation import (
     covariance_matrix,
     pose_message_covariance,
@@ -94,6 +97,7 @@ class PipelineStats:
     last_usable_stamp_ns: int | None = None
     velocity_fallback: bool = False
     gyro: GyroStats | None = None  # use_imu true only
+    online: OnlineEstimate | None = None  # online_calibration monitor with use_imu only
 
     @property
     def dropped_total(self) -> int:
@@ -182,6 +186,7 @@ class ReadingPipeline:
         self._clock = ClockOffsetCheck()
         self._gyro: GyroHeading | None = None
         self._imu: ImuInput | None = None
+        self._online: OnlineGeometry | None = None
         self._imu_silent = False  # so a missing IMU is named at the first step
         self._setpose = SetPoseRule()
         self._attach_gyro(settings)
@@ -202,6 +207,30 @@ class ReadingPipeline:
         self._estimator.heading = self._gyro
         if self._gyro is not None:
             self._gyro.wheel_stamp_ns = self._estimator.stamp_ns
+        self._attach_online(settings)
+
+    def _attach_online(self, settings: OdometrySettings) -> None:
+        """Let the online geometry estimate listen to the gyro's judged steps (monitor)."""
+        gyro, cfg = self._gyro, settings.gyro
+        if gyro is None or cfg is None or settings.online is None:
+            self._online = None
+        elif self._online is None:
+            enc = settings.encoders
+            self._online = OnlineGeometry(
+                settings.online, settings.geometry, cfg.noise_density, gyro.bias,
+                math.sqrt(gyro.bias_variance), cfg.bias_random_walk, gyro.noise,
+                quantization_variance(enc.ticks_per_revolution, len(enc.left_wheel_names)),
+                gyro.standstill.measured_density)
+        else:
+            self._online.config = settings.online
+            self._online.set_geometry(settings.geometry)
+        if gyro is not None:
+            gyro.observer = None if self._online is None else self._online.observe
+
+    @property
+    def online(self) -> OnlineGeometry | None:
+        """The online geometry estimate (its trace), None unless it runs."""
+        return self._online
 
     @property
     def gyro(self) -> GyroHeading | None:
@@ -249,6 +278,7 @@ class ReadingPipeline:
                 imu.samples, imu.dropped, g.silent and g.steps > 0,
                 g.bias, g.bias_variance ** 0.5, g.zero_velocity_updates, g.slips,
                 g.standstill.standing_ns * 1e-9),
+            online=None if self._online is None else self._online.estimate(),
         )
 
     def feed(
@@ -307,6 +337,8 @@ class ReadingPipeline:
             note = IMU_SILENT if gyro.silent else IMU_BACK
         if self._imu is not None and not warning:
             warning = self._imu.take_warning()
+        if self._online is not None and not warning:
+            warning = self._online.take_warning()
         if self._setpose.pending is not None:  # ~/set_pose held for this reading's stamp
             if status is Status.TIME_RESET:
                 self._setpose.pending, note = None, note or SET_POSE_DROPPED

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Generic, TypeVar
 
+from diffdrive_odom.core.estimation.online_geometry import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.core.estimation.pipeline import GyroStats
 from diffdrive_odom.core.estimation.standstill import STAND_WARN_S
 
@@ -171,6 +172,7 @@ class ReadingHealth:
     time_resets: int = 0
     velocity_fallback: bool = False
     gyro: GyroStats | None = None  # use_imu true: the gyro's counters and slip events
+    online: OnlineEstimate | None = None  # online_calibration monitor (with use_imu)
 
 
 def odometry_report(
@@ -206,6 +208,7 @@ def odometry_report(
     if time_resets:
         problems.append((Level.WARN, f"{time_resets} time resets (stamp jumped back)"))
     gyro_values = _gyro(now.gyro, before.gyro if before else None, problems)
+    gyro_values += _online(now.online, problems)
     if since is None and not problems:
         ok = "starting: waiting for the first reading"
     else:
@@ -259,4 +262,27 @@ def _gyro(now: GyroStats | None, before: GyroStats | None,
         ("gyro bias stddev [rad/s]", f"{finite(now.bias_stddev):.6g}"),
         ("zero-velocity updates", str(now.zero_velocity_updates)),
         ("standing still [s]", f"{finite(now.standing_s):.1f}"),
+    ]
+
+
+def _online(est: OnlineEstimate | None, problems: list[tuple[Level, str]]
+            ) -> list[tuple[str, str]]:
+    """The online geometry estimate; WARN while the configured one is outside its 3 sigma."""
+    if est is None:
+        return []
+    if est.outside:
+        problems.append((Level.WARN, "configured geometry outside the online estimate's "
+                                     "3-sigma region: the robot changed, recalibrate"))
+    names = ("left_wheel_radius_multiplier", "right_wheel_radius_multiplier",
+             "wheel_separation_multiplier")
+    return [
+        ("online calibration", "determined" if est.determined else "not yet determined"),
+        *((f"{n} (online estimate)", f"{m:.5f} +- {sd:.5f}")
+          for n, m, sd in zip(names, est.multipliers, est.stddevs, strict=True)),
+        ("online Mahalanobis d^2 of configured geometry",
+         f"{finite(est.mahalanobis2):.2f} (warn above {CHI2_2DOF_3SIGMA:.2f})"),
+        ("online turned left / right [rad]", f"{est.turned[0]:.2f} / {est.turned[1]:.2f}"),
+        ("online distance [m]", f"{est.distance:.1f}"),
+        ("online steps used", str(est.steps)),
+        *((f"online steps excluded: {k}", str(v)) for k, v in est.excluded.items()),
     ]

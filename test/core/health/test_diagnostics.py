@@ -107,6 +107,34 @@ def test_odometry_warns_when_the_robot_stood_and_no_zero_velocity_update_ran() -
     assert odometry_report(health(gyro=short), None, TH).level is Level.OK
 
 
+def test_odometry_reports_the_online_estimate_and_warns_when_outside() -> None:
+    from types import MappingProxyType
+
+    from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
+    from diffdrive_odom.core.estimation.pipeline import GyroStats
+
+    def estimate(outside: bool, determined: bool = True) -> OnlineEstimate:
+        return OnlineEstimate(
+            determined=determined, ratios=(0.165, 0.164), covariance=(1e-9, 0.0, 0.0, 1e-9),
+            bias=0.0, bias_stddev=1e-4, multipliers=(0.9975, 1.0025, 1.0075),
+            stddevs=(5e-5, 5e-5, 1.1e-4), mahalanobis2=40.0 if outside else 1.0,
+            outside=outside, turned=(15.2, 9.6), distance=52.9, steps=7000, windows=290,
+            excluded=MappingProxyType({"slip": 38, "standstill": 279}))
+
+    gyro = GyroStats(samples=400, silent=False, zero_velocity_updates=100, standing_s=2.0)
+    r = odometry_report(health(gyro=gyro, online=estimate(False)), None, TH)
+    assert r.level is Level.OK
+    v = dict(r.values)
+    assert v["online calibration"] == "determined"
+    assert v["right_wheel_radius_multiplier (online estimate)"] == "1.00250 +- 0.00005"
+    assert v["wheel_separation_multiplier (online estimate)"] == "1.00750 +- 0.00011"
+    assert v["online steps excluded: slip"] == "38"
+    assert v["online turned left / right [rad]"] == "15.20 / 9.60"
+    r = odometry_report(health(gyro=gyro, online=estimate(True)), None, TH)
+    assert r.level is Level.WARN and "recalibrate" in r.message
+    assert dict(r.values)["online Mahalanobis d^2 of configured geometry"].startswith("40.00")
+
+
 def test_odometry_says_when_it_integrates_velocities() -> None:
     r = odometry_report(health(velocity_fallback=True), None, TH)
     assert (r.level, r.message) == (Level.OK, "integrating wheel velocities")

@@ -1,0 +1,356 @@
+"""The wheel geometry estimated while driving, from the gyro (``online_calibration``).
+
+Over a stretch of wheel steps the gyro measures the turn the wheels claim:
+``dtheta_gyro = (r_R/b) dphi_R - (r_L/b) dphi_L + bias dt + noise``, linear in the
+two ratios ``u = r_R/b``, ``v = r_L/b`` and the gyro's bias (Censi, Franchi,
+Marchionni and Oriolo, "Simultaneous calibration of odometry and sensor parameters
+for mobile robots", IEEE T-RO 2013, first step, with a gyro in place of the scan
+matcher). A small Kalman filter on ``(u, v, bias)`` with a random walk on each
+estimates them recursively. The absolute scale (the mean radius, so ``b`` itself) is
+not observable from rotation: it is held at the configured one.
+
+Which steps count: only those the gyro judged for good (after the deferred judgement
+of :mod:`~diffdrive_odom.core.estimation.gyro`, so on any IMU timing) whose slip test
+passed. A slipping step, one the IMU never covered, or one the wheels stood through
+(no information on the ratios; it still measures the bias) is counted by reason.
+Contiguous counted steps are summed into windows of ``WINDOW_S`` before an update: the
+equation is additive, the gyro's white noise adds up over the window and the wheels'
+quantization, a per-reading error, enters once per window end instead of once per
+step (per-step differences of it are not independent). The noise of one window: the
+gyro's noise density squared times its length, each wheel's quantization (two
+readings) and the wheels' travel noise (``k |d|`` of the noise model) scaled by the
+ratio squared (the gyro's noise density: the declared one or the one it shows standing
+still, whichever is larger), and the turn rate's change over the window times ``TIMING_STDDEV`` (an
+IMU stamping a few ms off the wheels gets the turn of a slightly shifted interval:
+while the turn rate changes, that is a systematic error the filter must not take for
+geometry).
+
+The estimate is "determined" once the robot turned ``min_turn`` rad each way (a run
+turning one way only cannot tell the ratios from the bias and a gyro scale error).
+Then the configured geometry is tested against it: a Mahalanobis distance over the
+two (correlated) ratios beyond chi-square's 2-dof quantile at the 3-sigma level
+(99.73 %) says the robot changed (a warning, once, then at most every
+``WARN_INTERVAL_S`` while it stays outside). Pure Python, no numpy: a window update
+is a 3x3 filter step, a few microseconds, at most a few per second.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+
+from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.uncertainty.noise import NoiseModel
+
+__all__ = ["CHI2_2DOF_3SIGMA", "FIELDS", "OnlineConfig", "OnlineEstimate", "OnlineGeometry"]
+
+# Chi-square with 2 degrees of freedom at the two-sided 3-sigma level (99.73 %):
+# -2 ln(1 - 0.9973002).
+CHI2_2DOF_3SIGMA = -2.0 * math.log(1.0 - math.erf(3.0 / math.sqrt(2.0)))
+WINDOW_S = 0.5  # s: contiguous counted steps summed into one update
+TRACE_MAX = 4096  # estimates kept over a run (halved, every other dropped, when full)
+WARN_INTERVAL_S = 60.0  # s of stamp time between repeated warnings while outside
+PRIOR_RATIO = 0.05  # relative 1-sigma of each ratio's start value (the configured one)
+GATE_SIGMAS = 5.0  # a window whose innovation is beyond this many sigmas is refused
+# s: how far the IMU's stamps may be off the wheels' (1 sigma). A window whose turn rate
+# changed by dw between its ends is off by dw times the offset: its variance says so.
+TIMING_STDDEV = 0.01
+# Why a step did not count; the counter's keys and what they mean.
+EXCLUDED = {
+    "slip": "the slip test flagged it",
+    "standstill": "the wheels stood still (it measures the bias only)",
+    "no_gyro": "the IMU's samples never covered it",
+    "outlier": f"its window disagreed with the estimate by over {GATE_SIGMAS:g} sigma",
+}
+
+
+# The layout of ``~/geometry_estimate`` (std_msgs/Float64MultiArray, one dimension
+# labelled with these names, comma-separated): one value each, in this order.
+FIELDS = (
+    "determined",  # 1.0 once turned min_turn each way, else 0.0
+    "left_wheel_radius_multiplier", "left_wheel_radius_multiplier_stddev",
+    "right_wheel_radius_multiplier", "right_wheel_radius_multiplier_stddev",
+    "wheel_separation_multiplier", "wheel_separation_multiplier_stddev",
+    "ratio_right", "ratio_left",  # r_R / b, r_L / b [1]
+    "ratio_right_variance", "ratio_covariance", "ratio_left_variance",
+    "gyro_bias", "gyro_bias_stddev",  # rad/s
+    "mahalanobis2",  # the configured geometry's, over the two ratios
+    "outside",  # 1.0 when determined and mahalanobis2 > CHI2_2DOF_3SIGMA
+    "turned_left", "turned_right", "distance",  # rad, rad, m over counted windows
+    "steps", "excluded_slip", "excluded_standstill", "excluded_no_gyro", "excluded_outlier",
+)
+
+
+class OnlineConfigError(ConfigError):
+    """An online calibration setting that cannot work (names the parameter)."""
+
+
+@dataclass(frozen=True)
+class OnlineConfig:
+    """``online_calibration: monitor`` (None in the settings when disabled)."""
+
+    min_turn: float = 3.0  # rad turned each way before the estimate is determined
+    random_walk: float = 1.0e-5  # 1/sqrt(s): relative random walk of each ratio
+
+    def __post_init__(self) -> None:
+        for name, value in (("online_calibration_min_turn", self.min_turn),
+                            ("online_calibration_random_walk", self.random_walk)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise OnlineConfigError(name, f"must be finite and >= 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class OnlineEstimate:
+    """A snapshot of the estimate, in the ratios and in ddc's multipliers.
+
+    ``ratios`` ``(r_R/b, r_L/b)`` [1/1] and their 2x2 ``covariance`` (row-major);
+    ``multipliers`` ``(left, right, separation)`` with the configured mean radius held,
+    ``stddevs`` their 1-sigma; ``mahalanobis2``: the configured geometry's squared
+    distance from the estimate over the two ratios; ``outside``: determined and beyond
+    :data:`CHI2_2DOF_3SIGMA`. ``turned``: radians turned (left, right) over counted
+    windows; ``steps``: moving steps counted; ``excluded``: by reason (:data:`EXCLUDED`).
+    """
+
+    determined: bool
+    ratios: tuple[float, float]
+    covariance: tuple[float, float, float, float]
+    bias: float
+    bias_stddev: float
+    multipliers: tuple[float, float, float]
+    stddevs: tuple[float, float, float]
+    mahalanobis2: float
+    outside: bool
+    turned: tuple[float, float]
+    distance: float
+    steps: int
+    windows: int
+    excluded: Mapping[str, int]
+
+    def block(self) -> str:
+        """The estimate as the three lines of a parameter YAML (to paste), with 1-sigma."""
+        names = ("left_wheel_radius_multiplier", "right_wheel_radius_multiplier",
+                 "wheel_separation_multiplier")
+        return "\n".join(f"{n}: {m:.5f}  # +- {s:.5f} (1 sigma)"
+                         for n, m, s in zip(names, self.multipliers, self.stddevs, strict=True))
+
+    def values(self) -> tuple[float, ...]:
+        """The estimate as :data:`FIELDS` says, one float each."""
+        (ml, mr, mb), (sl, sr, sb) = self.multipliers, self.stddevs
+        a, c, _, d = self.covariance
+        ex = self.excluded
+        return (float(self.determined), ml, sl, mr, sr, mb, sb, *self.ratios, a, c, d,
+                self.bias, self.bias_stddev, self.mahalanobis2, float(self.outside),
+                *self.turned, self.distance, float(self.steps),
+                *(float(ex.get(k, 0)) for k in ("slip", "standstill", "no_gyro", "outlier")))
+
+    def line(self) -> str:
+        """One line: the multipliers with their sigma, the excitation, determined or not."""
+        ml, mr, mb = self.multipliers
+        sl, sr, sb = self.stddevs
+        state = ("determined" if self.determined else "not yet determined (turn both ways)")
+        return (f"left {ml:.5f} +- {sl:.5f}, right {mr:.5f} +- {sr:.5f}, separation "
+                f"{mb:.5f} +- {sb:.5f} (mean radius held); turned {self.turned[0]:.1f} rad "
+                f"left, {self.turned[1]:.1f} rad right over {self.distance:.1f} m: {state}")
+
+
+class OnlineGeometry:
+    """The filter on ``(r_R/b, r_L/b, bias)``, its windows, counters and warning."""
+
+    def __init__(self, config: OnlineConfig, geometry: Geometry, noise_density: float,
+                 bias: float, bias_stddev: float, bias_random_walk: float,
+                 noise: NoiseModel, quantization: float = 0.0,
+                 measured_density: Callable[[], float] = lambda: 0.0) -> None:
+        self.config = config
+        # The gyro's noise seen standing still (0: not yet): the larger one is used, so a
+        # gyro noisier than declared does not make the estimate overconfident.
+        self.measured_density = measured_density
+        self.geometry = geometry  # the configured one: the test's reference, the scale
+        self.noise_density = noise_density
+        self.bias_random_walk = bias_random_walk
+        self.noise = noise
+        self.quantization = quantization  # rad^2 per reading per side
+        u0, v0 = _ratios(geometry)
+        self.x = [u0, v0, bias]
+        p = PRIOR_RATIO
+        self.p = [[(p * u0) ** 2, 0.0, 0.0], [0.0, (p * v0) ** 2, 0.0],
+                  [0.0, 0.0, bias_stddev ** 2]]
+        self.excluded: Counter[str] = Counter()
+        self.steps = 0
+        self.windows = 0
+        self.turned = [0.0, 0.0]
+        self.distance = 0.0
+        self._updated_ns: int | None = None
+        self._warned_ns: int | None = None
+        self._warning = ""
+        # (stamp, estimate) after updates, thinned to at most TRACE_MAX: replay prints it.
+        self.trace: list[tuple[int, OnlineEstimate]] = []
+        self._trace_every = 1
+        self._open()
+
+    def _open(self) -> None:
+        self._w0: int | None = None
+        self._w1: int | None = None
+        self._sum = [0.0, 0.0, 0.0, 0.0, 0.0]  # phi_R, phi_L, gyro angle, var_R, var_L
+        self._n = 0  # steps in it, standing ones not counted
+        self._dist = 0.0
+        self._rates = (0.0, 0.0)  # the turn rate of its first and of its last step
+
+    def set_geometry(self, geometry: Geometry) -> None:
+        """The configured geometry changed (a parameter at runtime): the reference and scale."""
+        self.geometry = geometry
+
+    def observe(self, geometry: Geometry, t0: int, t1: int, arcs: tuple[float, float],
+                raw: float | None, slip: bool, standing: bool) -> None:
+        """One step judged for good: its wheel arcs, the gyro's angle ``raw`` (None: none)."""
+        if t1 <= t0:
+            return
+        if raw is None or slip:
+            self.excluded["no_gyro" if raw is None else "slip"] += 1
+            self._flush()
+            return
+        if self._w1 is not None and t0 != self._w1:
+            self._flush()
+        phi_r, phi_l = arcs[1] / geometry.right_radius, arcs[0] / geometry.left_radius
+        rate = (self.x[0] * phi_r - self.x[1] * phi_l) / ((t1 - t0) * 1e-9)
+        if self._w0 is None:
+            self._w0 = t0
+            self._rates = (rate, rate)
+        self._w1 = t1
+        self._rates = (self._rates[0], rate)
+        s = self._sum
+        s[0] += phi_r
+        s[1] += phi_l
+        s[2] += raw
+        noise = self.noise
+        s[3] += noise.k_right * abs(phi_r) / geometry.right_radius
+        s[4] += noise.k_left * abs(phi_l) / geometry.left_radius
+        self._dist += 0.5 * abs(arcs[0] + arcs[1])
+        if standing:
+            self.excluded["standstill"] += 1
+        else:
+            self._n += 1
+        if (t1 - self._w0) * 1e-9 >= WINDOW_S:
+            self._flush()
+
+    def _flush(self) -> None:
+        """One filter update on the open window, if any."""
+        w0, w1, n = self._w0, self._w1, self._n
+        phi_r, phi_l, angle, var_r, var_l = self._sum
+        dist = self._dist
+        change = self._rates[1] - self._rates[0]
+        self._open()
+        if w0 is None or w1 is None or w1 <= w0:
+            return
+        dt = (w1 - w0) * 1e-9
+        x, p = self.x, self.p
+        if self._updated_ns is not None and w1 > self._updated_ns:
+            grow = (w1 - self._updated_ns) * 1e-9
+            rw = self.config.random_walk
+            p[0][0] += (rw * x[0]) ** 2 * grow
+            p[1][1] += (rw * x[1]) ** 2 * grow
+            p[2][2] += self.bias_random_walk ** 2 * grow
+        self._updated_ns = w1
+        h = (phi_r, -phi_l, dt)
+        u2, v2 = x[0] * x[0], x[1] * x[1]
+        q = self.quantization
+        turn = x[0] * phi_r - x[1] * phi_l
+        density = max(self.noise_density, self.measured_density())
+        r = (density ** 2 * dt + 2.0 * q * (u2 + v2) + u2 * var_r + v2 * var_l
+             + self.noise.k_rotation * abs(turn) + (change * TIMING_STDDEV) ** 2)
+        ph = [sum(p[i][j] * h[j] for j in range(3)) for i in range(3)]
+        s = sum(h[i] * ph[i] for i in range(3)) + r
+        innovation = angle - (turn + x[2] * dt)
+        if innovation * innovation > GATE_SIGMAS ** 2 * s:
+            self.excluded["outlier"] += n
+            return
+        k = [v / s for v in ph]
+        for i in range(3):
+            x[i] += k[i] * innovation
+        # Joseph form is not needed at this size; keep P symmetric explicitly.
+        self.p = [[p[i][j] - k[i] * ph[j] for j in range(3)] for i in range(3)]
+        for i in range(3):
+            for j in range(i):
+                self.p[i][j] = self.p[j][i] = 0.5 * (self.p[i][j] + self.p[j][i])
+        net = angle - x[2] * dt
+        self.turned[0 if net > 0.0 else 1] += abs(net)
+        self.steps += n
+        self.windows += 1
+        self.distance += dist
+        self._check(w1)
+
+    def _check(self, stamp_ns: int) -> None:
+        est = self.estimate()
+        if self.windows % self._trace_every == 0:
+            self.trace.append((stamp_ns, est))
+            if len(self.trace) >= TRACE_MAX:
+                self.trace = self.trace[::2]
+                self._trace_every *= 2
+        if not est.outside:
+            return
+        last = self._warned_ns  # throttled whether or not it came back inside meanwhile
+        if last is None or stamp_ns - last >= WARN_INTERVAL_S * 1e9:
+            self._warned_ns = stamp_ns
+            self._warning = (
+                "online calibration: the configured geometry is outside the estimate's "
+                f"3-sigma region (Mahalanobis d^2 {est.mahalanobis2:.1f} > "
+                f"{CHI2_2DOF_3SIGMA:.2f}): the robot changed, recalibrate; estimate: "
+                + est.line())
+
+    def take_warning(self) -> str:
+        """The warning due (once, then throttled), '' if none; taking it clears it."""
+        w, self._warning = self._warning, ""
+        return w
+
+    @property
+    def determined(self) -> bool:
+        """Turned ``min_turn`` each way over counted windows."""
+        m = self.config.min_turn
+        return self.turned[0] >= m and self.turned[1] >= m
+
+    def estimate(self) -> OnlineEstimate:
+        """The estimate now (see :class:`OnlineEstimate`)."""
+        (u, v, bias), p = self.x, self.p
+        cov = (p[0][0], p[0][1], p[1][0], p[1][1])
+        u0, v0 = _ratios(self.geometry)
+        du, dv = u - u0, v - v0
+        det = p[0][0] * p[1][1] - p[0][1] * p[1][0]
+        d2 = ((p[1][1] * du * du - 2.0 * p[0][1] * du * dv + p[0][0] * dv * dv) / det
+              if det > 0.0 else 0.0)
+        determined = self.determined
+        mult, sig = multipliers(self.geometry, (u, v), cov)
+        return OnlineEstimate(
+            determined=determined, ratios=(u, v), covariance=cov, bias=bias,
+            bias_stddev=math.sqrt(max(p[2][2], 0.0)), multipliers=mult, stddevs=sig,
+            mahalanobis2=d2, outside=determined and d2 > CHI2_2DOF_3SIGMA,
+            turned=(self.turned[0], self.turned[1]), distance=self.distance,
+            steps=self.steps, windows=self.windows,
+            excluded=MappingProxyType(dict(self.excluded)))
+
+
+def _ratios(g: Geometry) -> tuple[float, float]:
+    return g.right_radius / g.separation, g.left_radius / g.separation
+
+
+def multipliers(g: Geometry, ratios: tuple[float, float],
+                cov: tuple[float, float, float, float]
+                ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The multipliers of ddc's YAML from the ratios (mean radius held), with 1-sigma.
+
+    With ``s = u + v`` and the mean radius ``m``: ``r_R = 2 m u / s``, ``r_L = 2 m v /
+    s``, ``b = 2 m / s``; the sigmas through their Jacobian in ``(u, v)``.
+    """
+    u, v = ratios
+    s = u + v
+    m = 0.5 * (g.left_radius + g.right_radius)
+    kr, kb = 2.0 * m / g.wheel_radius, 2.0 * m / g.wheel_separation
+    values = (kr * v / s, kr * u / s, kb / s)
+    s2 = s * s
+    jac = ((-kr * v / s2, kr * u / s2), (kr * v / s2, -kr * u / s2), (-kb / s2, -kb / s2))
+    a, b, c, d = cov
+    sig = tuple(math.sqrt(max(j0 * j0 * a + j0 * j1 * (b + c) + j1 * j1 * d, 0.0))
+                for j0, j1 in jac)
+    return values, (sig[0], sig[1], sig[2])

@@ -1,0 +1,58 @@
+"""``~/geometry_estimate``: the online geometry estimate as std_msgs/Float64MultiArray.
+
+One dimension, its label the comma-separated field names of
+:data:`diffdrive_odom.core.estimation.online_geometry.FIELDS` (so a reader finds each
+value by name, and a field added later does not shift silently), its size their count.
+Published once a second when the estimate changed (a filter update), reliable and
+transient local, so a late subscriber gets the last one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from diffdrive_odom.core.estimation.online_geometry import FIELDS, OnlineEstimate
+from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
+
+TOPIC = "~/geometry_estimate"
+PERIOD_S = 1.0
+LABEL = ",".join(FIELDS)
+QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def estimate_message(est: OnlineEstimate) -> Float64MultiArray:
+    """The message for ``est`` (see the module for the layout)."""
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label=LABEL, size=len(FIELDS), stride=len(FIELDS))]
+    msg.data = [float(v) for v in est.values()]
+    return msg
+
+
+class GeometryEstimatePublisher:
+    """Publishes what ``estimate`` returns when its filter updated (None: nothing)."""
+
+    def __init__(self, node: Node, estimate: Callable[[], OnlineEstimate | None]) -> None:
+        self._node = node
+        self._estimate = estimate
+        self._pub = create_publisher(node, Float64MultiArray, TOPIC, QOS)
+        self._windows = -1
+        self._timer = node.create_timer(PERIOD_S, self._tick,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _tick(self) -> None:
+        est = self._estimate()
+        if est is None or est.windows == self._windows:
+            return
+        self._windows = est.windows
+        self._pub.publish(estimate_message(est))
+
+    def destroy(self) -> None:
+        """Remove the timer and the publisher."""
+        self._node.destroy_timer(self._timer)
+        destroy_publisher(self._node, self._pub)

@@ -1,0 +1,81 @@
+"""odometry_node's ``~/geometry_estimate`` over real DDS (issue 25 item 2).
+
+The robot stands 1 s while a 200 Hz gyro reads a bias: the online estimate runs (its
+filter takes the standing windows for the bias), is not determined (no turn), and comes
+out as std_msgs/Float64MultiArray with the documented layout: one dimension, labelled
+with the field names, and /diagnostics says the same.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Float64MultiArray
+
+from diffdrive_odom.core.estimation.online_geometry import FIELDS
+from diffdrive_odom.ros.geometry_estimate import QOS
+
+from diagutil import diagnosed
+from rosutil import (
+    GEOMETRY,
+    NAMES,
+    STEP_NS,
+    T0_NS,
+    gyro_rig,
+    send_first,
+    spin_for,
+    spin_until,
+    stamp,
+)
+
+pytestmark = [pytest.mark.dds, pytest.mark.process]
+
+BIAS = 0.01  # rad/s
+
+
+def reading(k: int) -> JointState:
+    msg = JointState()
+    msg.header.stamp = stamp(T0_NS + k * STEP_NS)
+    msg.name = list(NAMES)
+    msg.position = [0.0, 0.0]
+    return msg
+
+
+def gyro(ns: int) -> Imu:
+    msg = Imu()
+    msg.header.stamp = stamp(ns)
+    msg.angular_velocity.z = BIAS
+    return msg
+
+
+def test_geometry_estimate_has_the_documented_layout() -> None:
+    with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true"]) as peer:
+        ex = peer.executor
+        got: list[Any] = []
+        peer.node.create_subscription(Float64MultiArray, "/odometry_node/geometry_estimate",
+                                      got.append, QOS)
+        joints, imu, sink = gyro_rig(peer.node, ex)
+        send_first(ex, joints, sink, reading(0))
+        for k in range(51):
+            for j in range(4):
+                imu.publish(gyro(T0_NS + k * STEP_NS + j * STEP_NS // 4))
+            spin_for(ex, 0.002)
+            if k:
+                joints.publish(reading(k))
+            spin_for(ex, 0.004)
+        standing = FIELDS.index("excluded_standstill")
+        assert spin_until(ex, lambda: any(m.data[standing] > 0 for m in got), 15.0)
+        msg = got[-1]
+        assert [d.label for d in msg.layout.dim] == [",".join(FIELDS)]
+        assert msg.layout.dim[0].size == len(FIELDS) == len(msg.data)
+        value = dict(zip(FIELDS, msg.data, strict=True))
+        assert value["determined"] == 0.0 and value["outside"] == 0.0
+        # Standing: the ratios keep their start values (the configured geometry).
+        assert value["left_wheel_radius_multiplier"] == pytest.approx(1.0, abs=1e-9)
+        assert value["wheel_separation_multiplier"] == pytest.approx(1.0, abs=1e-9)
+        assert value["excluded_standstill"] > 0 and value["steps"] == 0  # none moving
+        assert value["gyro_bias"] == pytest.approx(BIAS, rel=0.05)
+        status = peer.wait_for(lambda s: "online calibration" in s.values, 15.0)
+        assert status.values["online calibration"] == "not yet determined"

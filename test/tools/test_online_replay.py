@@ -1,0 +1,83 @@
+"""``replay --online-calibration`` on a bag written with rosbags (issue 25 item 2).
+
+The bag holds the issue's route twice (53 m, turns both ways) of a robot whose right
+wheel is 0.5 % larger and whose track is 1 % wider than configured, the IMU stamping
+5 ms early, each message logged at its receive time (``gyrostreams``). What replay
+prints is checked against the true geometry in closed form, not against the package.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import pytest
+from gyrostreams import ISSUE_ROUTE, TIMINGS, B, R, Route, stream, truth
+
+from diffdrive_odom.tools.cli import main as cli
+
+from bagutil import TB3_PARAMS, write_params, write_sensor_bag
+from rosutil import DATA
+
+TRUE = (R, R * 1.005, B * 1.01)
+MIXED = Route(ISSUE_ROUTE.segments * 2)
+
+
+def _replay(tmp_path: Path, capsys: pytest.CaptureFixture[str], route: Route,
+            **values: object) -> tuple[int, str, str]:
+    bag = tmp_path / f"bag{len(list(tmp_path.iterdir()))}"
+    write_sensor_bag(bag, stream(route, TIMINGS[2], math.radians(0.3), 3e-4, 1,
+                                 truth(route, *TRUE)), TIMINGS[2].imu_hz)
+    params = write_params(tmp_path / "p.yaml", {
+        "wheel_radius": R, "wheel_separation": B, "wheel_noise_k_left": 0.0,
+        "wheel_noise_k_right": 0.0, **values})
+    code = cli(["replay", str(bag), "--params-file", str(params), "--online-calibration"])
+    said = capsys.readouterr()
+    return code, said.out, said.err
+
+
+def test_replay_prints_the_estimate_and_a_block_to_paste(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = _replay(tmp_path, capsys, MIXED, use_imu=True)
+    assert code == 0, err
+    assert "online calibration (gyro" in out and "final:" in out
+    assert "outside the estimate's 3-sigma region" in out
+    block = {name: (float(value), float(sigma)) for name, value, sigma in re.findall(
+        r"^\s+(\w+_multiplier): ([0-9.]+)  # \+- ([0-9.]+)", out, re.M)}
+    rl, rr, b = TRUE
+    want = {"left_wheel_radius_multiplier": 2 * rl / (rl + rr),
+            "right_wheel_radius_multiplier": 2 * rr / (rl + rr),
+            "wheel_separation_multiplier": 2 * R * b / ((rl + rr) * B)}
+    assert set(block) == set(want)
+    for name, (value, sigma) in block.items():
+        assert abs(value - want[name]) < 3 * max(sigma, 1e-5)  # printed to 5 decimals
+    assert "online calibration: the configured geometry is outside" in err  # the warning
+
+
+def test_replay_says_when_not_determined_and_needs_the_gyro(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    straight = Route(((20.0, 0.5, 0.0), (20.0, 0.4, 0.0)))
+    code, out, _ = _replay(tmp_path, capsys, straight, use_imu=True)
+    assert code == 0
+    assert "not yet determined" in out and "nothing to paste" in out
+    assert "_multiplier:" not in out
+    code, _, err = _replay(tmp_path, capsys, straight)  # use_imu false
+    assert code != 0 and "--online-calibration needs the gyro" in err
+
+
+def test_replay_of_the_turtlebot3_bag_excludes_its_slips_and_warns_throttled(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Recorded (Gazebo) data whose wheels slip: the estimate is determined, the slipping
+    steps are left out, and the warning, whose d^2 crosses 11.83 back and forth early
+    on, is said once and then once a minute at most (the bag is 100 s long)."""
+    bag = DATA / "turtlebot3_sim" / "turtlebot3.bag"
+    params = write_params(tmp_path / "p.yaml", {**TB3_PARAMS, "use_imu": True})
+    code = cli(["replay", str(bag), "--params-file", str(params), "--online-calibration"])
+    said = capsys.readouterr()
+    assert code == 0, said.err
+    final = next(line for line in said.out.splitlines() if "final:" in line)
+    assert final.endswith(": determined")
+    slips = int(re.search(r"excluded: .*slip (\d+)", said.out).group(1))  # type: ignore[union-attr]
+    assert slips > 100
+    assert 1 <= said.err.count("online calibration: the configured geometry") <= 2
