@@ -23,6 +23,8 @@ from typing import Any, NamedTuple
 import pytest
 import rclpy
 from builtin_interfaces.msg import Time
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterValue
@@ -244,6 +246,37 @@ def set_parameter(node: Node, ex: Any, fqn: str, name: str, value: ParameterValu
     """
     request = SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)])
     return call_service(node, ex, SetParameters, f"{fqn}/set_parameters", request).results[0]
+
+
+class LifecycleManager:
+    """What nav2_lifecycle_manager does to a node: ChangeState by id, GetState.
+
+    A ChangeState is not idempotent, so it is sent once, on a client already proven
+    answered by a request that changes nothing (an unknown transition label).
+    """
+
+    def __init__(self, node: Node, ex: Any, name: str) -> None:
+        self._node, self._ex, self._name = node, ex, name
+        self._client = node.create_client(ChangeState, f"{name}/change_state")
+        assert spin_until(ex, self._client.service_is_ready, 20.0), "no change_state service"
+        probe = ChangeState.Request(transition=Transition(label="no_such_transition"))
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline:
+            future = self._client.call_async(probe)
+            if spin_until(ex, future.done, 2.0):
+                assert not future.result().success
+                return
+        raise AssertionError("change_state never answered")
+
+    def change(self, transition_id: int) -> bool:
+        future = self._client.call_async(
+            ChangeState.Request(transition=Transition(id=transition_id)))
+        assert spin_until(self._ex, future.done, 20.0), f"transition {transition_id}: no answer"
+        return bool(future.result().success)
+
+    def state(self) -> str:
+        return str(call_service(self._node, self._ex, GetState, f"{self._name}/get_state",
+                                GetState.Request()).current_state.label)
 
 
 # --- the peer side of an odometry node ------------------------------------------------

@@ -69,6 +69,13 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
                 raise
             print(line, file=sys.stderr)
             return 2
+        except Exception:
+            # A stop signal while the node was being built: rclpy's handler shut the
+            # context down under the constructor (its next timer or publisher raises).
+            # The user asked for the stop; that is a clean end, not a fault to report.
+            if stop.requested or not rclpy.ok():
+                return 0
+            raise
         _report_shadowed(node, argv)
         executor.add_node(node)
         try:

@@ -15,7 +15,6 @@ from typing import Any
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
-from lifecycle_msgs.srv import ChangeState, GetState
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
@@ -27,6 +26,7 @@ from rosutil import (
     EXIT_WITHIN_S,
     STEP_NS,
     T0_NS,
+    LifecycleManager,
     Sink,
     burst,
     call_service,
@@ -47,37 +47,6 @@ NAME = "/odometry_lifecycle_node"
 R, B = 0.1, 0.4
 PER_STEP = 0.5  # rad of both wheels per reading: 5 cm straight ahead
 GEOMETRY = ["-p", f"wheel_radius:={R}", "-p", f"wheel_separation:={B}"]
-
-
-class Manager:
-    """What nav2_lifecycle_manager does to a node: ChangeState by id, GetState.
-
-    A ChangeState is not idempotent, so it is sent once, on a client already proven
-    answered by a request that changes nothing (an unknown transition label).
-    """
-
-    def __init__(self, node: Node, ex: Any) -> None:
-        self._node, self._ex = node, ex
-        self._client = node.create_client(ChangeState, f"{NAME}/change_state")
-        assert spin_until(ex, self._client.service_is_ready, 20.0), "no change_state service"
-        probe = ChangeState.Request(transition=Transition(label="no_such_transition"))
-        deadline = time.monotonic() + 20.0
-        while time.monotonic() < deadline:
-            future = self._client.call_async(probe)
-            if spin_until(ex, future.done, 2.0):
-                assert not future.result().success
-                return
-        raise AssertionError("change_state never answered")
-
-    def change(self, transition_id: int) -> bool:
-        future = self._client.call_async(
-            ChangeState.Request(transition=Transition(id=transition_id)))
-        assert spin_until(self._ex, future.done, 20.0), f"transition {transition_id}: no answer"
-        return bool(future.result().success)
-
-    def state(self) -> str:
-        return str(call_service(self._node, self._ex, GetState, f"{NAME}/get_state",
-                                GetState.Request()).current_state.label)
 
 
 def step(o: Any) -> int:
@@ -124,7 +93,7 @@ def test_publishes_only_while_active_and_the_pose_never_jumps() -> None:
         diagnostics: list[DiagnosticArray] = []
         node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
         pub = node.create_publisher(JointState, "/joint_states", 10)
-        manager = Manager(node, ex)
+        manager = LifecycleManager(node, ex, NAME)
 
         # unconfigured: no subscription, no publisher (the node's services are up).
         assert manager.state() == "unconfigured"
@@ -198,7 +167,7 @@ def test_bad_parameter_fails_configure_and_can_be_fixed() -> None:
     """A bad value: configure FAILS with one line naming it; set_parameters; configure again."""
     args = ["--ros-args", "-p", "wheel_radius:=-0.1", "-p", f"wheel_separation:={B}"]
     with node_process("odometry_lifecycle_node", args) as proc, ros_test_node() as (node, ex):
-        manager = Manager(node, ex)
+        manager = LifecycleManager(node, ex, NAME)
         assert not manager.change(Transition.TRANSITION_CONFIGURE)
         assert manager.state() == "unconfigured"
         assert proc.poll() is None
@@ -225,7 +194,7 @@ def test_sigterm_in_the_active_state_exits_0_within_a_second() -> None:
     with burst(JointState, [topic], joint_state) as source, \
             node_process("odometry_lifecycle_node", args) as proc, \
             ros_test_node() as (node, ex):
-        manager = Manager(node, ex)
+        manager = LifecycleManager(node, ex, NAME)
         assert manager.change(Transition.TRANSITION_CONFIGURE)
         assert manager.change(Transition.TRANSITION_ACTIVATE)
         odom: list[Odometry] = []

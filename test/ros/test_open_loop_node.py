@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 from geometry_msgs.msg import Twist, TwistStamped
+from lifecycle_msgs.msg import Transition
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
@@ -25,6 +26,7 @@ import oracle
 from diagutil import Peer, diagnosed
 from rosutil import (
     DATA,
+    LifecycleManager,
     node_parameters,
     node_process,
     ros_test_node,
@@ -185,8 +187,6 @@ def test_from_the_cmd_vel_nodes_limited_output() -> None:
 def test_the_managed_node_runs_open_loop_while_active() -> None:
     """odometry_lifecycle_node takes open_loop too: nothing before activate, then the
     commanded straight line (commands while inactive are integrated, as readings are)."""
-    from lifecycle_msgs.msg import Transition
-    from test_odometry_lifecycle_node import Manager
 
     odom: list[Odometry] = []
     args = ["--ros-args", *OPEN_LOOP, "-p", "cmd_vel_timeout:=0.0"]
@@ -194,7 +194,7 @@ def test_the_managed_node_runs_open_loop_while_active() -> None:
             ros_test_node() as (node, ex):
         node.create_subscription(Odometry, "/odom", odom.append, 100)
         pub = node.create_publisher(Twist, "/cmd_vel", 10)
-        manager = Manager(node, ex)
+        manager = LifecycleManager(node, ex, "/odometry_lifecycle_node")
         assert manager.change(Transition.TRANSITION_CONFIGURE)
         assert spin_until(ex, lambda: pub.get_subscription_count() > 0, 20.0)
         msg = Twist()

@@ -13,7 +13,6 @@ from typing import Any
 import pytest
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from lifecycle_msgs.msg import Transition
-from lifecycle_msgs.srv import ChangeState, GetState
 from sensor_msgs.msg import JointState
 
 import oracle
@@ -21,9 +20,9 @@ from rosutil import (
     GEOMETRY,
     STEP_NS,
     T0_NS,
+    LifecycleManager,
     OdomRigs,
     Output,
-    call_service,
     drive_straight,
     listen,
     node_process,
@@ -105,13 +104,10 @@ def test_the_lifecycle_node_takes_it_too() -> None:
         sink = listen(node, "/odom")
         pub = node.create_publisher(JointState, "/joint_states", 10)
         set_pub = node.create_publisher(PoseWithCovarianceStamped, f"{name}/set_pose", 10)
-        client = node.create_client(ChangeState, f"{name}/change_state")
-        assert spin_until(ex, client.service_is_ready, 20.0)
+        manager = LifecycleManager(node, ex, name)
         for transition in (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE):
-            future = client.call_async(ChangeState.Request(transition=Transition(id=transition)))
-            assert spin_until(ex, future.done, 20.0) and future.result().success
-        assert call_service(node, ex, GetState, f"{name}/get_state",
-                            GetState.Request()).current_state.label == "active"
+            assert manager.change(transition)
+        assert manager.state() == "active"
         wait_ready(ex, pub, sink, proc)
         assert wait_for_subscriber(ex, set_pub)
         drive_straight(pub, ex, sink, 0, 5, 0.1)
