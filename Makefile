@@ -32,11 +32,12 @@ $(LAUNCH_STAMP): $(STAMP) $(SHARED_LAUNCH)/install.sh
 demo: venv
 	$(VENV)/bin/diffdrive-odom demo $(DEMO_ARGS)
 
-# Tiers (markers in setup.cfg): test = everything (CI): all but the `serial` tests on two
-# xdist workers (each its own DDS domain), then those alone; test-fast = the pure tier (no
+# Tiers (markers in setup.cfg): test = everything (CI): all but the `serial` tests on four
+# xdist workers (each its own DDS domain; on two cores, as the DDS tests mostly wait: 5.6
+# min against 7.2 on two), then those alone; test-fast = the pure tier (no
 # DDS, no child process, nothing slow), under a minute; test-dds = what talks over DDS.
 test: venv
-	rc=0; $(PY) -m pytest -q -n 2 --dist loadgroup -m "not serial" || rc=$$?; \
+	rc=0; $(PY) -m pytest -q -n 4 --dist loadgroup -m "not serial" || rc=$$?; \
 	$(PY) -m pytest -q -m serial || rc=$$?; exit $$rc
 
 test-fast: venv

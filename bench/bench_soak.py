@@ -107,10 +107,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--rate", type=int, default=1000)
     ap.add_argument("--interval", type=float, default=10.0, help="seconds between samples")
-    ap.add_argument("--quick", action="store_true", help="20 s, a sample every 2 s (smoke test)")
+    ap.add_argument("--quick", action="store_true", help="10 s, a sample every second (smoke test)")
     args = ap.parse_args(argv)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    seconds, interval = (20.0, 2.0) if args.quick else (60.0 * args.minutes, args.interval)
+    seconds, interval = (10.0, 1.0) if args.quick else (60.0 * args.minutes, args.interval)
     soak(seconds, args.rate, interval)
     return 0
 

@@ -93,14 +93,14 @@ def test_node_path_bench_compares_both_trees_or_says_why_not() -> None:
 
 @pytest.mark.slow
 def test_soak_bench_samples_memory_and_cpu() -> None:
-    """A 20 s soak at 1 kHz: samples every 2 s and a verdict on growth. The verdict is
-    the bench's figure (machine noise can move 20 s of CPU), not asserted here; that it
+    """A 10 s soak at 1 kHz: a sample every second and a verdict on growth. The verdict
+    is the bench's figure (machine noise can move 10 s of CPU), not asserted here; that it
     samples the live node, which carried the messages, is."""
     out = run_bench("bench_soak.py", 120)
     rows = re.findall(r"^\s+\d+\s+(\d+\.\d)\s+\d+\.\d\s+\d+$", out, re.M)
     assert len(rows) >= 5 and all(float(mb) > 10.0 for mb in rows), out  # a real process
     sent = re.search(r"^messages: (\d+) sent, (\d+) lost", out, re.M)
-    assert sent and int(sent.group(1)) == 20_000 and int(sent.group(2)) <= 200, out
+    assert sent and int(sent.group(1)) == 10_000 and int(sent.group(2)) <= 100, out
     assert re.search(r"^verdict: (no growth|GROWTH)$", out, re.M), out
 
 
