@@ -35,7 +35,7 @@ NODE_TABLES = {
 # The topics and services each node's page lists (what its --help prints: test_cli.py).
 NODE_TOPICS = {
     "odometry_node": ("joint_states", "imu", "odom", "/tf", "/diagnostics",
-                      "~/reset_odometry", "~/set_pose"),
+                      "~/reset_odometry", "~/set_pose", "~/geometry_estimate"),
     "cmd_vel_node": ("cmd_vel", "wheel_commands", "cmd_vel_out"),
     "sim_node": ("wheel_commands", "joint_states", "ground_truth/odom", "/clock", "imu",
                  "/diagnostics"),
