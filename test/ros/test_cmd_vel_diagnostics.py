@@ -12,7 +12,7 @@ import itertools
 import math
 import statistics
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -20,7 +20,7 @@ import pytest
 from geometry_msgs.msg import Twist
 
 import diagutil
-from diagutil import Peer, assert_finite
+from diagutil import Peer, Status, assert_finite
 from rosutil import spin_for, spin_until
 
 pytestmark = [pytest.mark.dds, pytest.mark.process, pytest.mark.serial]
@@ -40,6 +40,19 @@ def publish_for(peer: Peer, pub: Any, msg: Twist, seconds: float, rate: float = 
     while time.monotonic() < end:
         pub.publish(msg)
         spin_for(peer.executor, 1.0 / rate)
+
+
+def publish_until(peer: Peer, pub: Any, msg: Twist, check: Callable[[Status], bool],
+                  timeout: float = 10.0) -> Status:
+    """Publish ``msg`` at about 20 Hz until a status passing ``check`` arrives."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        pub.publish(msg)
+        try:
+            return peer.wait_for(check, 0.05)
+        except AssertionError:
+            continue
+    raise AssertionError("no such status arrived while publishing")
 
 
 def twist(x: float) -> Twist:
@@ -77,8 +90,9 @@ def test_commanding_limited_then_timed_out() -> None:
         pub = peer.node.create_publisher(Twist, "cmd_vel", 10)
         assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0, 15.0)
         # Within the limit: commanding, nothing limited.
-        publish_for(peer, pub, twist(0.2), 0.5)
-        s = peer.wait_for(lambda s: s.values["state"] == "commanding", 10.0)
+        # Held until a 1 Hz report sees it (CI once: 0.5 s of commands then the timeout,
+        # all between two reports, and the state never read "commanding").
+        publish_until(peer, pub, twist(0.2), lambda s: s.values["state"] == "commanding")
         publish_for(peer, pub, twist(0.2), 1.5)
         s = peer.wait_for(lambda s: s.values["state"] == "commanding", 5.0)
         assert s.values["limited: velocity"] == "0", s.values
