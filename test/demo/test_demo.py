@@ -51,11 +51,12 @@ EXACT = ["--sim-param", "slip_stddev:=0.0", "--sim-param", "slip_events:="]
 NODES = 4
 
 
-def run_demo(tmp: Path, *extra: str, timeout: float = 90.0) -> tuple[
-        subprocess.CompletedProcess[str], dict[str, Any]]:
+def run_demo(tmp: Path, *extra: str, timeout: float = 90.0, real_time_factor: float = 4.0,
+             ) -> tuple[subprocess.CompletedProcess[str], dict[str, Any]]:
     proc = subprocess.run(
         [executable("diffdrive-odom"), "demo", "--short", "--output", str(tmp),
-         "--real-time-factor", "4", "--domain-id", os.environ.get("ROS_DOMAIN_ID", "0"),
+         "--real-time-factor", f"{real_time_factor:g}",
+         "--domain-id", os.environ.get("ROS_DOMAIN_ID", "0"),
          *extra],
         capture_output=True, text=True, timeout=timeout)
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -169,8 +170,11 @@ def test_one_percent_larger_right_wheel_drifts_as_the_kinematics_predict(
 
 def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(
         tmp_path: Path) -> None:
-    """The shipped robot (r_right +0.2 %, b +1 %), no slip: both calibrations recover it."""
-    proc, res = run_demo(tmp_path, *EXACT)
+    """The shipped robot (r_right +0.2 %, b +1 %), no slip: both calibrations recover it.
+
+    At 2x real time: the follower's cross-track bound below is a closed loop's, and at 4x
+    on a loaded two-core machine (four xdist workers) its control ran late: 0.158 m."""
+    proc, res = run_demo(tmp_path, *EXACT, real_time_factor=2.0, timeout=150.0)
     out = proc.stdout
     for label in ("nominal", "fit to ground truth", "UMBmark end poses", "true geometry"):
         assert label in out
