@@ -130,6 +130,15 @@ def _header(ns: int, frame: str) -> Any:
     return STORE.types["std_msgs/msg/Header"](stamp=_stamp(ns), frame_id=frame)
 
 
+def joint_state_msg(t: Any, stamp_ns: int, left: float, right: float) -> Any:
+    """A two-wheel JointState (positions only) of the typestore types ``t``."""
+    sec, nsec = divmod(int(stamp_ns), 10**9)
+    return t[JS](header=t["std_msgs/msg/Header"](
+                     stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=""),
+                 name=list(NAMES), position=np.array([left, right]),
+                 velocity=np.zeros(0), effort=np.zeros(0))
+
+
 def write_sensor_bag(path: Path, messages: Iterable[tuple[str, int, int, float, float]],
                      imu_hz: float, noise_density: float = 3e-4) -> None:
     """An MCAP bag of ``gyrostreams`` messages, each logged at its receive time.
@@ -147,9 +156,7 @@ def write_sensor_bag(path: Path, messages: Iterable[tuple[str, int, int, float, 
         imu = writer.add_connection("/imu", IMU, typestore=STORE)
         for kind, rx, stamp, a, b in messages:
             if kind == "j":
-                msg = t[JS](header=_header(stamp, ""), name=list(NAMES),
-                            position=np.array([a, b]), velocity=np.zeros(0),
-                            effort=np.zeros(0))
+                msg = joint_state_msg(t, stamp, a, b)
                 writer.write(joints, rx, bytes(STORE.serialize_cdr(msg, JS)))
             else:
                 msg = t[IMU](

@@ -31,7 +31,7 @@ from diffdrive_odom.tools.sinks import Published
 from diffdrive_odom.wire.conversions import quaternion_to_yaw
 
 import oracle
-from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, mcap_messages, write_params
+from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, joint_state_msg, mcap_messages, write_params
 from rosutil import DATA
 
 RUNS = ("square_231220200029_run-01", "square_231220200029_run-04")
@@ -225,13 +225,7 @@ def _write_run(path: Path, stamps: list[int], wheels: list[tuple[float, float]],
         w.add_topic("/joint_states", bagio.JOINT_STATE)
         t = w.typestore.types
         for k, (ns, (left, right)) in enumerate(zip(stamps, wheels, strict=True)):
-            sec, nsec = divmod(ns, 10**9)
-            w.write("/joint_states", 10**9 + k * 10**6, t[bagio.JOINT_STATE](
-                header=t["std_msgs/msg/Header"](
-                    stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
-                    frame_id=""),
-                name=["left_wheel_joint", "right_wheel_joint"],
-                position=np.array([left, right]), velocity=np.zeros(0), effort=np.zeros(0)))
+            w.write("/joint_states", 10**9 + k * 10**6, joint_state_msg(t, ns, left, right))
 
 
 def test_replay_refuses_what_the_node_refuses(

@@ -502,7 +502,7 @@ def _write_bag(path: Path, run: Run) -> None:
     and logged at each reading) and /ground_truth/odom (the reference, at its stamps)."""
     from diffdrive_odom.tools import bagio, bagwriter
 
-    from bagutil import OdomMessages
+    from bagutil import OdomMessages, joint_state_msg
 
     steps, ref = run.steps, run.reference
     assert ref is not None
@@ -520,13 +520,7 @@ def _write_bag(path: Path, run: Run) -> None:
                 int(ns), float(x), float(y), float(yaw), linear=0.0, angular=0.0,
                 pose_covariance=cov, twist_covariance=cov))
         for ns, lw, rw in zip(stamps, left, right, strict=True):
-            sec, nsec = divmod(int(ns), 10**9)
-            w.write("/joint_states", int(ns), t[bagio.JOINT_STATE](
-                header=t["std_msgs/msg/Header"](
-                    stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
-                    frame_id=""),
-                name=["left_wheel_joint", "right_wheel_joint"],
-                position=np.array([lw, rw]), velocity=np.zeros(0), effort=np.zeros(0)))
+            w.write("/joint_states", int(ns), joint_state_msg(t, int(ns), lw, rw))
 
 
 def test_cli_refuses_a_fit_that_is_worse_on_every_held_out_run(
