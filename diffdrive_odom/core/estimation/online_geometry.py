@@ -32,6 +32,14 @@ two (correlated) ratios beyond chi-square's 2-dof quantile at the 3-sigma level
 (99.73 %) says the robot changed (a warning, once, then at most every
 ``WARN_INTERVAL_S`` while it stays outside). Pure Python, no numpy: a window update
 is a 3x3 filter step, a few microseconds, at most a few per second.
+
+``apply``: once determined and each ratio's relative 1-sigma is below ``apply_sigma``,
+:attr:`OnlineGeometry.applied` is the geometry to integrate with (the estimate's
+multipliers, the configured mean radius held), refreshed at every window update while
+that holds and kept when it no longer does; the pipeline swaps it in between two
+steps (:mod:`~diffdrive_odom.core.estimation.pipeline`), so the pose never jumps, and
+the covariance takes its uncertainty (:mod:`~diffdrive_odom.core.uncertainty.ratios`).
+The configured geometry stays the reference of the test above and the scale.
 """
 
 from __future__ import annotations
@@ -39,14 +47,21 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import MappingProxyType
 
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
+from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty
+from diffdrive_odom.core.uncertainty.ratios import (
+    mean_radius_stddev_ratio,
+    ratio_geometry_covariance,
+)
 
-__all__ = ["CHI2_2DOF_3SIGMA", "FIELDS", "OnlineConfig", "OnlineEstimate", "OnlineGeometry"]
+__all__ = ["CHI2_2DOF_3SIGMA", "FIELDS", "OnlineConfig", "OnlineEstimate", "OnlineGeometry",
+           "geometry_in_use"]
 
 # Chi-square with 2 degrees of freedom at the two-sided 3-sigma level (99.73 %):
 # -2 ln(1 - 0.9973002).
@@ -82,6 +97,7 @@ FIELDS = (
     "outside",  # 1.0 when determined and mahalanobis2 > CHI2_2DOF_3SIGMA
     "turned_left", "turned_right", "distance",  # rad, rad, m over counted windows
     "steps", "excluded_slip", "excluded_standstill", "excluded_no_gyro", "excluded_outlier",
+    "applied",  # 1.0 while the odometry integrates with the estimate (apply), else 0.0
 )
 
 
@@ -91,16 +107,21 @@ class OnlineConfigError(ConfigError):
 
 @dataclass(frozen=True)
 class OnlineConfig:
-    """``online_calibration: monitor`` (None in the settings when disabled)."""
+    """``online_calibration: monitor`` or ``apply`` (None in the settings when disabled)."""
 
     min_turn: float = 3.0  # rad turned each way before the estimate is determined
     random_walk: float = 1.0e-5  # 1/sqrt(s): relative random walk of each ratio
+    apply: bool = False  # integrate with the estimate once determined and precise enough
+    apply_sigma: float = 0.002  # relative 1-sigma each ratio must be below to be applied
 
     def __post_init__(self) -> None:
         for name, value in (("online_calibration_min_turn", self.min_turn),
                             ("online_calibration_random_walk", self.random_walk)):
             if not (math.isfinite(value) and value >= 0.0):
                 raise OnlineConfigError(name, f"must be finite and >= 0, got {value!r}")
+        if not (math.isfinite(self.apply_sigma) and self.apply_sigma > 0.0):
+            raise OnlineConfigError("online_calibration_apply_sigma",
+                                    f"must be finite and > 0, got {self.apply_sigma!r}")
 
 
 @dataclass(frozen=True)
@@ -129,6 +150,7 @@ class OnlineEstimate:
     steps: int
     windows: int
     excluded: Mapping[str, int]
+    applied: bool = False  # the odometry integrates with it (apply)
 
     def block(self) -> str:
         """The estimate as the three lines of a parameter YAML (to paste), with 1-sigma."""
@@ -145,13 +167,15 @@ class OnlineEstimate:
         return (float(self.determined), ml, sl, mr, sr, mb, sb, *self.ratios, a, c, d,
                 self.bias, self.bias_stddev, self.mahalanobis2, float(self.outside),
                 *self.turned, self.distance, float(self.steps),
-                *(float(ex.get(k, 0)) for k in ("slip", "standstill", "no_gyro", "outlier")))
+                *(float(ex.get(k, 0)) for k in ("slip", "standstill", "no_gyro", "outlier")),
+                float(self.applied))
 
     def line(self) -> str:
         """One line: the multipliers with their sigma, the excitation, determined or not."""
         ml, mr, mb = self.multipliers
         sl, sr, sb = self.stddevs
         state = ("determined" if self.determined else "not yet determined (turn both ways)")
+        state += ", applied" if self.applied else ""
         return (f"left {ml:.5f} +- {sl:.5f}, right {mr:.5f} +- {sr:.5f}, separation "
                 f"{mb:.5f} +- {sb:.5f} (mean radius held); turned {self.turned[0]:.1f} rad "
                 f"left, {self.turned[1]:.1f} rad right over {self.distance:.1f} m: {state}")
@@ -189,6 +213,10 @@ class OnlineGeometry:
         # (stamp, estimate) after updates, thinned to at most TRACE_MAX: replay prints it.
         self.trace: list[tuple[int, OnlineEstimate]] = []
         self._trace_every = 1
+        # apply: the geometry the odometry integrates with (None: the configured one) and
+        # its S over (ln r_l, ln r_r, ln b) (core.uncertainty.ratios).
+        self.applied: Geometry | None = None
+        self.applied_covariance: Matrix | None = None
         self._open()
 
     def _open(self) -> None:
@@ -202,6 +230,14 @@ class OnlineGeometry:
     def set_geometry(self, geometry: Geometry) -> None:
         """The configured geometry changed (a parameter at runtime): the reference and scale."""
         self.geometry = geometry
+        if self.applied is not None:
+            self._apply(refresh=True)
+
+    def set_config(self, config: OnlineConfig) -> None:
+        """New settings at runtime; from monitor the estimate is no longer used at once."""
+        self.config = config
+        if not config.apply:
+            self.applied = self.applied_covariance = None
 
     def observe(self, geometry: Geometry, t0: int, t1: int, arcs: tuple[float, float],
                 raw: float | None, slip: bool, standing: bool) -> None:
@@ -280,7 +316,33 @@ class OnlineGeometry:
         self.steps += n
         self.windows += 1
         self.distance += dist
+        if self.config.apply:
+            self._apply(refresh=self.determined and self._precise())
         self._check(w1)
+
+    def _precise(self) -> bool:
+        """Each ratio's relative 1-sigma below ``apply_sigma``."""
+        (u, v), p, limit = self.x[:2], self.p, self.config.apply_sigma
+        return p[0][0] < (limit * u) ** 2 and p[1][1] < (limit * v) ** 2
+
+    def _apply(self, refresh: bool) -> None:
+        """The geometry to integrate with: refreshed at each update while precise enough.
+
+        Once taken it is kept when the sigma grows above the threshold again (a long
+        stretch turning one way: the random walk), not dropped for the worse configured
+        one; its ``S`` follows the filter's covariance either way.
+        """
+        u, v = self.x[0], self.x[1]
+        if refresh:
+            (ml, mr, mb), _ = multipliers(self.geometry, (u, v), (0.0, 0.0, 0.0, 0.0))
+            self.applied = replace(self.geometry, left_wheel_radius_multiplier=ml,
+                                   right_wheel_radius_multiplier=mr,
+                                   wheel_separation_multiplier=mb)
+        if self.applied is not None:
+            p = self.p
+            self.applied_covariance = ratio_geometry_covariance(
+                (u, v), (p[0][0], p[0][1], p[1][0], p[1][1]),
+                mean_radius_stddev_ratio(self.noise.radius_stddev_ratio))
 
     def _check(self, stamp_ns: int) -> None:
         est = self.estimate()
@@ -328,7 +390,26 @@ class OnlineGeometry:
             mahalanobis2=d2, outside=determined and d2 > CHI2_2DOF_3SIGMA,
             turned=(self.turned[0], self.turned[1]), distance=self.distance,
             steps=self.steps, windows=self.windows,
-            excluded=MappingProxyType(dict(self.excluded)))
+            excluded=MappingProxyType(dict(self.excluded)), applied=self.applied is not None)
+
+
+def geometry_in_use(online: OnlineGeometry | None, configured: Geometry,
+                    uncertainty: PoseUncertainty | None) -> Geometry:
+    """The geometry the next steps integrate with: the applied estimate, else the configured.
+
+    The one rule for the node, replay and the demo (the pipeline asks before each
+    reading, so a switch falls between two steps). The covariance follows: the applied
+    estimate's ``S`` while it is in use, refreshed with it; a switch either way folds
+    the stretch before (:meth:`PoseUncertainty.switch_geometry`).
+    """
+    applied = None if online is None else online.applied
+    if uncertainty is not None:
+        s = None if online is None or applied is None else online.applied_covariance
+        if (s is None) != (uncertainty.geometry_covariance is None):
+            uncertainty.switch_geometry(s)
+        elif s is not None:
+            uncertainty.geometry_covariance = s
+    return configured if applied is None else applied
 
 
 def _ratios(g: Geometry) -> tuple[float, float]:

@@ -9,7 +9,8 @@ time reset, gap, speed check, integration); the ``publish_rate`` gate decides wh
 the pose goes out. The outcome and a set of counters come back, so the node logs,
 replay summarises and diagnostics report from the same numbers. With ``use_imu`` the
 IMU's samples come in through :meth:`ReadingPipeline.feed_imu` and the estimator takes
-each step's heading from :mod:`diffdrive_odom.core.estimation.gyro` (gyrodometry). Pure Python.
+each step's heading from :mod:`diffdrive_odom.core.estimation.gyro` (gyrodometry) and its
+geometry from :func:`~.online_geometry.geometry_in_use` (``apply``). Pure Python.
 """
 
 from __future__ import annotations
@@ -29,7 +30,11 @@ from diffdrive_odom.core.estimation.estimator import OdometryEstimator, Step
 from diffdrive_odom.core.estimation.gate import GateState, PublishGate
 from diffdrive_odom.core.estimation.gyro import GyroHeading, SlipStats
 from diffdrive_odom.core.estimation.imuinput import ImuInput
-from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate, OnlineGeometry
+from diffdrive_odom.core.estimation.online_geometry import (
+    OnlineEstimate,
+    OnlineGeometry,
+    geometry_in_use,
+)
 from diffdrive_odom.core.estimation.setpose import (
     PoseRefusal,
     PoseRequest,
@@ -97,7 +102,7 @@ class PipelineStats:
     last_usable_stamp_ns: int | None = None
     velocity_fallback: bool = False
     gyro: GyroStats | None = None  # use_imu true only
-    online: OnlineEstimate | None = None  # online_calibration monitor with use_imu only
+    online: OnlineEstimate | None = None  # online_calibration monitor|apply, use_imu only
 
     @property
     def dropped_total(self) -> int:
@@ -222,7 +227,7 @@ class ReadingPipeline:
                 quantization_variance(enc.ticks_per_revolution, len(enc.left_wheel_names)),
                 gyro.standstill.measured_density)
         else:
-            self._online.config = settings.online
+            self._online.set_config(settings.online)
             self._online.set_geometry(settings.geometry)
         if gyro is not None:
             gyro.observer = None if self._online is None else self._online.observe
@@ -305,8 +310,9 @@ class ReadingPipeline:
                 warning = self._clock.check(stamp_ns, receive_ns)
         else:
             receive_ns = None
-        gyro = self._gyro
+        gyro, est = self._gyro, self._estimator
         steps = 0 if gyro is None else gyro.steps
+        est.set_geometry(geometry_in_use(self._online, self._settings.geometry, est.uncertainty))
         verdict = (
             self._estimator.update(stamp_ns, names, position, velocity, receive_ns)
             if stamp_ns > 0 else ZERO_STAMP
