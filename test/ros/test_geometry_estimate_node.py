@@ -3,7 +3,8 @@
 The robot stands 1 s while a 200 Hz gyro reads a bias: the online estimate runs (its
 filter takes the standing windows for the bias), is not determined (no turn), and comes
 out as std_msgs/Float64MultiArray with the documented layout: one dimension, labelled
-with the field names, and /diagnostics says the same.
+with the field names, and /diagnostics says the same; with ``online_calibration: apply``
+it says the estimate is not applied (not determined).
 """
 
 from __future__ import annotations
@@ -51,7 +52,9 @@ def gyro(ns: int) -> Imu:
 
 
 def test_geometry_estimate_has_the_documented_layout() -> None:
-    with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true"]) as peer:
+    # In apply mode (issue 25 item 3): the same layout, and not applied while undetermined.
+    with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true",
+                                     "-p", "online_calibration:=apply"]) as peer:
         ex = peer.executor
         got: list[Any] = []
         peer.node.create_subscription(Float64MultiArray, "/odometry_node/geometry_estimate",
@@ -72,6 +75,7 @@ def test_geometry_estimate_has_the_documented_layout() -> None:
         assert msg.layout.dim[0].size == len(FIELDS) == len(msg.data)
         value = dict(zip(FIELDS, msg.data, strict=True))
         assert value["determined"] == 0.0 and value["outside"] == 0.0
+        assert value["applied"] == 0.0
         # Standing: the ratios keep their start values (the configured geometry).
         assert value["left_wheel_radius_multiplier"] == pytest.approx(1.0, abs=1e-9)
         assert value["wheel_separation_multiplier"] == pytest.approx(1.0, abs=1e-9)
@@ -79,3 +83,4 @@ def test_geometry_estimate_has_the_documented_layout() -> None:
         assert value["gyro_bias"] == pytest.approx(BIAS, rel=0.05)
         status = peer.wait_for(lambda s: "online calibration" in s.values, 15.0)
         assert status.values["online calibration"] == "not yet determined"
+        assert status.values["online estimate applied"] == "false"

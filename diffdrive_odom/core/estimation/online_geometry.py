@@ -37,8 +37,8 @@ is a 3x3 filter step, a few microseconds, at most a few per second.
 :attr:`OnlineGeometry.applied` is the geometry to integrate with (the estimate's
 multipliers, the configured mean radius held), refreshed at every window update while
 that holds and kept when it no longer does; the pipeline swaps it in between two
-steps (:mod:`~diffdrive_odom.core.estimation.pipeline`), so the pose never jumps, and
-the covariance takes its uncertainty (:mod:`~diffdrive_odom.core.uncertainty.ratios`).
+steps (:mod:`~diffdrive_odom.core.estimation.online_apply`), so the pose never jumps,
+and the covariance takes its uncertainty (:mod:`~diffdrive_odom.core.uncertainty.ratios`).
 The configured geometry stays the reference of the test above and the scale.
 """
 
@@ -54,14 +54,12 @@ from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
-from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty
 from diffdrive_odom.core.uncertainty.ratios import (
     mean_radius_stddev_ratio,
     ratio_geometry_covariance,
 )
 
-__all__ = ["CHI2_2DOF_3SIGMA", "FIELDS", "OnlineConfig", "OnlineEstimate", "OnlineGeometry",
-           "geometry_in_use"]
+__all__ = ["CHI2_2DOF_3SIGMA", "FIELDS", "OnlineConfig", "OnlineEstimate", "OnlineGeometry"]
 
 # Chi-square with 2 degrees of freedom at the two-sided 3-sigma level (99.73 %):
 # -2 ln(1 - 0.9973002).
@@ -217,6 +215,7 @@ class OnlineGeometry:
         # its S over (ln r_l, ln r_r, ln b) (core.uncertainty.ratios).
         self.applied: Geometry | None = None
         self.applied_covariance: Matrix | None = None
+        self.in_use: Geometry | None = None  # what online_apply.geometry_in_use handed out
         self._open()
 
     def _open(self) -> None:
@@ -391,25 +390,6 @@ class OnlineGeometry:
             turned=(self.turned[0], self.turned[1]), distance=self.distance,
             steps=self.steps, windows=self.windows,
             excluded=MappingProxyType(dict(self.excluded)), applied=self.applied is not None)
-
-
-def geometry_in_use(online: OnlineGeometry | None, configured: Geometry,
-                    uncertainty: PoseUncertainty | None) -> Geometry:
-    """The geometry the next steps integrate with: the applied estimate, else the configured.
-
-    The one rule for the node, replay and the demo (the pipeline asks before each
-    reading, so a switch falls between two steps). The covariance follows: the applied
-    estimate's ``S`` while it is in use, refreshed with it; a switch either way folds
-    the stretch before (:meth:`PoseUncertainty.switch_geometry`).
-    """
-    applied = None if online is None else online.applied
-    if uncertainty is not None:
-        s = None if online is None or applied is None else online.applied_covariance
-        if (s is None) != (uncertainty.geometry_covariance is None):
-            uncertainty.switch_geometry(s)
-        elif s is not None:
-            uncertainty.geometry_covariance = s
-    return configured if applied is None else applied
 
 
 def _ratios(g: Geometry) -> tuple[float, float]:

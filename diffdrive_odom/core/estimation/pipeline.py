@@ -10,7 +10,7 @@ the pose goes out. The outcome and a set of counters come back, so the node logs
 replay summarises and diagnostics report from the same numbers. With ``use_imu`` the
 IMU's samples come in through :meth:`ReadingPipeline.feed_imu` and the estimator takes
 each step's heading from :mod:`diffdrive_odom.core.estimation.gyro` (gyrodometry) and its
-geometry from :func:`~.online_geometry.geometry_in_use` (``apply``). Pure Python.
+geometry from :func:`~.online_apply.geometry_in_use` (``apply``). Pure Python.
 """
 
 from __future__ import annotations
@@ -30,11 +30,8 @@ from diffdrive_odom.core.estimation.estimator import OdometryEstimator, Step
 from diffdrive_odom.core.estimation.gate import GateState, PublishGate
 from diffdrive_odom.core.estimation.gyro import GyroHeading, SlipStats
 from diffdrive_odom.core.estimation.imuinput import ImuInput
-from diffdrive_odom.core.estimation.online_geometry import (
-    OnlineEstimate,
-    OnlineGeometry,
-    geometry_in_use,
-)
+from diffdrive_odom.core.estimation.online_apply import geometry_in_use
+from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate, OnlineGeometry
 from diffdrive_odom.core.estimation.setpose import (
     PoseRefusal,
     PoseRequest,
@@ -312,7 +309,8 @@ class ReadingPipeline:
             receive_ns = None
         gyro, est = self._gyro, self._estimator
         steps = 0 if gyro is None else gyro.steps
-        est.set_geometry(geometry_in_use(self._online, self._settings.geometry, est.uncertainty))
+        geometry, switched = geometry_in_use(self._online, self._settings.geometry, est.uncertainty)
+        est.set_geometry(geometry)
         verdict = (
             self._estimator.update(stamp_ns, names, position, velocity, receive_ns)
             if stamp_ns > 0 else ZERO_STAMP
@@ -334,7 +332,7 @@ class ReadingPipeline:
             self._time_resets += 1
         elif verdict.code is Reason.GAP:
             self._gap_reanchors += 1
-        note = ""
+        note = switched
         if self._estimator.from_velocity != self._velocity:
             self._velocity = not self._velocity
             note = VELOCITY_ON if self._velocity else VELOCITY_OFF

@@ -17,6 +17,7 @@ from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, R, Route, stream, truth
 from simstreams import SIM_TIMING, sim_stream, true_ratios
 
 from diffdrive_odom.core.estimation.config import ONLINE_NEEDS_IMU
+from diffdrive_odom.core.estimation.online_apply import APPLIED_NOTE, CONFIGURED_NOTE
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.settings.odometry import odometry_settings
@@ -62,7 +63,8 @@ def test_the_switch_changes_the_steps_after_it_not_the_pose() -> None:
             assert math.sqrt(est.covariance[0]) < 0.002 * u
             assert math.sqrt(est.covariance[3]) < 0.002 * v
         monitor.feed(stamp, NAMES, (a, b), receive_ns=rx)
-        apply.feed(stamp, NAMES, (a, b), receive_ns=rx)
+        out = apply.feed(stamp, NAMES, (a, b), receive_ns=rx)
+        assert out.note.startswith(APPLIED_NOTE) == ready  # said once, at the switch
         now = as_tuple(apply.estimator.pose)
         if not ready:
             assert now == as_tuple(monitor.estimator.pose)  # bit for bit until the switch
@@ -133,7 +135,7 @@ def test_back_to_monitor_at_runtime_keeps_pose_and_covariance() -> None:
     # The next reading's step takes the configured geometry again; nothing jumps before.
     stamp = pipe.estimator.stamp_ns
     assert stamp is not None
-    pipe.feed(stamp + 20_000_000, NAMES, (0.0, 0.0))
+    assert pipe.feed(stamp + 20_000_000, NAMES, (0.0, 0.0)).note == CONFIGURED_NOTE
     assert pipe.estimator.geometry is pipe.settings.geometry
     assert unc.geometry_covariance is None and pipe.estimator.pose == pose
     after = pipe.covariances()[0]
