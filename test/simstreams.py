@@ -6,7 +6,8 @@ is not the configured one, its gyro's bias and white noise, random ground slip a
 scripted wheel spins, a motor lag (no twist jumps). The route is
 :mod:`gyrostreams`'s (segments of constant twist), commanded through the TRUE
 geometry's inverse kinematics (a robot that drives the route). The wheels are read
-at ``timing.wheel_hz``, the gyro at ``timing.imu_hz`` with its own phase, header
+at ``timing.wheel_hz``, the gyro (the mean rate over each of its periods, as an
+integrating gyro) at ``timing.imu_hz`` with its own phase, header
 stamps off by ``imu_offset`` plus jitter, its own latency: the messages come in
 receive-time order, as a node sees them (:mod:`gyrostreams`' timings). The truth is
 the sim's own pose at each wheel reading (its physics, not the odometry's).
@@ -94,22 +95,30 @@ def sim_stream(route: Route, seed: int, timing: Timing = SIM_TIMING, true: Geome
     distance: dict[int, float] = {}
     kw = ki = 0
     heading = 0.0  # the true heading unwrapped (the sim's pose wraps it)
+    last = (0, 0.0)  # the previous gyro sample's time [ns] and true heading
     for t_ns, kind in events:
         sim.advance(t_ns - sim.time_ns)
         rl, rr = wheel_rates(true, *_twist(route, t_ns * 1e-9))
         sim.command([rl, rr])
+        p = sim.pose
+        heading += math.remainder(p.theta - heading, 2.0 * math.pi)
         if kind == 0:
             left, right = sim.joint_angles
             stamp = T0 + t_ns
             out.append(("j", stamp + round(wlat[kw] * 1e9), stamp, float(left), float(right)))
-            p = sim.pose
-            heading += math.remainder(p.theta - heading, 2.0 * math.pi)
             truth[stamp] = (p.x, p.y, heading)
             distance[stamp] = sim.distance
             kw += 1
         else:
-            rate = sim.gyro(timing.imu_hz)
-            stamp = T0 + t_ns + round((timing.imu_offset + jit[ki]) * 1e9)
+            # An integrating gyro: the mean true rate over its own period, measured at the
+            # period's middle (a point sample of the sim's last physics step would miss the
+            # ground slip of steps that ended at a wheel reading), plus the sim gyro's bias
+            # and white noise.
+            t0, h0 = last
+            mean = (heading - h0) / ((t_ns - t0) * 1e-9)
+            rate = mean + sim.gyro(timing.imu_hz) - sim.twist.angular
+            last = (t_ns, heading)
+            stamp = T0 + (t0 + t_ns) // 2 + round((timing.imu_offset + jit[ki]) * 1e9)
             out.append(("i", T0 + t_ns + round(ilat[ki] * 1e9), stamp, float(rate), 0.0))
             ki += 1
     out.sort(key=lambda m: (m[1], m[0]))
