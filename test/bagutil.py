@@ -19,6 +19,7 @@ from diffdrive_odom.wire.conversions import yaw_to_quaternion
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 JS, IMU = "sensor_msgs/msg/JointState", "sensor_msgs/msg/Imu"
+POSE = "geometry_msgs/msg/PoseStamped"
 
 OPTIODOM_PARAMS = {"wheel_radius": 0.042, "wheel_separation": 0.200}
 TB3_PARAMS = {
@@ -139,12 +140,13 @@ def joint_state_msg(t: Any, stamp_ns: int, left: float, right: float) -> Any:
                  velocity=np.zeros(0), effort=np.zeros(0))
 
 
-def write_sensor_bag(path: Path, messages: Iterable[tuple[str, int, int, float, float]],
+def write_sensor_bag(path: Path, messages: Iterable[tuple[Any, ...]],
                      imu_hz: float, noise_density: float = 3e-4) -> None:
     """An MCAP bag of ``gyrostreams`` messages, each logged at its receive time.
 
     JointStates on /joint_states (positions), Imu on /imu (the yaw rate, its
-    angular_velocity_covariance honest: the density squared times the rate).
+    angular_velocity_covariance honest: the density squared times the rate), and
+    ``refstreams``' reference poses (if any) as PoseStamped on /reference.
     """
     t = STORE.types
     zero3 = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
@@ -154,8 +156,17 @@ def write_sensor_bag(path: Path, messages: Iterable[tuple[str, int, int, float, 
     with writer:
         joints = writer.add_connection("/joint_states", JS, typestore=STORE)
         imu = writer.add_connection("/imu", IMU, typestore=STORE)
-        for kind, rx, stamp, a, b in messages:
-            if kind == "j":
+        messages = list(messages)
+        ref = (writer.add_connection("/reference", POSE, typestore=STORE)
+               if any(m[0] == "r" for m in messages) else None)
+        for kind, rx, stamp, a, b, *more in messages:
+            if kind == "r" and ref is not None:
+                qx, qy, qz, qw = yaw_to_quaternion(more[0])
+                msg = t[POSE](header=_header(stamp, "map"), pose=t["geometry_msgs/msg/Pose"](
+                    position=t["geometry_msgs/msg/Point"](x=a, y=b, z=0.0),
+                    orientation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
+                writer.write(ref, rx, bytes(STORE.serialize_cdr(msg, POSE)))
+            elif kind == "j":
                 msg = joint_state_msg(t, stamp, a, b)
                 writer.write(joints, rx, bytes(STORE.serialize_cdr(msg, JS)))
             else:

@@ -62,6 +62,8 @@ from diffdrive_odom.tools.sinks import Published
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
     from diffdrive_odom.tools import bagreadings
 
+    Reading = JointReading | bagreadings.ImuSample | bagreadings.ReferenceSample | JointBlock
+
 __all__ = ["ReplayStats", "main", "replay_readings"]
 
 PREFIX = "[replay]"
@@ -135,7 +137,7 @@ def _stretch_out(stretch: fastlane.Stretch, sink: Callable[[Published], None]) -
 
 
 def replay_readings(
-    readings: Iterable[JointReading | bagreadings.ImuSample | JointBlock],
+    readings: Iterable[Reading],
     settings: OdometrySettings,
     sink: Callable[[Published], None] | None = None,
     fast: bool = True,
@@ -158,13 +160,16 @@ def replay_readings(
     start = time.perf_counter()
     # The bag's log time is the receive time: the node's rules on stamps apply alike.
     def one_by_one(
-        rs: Iterable[JointReading | bagreadings.ImuSample | JointBlock],
+        rs: Iterable[Reading],
     ) -> Iterator[tuple[JointReading, Outcome]]:
         for item in rs:
             for r in item if isinstance(item, JointBlock) else (item,):
                 if isinstance(r, bagreadings.ImuSample):  # use_imu: gyro samples, as the node's
                     pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz, r.log_ns,
                                   covariance=r.covariance)
+                    continue
+                if isinstance(r, bagreadings.ReferenceSample):  # the online estimate's scale
+                    pipe.feed_reference(r.stamp_ns, r.x, r.y, r.yaw)
                     continue
                 yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 
@@ -249,9 +254,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="with --eval: write the figures as JSON (default: none)")
     ap.add_argument("--plot", metavar="FILE",
                     help="with --eval: write a PNG plot (default: none)")
-    ap.add_argument("--online-calibration", action="store_true",
-                    help="print the gyro's online geometry estimate over the run and a block "
-                    "to paste (needs use_imu)")
+    online_report.add_arguments(ap)
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                     help="progress line on stderr (default: on a terminal, for long bags)")
     fleet.add_fleet_arguments(ap)
@@ -306,7 +309,7 @@ def _run_fleet(args: argparse.Namespace) -> int:
 
 def run_bag(args: argparse.Namespace) -> int:
     """One bag (``args.bag``) with the parsed flags: what ``replay BAG ...`` does."""
-    settings = settings_from_args(args)
+    settings = online_report.reference_override(args) or settings_from_args(args)
     if not isinstance(settings, str) and args.online_calibration:
         settings = online_report.online_settings(settings)
     if isinstance(settings, str):
@@ -420,15 +423,18 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
             return openloop_replay.replay_bag(reader, settings, args, traj, writer, csv_out,
                                               passthrough), traj
         jump = int(settings.estimator.time_jump_threshold * 1e9)
-        readings: Iterable[JointReading | bagreadings.ImuSample | JointBlock]
+        readings: Iterable[Reading]
         if settings.takes_bulk and passthrough is None:  # runs of alike messages at once
             readings = bagblocks.iter_joint_blocks(reader, args.topic, jump_back_ns=jump)
         else:
             gyro = settings.gyro
+            online = settings.online
+            ref = None if gyro is None or online is None else online.reference
             readings = bagreadings.iter_sensor_readings(
                 reader, args.topic, None if gyro is None else args.imu_topic,
                 passthrough, jump_back_ns=jump, imu_by_log_time=gyro is not None
-                and gyro.stamp_source is StampSource.RECEIVE_TIME)
+                and gyro.stamp_source is StampSource.RECEIVE_TIME,
+                reference_topic=None if ref is None else ref.topic)
         if progress.wanted(args.progress, total):
             readings = progress.progress(readings, total, PREFIX, weight=reading_count)
         sink = sinks.output_sink(settings, writer, csv_out, traj if args.eval else None,

@@ -14,8 +14,7 @@ import pytest
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.core.estimation.online_geometry import FIELDS
-from diffdrive_odom.ros.geometry_estimate import QOS
+from diffdrive_odom.ros.geometry_estimate import FIELDS, QOS
 
 from diagutil import diagnosed
 from rosutil import (
