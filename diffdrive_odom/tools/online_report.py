@@ -3,7 +3,9 @@
 The estimate is the node's own (:mod:`diffdrive_odom.core.estimation.online_geometry`,
 through the one pipeline); this module only turns its trace into a few lines: the
 estimate at a few points of the run, by distance, then the final one as a block of
-ddc's multipliers to paste into the parameter file, as ``calibrate`` prints its own.
+ddc's multipliers to paste into the parameter file, as ``calibrate`` prints its own;
+with ``--reference-topic`` the reference's scale too (the same as the node's parameter
+``online_calibration_reference_topic``).
 Without ``use_imu`` there is nothing to estimate from, which is said.
 """
 
@@ -106,8 +108,11 @@ def row(e: OnlineEstimate) -> str:
     """One estimate as a table row."""
     cells = [f"{m:.5f} +- {s:.5f}" for m, s in zip(e.multipliers, e.stddevs, strict=True)]
     mark = "" if e.determined else "  (not yet determined)"
+    sc = e.scale  # with a reference: the mean radius and the gyro scale, as they converge
+    scale = "" if sc is None else (f"  radius x {sc.mean_radius[0]:.5f}, gyro x "
+                                   f"{sc.gyro_scale[0]:.5f}")
     return (f"{cells[0]:20s}  {cells[1]:20s}  {cells[2]:22s}  "
-            f"{e.turned[0]:5.1f} / {e.turned[1]:5.1f}{mark}")
+            f"{e.turned[0]:5.1f} / {e.turned[1]:5.1f}{mark}{scale}")
 
 
 def _spread(trace: list[tuple[int, OnlineEstimate]], n: int

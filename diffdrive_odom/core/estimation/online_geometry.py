@@ -7,7 +7,9 @@ Marchionni and Oriolo, "Simultaneous calibration of odometry and sensor paramete
 for mobile robots", IEEE T-RO 2013, first step, with a gyro in place of the scan
 matcher). A small Kalman filter on ``(u, v, bias)`` with a random walk on each
 estimates them recursively. The absolute scale (the mean radius, so ``b`` itself) is
-not observable from rotation: it is held at the configured one.
+not observable from rotation: it is held at the configured one, unless a reference pose
+measures it (:mod:`~diffdrive_odom.core.estimation.online_scale`, which also divides the
+ratios by the gyro's scale factor it measures).
 
 Which steps count: only those the gyro judged for good (after the deferred judgement
 of :mod:`~diffdrive_odom.core.estimation.gyro`, so on any IMU timing) whose slip test

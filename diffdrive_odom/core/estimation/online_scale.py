@@ -59,6 +59,7 @@ MIN_DISTANCE = 5.0  # m of distance windows before the scale is determined
 MAX_LAG_S = 10.0  # s of wheel steps kept for a reference that lags
 MAX_PENDING = 4096  # reference poses waiting for the wheels (oldest dropped beyond)
 TIMING_STDDEV = 0.01  # s: how far the reference's stamps may be off the wheels' (1 sigma)
+RESTART_S = 1.0  # s: a stamp this far back is a new timeline (a bag loop), not a stale one
 EXCLUDED = {
     "slip": "a step inside its window (or at its stamp) was excluded (slip, no gyro) or "
             "missing",
@@ -188,6 +189,7 @@ class OnlineScale:
         self._anchor: tuple[tuple[int, float, float, float], _Point] | None = None
         self._updated_ns: int | None = None
         self._ratios = (0.0, 0.0)  # the gyro's ratios, as last observed
+        self._heading = 0.0  # the wheels' heading, true (the gyro's over s) [rad]
 
     # --- inputs ------------------------------------------------------------------
 
@@ -196,8 +198,11 @@ class OnlineScale:
         if not all(math.isfinite(v) for v in (x, y, yaw)) or stamp_ns <= 0:
             return "non_finite"
         if self._last_ref is not None and stamp_ns <= self._last_ref:
-            self.excluded["stale"] += 1
-            return "stale"
+            if self._last_ref - stamp_ns < RESTART_S * 1e9:
+                self.excluded["stale"] += 1
+                return "stale"
+            self._refs.clear()  # a new timeline: the estimate carries on
+            self._anchor = None
         self._last_ref = stamp_ns
         self._refs.append((stamp_ns, x, y, yaw))
         if len(self._refs) > MAX_PENDING:
@@ -216,13 +221,21 @@ class OnlineScale:
             return
         self._ratios = (state[0], state[1])
         dt = (t1 - t0) * 1e-9
+        if self._stamps and t0 < self._stamps[-1]:  # the wheels' time went back: start over
+            self._stamps.clear()
+            self._points.clear()
+            self._anchor = None
         last = self._points[-1] if self._points else None
         if last is None or last[0] != t0:  # a hole: nothing is known over it
             last = (t0, 0.0, 0.0, 0.0, 0.0, 0.0, 1, 0.0, 0.0, 0.0) if last is None else (
                 t0, *last[1:6], last[6] + 1, last[7], 0.0, 0.0)
             self._append(last)
         turn = 0.0 if raw is None else raw - state[2] * dt
-        mid = last[1] + 0.5 * turn
+        # The wheels are laid along the true heading (the gyro's over its scale factor): a
+        # chord along a heading turning s times too much would be off by about
+        # (s - 1) theta^2 / 12 over a window turning theta.
+        mid = self._heading + 0.5 * turn / self.x[1]
+        self._heading += turn / self.x[1]
         c, s = math.cos(mid), math.sin(mid)
         phi_r, phi_l = arcs[1] / geometry.right_radius, arcs[0] / geometry.left_radius
         bad = raw is None or slip

@@ -144,3 +144,43 @@ def test_settings_are_checked_at_start() -> None:
     assert off is not None and off.reference is None
     # Without a reference topic (or without the online estimate) a pose is ignored.
     assert ReadingPipeline(odometry_settings(base)).feed_reference(1, 0.0, 0.0, 0.0) == ""
+
+
+def test_scale_core_exact_data_and_a_time_reset() -> None:
+    """OnlineScale alone on exact data: k and s in closed form; a bag loop starts over."""
+    from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig
+    from diffdrive_odom.core.geometry.kinematics import Geometry
+    from diffdrive_odom.core.uncertainty.noise import NoiseModel
+
+    g = Geometry(R, B)
+    k, s = 1.01, 0.98  # the true radii 1 % larger; the gyro reads 2 % less
+    scale = OnlineScale(ReferenceConfig("/ref", position_stddev=1e-4, heading_stddev=1e-4),
+                        g, 1e-5, NoiseModel(k_left=0.0, k_right=0.0), 1.0, 0.0)
+    state = [s * k * R / B, s * k * R / B, 0.0]  # the gyro's ratios: s times the truth
+
+    def drive(t0: int, seconds: float, v: float, w: float, pose: list[float]) -> int:
+        dt = 20_000_000
+        for i in range(round(seconds * 50)):
+            a, b = t0 + i * dt, t0 + (i + 1) * dt
+            # The wheels' angles for the true twist; arcs in the configured radius.
+            phi_l, phi_r = ((v - 0.5 * B * k * w) * 0.02 / (k * R),
+                            (v + 0.5 * B * k * w) * 0.02 / (k * R))
+            th = pose[2] + 0.5 * w * 0.02
+            pose[0] += v * 0.02 * math.cos(th)
+            pose[1] += v * 0.02 * math.sin(th)
+            pose[2] += w * 0.02
+            scale.observe(g, a, b, (phi_l * R, phi_r * R), s * w * 0.02, False, state)
+            if i % 5 == 4:
+                assert scale.feed(b, *pose) == ""
+        return t0 + round(seconds * 50) * dt
+
+    pose = [0.0, 0.0, 0.0]
+    t = drive(10**18, 10.0, 0.5, 0.0, pose)
+    t = drive(t, 10.0, 0.3, 0.4, pose)
+    t = drive(t, 10.0, 0.3, -0.4, pose)
+    assert scale.x == pytest.approx([k, s], rel=1e-4)
+    assert scale.determined and not scale.excluded
+    windows = scale.windows
+    drive(10**18, 10.0, 0.3, 0.5, [0.0, 0.0, 0.0])  # the bag again: time went back 30 s
+    assert scale.windows > windows and not scale.excluded.get("stale")
+    assert scale.x == pytest.approx([k, s], rel=1e-4)
