@@ -69,6 +69,9 @@ def test_replay_turtlebot3_with_its_odom_as_reference(
     assert cli(["replay", str(bag), "--params-file", str(params), "--reference-topic",
                 "/odom"]) == 2
     assert "--reference-topic needs --online-calibration" in capsys.readouterr().err
+    assert cli(["replay", str(bag), "--params-file", str(params), "--online-calibration",
+                "--reference-topic", "/nope"]) == 2
+    assert "topic /nope is not in the bag" in capsys.readouterr().err
     code = cli(["replay", str(bag), "--params-file", str(params), "--online-calibration",
                 "--reference-topic", "/odom"])
     out = capsys.readouterr().out

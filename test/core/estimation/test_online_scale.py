@@ -176,6 +176,8 @@ def test_scale_core_exact_data_and_a_time_reset() -> None:
 
     pose = [0.0, 0.0, 0.0]
     t = drive(10**18, 10.0, 0.5, 0.0, pose)
+    assert not scale.determined and scale.turned < 0.01  # straight: s not seen yet
+    assert scale.x[0] == pytest.approx(k, rel=1e-4)  # the distance is
     t = drive(t, 10.0, 0.3, 0.4, pose)
     t = drive(t, 10.0, 0.3, -0.4, pose)
     assert scale.x == pytest.approx([k, s], rel=1e-4)
