@@ -175,8 +175,13 @@ class OnlineScale:
         self.noise = noise
         self.min_turn = min_turn
         self.random_walk = random_walk
-        self.x = [1.0, 1.0]  # k, s
-        self.p = [PRIOR ** 2, PRIOR ** 2]
+        # k, s, and the reference's error at the window's start pose (heading, x, y): windows
+        # share their end poses, so that error is carried from one window to the next
+        # instead of being counted afresh in each (their sum telescopes).
+        self.x = [1.0, 1.0, 0.0, 0.0, 0.0]
+        self.p = [[0.0] * 5 for _ in range(5)]
+        self.p[0][0] = self.p[1][1] = PRIOR ** 2
+        self._fresh_anchor()
         self.excluded: Counter[str] = Counter()
         self.poses = 0
         self.windows = 0
@@ -248,11 +253,13 @@ class OnlineScale:
     def _append(self, point: _Point) -> None:
         self._stamps.append(point[0])
         self._points.append(point)
+        if len(self._stamps) & 255:  # pruned every 256 steps
+            return
         keep = point[0] - int(MAX_LAG_S * 1e9)
         if self._anchor is not None:
             keep = min(keep, self._anchor[1][0])
         cut = bisect.bisect_left(self._stamps, keep) - 1
-        if cut > 256:
+        if cut > 0:
             del self._stamps[:cut]
             del self._points[:cut]
 
@@ -284,11 +291,13 @@ class OnlineScale:
                 continue
             if self._anchor is None:
                 self._anchor = (ref, here)
+                self._fresh_anchor()
                 continue
             ref0, there = self._anchor
             if here[6] != there[6]:
                 self.excluded["slip"] += 1
                 self._anchor = (ref, here)
+                self._fresh_anchor()
                 continue
             dt = (ref[0] - ref0[0]) * 1e-9
             if (here[7] - there[7] >= WINDOW_M or abs(here[1] - there[1]) >= WINDOW_RAD
@@ -296,46 +305,72 @@ class OnlineScale:
                 self._update(ref0, there, ref, here)
                 self._anchor = (ref, here)
 
+    def _fresh_anchor(self) -> None:
+        """A window's start pose whose error nothing has told about yet (its prior)."""
+        x, p, cfg = self.x, self.p, self.config
+        for i in range(2, 5):
+            x[i] = 0.0
+            for j in range(5):
+                p[i][j] = p[j][i] = 0.0
+        p[2][2] = cfg.heading_stddev ** 2
+        p[3][3] = p[4][4] = cfg.position_stddev ** 2
+
     def _update(self, ref0: tuple[int, float, float, float], a: _Point,
                 ref1: tuple[int, float, float, float], b: _Point) -> None:
-        """One window: a rotation update of ``s`` and (long enough) a distance update of ``k``."""
+        """One window: a rotation update of ``s`` and (long enough) a distance update of ``k``.
+
+        The state is extended by the end pose's error (prior: the reference's noise), both
+        updates run on it, then the start pose's error is dropped: the end pose starts the
+        next window with what the updates told about its error.
+        """
         dt = (ref1[0] - ref0[0]) * 1e-9
-        x, p = self.x, self.p
+        cfg = self.config
+        x = [*self.x, 0.0, 0.0, 0.0]
+        p = [[*row, 0.0, 0.0, 0.0] for row in self.p] + [[0.0] * 8 for _ in range(3)]
+        p[5][5], p[6][6] = cfg.heading_stddev ** 2, cfg.position_stddev ** 2
+        p[7][7] = p[6][6]
         if self._updated_ns is not None:
             grow = max(ref1[0] - self._updated_ns, 0) * 1e-9 * self.random_walk ** 2
-            p[0] += grow * x[0] ** 2
-            p[1] += grow * x[1] ** 2
+            p[0][0] += grow * x[0] ** 2
+            p[1][1] += grow * x[1] ** 2
         self._updated_ns = ref1[0]
-        cfg = self.config
         gyro = b[1] - a[1]
         turn = gyro + math.remainder(ref1[3] - ref0[3] - gyro, math.tau)
         density = max(self.noise_density, self.measured_density())
-        rotation = (1, gyro, turn, density ** 2 * dt + 2.0 * (x[1] * cfg.heading_stddev) ** 2
-                    + (x[1] * (b[9] - a[9]) * TIMING_STDDEV) ** 2)
+        true_turn = turn - x[5] + x[2]
+        # gyro = s (turn - n_end + n_start) + noise
+        updates = [(gyro - x[1] * true_turn, [0.0, true_turn, x[1], 0.0, 0.0, -x[1], 0.0, 0.0],
+                    density ** 2 * dt + (x[1] * (b[9] - a[9]) * TIMING_STDDEV) ** 2)]
         # The wheels' chord with the gyro's ratios at the configured mean radius.
         u, v = self._ratios
         m = 0.5 * (self.geometry.left_radius + self.geometry.right_radius)
         rr, rl = (2.0 * m * u / (u + v), 2.0 * m * v / (u + v)) if u + v > 0.0 else (m, m)
         h = 0.5 * math.hypot(rr * (b[2] - a[2]) + rl * (b[4] - a[4]),
                              rr * (b[3] - a[3]) + rl * (b[5] - a[5]))
-        n = self.noise
-        distance = (0, math.hypot(ref1[1] - ref0[1], ref1[2] - ref0[2]), h,
-                    2.0 * cfg.position_stddev ** 2 + x[0] ** 2 * 0.25 * (n.k_left + n.k_right)
-                    * (b[7] - a[7]) + (x[0] * (b[8] - a[8]) * TIMING_STDDEV) ** 2)
-        updates = [rotation] + ([distance] if h >= MIN_CHORD else [])
-        for i, z, hi, r in updates:  # a jump shows in either: the whole window is refused
-            e = z - x[i] * hi
-            if e * e > GATE_SIGMAS ** 2 * (hi * hi * p[i] + r):
+        dx, dy = ref1[1] - ref0[1], ref1[2] - ref0[2]
+        z = math.hypot(dx, dy)
+        if h >= MIN_CHORD and z > 0.0:
+            # |dp| = k h + (e_end - e_start) along the chord + noise
+            ux, uy = dx / z, dy / z
+            n = self.noise
+            predicted = x[0] * h + ux * (x[6] - x[3]) + uy * (x[7] - x[4])
+            updates.append((z - predicted, [h, 0.0, 0.0, -ux, -uy, 0.0, ux, uy],
+                            x[0] ** 2 * 0.25 * (n.k_left + n.k_right) * (b[7] - a[7])
+                            + (x[0] * (b[8] - a[8]) * TIMING_STDDEV) ** 2))
+        for e, hv, r in updates:  # a jump shows in either: the whole window is refused
+            if e * e > GATE_SIGMAS ** 2 * (_quadratic(p, hv) + r):
                 self.excluded["outlier"] += 1
+                self._fresh_anchor()
                 return
-        for i, z, hi, r in updates:
-            gain = p[i] * hi / (hi * hi * p[i] + r)
-            x[i] += gain * (z - x[i] * hi)
-            p[i] -= gain * hi * p[i]
+        for e, hv, r in updates:
+            _kalman(x, p, hv, e, r)
+        keep = (0, 1, 5, 6, 7)
+        self.x = [x[i] for i in keep]
+        self.p = [[p[i][j] for j in keep] for i in keep]
         self.windows += 1
         self.turned += abs(turn)
-        if h >= MIN_CHORD:
-            self.distance += h * x[0]
+        if len(updates) > 1:
+            self.distance += h * self.x[0]
 
     # --- outputs -----------------------------------------------------------------
 
@@ -347,7 +382,7 @@ class OnlineScale:
     def correct(self, ratios: tuple[float, float], cov: tuple[float, float, float, float]
                 ) -> tuple[tuple[float, float], tuple[float, float, float, float]]:
         """The gyro's ratios over its scale factor, ``s``'s variance carried into theirs."""
-        s, vs = self.x[1], self.p[1]
+        s, vs = self.x[1], self.p[1][1]
         u, v = ratios[0] / s, ratios[1] / s
         a, b, c, d = (e / (s * s) for e in cov)
         w = vs / (s * s)
@@ -356,13 +391,36 @@ class OnlineScale:
     def estimate(self, multipliers: tuple[float, float, float],
                  stddevs: tuple[float, float, float]) -> ScaleEstimate:
         """With the mean-held multipliers (of the corrected ratios): the scaled ones."""
-        k, vk = self.x[0], self.p[0]
+        k, vk = self.x[0], self.p[0][0]
         mult = tuple(k * m for m in multipliers)
         sig = tuple(math.sqrt(k * k * sd * sd + m * m * vk)
                     for m, sd in zip(multipliers, stddevs, strict=True))
         return ScaleEstimate(
             determined=self.determined, mean_radius=(k, math.sqrt(max(vk, 0.0))),
-            gyro_scale=(self.x[1], math.sqrt(max(self.p[1], 0.0))),
+            gyro_scale=(self.x[1], math.sqrt(max(self.p[1][1], 0.0))),
             multipliers=(mult[0], mult[1], mult[2]), stddevs=(sig[0], sig[1], sig[2]),
             poses=self.poses, windows=self.windows, distance=self.distance,
             turned=self.turned, excluded=MappingProxyType(dict(self.excluded)))
+
+
+def _quadratic(p: list[list[float]], h: list[float]) -> float:
+    """``h' P h``."""
+    n = len(h)
+    return sum(h[i] * p[i][j] * h[j] for i in range(n) for j in range(n) if h[i] and h[j])
+
+
+def _kalman(x: list[float], p: list[list[float]], h: list[float], e: float, r: float) -> None:
+    """One scalar measurement (``H = h``, innovation ``e``, noise ``r``), in place."""
+    n = len(x)
+    ph = [sum(p[i][j] * h[j] for j in range(n) if h[j]) for i in range(n)]
+    s = sum(h[i] * ph[i] for i in range(n)) + r
+    if s <= 0.0:
+        return
+    k = [v / s for v in ph]
+    for i in range(n):
+        x[i] += k[i] * e
+        for j in range(n):
+            p[i][j] -= k[i] * ph[j]
+    for i in range(n):  # symmetric, as it should be
+        for j in range(i):
+            p[i][j] = p[j][i] = 0.5 * (p[i][j] + p[j][i])

@@ -180,9 +180,9 @@ def test_scale_core_exact_data_and_a_time_reset() -> None:
     assert scale.x[0] == pytest.approx(k, rel=1e-4)  # the distance is
     t = drive(t, 10.0, 0.3, 0.4, pose)
     t = drive(t, 10.0, 0.3, -0.4, pose)
-    assert scale.x == pytest.approx([k, s], rel=1e-4)
+    assert scale.x[:2] == pytest.approx([k, s], rel=1e-4)
     assert scale.determined and not scale.excluded
     windows = scale.windows
     drive(10**18, 10.0, 0.3, 0.5, [0.0, 0.0, 0.0])  # the bag again: time went back 30 s
     assert scale.windows > windows and not scale.excluded.get("stale")
-    assert scale.x == pytest.approx([k, s], rel=1e-4)
+    assert scale.x[:2] == pytest.approx([k, s], rel=1e-4)
