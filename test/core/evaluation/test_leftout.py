@@ -19,7 +19,7 @@ from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.bulk.readings import JointReading
 from diffdrive_odom.core.evaluation import calibration, leftout, umbmark
 from diffdrive_odom.core.evaluation.metrics import Trajectory
-from diffdrive_odom.core.evaluation.recorded_run import Run
+from diffdrive_odom.core.evaluation.recorded_run import Run, with_values
 from diffdrive_odom.settings.odometry import odometry_settings
 
 TRUE = np.array([R, R * 1.005, B * 1.01])
@@ -92,7 +92,7 @@ def test_umbmark_bridges_the_slips_too(runs: tuple[Run, Run]) -> None:
     """UMBmark's end errors with the slips bridged: the geometry's alone (no square here,
     so only the bridged end pose is checked: the truth's, with the true geometry)."""
     _, gyro = runs
-    true = calibration.with_values(PLAIN.geometry, *TRUE)
+    true = with_values(PLAIN.geometry, *TRUE)
     x, y, _ = leftout.integrate(gyro.steps, true, leftout.bridges(gyro))
     assert gyro.reference is not None
     end = umbmark.reference_end(gyro, gyro.reference)
@@ -109,7 +109,8 @@ def test_without_bridges_the_integration_is_the_batch_paths_and_a_gap_widens_a_b
     first = leftout.bridges(gyro)[0]
     stamps = leftout.pose_stamps(gyro.steps)
     ref = gyro.reference
-    hole = (ref.stamp_ns > stamps[first.start] - 2 * 10**9) & (ref.stamp_ns <= stamps[first.start] + 5_000_000)
+    at = stamps[first.start]  # 2 s of reference gone up to (and over) the slip's start
+    hole = (ref.stamp_ns > at - 2 * 10**9) & (ref.stamp_ns <= at + 5_000_000)
     gappy = Trajectory(ref.stamp_ns[~hole], ref.x[~hole], ref.y[~hole], ref.yaw[~hole])
     wide = leftout.bridges(Run("gap", gyro.steps, gappy))[0]
     assert wide.start < first.start and wide.end == first.end
