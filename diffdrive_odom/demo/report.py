@@ -10,6 +10,7 @@ replay's online geometry estimate is printed below.
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -226,27 +227,29 @@ class DemoResult:
         return "\n".join(lines)
 
     def _meaning(self) -> list[str]:
-        """What each column and row integrates, and the online estimate."""
+        """What each column and row integrates, and the online estimate (wrapped)."""
         if self.left_out is not None:
             events, steps, total = self.left_out
-            out = [f"calibration left out the {steps} of {total} wheel steps of {events} slip "
-                   "event(s), by the node's slip rule, as calibrate does. 'every wheel step': "
-                   "the row's geometry over all recorded",
-                   "wheel steps (a slip turns it by what the robot never turned: no geometry "
-                   "undoes that); 'slip steps left out': the same with those steps bridged by "
-                   "the truth's motion, what the geometry alone does."]
+            text = (f"Calibration left out the {steps} of {total} wheel steps of the {events} "
+                    "slip event(s), found by the node's slip rule, as calibrate does. 'every "
+                    "wheel step': the row's geometry over all recorded wheel steps (a slip "
+                    "turns it by what the robot never turned, which no geometry undoes); "
+                    "'slip steps left out': the same with those steps bridged by the truth's "
+                    "motion: what the geometry alone does.")
         else:
-            out = ["(the fit and UMBmark take any slip's heading for geometry: no gyro "
-                   "recorded to find the slips)"]
-        out.append("Replays: the recorded readings through the node's pipeline with the "
-                   "nominal geometry; the live odometry_node ran wheels only.")
+            text = ("The fit and UMBmark take any slip's heading for geometry: no gyro was "
+                    "recorded to find the slips.")
+        text += (" Replays: the recorded readings through the node's pipeline with the "
+                 "nominal geometry; the live odometry_node ran wheels only.")
+        out = textwrap.wrap(text, 110)
         e = self.online
         if e is not None:
             cells = ", ".join(f"{name} {m:.5f} +- {sd:.5f}" for name, m, sd in zip(
                 ("left", "right", "separation"), e.multipliers, e.stddevs, strict=True))
-            truth = "" if self.true_multipliers is None else " (true: {})".format(
+            truth = "" if self.true_multipliers is None else "; true: {}".format(
                 ", ".join(f"{m:.5f}" for m in self.true_multipliers))
             state = "" if e.determined else "; not yet determined (turn both ways)"
-            out.append(f"online estimate (gyro-aided replay, online_calibration monitor, "
-                       f"multipliers, mean radius held): {cells}{truth}{state}")
+            out += textwrap.wrap(
+                "Online estimate (the gyro-aided replay, online_calibration: monitor; "
+                f"multipliers, mean radius held): {cells}{truth}{state}", 110)
         return out

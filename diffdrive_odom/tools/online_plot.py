@@ -51,7 +51,7 @@ def draw(ax: Any, trace: Trace, true: Sequence[float] | None = None) -> None:
     ax.set_xlabel("distance the estimate counted [m]")
     ax.set_ylabel("multiplier (mean radius held)")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8, ncol=2)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), fontsize=7.5, ncol=4)
 
 
 def write(path: str | Path, trace: Trace, title: str) -> None:
