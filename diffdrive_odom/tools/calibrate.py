@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.stamps import StampSource
-from diffdrive_odom.core.evaluation import metrics
+from diffdrive_odom.core.evaluation import leftout, metrics
 from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run, trajectory
 from diffdrive_odom.core.evaluation.umbmark import reference_end, umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
@@ -400,10 +400,11 @@ def plot(fit: Fit, runs: Sequence[Run], path: str | Path) -> None:
     for ax, run, figures in zip(axes[0], runs, fit.runs, strict=True):
         assert run.reference is not None
         ax.plot(run.reference.x, run.reference.y, "k-", lw=1.5, label="ground truth")
+        spans = leftout.bridges(run)  # drawn as fitted and judged: the slips left out
         for geometry, style, label, m in (
                 (fit.nominal, "--", "nominal", figures.before),
                 (fit.geometry, "-", "calibrated", figures.after)):
-            est = trajectory(run, geometry)
+            est = leftout.trajectory(run, geometry, spans) if spans else trajectory(run, geometry)
             matched = metrics.match(est, run.reference)
             aligned = metrics.align_start(matched.est, matched.ref)
             ax.plot(aligned[:, 0], aligned[:, 1], style, lw=1.0,
