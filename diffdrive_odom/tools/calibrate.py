@@ -67,7 +67,8 @@ if TYPE_CHECKING:  # scipy and rosbags (the ``tools`` extra) only where they are
 
 PREFIX = "[calibrate]"
 # The node's settings as given, and with the gyro on (for the bags with an IMU).
-Settings = tuple[OdometrySettings, OdometrySettings]
+# (str: why the gyro's settings cannot work, said only for a bag that has an IMU).
+Settings = tuple[OdometrySettings, "OdometrySettings | str"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -203,7 +204,10 @@ def _run(bag: str, settings: Settings, args: argparse.Namespace, reference: bool
         ref = evaluate.read_trajectory(bag, topic, args.child_frame)
     plain, gyro = settings
     imu = imu_topic(bag, args.imu_topic, notify)
-    used = plain if imu is None else gyro
+    if imu is not None and isinstance(gyro, str):
+        raise CalibrationError(f"{bag} has an IMU ({imu}) to find slips with, but the gyro's "
+                               f"settings cannot work: {gyro} (or --imu-topic none)")
+    used = plain if imu is None or isinstance(gyro, str) else gyro
     jump = int(used.estimator.time_jump_threshold * 1e9)
     if imu is None:
         steps = batch.wheel_steps(bagblocks.read_joint_blocks(bag, args.topic, jump), used)
@@ -253,7 +257,7 @@ def gyro_settings(args: argparse.Namespace, settings: OdometrySettings) -> Odome
 
 
 def _decode_all(args: argparse.Namespace, plain: OdometrySettings,
-                gyro: OdometrySettings) -> list[Run] | str:
+                gyro: OdometrySettings | str) -> list[Run] | str:
     """Every bag decoded, on ``--jobs`` processes or a ``--dask`` cluster, in the order given.
 
     The fit is joint, so it is not made on what is left: every bag that failed is named
@@ -289,8 +293,6 @@ def main(argv: Sequence[str]) -> int:
                       "readings (joint_states), which open loop does not read; set "
                       "open_loop:=false for the calibration")
     gyro = gyro_settings(args, settings)
-    if isinstance(gyro, str):
-        return _error(f"the gyro's settings (for a bag with an IMU): {gyro}")
     from diffdrive_odom.tools import bagio
 
     try:
