@@ -10,6 +10,7 @@ Without ``use_imu`` there is nothing to estimate from, which is said.
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.online_geometry import (
@@ -55,6 +56,34 @@ def report(trace: list[tuple[int, OnlineEstimate]], final: OnlineEstimate | None
                  "gyro cannot see it):")
     lines += ["    " + b for b in final.block().splitlines()]
     return "\n".join(lines)
+
+
+def plot_path(plot: str | None, online: bool, evaluated: object) -> str | None:
+    """Where ``--online-calibration --plot FILE`` draws the estimate (None: not asked).
+
+    FILE itself, or beside it as ``<name>_online.png`` when ``--eval`` draws its own there.
+    """
+    if not (plot and online):
+        return None
+    if not evaluated:
+        return plot
+    p = Path(plot)
+    return str(p.with_name(f"{p.stem}_online{p.suffix or '.png'}"))
+
+
+def plot(path: str | None, trace: list[tuple[int, OnlineEstimate]], name: str) -> str:
+    """Draw the estimate over the run into ``path`` (matplotlib, imported only here).
+
+    Returns the line that says where ('' when nothing was asked or there is no estimate).
+    """
+    if path is None:
+        return ""
+    if not trace:
+        return "online calibration plot: not written (no estimate: no step counted)\n"
+    from diffdrive_odom.tools import online_plot
+
+    online_plot.write(path, trace, f"{name}: online geometry estimate from the gyro")
+    return f"online calibration plot: {path}\n"
 
 
 def final_header() -> str:

@@ -248,7 +248,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--json", metavar="FILE",
                     help="with --eval: write the figures as JSON (default: none)")
     ap.add_argument("--plot", metavar="FILE",
-                    help="with --eval: write a PNG plot (default: none)")
+                    help="a PNG: --eval's plot; --online-calibration's estimate with its sigma "
+                    "(with both: FILE's name + '_online') (default: none)")
     ap.add_argument("--online-calibration", action="store_true",
                     help="print the gyro's online geometry estimate over the run and a block "
                     "to paste (needs use_imu)")
@@ -271,12 +272,15 @@ def _output_problem(args: argparse.Namespace) -> str | None:
     if not (args.output or args.csv or args.eval or args.online_calibration):
         return ("nothing to do: give -o OUT_BAG, --csv FILE, --eval and/or "
                 "--online-calibration (see diffdrive-odom replay --help)")
-    if (args.json or args.plot) and not args.eval:
-        return "--json/--plot need --eval"
+    if args.json and not args.eval:
+        return "--json needs --eval"
+    if args.plot and not (args.eval or args.online_calibration):
+        return "--plot needs --eval or --online-calibration"
     if args.output and Path(args.output).exists():
         return f"-o {args.output}: exists: remove it or choose another output"
     return outputs_problem(("-o", args.output), ("--csv", args.csv), ("--json", args.json),
-                           ("--plot", args.plot))
+                           ("--plot", args.plot), ("--plot", online_report.plot_path(
+                               args.plot, args.online_calibration, args.eval)))
 
 
 def main(argv: Sequence[str]) -> int:
@@ -345,6 +349,11 @@ def run_bag(args: argparse.Namespace) -> int:
     print(stats.summary())
     if args.online_calibration:
         print(online_report.report(stats.online_trace, stats.pipeline.online))
+        where = online_report.plot_path(args.plot, True, args.eval)
+        try:
+            print(online_report.plot(where, stats.online_trace, Path(args.bag).name), end="")
+        except OSError as err:
+            return _error(f"--plot: cannot write: {err}")
     gyro = stats.pipeline.gyro
     fleet.record(args, readings=stats.readings, poses=stats.published,
                  slips=None if gyro is None else gyro.slips.events)
