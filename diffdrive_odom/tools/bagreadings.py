@@ -48,6 +48,7 @@ class ReferenceSample:
 
 
 REFERENCE_TYPES = (ODOMETRY, "geometry_msgs/msg/PoseStamped")
+Reading = JointReading | ImuSample | ReferenceSample  # what iter_sensor_readings yields
 
 
 def _reading(msg: Any, log_ns: int) -> JointReading:
@@ -104,16 +105,35 @@ def iter_sensor_readings(
     window: int = REORDER_WINDOW,
     jump_back_ns: int = 1_000_000_000,
     imu_by_log_time: bool = False,
-    reference_topic: str | None = None,
-) -> Iterator[JointReading | ImuSample | ReferenceSample]:
+) -> Iterator[JointReading | ImuSample]:
     """JointState readings (and Imu samples of ``imu_topic``) by header stamp, streaming.
 
     Both go through one reordering by stamp (:class:`Reorder`), so a wheel reading
     comes after the gyro samples up to its stamp. With ``passthrough``, every message
     of the bag is also handed to it raw, in log time order (``replay --keep-input``).
     ``imu_by_log_time`` (``imu_stamp_source: receive_time``): an Imu sample's stamp is
-    its log time (the IMU's own stamps are on another clock). ``reference_topic``: its
-    Odometry or PoseStamped messages too (``replay --reference-topic``).
+    its log time (the IMU's own stamps are on another clock).
+    """
+    for item in iter_readings(reader, topic, imu_topic, passthrough, window, jump_back_ns,
+                              imu_by_log_time):
+        assert not isinstance(item, ReferenceSample)  # no reference topic asked for
+        yield item
+
+
+def iter_readings(
+    reader: AnyReader,
+    topic: str = "/joint_states",
+    imu_topic: str | None = None,
+    passthrough: Passthrough | None = None,
+    window: int = REORDER_WINDOW,
+    jump_back_ns: int = 1_000_000_000,
+    imu_by_log_time: bool = False,
+    reference_topic: str | None = None,
+) -> Iterator[Reading]:
+    """:func:`iter_sensor_readings`, and a reference pose topic's messages too.
+
+    ``reference_topic``: its Odometry or PoseStamped messages as :class:`ReferenceSample`
+    (``replay --reference-topic``), in the same reordering by stamp.
     """
     joints = connections_for(reader, topic, (JOINT_STATE,))
     imus = [] if imu_topic is None else connections_for(reader, imu_topic, (IMU,))

@@ -12,7 +12,9 @@ Without ``use_imu`` there is nothing to estimate from, which is said.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.online_geometry import (
@@ -47,6 +49,27 @@ def reference_override(args: argparse.Namespace) -> str:
     args.ros_params = [*args.ros_params,
                        ("param", f"online_calibration_reference_topic:={args.reference_topic}")]
     return ""
+
+
+def replay_settings(args: argparse.Namespace,
+                    load: Callable[[argparse.Namespace], OdometrySettings | str]
+                    ) -> OdometrySettings | str:
+    """The settings replay runs with, or the one line why not.
+
+    ``--reference-topic`` as the node's parameter; the estimate on with
+    ``--online-calibration``.
+    """
+    settings = reference_override(args) or load(args)
+    if isinstance(settings, str) or not args.online_calibration:
+        return settings
+    return online_settings(settings)
+
+
+def reference_topic(settings: OdometrySettings) -> str | None:
+    """The reference topic replay reads, None when the estimate or its reference is off."""
+    online = settings.online
+    ref = None if settings.gyro is None or online is None else online.reference
+    return None if ref is None else ref.topic
 
 
 def online_settings(settings: OdometrySettings) -> OdometrySettings | str:
@@ -97,6 +120,34 @@ def report(trace: list[tuple[int, OnlineEstimate]], final: OnlineEstimate | None
                                          else "") + "):")
     lines += ["    " + b for b in final.block().splitlines()]
     return "\n".join(lines)
+
+
+def plot_path(plot: str | None, online: bool, evaluated: object) -> str | None:
+    """Where ``--online-calibration --plot FILE`` draws the estimate (None: not asked).
+
+    FILE itself, or beside it as ``<name>_online.png`` when ``--eval`` draws its own there.
+    """
+    if not (plot and online):
+        return None
+    if not evaluated:
+        return plot
+    p = Path(plot)
+    return str(p.with_name(f"{p.stem}_online{p.suffix or '.png'}"))
+
+
+def plot(path: str | None, trace: list[tuple[int, OnlineEstimate]], name: str) -> str:
+    """Draw the estimate over the run into ``path`` (matplotlib, imported only here).
+
+    Returns the line that says where ('' when nothing was asked or there is no estimate).
+    """
+    if path is None:
+        return ""
+    if not trace:
+        return "online calibration plot: not written (no estimate: no step counted)\n"
+    from diffdrive_odom.tools import online_plot
+
+    online_plot.write(path, trace, f"{name}: online geometry estimate from the gyro")
+    return f"online calibration plot: {path}\n"
 
 
 def final_header() -> str:
