@@ -35,6 +35,7 @@ import time
 import numpy as np
 
 from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
+from diffdrive_odom.core.estimation.online_scale import feed_reference
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import DiffDriveSim, SimConfig, SlipEvent
@@ -122,7 +123,7 @@ def run(msgs: list[tuple[int, str, int, tuple[float, ...]]], reference: bool,
         if kind == "i":
             pipe.feed_imu(stamp, 0.0, 0.0, v[0], receive_ns=rx)
         elif kind == "r":
-            pipe.feed_reference(stamp, *v)
+            feed_reference(pipe.online, stamp, *v)
         else:
             warnings += bool(pipe.feed(stamp, NAMES, v, receive_ns=rx).warning.startswith(
                 "online calibration"))

@@ -41,6 +41,7 @@ from diffdrive_odom.core.bulk.readings import count as reading_count
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.encoders import Reason
 from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
+from diffdrive_odom.core.estimation.online_scale import feed_reference
 from diffdrive_odom.core.estimation.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
 from diffdrive_odom.core.estimation.stamps import StampSource
@@ -167,7 +168,7 @@ def replay_readings(
                                   covariance=r.covariance)
                     continue
                 if isinstance(r, bagreadings.ReferenceSample):  # the online estimate's scale
-                    pipe.feed_reference(r.stamp_ns, r.x, r.y, r.yaw)
+                    feed_reference(pipe.online, r.stamp_ns, r.x, r.y, r.yaw)
                     continue
                 yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 

@@ -252,11 +252,6 @@ class ReadingPipeline:
             return ""
         return imu.feed(stamp_ns, wx, wy, wz, receive_ns, check_clock, covariance)
 
-    def feed_reference(self, stamp_ns: int, x: float, y: float, yaw: float) -> str:
-        """A reference pose for the scale (online_scale); '' if kept or unused, else a code."""
-        scale = None if self._online is None else self._online.scale
-        return "" if scale is None else scale.feed(stamp_ns, x, y, yaw)
-
     @property
     def estimator(self) -> OdometryEstimator:
         """The estimator (pose, twist, last step); feed readings through :meth:`feed` only."""

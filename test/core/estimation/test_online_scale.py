@@ -19,7 +19,11 @@ from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, R, Truth, stream, truth
 from refstreams import Reference, merge, reference
 
 from diffdrive_odom.core.estimation.online_geometry import CHI2_2DOF_3SIGMA, OnlineEstimate
-from diffdrive_odom.core.estimation.online_scale import SCALE_FIELDS, scale_values
+from diffdrive_odom.core.estimation.online_scale import (
+    SCALE_FIELDS,
+    feed_reference,
+    scale_values,
+)
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
@@ -56,7 +60,7 @@ def run(ref: Reference | None, geometry: tuple[float, float, float] = TRUE,
         if m[0] == "i":
             pipe.feed_imu(m[2], 0.0, 0.0, m[3], receive_ns=m[1])
         elif m[0] == "r":
-            assert pipe.feed_reference(m[2], m[3], m[4], m[5]) == ""  # type: ignore[misc]
+            assert feed_reference(pipe.online, m[2], m[3], m[4], m[5]) == ""  # type: ignore[misc]
         elif (w := pipe.feed(m[2], NAMES, (m[3], m[4]), receive_ns=m[1]).warning):
             warnings.append(w)
     est = pipe.stats.online
@@ -143,7 +147,8 @@ def test_settings_are_checked_at_start() -> None:
     off = odometry_settings(base).online
     assert off is not None and off.reference is None
     # Without a reference topic (or without the online estimate) a pose is ignored.
-    assert ReadingPipeline(odometry_settings(base)).feed_reference(1, 0.0, 0.0, 0.0) == ""
+    assert feed_reference(ReadingPipeline(odometry_settings(base)).online, 1, 0.0, 0.0,
+                          0.0) == ""
 
 
 def test_scale_core_exact_data_and_a_time_reset() -> None:
