@@ -38,10 +38,9 @@ from typing import TYPE_CHECKING
 from diffdrive_odom.core.bulk import fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.core.bulk.readings import count as reading_count
+from diffdrive_odom.core.estimation import online_geometry, online_scale
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.encoders import Reason
-from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
-from diffdrive_odom.core.estimation.online_scale import feed_reference
 from diffdrive_odom.core.estimation.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
 from diffdrive_odom.core.estimation.stamps import StampSource
@@ -92,7 +91,7 @@ class ReplayStats:
     seconds: float = 0.0
     pipeline: PipelineStats = field(default_factory=PipelineStats)
     unit: str = "readings"  # what was fed: wheel readings, or (open loop) commands
-    online_trace: list[tuple[int, OnlineEstimate]] = field(default_factory=list)
+    online_trace: list[tuple[int, online_geometry.OnlineEstimate]] = field(default_factory=list)
 
     @property
     def usable(self) -> bool:
@@ -168,7 +167,7 @@ def replay_readings(
                                   covariance=r.covariance)
                     continue
                 if isinstance(r, bagreadings.ReferenceSample):  # the online estimate's scale
-                    feed_reference(pipe.online, r.stamp_ns, r.x, r.y, r.yaw)
+                    online_scale.feed_reference(pipe.online, r.stamp_ns, r.x, r.y, r.yaw)
                     continue
                 yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 
