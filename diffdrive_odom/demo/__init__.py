@@ -1,11 +1,12 @@
 """``diffdrive-odom demo`` (``make demo``): the whole product in one closed loop.
 
 Kept import-light (no rclpy, no matplotlib): the pure parts (:mod:`.settings`,
-:mod:`.report`, :mod:`.plot`) import without ROS. Callers import names from the
+:mod:`.report`, :mod:`.evaluation`, :mod:`.plot`) import without ROS. Callers import names from the
 submodule that defines them.
 
 - :mod:`.settings`: options, the params file of a run, the squares' paths, the topic table
-- :mod:`.report`: recorded series, calibration from the run, the results table (pure)
+- :mod:`.report`: recorded series, the rows, the results table (pure)
+- :mod:`.evaluation`: calibration from the run (slip steps left out), the replays (pure)
 - :mod:`.plot`: the picture (matplotlib, pure)
 - :mod:`.children`: the four nodes as child processes (logs, stop on leaving)
 - :mod:`.recorder`: this process's node (records the bag, sends the paths)
@@ -13,4 +14,5 @@ submodule that defines them.
 - :mod:`.cli`: the command line
 """
 
-__all__ = ["children", "cli", "interrupts", "loop", "plot", "recorder", "report", "settings"]
+__all__ = ["children", "cli", "evaluation", "interrupts", "loop", "plot", "recorder", "report",
+           "settings"]

@@ -34,7 +34,7 @@ import numpy as np
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.tools.outputs import staged
 
-from . import report
+from . import evaluation
 from .children import Children
 from .recorder import Recorder
 from .report import DemoResult, Square
@@ -195,24 +195,29 @@ def _evaluate(opts: DemoOptions, s: Settings, recorder: Recorder, squares: Seque
     The paths the result names are where they will be: under ``opts.output``.
     """
     rec = recorder.recording(squares)
-    rows, paths = report.calibrate_rows(rec, s.odometry, s.sim.config.geometry, opts.side)
-    replayed, replay_paths, slips = report.replay_rows(rec, s.odometry, s.gyro_odometry)
+    cal = evaluation.calibrate_rows(rec, s.odometry, s.sim.config.geometry, opts.side,
+                                    s.gyro_odometry)
+    rows, paths = cal.rows, cal.paths
+    replayed, replay_paths, aided = evaluation.replay_rows(rec, s.odometry, s.gyro_odometry)
     rows.update(replayed)
     paths.update(replay_paths)
+    slips = () if aided is None else aided.slips
+    trace = [] if aided is None else aided.online
+    true_multipliers = evaluation.true_multipliers(s.odometry.geometry, s.sim.config.geometry)
     truth = rec.truth
     xy = np.column_stack((truth.x, truth.y))
     off_path = 0.0
     for sq in squares:
         inside = (truth.stamp_ns >= sq.start_ns) & (truth.stamp_ns <= sq.end_ns)
         if inside.any():
-            off_path = max(off_path, float(report.distance_to_polyline(
+            off_path = max(off_path, float(evaluation.distance_to_polyline(
                 xy[inside], sq.points).max()))
     if opts.write_plot:
         from .plot import plot
 
         plot(output / "trajectory.png", truth, paths, [sq.points for sq in squares],
              f"{opts.route}: the follower drives on wheel odometry; the truth drifts",
-             slips)
+             slips, trace, true_multipliers)
     distance = float(truth.path_length()[-1]) if len(truth) else 0.0
     result = DemoResult(
         route=opts.route, side_m=opts.side, distance_m=distance,
@@ -224,7 +229,8 @@ def _evaluate(opts: DemoOptions, s: Settings, recorder: Recorder, squares: Seque
         messages=dict(recorder.counts),
         bag=str(opts.output / "bag") if opts.write_bag else None,
         plot=str(opts.output / "trajectory.png") if opts.write_plot else None,
-        slips=slips,
+        slips=slips, left_out=cal.left_out,
+        online=trace[-1][1] if trace else None, true_multipliers=true_multipliers,
     )
     (output / "results.json").write_text(
         json.dumps(result.as_dict(), indent=2) + "\n", encoding="utf-8")

@@ -1,7 +1,8 @@
 """The demo's picture: commanded path, belief, truth, calibrated and gyro-aided odometry.
 
 Left the paths (the slip events the gyro found marked on the truth), right the drift
-over distance.
+over distance; below, on a panel of its own, the gyro-aided replay's online geometry
+estimate with its 1-sigma bands (:mod:`diffdrive_odom.tools.online_plot`).
 
 Pure matplotlib (Agg), imported only when a plot is written.
 """
@@ -14,6 +15,7 @@ from pathlib import Path
 
 from diffdrive_odom.core.evaluation.metrics import Trajectory, match, path_length
 from diffdrive_odom.core.motion.paths import Point
+from diffdrive_odom.tools import online_plot
 
 from .report import FIT, GYRO, NOMINAL, UMBMARK
 
@@ -21,20 +23,23 @@ from .report import FIT, GYRO, NOMINAL, UMBMARK
 # the nominal line (the node's own odometry) to the encoder tick.
 STYLES = {
     NOMINAL: ("tab:red", "-", "wheel odometry, nominal geometry (what the robot believes)"),
-    FIT: ("tab:green", "--", "wheel odometry re-integrated, calibrated (fit)"),
-    UMBMARK: ("tab:blue", ":", "wheel odometry re-integrated, calibrated (UMBmark)"),
+    FIT: ("tab:green", "--", "wheel odometry re-integrated, calibrated (fit){}"),
+    UMBMARK: ("tab:blue", ":", "wheel odometry re-integrated, calibrated (UMBmark){}"),
     GYRO: ("tab:purple", "-", "gyro-aided odometry (replay, use_imu; nominal geometry)"),
 }
 
 
 def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
          commanded: Sequence[Sequence[Point]], title: str,
-         slips: Sequence[tuple[int, float]] = ()) -> None:
+         slips: Sequence[tuple[int, float]] = (), online: online_plot.Trace = (),
+         true_multipliers: Sequence[float] | None = None) -> None:
     """Where the robot was told to go, believed it went, really went; the gap growing.
 
     ``slips``: the slip events, (stamp, size), by the one rule
     (:mod:`~diffdrive_odom.core.estimation.slips`), marked on the truth and on the
-    distance axis.
+    distance axis; the calibrated lines are then drawn with those steps bridged by the
+    truth (as the calibration left them out). ``online``: the online estimate's trace,
+    drawn below (``true_multipliers`` dashed).
     """
     import matplotlib
 
@@ -42,8 +47,11 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
     import matplotlib.pyplot as plt
     import numpy as np
 
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 6.5),
-                                   gridspec_kw={"width_ratios": [1.15, 1.0]})
+    fig = plt.figure(figsize=(13, 10.5 if online else 6.5))
+    grid = fig.add_gridspec(2 if online else 1, 2, width_ratios=[1.15, 1.0],
+                            height_ratios=[2.2, 1.0] if online else [1.0])
+    ax1, ax2 = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1])
+    bridged = " with the slip steps left out" if slips else ""
     for i, points in enumerate(commanded):
         xs, ys = zip(*points, strict=True)
         ax1.plot(xs, ys, "-", color="0.75", lw=6, solid_capstyle="round", zorder=0,
@@ -54,7 +62,7 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
     for key, (color, style, label) in STYLES.items():
         if key in odometry:
             traj = odometry[key]
-            ax1.plot(traj.x, traj.y, style, color=color, lw=1.3, label=label)
+            ax1.plot(traj.x, traj.y, style, color=color, lw=1.3, label=label.format(bridged))
     marks = [t for t, _ in slips]
     if marks and len(truth):
         at = np.clip(np.searchsorted(truth.stamp_ns, np.asarray(marks, dtype=np.int64)),
@@ -88,7 +96,7 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
         err = np.hypot(*(m.est[:, :2] - m.ref[:, :2]).T)
         top = max(top, float(err.max()))
         ax2.plot(path_length(m.ref[:, :2]), err, style, color=color, lw=1.5,
-                 label=label.split(" (")[0] if key == NOMINAL else label)
+                 label=label.split(" (")[0] if key == NOMINAL else label.format(bridged))
     if marks and len(truth):
         travelled = np.interp(np.asarray(marks, dtype=np.float64),
                               truth.stamp_ns.astype(np.float64), truth.path_length())
@@ -107,11 +115,16 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
              "same way, so the real path drifts off. Calibrating from this very run (fit\n"
              "to the ground truth, or UMBmark from where the squares ended) removes that\n"
              "systematic part. A wheel spinning for a moment turns wheel odometry by what\n"
-             "the robot never turned (and calibration takes it for geometry); gyro-aided\n"
-             "odometry takes those steps' heading from the gyro (Borenstein and Feng's\n"
-             "gyrodometry) and its distance from the other wheel: far closer to the truth.",
+             "the robot never turned: calibration leaves those steps out (found by the\n"
+             "gyro); gyro-aided odometry takes their heading from the gyro (Borenstein and\n"
+             "Feng's gyrodometry) and their distance from the other wheel.",
              transform=ax2.transAxes, ha="left", va="top", fontsize=8.5,
              bbox={"boxstyle": "round", "facecolor": "white", "alpha": 0.9})
+    if online:
+        ax3 = fig.add_subplot(grid[1, :])
+        online_plot.draw(ax3, online, true_multipliers)
+        ax3.set_title("online geometry estimate from the gyro (gyro-aided replay, "
+                      "online_calibration: monitor)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

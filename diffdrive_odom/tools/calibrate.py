@@ -10,6 +10,10 @@ remains it says it cannot tell and prints the block with that warning. With 3 ru
 more it also fits ``rotation_noise_k`` (the turn's own noise) by maximum likelihood of the
 held-out final poses (:mod:`diffdrive_odom.core.evaluation.consistency`) and prints it,
 saying when the runs want none. The printed text: :mod:`~.calibration_report`.
+Where a bag has an IMU (``--imu-topic``, default: its only ``sensor_msgs/Imu`` topic),
+its readings go through the pipeline with the gyro (``use_imu``, the params' gyro
+settings), and the steps of each slip event the node's own rule finds are left out of
+the fit (:mod:`diffdrive_odom.core.evaluation.leftout`); a line per run says how many.
 Readings are decoded with the odometry node's own parameters and pipeline
 (:func:`diffdrive_odom.core.bulk.batch.wheel_steps`), ground truth with ``eval``'s readers, so
 a bag that replays or evaluates also calibrates. The result is printed as a
@@ -21,15 +25,17 @@ its params file (``--yaml FILE`` also writes it). The fit (scipy) and the bag re
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.evaluation import metrics
+from diffdrive_odom.core.estimation.stamps import StampSource
+from diffdrive_odom.core.evaluation import leftout, metrics
 from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run, trajectory
 from diffdrive_odom.core.evaluation.umbmark import reference_end, umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
@@ -48,6 +54,7 @@ from diffdrive_odom.tools.args import (
 from diffdrive_odom.tools.calibration_report import (
     check_lines,
     fit_report,
+    left_out_lines,
     params_block,
     rotation_line,
     umbmark_report,
@@ -59,6 +66,9 @@ if TYPE_CHECKING:  # scipy and rosbags (the ``tools`` extra) only where they are
     from diffdrive_odom.core.evaluation.calibration import Fit
 
 PREFIX = "[calibrate]"
+# The node's settings as given, and with the gyro on (for the bags with an IMU).
+# (str: why the gyro's settings cannot work, said only for a bag that has an IMU).
+Settings = tuple[OdometrySettings, "OdometrySettings | str"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -89,6 +99,10 @@ def _parser() -> argparse.ArgumentParser:
                         "geometry, joint names, encoders (repeatable, later files win; default: "
                         "none, but this or -p must give wheel_radius and wheel_separation)")
     ap.add_argument("--topic", default="/joint_states", help="JointState topic in the bags")
+    ap.add_argument("--imu-topic", default=None, metavar="TOPIC",
+                    help="Imu topic whose gyro finds the slips to leave out of the fit, by the "
+                    "node's rule (use_imu, slip_min_angle; the params' gyro settings); 'none': "
+                    "no slip test (default: the bag's only sensor_msgs/Imu topic, if any)")
     add_reference_arguments(ap)
     ap.add_argument("--force", action="store_true",
                     help="print the params block even when the calibrated geometry does not "
@@ -173,22 +187,77 @@ def _reference_error(text: str) -> tuple[float, float] | None:
     return mm / 1000.0, math.radians(deg)
 
 
-def _run(bag: str, settings: OdometrySettings, args: argparse.Namespace,
-         reference: bool) -> Run:
-    """Decode one bag into its wheel steps (and read its ground truth when asked)."""
-    from diffdrive_odom.tools import bagblocks
+def _run(bag: str, settings: Settings, args: argparse.Namespace, reference: bool) -> Run:
+    """Decode one bag into its wheel steps (and read its ground truth when asked).
+
+    With an IMU topic (:func:`imu_topic`) the readings go through the pipeline with the
+    gyro, which judges each step for slip (``WheelSteps.slip_spans``).
+    """
+    from diffdrive_odom.tools import bagblocks, bagio, bagreadings
+
+    def notify(text: str) -> None:
+        print(f"{PREFIX} {text}", file=sys.stderr)
 
     ref = None
     if reference:
-        topic = evaluate.reference_topic(bag, args.ground_truth, (args.topic,),
-                                         lambda t: print(f"{PREFIX} {t}", file=sys.stderr))
+        topic = evaluate.reference_topic(bag, args.ground_truth, (args.topic,), notify)
         ref = evaluate.read_trajectory(bag, topic, args.child_frame)
-    jump = int(settings.estimator.time_jump_threshold * 1e9)
-    steps = batch.wheel_steps(bagblocks.read_joint_blocks(bag, args.topic, jump), settings)
+    plain, gyro = settings
+    imu = imu_topic(bag, args.imu_topic, notify)
+    if imu is not None and isinstance(gyro, str):
+        raise CalibrationError(f"{bag} has an IMU ({imu}) to find slips with, but the gyro's "
+                               f"settings cannot work: {gyro} (or --imu-topic none)")
+    used = plain if imu is None or isinstance(gyro, str) else gyro
+    jump = int(used.estimator.time_jump_threshold * 1e9)
+    if imu is None:
+        steps = batch.wheel_steps(bagblocks.read_joint_blocks(bag, args.topic, jump), used)
+    else:
+        assert used.gyro is not None
+        by_log = used.gyro.stamp_source is StampSource.RECEIVE_TIME
+        with bagio.open_bag(bag) as reader:
+            steps = batch.wheel_steps(bagreadings.iter_sensor_readings(
+                reader, args.topic, imu, jump_back_ns=jump, imu_by_log_time=by_log), used)
     return Run(Path(bag).name, steps, ref)
 
 
-def _decode_all(args: argparse.Namespace, settings: OdometrySettings) -> list[Run] | str:
+def imu_topic(bag: str, requested: str | None, notify: Callable[[str], None]) -> str | None:
+    """The Imu topic whose gyro judges the slips: ``requested``, else the bag's only one.
+
+    None: no slip test (``none`` asked for, or no Imu topic in the bag); BagError when
+    the bag has several and none is named.
+    """
+    if requested is not None:
+        return None if requested.lower() == "none" else requested
+    from diffdrive_odom.tools import bagio
+
+    with bagio.open_bag(bag) as reader:
+        found = sorted({str(c.topic) for c in reader.connections if c.msgtype == bagio.IMU})
+    if len(found) > 1:
+        raise bagio.BagError(f"{bag}: several Imu topics ({', '.join(found)}): name the one "
+                             "to find slips with, --imu-topic TOPIC (or none)")
+    if found:
+        notify(f"{Path(bag).name}: the gyro on {found[0]} finds the slips to leave out of the "
+               "fit (--imu-topic none: keep every step)")
+    return found[0] if found else None
+
+
+def gyro_settings(args: argparse.Namespace, settings: OdometrySettings) -> OdometrySettings | str:
+    """How a bag with an IMU is decoded: the node's settings with the gyro on.
+
+    ``use_imu`` true, its gyro parameters from the params given, no online estimate.
+    """
+    if settings.gyro is None:
+        extra = argparse.Namespace(**vars(args))
+        extra.ros_params = [*args.ros_params, ("param", "use_imu:=true")]
+        got = settings_from_args(extra)
+        if isinstance(got, str):
+            return got
+        settings = got
+    return dataclasses.replace(settings, online=None)
+
+
+def _decode_all(args: argparse.Namespace, plain: OdometrySettings,
+                gyro: OdometrySettings | str) -> list[Run] | str:
     """Every bag decoded, on ``--jobs`` processes or a ``--dask`` cluster, in the order given.
 
     The fit is joint, so it is not made on what is left: every bag that failed is named
@@ -196,7 +265,7 @@ def _decode_all(args: argparse.Namespace, settings: OdometrySettings) -> list[Ru
     """
     if args.jobs is not None and args.jobs < 1:
         return f"--jobs must be >= 1, got {args.jobs}"
-    calls = [(bag, settings, args, True) for bag in args.bags]
+    calls = [(bag, (plain, gyro), args, True) for bag in args.bags]
     try:
         done = fleet.map_calls(_run, calls, args.jobs, args.dask)
     except fleet.FleetError as err:
@@ -223,12 +292,13 @@ def main(argv: Sequence[str]) -> int:
         return _error("open_loop is true: calibrate fits the wheel geometry to encoder "
                       "readings (joint_states), which open loop does not read; set "
                       "open_loop:=false for the calibration")
+    gyro = gyro_settings(args, settings)
     from diffdrive_odom.tools import bagio
 
     try:
         if args.umbmark is not None:
-            return _umbmark(args, settings)
-        runs = _decode_all(args, settings)
+            return _umbmark(args, (settings, gyro))
+        runs = _decode_all(args, settings, gyro)
         if isinstance(runs, str):
             return _error(runs)
         return _least_squares(args, settings, runs)
@@ -256,6 +326,8 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
     ratios = None if printed is None else crossval.stddev_ratios(result.values, printed)
     refused = verdict is not None and not verdict.cannot_tell and not verdict.better
     print(check_lines(verdict, len(runs), refused and args.force))
+    for line in left_out_lines(runs, nominal):
+        print(line)
     how = f"least squares on {len(runs)} run(s)"
     if verdict is not None and verdict.cannot_tell:
         how += "; held-out check CANNOT TELL, see its first line"
@@ -297,10 +369,12 @@ def rotation_fit(runs: Sequence[Run], geometries: Sequence[Geometry | None],
                                  reference=consistency.reference_error(*reference))
 
 
-def _umbmark(args: argparse.Namespace, settings: OdometrySettings) -> int:
+def _umbmark(args: argparse.Namespace, settings: Settings) -> int:
     typed = args.cw_end is not None
     cw = _run(args.umbmark[0], settings, args, not typed)
     ccw = _run(args.umbmark[1], settings, args, not typed)
+    for line in left_out_lines((cw, ccw), settings[0].geometry):
+        print(line)
     if typed:
         cw_end = _end_point(args.cw_end, "--cw-end")
         ccw_end = _end_point(args.ccw_end, "--ccw-end")
@@ -308,7 +382,7 @@ def _umbmark(args: argparse.Namespace, settings: OdometrySettings) -> int:
         assert cw.reference is not None and ccw.reference is not None
         cw_end = reference_end(cw, cw.reference)
         ccw_end = reference_end(ccw, ccw.reference)
-    result = umbmark(cw, ccw, cw_end, ccw_end, side=args.side, nominal=settings.geometry)
+    result = umbmark(cw, ccw, cw_end, ccw_end, side=args.side, nominal=settings[0].geometry)
     text = params_block(result.geometry, None, f"UMBmark, side {args.side:g} m")
     if args.yaml:
         Path(args.yaml).write_text(text, encoding="utf-8")
@@ -328,10 +402,11 @@ def plot(fit: Fit, runs: Sequence[Run], path: str | Path) -> None:
     for ax, run, figures in zip(axes[0], runs, fit.runs, strict=True):
         assert run.reference is not None
         ax.plot(run.reference.x, run.reference.y, "k-", lw=1.5, label="ground truth")
+        spans = leftout.bridges(run)  # drawn as fitted and judged: the slips left out
         for geometry, style, label, m in (
                 (fit.nominal, "--", "nominal", figures.before),
                 (fit.geometry, "-", "calibrated", figures.after)):
-            est = trajectory(run, geometry)
+            est = leftout.trajectory(run, geometry, spans) if spans else trajectory(run, geometry)
             matched = metrics.match(est, run.reference)
             aligned = metrics.align_start(matched.est, matched.ref)
             ax.plot(aligned[:, 0], aligned[:, 1], style, lw=1.0,

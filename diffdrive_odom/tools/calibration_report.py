@@ -8,12 +8,14 @@ scipy is imported where a line needs it, so ``--help`` works without the ``tools
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core.evaluation.recorded_run import values_of
+from diffdrive_odom.core.evaluation import leftout
+from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
 from diffdrive_odom.core.evaluation.umbmark import Umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import (
@@ -27,6 +29,31 @@ from diffdrive_odom.settings.params import yaml_text
 if TYPE_CHECKING:  # scipy (the ``tools`` extra) only where it is used
     from diffdrive_odom.core.evaluation import consistency, crossval
     from diffdrive_odom.core.evaluation.calibration import Fit
+
+
+def left_out_lines(runs: Sequence[Run], nominal: Geometry) -> list[str]:
+    """Per run, what the slip test left out of the fit; nothing when no run had an IMU.
+
+    So the output of runs without a gyro (OptiOdom's) stays as it was.
+    """
+    found = [(r, leftout.left_out(r, nominal)) for r in runs]
+    if all(lo is None for _, lo in found):
+        return []
+    lines = []
+    for run, lo in found:
+        if lo is None:
+            lines.append(f"slip test: {run.name}: no IMU, every step fitted")
+        elif run.reference is None:
+            lines.append(f"slip test: {run.name}: {lo.events} slip event(s) found, NOT left out "
+                         "(typed end positions: no reference to bridge them with)")
+        else:
+            lines.append(
+                f"slip test: {run.name}: {lo.events} slip event(s), {lo.steps} of "
+                f"{len(run.steps)} steps left out of the fit ({lo.travel_m:.3f} m of travel "
+                f"and {math.degrees(lo.turn_rad):.1f} deg of turn the wheels claimed over "
+                f"them; the reference turned {math.degrees(lo.reference_turn_rad):.1f} deg), "
+                "bridged by the reference's motion")
+    return lines
 
 
 def rotation_line(fit: consistency.NoiseFit, runs: int, reference: tuple[float, float]) -> str:

@@ -5,6 +5,7 @@ No DDS: these run in milliseconds, with values from geometry, not from a run.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -14,7 +15,7 @@ import pytest
 import yaml
 
 from diffdrive_odom.core.evaluation.metrics import Trajectory
-from diffdrive_odom.demo import report, settings
+from diffdrive_odom.demo import evaluation, report, settings
 from diffdrive_odom.demo.report import (
     FIT,
     GYRO,
@@ -84,7 +85,7 @@ def test_run_params_go_into_the_nodes_own_sections(tmp_path: Path) -> None:
 def test_distance_to_a_polyline() -> None:
     pts = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)]
     xy = np.array([[0.5, 0.2], [2.0, 0.0], [-3.0, -4.0], [1.0, 0.5], [0.9, 0.05]])
-    np.testing.assert_allclose(report.distance_to_polyline(xy, pts),
+    np.testing.assert_allclose(evaluation.distance_to_polyline(xy, pts),
                                [0.2, 1.0, 5.0, 0.0, 0.05], atol=1e-12)
 
 
@@ -138,6 +139,12 @@ def test_the_plot_is_written(tmp_path: Path) -> None:
     plot(path, truth, {NOMINAL: odom, FIT: truth, GYRO: truth}, [[(0.0, 0.0), (1.0, 0.0)]],
          "t", [(2 * 10**9, 0.1)])
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    cfg = settings.load_settings(DemoOptions())  # with the online estimate's panel below
+    _, _, aided = evaluation.replay_rows(_straight_with_slip(), cfg.odometry, cfg.gyro_odometry)
+    assert aided is not None
+    plot(path, truth, {NOMINAL: odom}, [[(0.0, 0.0), (1.0, 0.0)]], "t", (), aided.online,
+         (1.0, 1.002, 1.01))
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_settings_run_the_node_wheels_only_and_replay_it_with_the_gyro() -> None:
@@ -184,7 +191,9 @@ def _straight_with_slip() -> Recording:
 def test_the_gyro_aided_replay_keeps_the_heading_through_a_wheel_slip() -> None:
     s = settings.load_settings(DemoOptions())
     rec = _straight_with_slip()
-    rows, paths, slips = report.replay_rows(rec, s.odometry, s.gyro_odometry)
+    rows, paths, aided = evaluation.replay_rows(rec, s.odometry, s.gyro_odometry)
+    assert aided is not None
+    slips = aided.slips
     # Wheels only: the extra right arc r SPIN SLIP_S over b turns the odometry by 0.1 rad
     # that the robot never turned (to the encoder tick).
     turned = R_WHEEL * SPIN * SLIP_S / B_WHEEL
@@ -206,9 +215,9 @@ def test_the_gyro_aided_replay_keeps_the_heading_through_a_wheel_slip() -> None:
 def test_without_imu_samples_only_the_wheels_replay() -> None:
     s = settings.load_settings(DemoOptions())
     rec = _straight_with_slip()
-    rows, _, slips = report.replay_rows(
+    rows, _, aided = evaluation.replay_rows(
         Recording(rec.joint_states, rec.truth, rec.truth, (), 0.0), s.odometry, s.gyro_odometry)
-    assert set(rows) == {WHEELS} and slips == ()
+    assert set(rows) == {WHEELS} and aided is None
 
 
 def test_readings_heard_before_the_ground_truth_are_left_out() -> None:
@@ -218,8 +227,44 @@ def test_readings_heard_before_the_ground_truth_are_left_out() -> None:
     late = Trajectory.from_arrays(rec.truth.stamp_ns[25:], rec.truth.x[25:], rec.truth.y[25:],
                                   rec.truth.yaw[25:])  # from 0.5 s on
     cut = Recording(rec.joint_states, late, late, (), 0.0, rec.imu)
-    rows, _ = report.calibrate_rows(cut, s.odometry, s.sim.config.geometry, 1.0)
+    rows = evaluation.calibrate_rows(cut, s.odometry, s.sim.config.geometry, 1.0).rows
     assert set(rows) == {NOMINAL, FIT, TRUE}
-    replayed, paths, _ = report.replay_rows(cut, s.odometry, s.gyro_odometry)
+    replayed, paths, _ = evaluation.replay_rows(cut, s.odometry, s.gyro_odometry)
     assert paths[WHEELS].stamp_ns[0] == late.stamp_ns[0]
     assert replayed[GYRO].position_m < 0.005
+
+
+def test_the_calibration_leaves_out_the_slip_the_gyro_finds_and_says_so() -> None:
+    """The straight run's one slip (0.5 s at 50 Hz: 25 steps): with the gyro the
+    calibration leaves it out, and the true geometry's row, bridged over it, ends on the
+    truth (the robot went straight: x = V t), where with every wheel step it ends off by
+    the slip's heading times the distance after it."""
+    s = settings.load_settings(DemoOptions())
+    rec = _straight_with_slip()
+    plain = evaluation.calibrate_rows(rec, s.odometry, s.odometry.geometry, 1.0)
+    assert plain.left_out is None and plain.rows[TRUE].left_out_position_m is None
+    cal = evaluation.calibrate_rows(rec, s.odometry, s.odometry.geometry, 1.0, s.gyro_odometry)
+    assert cal.left_out is not None
+    events, steps, total = cal.left_out
+    assert events == 1 and 24 <= steps <= 27 and total == int(END * 50)
+    true = cal.rows[TRUE]
+    turned = R_WHEEL * SPIN * SLIP_S / B_WHEEL
+    assert true.position_m > 0.8 * turned * V * (END - SLIP_T - SLIP_S)
+    assert true.left_out_position_m is not None and true.left_out_position_m < 0.002
+    text = dataclasses.replace(_result(), left_out=cal.left_out).table()
+    flat = " ".join(text.split())
+    assert f"Calibration left out the {steps} of {total} wheel steps of the 1 slip event" in flat
+
+
+def test_the_table_prints_the_online_estimate_against_the_truth() -> None:
+    s = settings.load_settings(DemoOptions())
+    rec = _straight_with_slip()
+    _, _, aided = evaluation.replay_rows(rec, s.odometry, s.gyro_odometry)
+    assert aided is not None and aided.online  # monitor on in the gyro-aided replay
+    e = aided.online[-1][1]
+    true = evaluation.true_multipliers(s.odometry.geometry, s.sim.config.geometry)
+    text = dataclasses.replace(_result(), online=e, true_multipliers=true).table()
+    flat = " ".join(text.split())
+    assert "Online estimate (the gyro-aided replay" in flat and "not yet determined" in flat
+    # The demo's sim: right wheel +0.2 %, track +1 %; mean radius held: r_R/m = 1.002/1.001.
+    assert true == pytest.approx((2 / 2.002, 2 * 1.002 / 2.002, 1.01 * 2 / 2.002), rel=1e-12)

@@ -80,6 +80,16 @@ def test_free_paths_bench_quick_puts_the_objectives_side_by_side() -> None:
     assert len(rows) == 4, out
     assert all(verdict == "better" for _, label, _, verdict in rows
                if label.startswith("default")), out
+    # Section 3, the floor: no geometry ends both runs of free/030120210001 closer at
+    # worst than the minimax fit, the end-pose fit included; held at a wheel scale this
+    # robot's fits give, the floor is above the end-pose fit's figure (the page's blocker).
+    floor_rows = out[out.index("== 3. The floor"):]
+    worst = {label: float(w) for label, w in re.findall(
+        r"^(\S.*?)\s{2,}[\d.]+\s+[\d.]+\s+[\d.]+\s+([\d.]+)\s", floor_rows, re.M)}
+    assert len(worst) == 11, out
+    floor = worst["minimax, scale free"]
+    assert all(floor <= w + 1e-4 for w in worst.values()), worst
+    assert worst["minimax, scale of nominal"] > 2 * worst["end poses (OptiOdom-like)"], worst
 
 
 @pytest.mark.skipif(not (TRAIN / "to_rosbag2.py").exists(),

@@ -25,22 +25,26 @@ MIXED = Route(ISSUE_ROUTE.segments * 2)
 
 
 def _replay(tmp_path: Path, capsys: pytest.CaptureFixture[str], route: Route,
-            **values: object) -> tuple[int, str, str]:
+            *extra: str, **values: object) -> tuple[int, str, str]:
     bag = tmp_path / f"bag{len(list(tmp_path.iterdir()))}"
     write_sensor_bag(bag, stream(route, TIMINGS[2], math.radians(0.3), 3e-4, 1,
                                  truth(route, *TRUE)), TIMINGS[2].imu_hz)
     params = write_params(tmp_path / "p.yaml", {
         "wheel_radius": R, "wheel_separation": B, "wheel_noise_k_left": 0.0,
         "wheel_noise_k_right": 0.0, **values})
-    code = cli(["replay", str(bag), "--params-file", str(params), "--online-calibration"])
+    code = cli(["replay", str(bag), "--params-file", str(params), "--online-calibration",
+                *extra])
     said = capsys.readouterr()
     return code, said.out, said.err
 
 
 def test_replay_prints_the_estimate_and_a_block_to_paste(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, err = _replay(tmp_path, capsys, MIXED, use_imu=True)
+    png = tmp_path / "online.png"
+    code, out, err = _replay(tmp_path, capsys, MIXED, "--plot", str(png), use_imu=True)
     assert code == 0, err
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the estimate over the run, drawn
+    assert f"online calibration plot: {png}" in out
     assert "online calibration (gyro" in out and "final:" in out
     assert "outside the estimate's 3-sigma region" in out
     block = {name: (float(value), float(sigma)) for name, value, sigma in re.findall(

@@ -15,8 +15,9 @@ fitting loop. The step's math stays in those two functions.
 from __future__ import annotations
 
 from array import array
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -25,7 +26,7 @@ from diffdrive_odom.core.bulk import fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.encoders import Reason
-from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.pipeline import Outcome, ReadingPipeline
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D, integrate_batch
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
@@ -35,6 +36,24 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 
+class GyroSample(Protocol):
+    """One IMU sample as :meth:`ReadingPipeline.feed_imu` takes it (``use_imu``)."""
+
+    @property
+    def stamp_ns(self) -> int:
+        """Header stamp [ns]."""
+
+    @property
+    def wx(self) -> float:
+        """Angular velocity about the IMU's x axis [rad/s] (y, z alike)."""
+
+    @property
+    def wy(self) -> float:
+        """About y [rad/s]."""
+
+    @property
+    def wz(self) -> float:
+        """About z [rad/s]."""
 
 
 @dataclass(frozen=True)
@@ -43,7 +62,10 @@ class WheelSteps:
 
     ``segment`` numbers the runs between restarts (a stamp jump back starts the pose
     over at the origin); ``segments`` counts them, so a restart with no step after it
-    is still known.
+    is still known. ``slip_spans``: with the gyro (``use_imu`` and IMU samples), each
+    slip event's (stamp of its first step, stamp of its last step) by the node's rule
+    (:mod:`~diffdrive_odom.core.estimation.slips`), ``slip_events`` how many there were
+    (more than the spans kept when over ``slips.MAX_EVENTS``); None: no gyro judged.
     """
 
     stamp_ns: IntArray  # stamp of the reading that ends each step
@@ -52,14 +74,21 @@ class WheelSteps:
     d_right: FloatArray
     segment: IntArray
     segments: int
+    slip_spans: tuple[tuple[int, int], ...] | None = None
+    slip_events: int = 0
 
     def __len__(self) -> int:
         return len(self.dt)
 
 
-def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock],
+def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock | GyroSample],
                 settings: OdometrySettings) -> WheelSteps:
-    """Decode readings once into the steps the estimator integrates (as the pipeline decides)."""
+    """Decode readings once into the steps the estimator integrates (as the pipeline decides).
+
+    With ``use_imu`` the IMU samples among ``readings`` (in stamp order, as replay
+    merges them) go to the gyro, every reading through the pipeline one by one, and
+    the slip events it found come back in ``slip_spans``; otherwise samples are ignored.
+    """
     pipe = ReadingPipeline(settings)
     est = pipe.estimator
     stamps, dts, lefts, rights, segs = array("q"), array("d"), array("d"), array("d"), array("q")
@@ -67,7 +96,9 @@ def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock],
     trial_start = 0  # steps before the timeline on trial (estimator.on_trial) began
     on_trial = False
     # The fast lane (core.bulk.fastlane): its stretches are plain steps, never on trial.
-    for item in fastlane.lanes(pipe, readings, receive=False):
+    items = (_one_by_one(pipe, readings) if settings.gyro is not None
+             else fastlane.lanes(pipe, _wheels(readings), receive=False))
+    for item in items:
         if isinstance(item, fastlane.Stretch):
             header, dt, left, right = item.steps
             stamps.extend(header.tolist())
@@ -96,6 +127,7 @@ def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock],
         elif status is Status.TIME_RESET or (status is Status.REFERENCE and segments == 0):
             segments += 1
         on_trial = est.on_trial
+    gyro = pipe.gyro
     return WheelSteps(
         np.frombuffer(stamps, dtype=np.int64).copy(),
         np.frombuffer(dts, dtype=np.float64).copy(),
@@ -103,7 +135,37 @@ def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock],
         np.frombuffer(rights, dtype=np.float64).copy(),
         np.frombuffer(segs, dtype=np.int64).copy(),
         segments,
+        None if gyro is None else tuple(gyro.slip_spans),
+        0 if gyro is None else gyro.slips.events,
     )
+
+
+def _is_gyro(item: object) -> bool:
+    return hasattr(item, "wz")
+
+
+def _wheels(readings: Iterable[fastlane.Reading | JointBlock | GyroSample]
+            ) -> Iterator[fastlane.Reading | JointBlock]:
+    """The wheel readings alone (no gyro: its samples have nothing to do)."""
+    for item in readings:
+        if not _is_gyro(item):
+            yield item  # type: ignore[misc]
+
+
+def _one_by_one(pipe: ReadingPipeline,
+                readings: Iterable[fastlane.Reading | JointBlock | GyroSample]
+                ) -> Iterator[tuple[fastlane.Reading, Outcome]]:
+    """Every reading through the pipeline, each IMU sample to the gyro (as replay does)."""
+    for item in readings:
+        if _is_gyro(item):
+            g: GyroSample = item  # type: ignore[assignment]
+            pipe.feed_imu(g.stamp_ns, g.wx, g.wy, g.wz,
+                          covariance=getattr(g, "covariance", ()))
+            continue
+        block: Sequence[fastlane.Reading] = (
+            item if isinstance(item, JointBlock) else (item,))  # type: ignore[assignment]
+        for r in block:
+            yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity)
 
 
 def integrate_steps(

@@ -196,6 +196,11 @@ class GyroHeading:
         """Each slip event's (stamp of its first step, size [rad]), oldest first."""
         return self._slips.events
 
+    @property
+    def slip_spans(self) -> list[tuple[int, int]]:
+        """Each slip event's (stamp of its first step, of its last step), oldest first."""
+        return self._slips.spans
+
     # --- samples -------------------------------------------------------------------
 
     def add(self, stamp_ns: int, wx: float, wy: float, wz: float) -> str:

@@ -16,7 +16,11 @@ from diffdrive_odom.core.estimation.online_geometry import OnlineGeometry
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty
 
-__all__ = ["APPLIED_NOTE", "CONFIGURED_NOTE", "geometry_in_use"]
+__all__ = ["APPLIED_NOTE", "APPLY_FIELDS", "CONFIGURED_NOTE", "geometry_in_use"]
+
+# ``~/geometry_estimate``'s fields for apply, after online_geometry's and online_scale's
+# (fields are only ever appended): 1.0 while the odometry integrates with the estimate.
+APPLY_FIELDS = ("applied",)
 
 APPLIED_NOTE = ("online calibration: integrating with the estimate from now on (the "
                 "parameters stay as set): ")

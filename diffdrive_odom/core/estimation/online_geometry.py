@@ -7,7 +7,9 @@ Marchionni and Oriolo, "Simultaneous calibration of odometry and sensor paramete
 for mobile robots", IEEE T-RO 2013, first step, with a gyro in place of the scan
 matcher). A small Kalman filter on ``(u, v, bias)`` with a random walk on each
 estimates them recursively. The absolute scale (the mean radius, so ``b`` itself) is
-not observable from rotation: it is held at the configured one.
+not observable from rotation: it is held at the configured one, unless a reference pose
+measures it (:mod:`~diffdrive_odom.core.estimation.online_scale`, which also divides the
+ratios by the gyro's scale factor it measures).
 
 Which steps count: only those the gyro judged for good (after the deferred judgement
 of :mod:`~diffdrive_odom.core.estimation.gyro`, so on any IMU timing) whose slip test
@@ -51,6 +53,7 @@ from dataclasses import dataclass, replace
 from types import MappingProxyType
 
 from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig, ScaleEstimate
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
@@ -95,7 +98,6 @@ FIELDS = (
     "outside",  # 1.0 when determined and mahalanobis2 > CHI2_2DOF_3SIGMA
     "turned_left", "turned_right", "distance",  # rad, rad, m over counted windows
     "steps", "excluded_slip", "excluded_standstill", "excluded_no_gyro", "excluded_outlier",
-    "applied",  # 1.0 while the odometry integrates with the estimate (apply), else 0.0
 )
 
 
@@ -111,6 +113,7 @@ class OnlineConfig:
     random_walk: float = 1.0e-5  # 1/sqrt(s): relative random walk of each ratio
     apply: bool = False  # integrate with the estimate once determined and precise enough
     apply_sigma: float = 0.002  # relative 1-sigma each ratio must be below to be applied
+    reference: ReferenceConfig | None = None  # the scale's reference pose (online_scale)
 
     def __post_init__(self) -> None:
         for name, value in (("online_calibration_min_turn", self.min_turn),
@@ -149,6 +152,7 @@ class OnlineEstimate:
     windows: int
     excluded: Mapping[str, int]
     applied: bool = False  # the odometry integrates with it (apply)
+    scale: ScaleEstimate | None = None  # with a reference topic only
 
     def block(self) -> str:
         """The estimate as the three lines of a parameter YAML (to paste), with 1-sigma."""
@@ -165,8 +169,7 @@ class OnlineEstimate:
         return (float(self.determined), ml, sl, mr, sr, mb, sb, *self.ratios, a, c, d,
                 self.bias, self.bias_stddev, self.mahalanobis2, float(self.outside),
                 *self.turned, self.distance, float(self.steps),
-                *(float(ex.get(k, 0)) for k in ("slip", "standstill", "no_gyro", "outlier")),
-                float(self.applied))
+                *(float(ex.get(k, 0)) for k in ("slip", "standstill", "no_gyro", "outlier")))
 
     def line(self) -> str:
         """One line: the multipliers with their sigma, the excitation, determined or not."""
@@ -217,6 +220,10 @@ class OnlineGeometry:
         self.applied_covariance: Matrix | None = None
         self.in_use: Geometry | None = None  # what online_apply.geometry_in_use handed out
         self._open()
+        ref = config.reference  # the scale and the gyro's scale factor (online_scale)
+        self.scale = None if ref is None else OnlineScale(
+            ref, geometry, noise_density, noise, config.min_turn, config.random_walk,
+            measured_density)
 
     def _open(self) -> None:
         self._w0: int | None = None
@@ -229,11 +236,13 @@ class OnlineGeometry:
     def set_geometry(self, geometry: Geometry) -> None:
         """The configured geometry changed (a parameter at runtime): the reference and scale."""
         self.geometry = geometry
+        if self.scale is not None:
+            self.scale.geometry = geometry
         if self.applied is not None:
             self._apply(refresh=True)
 
     def set_config(self, config: OnlineConfig) -> None:
-        """New settings at runtime; from monitor the estimate is no longer used at once."""
+        """New settings at runtime; from apply to monitor the estimate is no longer used."""
         self.config = config
         if not config.apply:
             self.applied = self.applied_covariance = None
@@ -243,6 +252,8 @@ class OnlineGeometry:
         """One step judged for good: its wheel arcs, the gyro's angle ``raw`` (None: none)."""
         if t1 <= t0:
             return
+        if self.scale is not None:
+            self.scale.observe(geometry, t0, t1, arcs, raw, slip, self.x)
         if raw is None or slip:
             self.excluded["no_gyro" if raw is None else "slip"] += 1
             self._flush()
@@ -319,10 +330,17 @@ class OnlineGeometry:
             self._apply(refresh=self.determined and self._precise())
         self._check(w1)
 
+    def _corrected(self) -> tuple[tuple[float, float], tuple[float, float, float, float]]:
+        """The ratios and their covariance as printed (over the gyro's scale factor, if any)."""
+        p = self.p
+        ratios, cov = (self.x[0], self.x[1]), (p[0][0], p[0][1], p[1][0], p[1][1])
+        return (ratios, cov) if self.scale is None else self.scale.correct(ratios, cov)
+
     def _precise(self) -> bool:
         """Each ratio's relative 1-sigma below ``apply_sigma``."""
-        (u, v), p, limit = self.x[:2], self.p, self.config.apply_sigma
-        return p[0][0] < (limit * u) ** 2 and p[1][1] < (limit * v) ** 2
+        (u, v), cov = self._corrected()
+        limit = self.config.apply_sigma
+        return cov[0] < (limit * u) ** 2 and cov[3] < (limit * v) ** 2
 
     def _apply(self, refresh: bool) -> None:
         """The geometry to integrate with: refreshed at each update while precise enough.
@@ -331,17 +349,15 @@ class OnlineGeometry:
         stretch turning one way: the random walk), not dropped for the worse configured
         one; its ``S`` follows the filter's covariance either way.
         """
-        u, v = self.x[0], self.x[1]
+        (u, v), cov = self._corrected()
         if refresh:
             (ml, mr, mb), _ = multipliers(self.geometry, (u, v), (0.0, 0.0, 0.0, 0.0))
             self.applied = replace(self.geometry, left_wheel_radius_multiplier=ml,
                                    right_wheel_radius_multiplier=mr,
                                    wheel_separation_multiplier=mb)
         if self.applied is not None:
-            p = self.p
             self.applied_covariance = ratio_geometry_covariance(
-                (u, v), (p[0][0], p[0][1], p[1][0], p[1][1]),
-                mean_radius_stddev_ratio(self.noise.radius_stddev_ratio))
+                (u, v), cov, mean_radius_stddev_ratio(self.noise.radius_stddev_ratio))
 
     def _check(self, stamp_ns: int) -> None:
         est = self.estimate()
@@ -376,10 +392,12 @@ class OnlineGeometry:
         """The estimate now (see :class:`OnlineEstimate`)."""
         (u, v, bias), p = self.x, self.p
         cov = (p[0][0], p[0][1], p[1][0], p[1][1])
+        if self.scale is not None:  # over the gyro's scale factor the reference measured
+            (u, v), cov = self.scale.correct((u, v), cov)
         u0, v0 = _ratios(self.geometry)
         du, dv = u - u0, v - v0
-        det = p[0][0] * p[1][1] - p[0][1] * p[1][0]
-        d2 = ((p[1][1] * du * du - 2.0 * p[0][1] * du * dv + p[0][0] * dv * dv) / det
+        det = cov[0] * cov[3] - cov[1] * cov[2]
+        d2 = ((cov[3] * du * du - 2.0 * cov[1] * du * dv + cov[0] * dv * dv) / det
               if det > 0.0 else 0.0)
         determined = self.determined
         mult, sig = multipliers(self.geometry, (u, v), cov)
@@ -389,7 +407,8 @@ class OnlineGeometry:
             mahalanobis2=d2, outside=determined and d2 > CHI2_2DOF_3SIGMA,
             turned=(self.turned[0], self.turned[1]), distance=self.distance,
             steps=self.steps, windows=self.windows,
-            excluded=MappingProxyType(dict(self.excluded)), applied=self.applied is not None)
+            excluded=MappingProxyType(dict(self.excluded)), applied=self.applied is not None,
+            scale=None if self.scale is None else self.scale.estimate(mult, sig))
 
 
 def _ratios(g: Geometry) -> tuple[float, float]:

@@ -50,6 +50,9 @@ class SlipEvents:
         self.stats = SlipStats()
         # Each event's (stamp of its first step, size [rad]), oldest first.
         self.events: list[tuple[int, float]] = []
+        # Each event's (stamp of its first step, stamp of its last step): the steps it
+        # spans, which offline calibration leaves out (as many as ``events`` holds).
+        self.spans: list[tuple[int, int]] = []
         self._start: int | None = None  # the current run's first step, its last, size
         self._last = 0
         self._size = 0.0
@@ -72,12 +75,14 @@ class SlipEvents:
         steps = s.steps + 1
         if self._named:
             self.events[-1] = (start, size)
+            self.spans[-1] = (start, stamp_ns)
             self.stats = SlipStats(s.events, steps, stamp_ns, size,
                                    s.total_size + size - before)
         elif size >= self.min_angle:
             self._named = True
             self.events.append((start, size))
-            del self.events[:-MAX_EVENTS]
+            self.spans.append((start, stamp_ns))
+            del self.events[:-MAX_EVENTS], self.spans[:-MAX_EVENTS]
             self.stats = SlipStats(s.events + 1, steps, stamp_ns, size, s.total_size + size)
         else:
             self.stats = SlipStats(s.events, steps, s.last_stamp_ns, s.last_size,

@@ -41,7 +41,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import optimize
 
-from diffdrive_odom.core.bulk.batch import integrate_steps
+from diffdrive_odom.core.evaluation import leftout
 from diffdrive_odom.core.evaluation.metrics import Metrics, covered, evaluate, interpolate
 from diffdrive_odom.core.evaluation.recorded_run import (
     CalibrationError,
@@ -103,6 +103,7 @@ class _Prepared:
     run: Run
     index: IntArray
     reference: FloatArray  # (len(index), 3) in the frame of the reference's start pose
+    bridges: tuple[leftout.Bridge, ...] = ()  # the slip events left out (core.evaluation.leftout)
 
 
 def prepare(run: Run, max_gap: float, stride: int = STRIDE,
@@ -115,14 +116,16 @@ def prepare(run: Run, max_gap: float, stride: int = STRIDE,
     start = np.array([start_stamp(run.steps)], dtype=np.int64)
     if not covered(ref, start, max_gap).all():
         raise CalibrationError(f"{run.name}: the reference does not cover the run's start")
-    ok = np.flatnonzero(covered(ref, run.steps.stamp_ns, max_gap))
+    spans = leftout.bridges(run, max_gap)
+    ok = np.flatnonzero(covered(ref, run.steps.stamp_ns, max_gap)
+                        & ~leftout.inside(spans, len(run.steps)))
     if len(ok) == 0:
         raise CalibrationError(f"{run.name}: the reference does not overlap the readings")
     index = ok[-1:] if ends_only else np.unique(np.concatenate((ok[stride - 1::stride],
                                                                  ok[-1:])))
     poses = interpolate(ref, np.concatenate((start, run.steps.stamp_ns[index])))
     relative = between(np.repeat(poses[:1], len(index), axis=0), poses[1:])
-    return _Prepared(run, index, relative)
+    return _Prepared(run, index, relative, spans)
 
 
 def residuals(p: _Prepared, geometry: Geometry, start_yaw: float,
@@ -132,7 +135,7 @@ def residuals(p: _Prepared, geometry: Geometry, start_yaw: float,
     ``end_weight`` > 0 appends one row: the end position's error in the reference's own
     start frame (not turned: the start-aligned final error users read), times it.
     """
-    x, y, th = integrate_steps(p.run.steps, geometry)
+    x, y, th = leftout.integrate(p.run.steps, geometry, p.bridges, start_yaw)
     i = p.index
     c, s = math.cos(start_yaw), math.sin(start_yaw)
     ref = p.reference
@@ -273,7 +276,14 @@ def run_figures(runs: Sequence[Run], nominal: Geometry, fitted: Geometry,
 
 
 def figures_of(run: Run, geometry: Geometry, max_gap: float = 0.5) -> Metrics:
-    """``eval``'s figures of ``run`` integrated with ``geometry`` against its reference."""
+    """``eval``'s figures of ``run`` integrated with ``geometry`` against its reference.
+
+    Its slip events (when the gyro judged it) bridged by the reference, as the fit
+    leaves them out (:mod:`~diffdrive_odom.core.evaluation.leftout`), so a geometry is
+    judged by the steps a geometry explains.
+    """
     if run.reference is None:
         raise CalibrationError(f"{run.name}: no reference trajectory")
-    return evaluate(trajectory(run, geometry), run.reference, max_gap=max_gap)
+    spans = leftout.bridges(run, max_gap)
+    est = leftout.trajectory(run, geometry, spans) if spans else trajectory(run, geometry)
+    return evaluate(est, run.reference, max_gap=max_gap)

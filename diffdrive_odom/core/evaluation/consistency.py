@@ -31,7 +31,7 @@ import numpy.typing as npt
 from scipy import optimize
 
 from diffdrive_odom.core.bulk.batch import integrate_steps
-from diffdrive_odom.core.evaluation import calibration
+from diffdrive_odom.core.evaluation import calibration, leftout
 from diffdrive_odom.core.evaluation.recorded_run import Run
 from diffdrive_odom.core.geometry.integration import chord_array
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
@@ -73,13 +73,20 @@ class RunTerms:
 
 
 def run_terms(run: Run, geometry: Geometry, max_gap: float = 0.5) -> RunTerms:
-    """Integrate ``run`` with ``geometry``; its final error and unit covariance terms."""
+    """Integrate ``run`` with ``geometry``; its final error and unit covariance terms.
+
+    The error with the run's slip events bridged (:mod:`~.leftout`, as the fit leaves
+    them out); the covariance over every step (a slip's few steps change it little).
+    """
     prepared = calibration.prepare(run, max_gap, ends_only=True)
     steps = run.steps
     x, y, th = integrate_steps(steps, geometry)
+    ex, ey, eth = (leftout.integrate(steps, geometry, prepared.bridges) if prepared.bridges
+                   else (x, y, th))
     ref = prepared.reference[-1]
     i = int(prepared.index[-1])
-    error = np.array([x[i] - ref[0], y[i] - ref[1], float(wrap_angles(th[i:i + 1] - ref[2])[0])])
+    error = np.array([ex[i] - ref[0], ey[i] - ref[1],
+                      float(wrap_angles(eth[i:i + 1] - ref[2])[0])])
     d_left, d_right = steps.d_left[:i + 1], steps.d_right[:i + 1]
     ds, dth = body_increment(geometry, d_left, d_right)
     sinc_half, chord = chord_array(ds, dth)

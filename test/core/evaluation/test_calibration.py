@@ -625,6 +625,7 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
 @pytest.mark.parametrize(("args", "needle"), [
     ([str(OPTIODOM / CW_RUN), "--ground-truth", "/nothing", *NOMINAL_ARGS], "/nothing"),
     ([str(OPTIODOM / CW_RUN), "--topic", "/nothing", *NOMINAL_ARGS], "/nothing"),
+    ([str(OPTIODOM / CW_RUN), "--imu-topic", "/no_imu", *NOMINAL_ARGS], "/no_imu"),
     ([str(OPTIODOM / CW_RUN)], "--params-file"),
     ([str(OPTIODOM / CW_RUN), "-p", "wheel_radius:=-1", "-p", "wheel_separation:=0.2"],
      "wheel_radius"),
