@@ -112,11 +112,12 @@ def sim_stream(route: Route, seed: int, timing: Timing = SIM_TIMING, true: Geome
         else:
             # An integrating gyro: the mean true rate over its own period, measured at the
             # period's middle (a point sample of the sim's last physics step would miss the
-            # ground slip of steps that ended at a wheel reading), plus the sim gyro's bias
-            # and white noise.
+            # ground slip of steps that ended at a wheel reading), times the sim gyro's
+            # scale, plus its bias and white noise.
             t0, h0 = last
             mean = (heading - h0) / ((t_ns - t0) * 1e-9)
-            rate = mean + sim.gyro(timing.imu_hz) - sim.twist.angular
+            scale = sim.config.gyro_scale
+            rate = scale * mean + sim.gyro(timing.imu_hz) - scale * sim.twist.angular
             last = (t_ns, heading)
             stamp = T0 + (t0 + t_ns) // 2 + round((timing.imu_offset + jit[ki]) * 1e9)
             out.append(("i", T0 + t_ns + round(ilat[ki] * 1e9), stamp, float(rate), 0.0))
