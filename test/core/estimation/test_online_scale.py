@@ -206,6 +206,6 @@ def test_apply_with_reference_integrates_with_the_reference_scale() -> None:
                                 est.scale.stddevs, (rl / R, rr / R, b / B), strict=True):
         assert abs(got - want) < 3 * sigma
     # The truth's mean radius is 0.05 % small: held at the configured one it would not be.
-    k, sk = est.scale.mean_radius
+    k = est.scale.mean_radius[0]
     assert (g.left_radius + g.right_radius) / (2 * R) == pytest.approx(k, rel=1e-12)
     assert online.applied_covariance is not None
