@@ -19,6 +19,7 @@ from diffdrive_odom.wire.conversions import yaw_to_quaternion
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 JS, IMU = "sensor_msgs/msg/JointState", "sensor_msgs/msg/Imu"
+POSE = "geometry_msgs/msg/PoseStamped"
 
 OPTIODOM_PARAMS = {"wheel_radius": 0.042, "wheel_separation": 0.200}
 TB3_PARAMS = {
@@ -139,7 +140,7 @@ def joint_state_msg(t: Any, stamp_ns: int, left: float, right: float) -> Any:
                  velocity=np.zeros(0), effort=np.zeros(0))
 
 
-def write_sensor_bag(path: Path, messages: Iterable[tuple[str, int, int, float, float]],
+def write_sensor_bag(path: Path, messages: Iterable[tuple[Any, ...]],
                      imu_hz: float, noise_density: float = 3e-4, truth: Truth | None = None,
                      truth_hz: float = 100.0, imu: bool = True) -> None:
     """An MCAP bag of ``gyrostreams`` messages, each logged at its receive time.
@@ -147,7 +148,8 @@ def write_sensor_bag(path: Path, messages: Iterable[tuple[str, int, int, float, 
     JointStates on /joint_states (positions), Imu on /imu (the yaw rate, its
     angular_velocity_covariance honest: the density squared times the rate; ``imu``
     False: none written). ``truth``: its poses at ``truth_hz`` on /ground_truth/pose
-    (PoseStamped, stamped and logged at the true time).
+    (PoseStamped, stamped and logged at the true time). ``refstreams``' reference poses
+    (if any) as PoseStamped on /reference.
     """
     t = STORE.types
     zero3 = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
@@ -159,8 +161,14 @@ def write_sensor_bag(path: Path, messages: Iterable[tuple[str, int, int, float, 
         imus = writer.add_connection("/imu", IMU, typestore=STORE) if imu else None
         if truth is not None:
             _write_truth(writer, truth, truth_hz)
-        for kind, rx, stamp, a, b in messages:
-            if kind == "j":
+        messages = list(messages)
+        ref = (writer.add_connection("/reference", POSE, typestore=STORE)
+               if any(m[0] == "r" for m in messages) else None)
+        for kind, rx, stamp, a, b, *more in messages:
+            if kind == "r" and ref is not None:
+                writer.write(ref, rx, bytes(STORE.serialize_cdr(
+                    pose_stamped_msg(stamp, a, b, more[0]), POSE)))
+            elif kind == "j":
                 msg = joint_state_msg(t, stamp, a, b)
                 writer.write(joints, rx, bytes(STORE.serialize_cdr(msg, JS)))
             elif imus is not None:
@@ -176,14 +184,18 @@ def write_sensor_bag(path: Path, messages: Iterable[tuple[str, int, int, float, 
 
 def _write_truth(writer: Writer, truth: Truth, rate_hz: float) -> None:
     """``truth`` sampled at ``rate_hz`` as PoseStamped on /ground_truth/pose."""
-    t = STORE.types
-    pose_type = "geometry_msgs/msg/PoseStamped"
-    conn = writer.add_connection("/ground_truth/pose", pose_type, typestore=STORE)
+    conn = writer.add_connection("/ground_truth/pose", POSE, typestore=STORE)
     for s in np.arange(0.0, float(truth.t[-1]) + 1e-9, 1.0 / rate_hz):
         x, y, yaw = truth.at(float(s))
-        qx, qy, qz, qw = yaw_to_quaternion(yaw)
         stamp = T0 + round(float(s) * 1e9)
-        msg = t[pose_type](header=_header(stamp, "map"), pose=t["geometry_msgs/msg/Pose"](
-            position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
-            orientation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
-        writer.write(conn, stamp, bytes(STORE.serialize_cdr(msg, pose_type)))
+        msg = pose_stamped_msg(stamp, x, y, yaw)
+        writer.write(conn, stamp, bytes(STORE.serialize_cdr(msg, POSE)))
+
+
+def pose_stamped_msg(stamp_ns: int, x: float, y: float, yaw: float) -> Any:
+    """A planar pose as rosbags' PoseStamped, frame ``map``."""
+    t = STORE.types
+    qx, qy, qz, qw = yaw_to_quaternion(yaw)
+    return t[POSE](header=_header(stamp_ns, "map"), pose=t["geometry_msgs/msg/Pose"](
+        position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+        orientation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))

@@ -181,12 +181,12 @@ Message = tuple[str, int, int, float, float]
 
 
 def stream(route: Route, timing: Timing, bias: float = 0.0, noise_density: float = 3e-4,
-           seed: int = 1, tru: Truth | None = None) -> list[Message]:
+           seed: int = 1, tru: Truth | None = None, scale: float = 1.0) -> list[Message]:
     """The messages of ``route`` under ``timing`` in receive-time order.
 
     ``bias`` [rad/s] is added to every gyro sample, white noise of density
     ``noise_density`` [rad/s/sqrt(Hz)] too (each sample's sigma: density times the
-    square root of the rate).
+    square root of the rate); ``scale``: the gyro reads that times the true yaw rate.
     """
     rng = np.random.default_rng(seed)
     tr = tru or truth(route)
@@ -203,7 +203,7 @@ def stream(route: Route, timing: Timing, bias: float = 0.0, noise_density: float
         a, b = timing.dropout
         ti = ti[(ti < a) | (ti > b)]
     sigma = noise_density * math.sqrt(timing.imu_hz)
-    wz = np.interp(ti, tr.t, tr.w) + bias + sigma * rng.standard_normal(ti.size)
+    wz = scale * np.interp(ti, tr.t, tr.w) + bias + sigma * rng.standard_normal(ti.size)
     jit = rng.uniform(-1, 1, ti.size) * timing.imu_stamp_jitter
     lat = timing.imu_latency + rng.uniform(-1, 1, ti.size) * timing.imu_latency_jitter
     for k in range(ti.size):

@@ -1,7 +1,8 @@
 """``~/geometry_estimate``: the online geometry estimate as std_msgs/Float64MultiArray.
 
 One dimension, its label the comma-separated field names of
-:data:`diffdrive_odom.core.estimation.online_geometry.FIELDS` (so a reader finds each
+:data:`diffdrive_odom.core.estimation.online_geometry.FIELDS` then
+:data:`diffdrive_odom.core.estimation.online_scale.SCALE_FIELDS` (so a reader finds each
 value by name, and a field added later does not shift silently), its size their count.
 Published once a second when the estimate changed (a filter update), reliable and
 transient local, so a late subscriber gets the last one.
@@ -16,11 +17,14 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from diffdrive_odom.core.estimation.online_geometry import FIELDS, OnlineEstimate
+from diffdrive_odom.core.estimation.online_geometry import FIELDS as GYRO_FIELDS
+from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
+from diffdrive_odom.core.estimation.online_scale import SCALE_FIELDS, scale_values
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 
 TOPIC = "~/geometry_estimate"
 PERIOD_S = 1.0
+FIELDS = GYRO_FIELDS + SCALE_FIELDS
 LABEL = ",".join(FIELDS)
 QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -30,7 +34,8 @@ def estimate_message(est: OnlineEstimate) -> Float64MultiArray:
     """The message for ``est`` (see the module for the layout)."""
     msg = Float64MultiArray()
     msg.layout.dim = [MultiArrayDimension(label=LABEL, size=len(FIELDS), stride=len(FIELDS))]
-    msg.data = [float(v) for v in est.values()]
+    values = est.values() + scale_values(est.scale, est.multipliers, est.stddevs)
+    msg.data = [float(v) for v in values]
     return msg
 
 

@@ -40,6 +40,7 @@ from diffdrive_odom.ros.geometry_estimate import GeometryEstimatePublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS, TF_QOS
+from diffdrive_odom.ros.reference_input import ReferenceSubscription
 from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.ros.set_pose import SetPoseSubscription
 from diffdrive_odom.ros.throttle import KeyedThrottle
@@ -107,6 +108,10 @@ class OdometryEndpoints:
             node, lambda: self._pipeline.stats.online)
         if settings.online_note:
             node.get_logger().info(settings.online_note)
+        ref = None if settings.gyro is None or settings.online is None else (
+            settings.online.reference)  # read-only: for the node's whole life or not
+        self._ref_sub = None if ref is None else ReferenceSubscription(
+            node, ref, self._pipeline, self._throttle)
         g = settings.geometry
         node.get_logger().info(
             f"wheel odometry: r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
@@ -128,6 +133,8 @@ class OdometryEndpoints:
         node.destroy_subscription(self._sub)
         if self._imu_sub is not None:
             node.destroy_subscription(self._imu_sub)
+        if self._ref_sub is not None:
+            self._ref_sub.destroy()
         destroy_publisher(node, self._tf_pub)
         destroy_publisher(node, self._odom_pub)
 

@@ -13,6 +13,7 @@ from typing import Any
 from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
 from diffdrive_odom.core.estimation.gyro import GyroConfig
 from diffdrive_odom.core.estimation.online_geometry import OnlineConfig
+from diffdrive_odom.core.estimation.online_scale import ReferenceConfig
 from diffdrive_odom.core.estimation.open_loop import (
     DEFAULT_OPEN_LOOP_NOISE,
     OPEN_LOOP_SOURCES,
@@ -109,6 +110,21 @@ OPEN_LOOP_PARAMS: tuple[ParamSpec, ...] = (
 )
 
 _O = OnlineConfig()
+_R = ReferenceConfig("/reference")
+REFERENCE_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("online_calibration_reference_topic", "string", "",
+              "A reference pose for the online estimate's scale (the mean radius, the "
+              "separation) and the gyro's scale factor: a lidar odometry, motion capture, "
+              "AMCL; '' = none (the scale stays the configured one).", read_only=True),
+    ParamSpec("online_calibration_reference_type", "string", _R.kind,
+              "Its message type: odometry (nav_msgs/Odometry) or pose_stamped "
+              "(geometry_msgs/PoseStamped).", read_only=True),
+    ParamSpec("online_calibration_reference_position_stddev", "double", _R.position_stddev,
+              "1-sigma of each reference position [m] (its frame is never aligned with "
+              "odom: only distances are compared).", read_only=True, range=POSITIVE),
+    ParamSpec("online_calibration_reference_heading_stddev", "double", _R.heading_stddev,
+              "1-sigma of each reference heading [rad].", read_only=True, range=POSITIVE),
+)
 ONLINE_MODES = ("disabled", "monitor")
 ONLINE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("online_calibration", "string", "monitor",
@@ -123,6 +139,7 @@ ONLINE_PARAMS: tuple[ParamSpec, ...] = (
               "How fast the wheel geometry may change [1/sqrt(s)], relative: each ratio's "
               "variance grows by its square times the ratio squared per second.",
               range=NON_NEGATIVE),
+    *REFERENCE_PARAMS,
 )
 
 ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
@@ -313,8 +330,18 @@ def _online_config(v: Mapping[str, Any]) -> OnlineConfig | None:
                              f"must be one of {', '.join(ONLINE_MODES)}, got {mode!r}")
     with as_parameter_error():
         cfg = OnlineConfig(min_turn=v["online_calibration_min_turn"],
-                           random_walk=v["online_calibration_random_walk"])
+                           random_walk=v["online_calibration_random_walk"],
+                           reference=_reference_config(v))
     return cfg if mode == "monitor" else None
+
+
+def _reference_config(v: Mapping[str, Any]) -> ReferenceConfig | None:
+    """The reference pose's settings (checked even without a topic), None without one."""
+    topic = v["online_calibration_reference_topic"]
+    cfg = ReferenceConfig(topic or "/none", v["online_calibration_reference_type"],
+                          v["online_calibration_reference_position_stddev"],
+                          v["online_calibration_reference_heading_stddev"])
+    return cfg if topic else None
 
 
 def _gyro_config(v: Mapping[str, Any]) -> GyroConfig | None:

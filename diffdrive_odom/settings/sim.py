@@ -114,6 +114,9 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
               range=Range(-INF, INF, "finite")),
     ParamSpec("sim_gyro_noise_density", "double", 0.0,
               "White noise of the simulated gyro [rad/s/sqrt(Hz)].", range=NON_NEGATIVE),
+    ParamSpec("sim_gyro_scale", "double", 1.0,
+              "Scale factor of the simulated gyro: it reads this times the true yaw rate "
+              "(1 = exact; 1.01 = reads 1 % too much).", range=POSITIVE),
     ParamSpec("slip_events", "string", "",
               "Scripted wheel slip: 'SIDE START DURATION RATE' entries separated by ';', "
               "e.g. 'right 5 1 15; left 9 0.5 10': from 5 s for 1 s the right encoders "
@@ -220,6 +223,7 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
             slip_events=_slip_events(v["slip_events"]),
             gyro_bias=v["sim_gyro_bias"],
             gyro_noise_density=v["sim_gyro_noise_density"],
+            gyro_scale=v["sim_gyro_scale"],
         )
     return SimSettings(
         config=config,

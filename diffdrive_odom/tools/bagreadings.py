@@ -18,9 +18,9 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 
 from diffdrive_odom.core.bulk.readings import JointReading
-from diffdrive_odom.tools.bagio import IMU, JOINT_STATE, connections_for, open_bag
+from diffdrive_odom.tools.bagio import IMU, JOINT_STATE, ODOMETRY, connections_for, open_bag
 from diffdrive_odom.tools.reorder import REORDER_WINDOW, Reorder
-from diffdrive_odom.wire.conversions import stamp_to_ns
+from diffdrive_odom.wire.conversions import reference_pose, stamp_to_ns
 from diffdrive_odom.wire.jointstate import JointStateDecoder
 
 
@@ -34,6 +34,21 @@ class ImuSample:
     wy: float
     wz: float
     covariance: tuple[float, ...] = ()  # angular_velocity_covariance (REP-145)
+
+
+@dataclass(frozen=True)
+class ReferenceSample:
+    """A reference pose for the online estimate's scale (its header stamp, x, y, yaw)."""
+
+    stamp_ns: int
+    log_ns: int
+    x: float
+    y: float
+    yaw: float
+
+
+REFERENCE_TYPES = (ODOMETRY, "geometry_msgs/msg/PoseStamped")
+Reading = JointReading | ImuSample | ReferenceSample  # what iter_sensor_readings yields
 
 
 def _reading(msg: Any, log_ns: int) -> JointReading:
@@ -99,14 +114,38 @@ def iter_sensor_readings(
     ``imu_by_log_time`` (``imu_stamp_source: receive_time``): an Imu sample's stamp is
     its log time (the IMU's own stamps are on another clock).
     """
+    for item in iter_readings(reader, topic, imu_topic, passthrough, window, jump_back_ns,
+                              imu_by_log_time):
+        assert not isinstance(item, ReferenceSample)  # no reference topic asked for
+        yield item
+
+
+def iter_readings(
+    reader: AnyReader,
+    topic: str = "/joint_states",
+    imu_topic: str | None = None,
+    passthrough: Passthrough | None = None,
+    window: int = REORDER_WINDOW,
+    jump_back_ns: int = 1_000_000_000,
+    imu_by_log_time: bool = False,
+    reference_topic: str | None = None,
+) -> Iterator[Reading]:
+    """:func:`iter_sensor_readings`, and a reference pose topic's messages too.
+
+    ``reference_topic``: its Odometry or PoseStamped messages as :class:`ReferenceSample`
+    (``replay --reference-topic``), in the same reordering by stamp.
+    """
     joints = connections_for(reader, topic, (JOINT_STATE,))
     imus = [] if imu_topic is None else connections_for(reader, imu_topic, (IMU,))
-    conns = reader.connections if passthrough is not None else joints + imus
+    refs = [] if reference_topic is None else connections_for(reader, reference_topic,
+                                                              REFERENCE_TYPES)
+    conns = reader.connections if passthrough is not None else joints + imus + refs
     joint_ids, imu_ids = {id(c) for c in joints}, {id(c) for c in imus}
+    ref_ids = {id(c) for c in refs}
     decode = JointStateReader(reader)
     order = Reorder(window, jump_back_ns)
     for conn, log_ns, raw in reader.messages(connections=conns):
-        item: JointReading | ImuSample
+        item: JointReading | ImuSample | ReferenceSample
         if passthrough is not None:
             passthrough(conn, log_ns, raw)
         if id(conn) in joint_ids:
@@ -117,6 +156,9 @@ def iter_sensor_readings(
             # imu_stamp_source receive_time: ordered (and fed) by the log time.
             stamp = log_ns if imu_by_log_time else stamp_to_ns(msg.header.stamp)
             item = ImuSample(stamp, log_ns, w.x, w.y, w.z, cov)
+        elif id(conn) in ref_ids:
+            stamp, x, y, yaw = reference_pose(reader.deserialize(raw, conn.msgtype))
+            item = ReferenceSample(stamp, log_ns, x, y, yaw)
         else:
             continue
         yield from order.push(item)

@@ -3,12 +3,16 @@
 The estimate is the node's own (:mod:`diffdrive_odom.core.estimation.online_geometry`,
 through the one pipeline); this module only turns its trace into a few lines: the
 estimate at a few points of the run, by distance, then the final one as a block of
-ddc's multipliers to paste into the parameter file, as ``calibrate`` prints its own.
+ddc's multipliers to paste into the parameter file, as ``calibrate`` prints its own;
+with ``--reference-topic`` the reference's scale too (the same as the node's parameter
+``online_calibration_reference_topic``).
 Without ``use_imu`` there is nothing to estimate from, which is said.
 """
 
 from __future__ import annotations
 
+import argparse
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -24,6 +28,50 @@ NEEDS_IMU = ("--online-calibration needs the gyro: set use_imu: true in the para
              "(or -p use_imu:=true) and give the bag's Imu topic (--imu-topic)")
 
 
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--online-calibration`` and ``--reference-topic`` (replay's flags)."""
+    ap.add_argument("--online-calibration", action="store_true",
+                    help="print the gyro's online geometry estimate over the run and a block "
+                    "to paste (needs use_imu)")
+    ap.add_argument("--reference-topic", default=None, metavar="TOPIC",
+                    help="with --online-calibration: a reference pose in the bag (Odometry or "
+                    "PoseStamped: lidar odometry, motion capture, AMCL) for the scale and the "
+                    "gyro's scale factor (= -p online_calibration_reference_topic:=TOPIC; "
+                    "default: none, the scale stays the configured one)")
+
+
+def reference_override(args: argparse.Namespace) -> str:
+    """``--reference-topic`` as the node's parameter, after every other source; '' or why not."""
+    if not args.reference_topic:
+        return ""
+    if not args.online_calibration:
+        return "--reference-topic needs --online-calibration"
+    args.ros_params = [*args.ros_params,
+                       ("param", f"online_calibration_reference_topic:={args.reference_topic}")]
+    return ""
+
+
+def replay_settings(args: argparse.Namespace,
+                    load: Callable[[argparse.Namespace], OdometrySettings | str]
+                    ) -> OdometrySettings | str:
+    """The settings replay runs with, or the one line why not.
+
+    ``--reference-topic`` as the node's parameter; the estimate on with
+    ``--online-calibration``.
+    """
+    settings = reference_override(args) or load(args)
+    if isinstance(settings, str) or not args.online_calibration:
+        return settings
+    return online_settings(settings)
+
+
+def reference_topic(settings: OdometrySettings) -> str | None:
+    """The reference topic replay reads, None when the estimate or its reference is off."""
+    online = settings.online
+    ref = None if settings.gyro is None or online is None else online.reference
+    return None if ref is None else ref.topic
+
+
 def online_settings(settings: OdometrySettings) -> OdometrySettings | str:
     """The settings with the online estimate on (monitor), or why it cannot run."""
     if settings.gyro is None:
@@ -35,7 +83,10 @@ def report(trace: list[tuple[int, OnlineEstimate]], final: OnlineEstimate | None
     """The lines ``replay --online-calibration`` prints (see the module)."""
     if final is None:
         return "online calibration: not run (no use_imu)"
-    lines = ["online calibration (gyro; mean radius held at the configured one):",
+    sc = final.scale
+    lines = ["online calibration (gyro; " + ("the scale from the reference topic, the rows "
+                                             "with the mean radius held):" if sc is not None
+                                             else "mean radius held at the configured one):"),
              "   time [s]  distance [m]  " + final_header()]
     if trace:
         t0 = trace[0][0]
@@ -44,6 +95,13 @@ def report(trace: list[tuple[int, OnlineEstimate]], final: OnlineEstimate | None
     excluded = ", ".join(f"{k} {v}" for k, v in sorted(final.excluded.items())) or "none"
     lines.append(f"  final: {final.line()}")
     lines.append(f"  steps used {final.steps} in {final.windows} windows; excluded: {excluded}")
+    if sc is None:
+        lines.append("  scale: the configured one (no reference topic: the mean radius is held "
+                     "and the gyro's scale factor taken as 1)")
+    else:
+        refused = ", ".join(f"{k} {v}" for k, v in sorted(sc.excluded.items())) or "none"
+        lines.append(f"  {sc.line()}")
+        lines.append(f"  reference poses {sc.poses}; excluded: {refused}")
     if not final.determined:
         lines.append("  not yet determined: drive turns both ways (online_calibration_min_turn "
                      "each way); nothing to paste")
@@ -52,8 +110,14 @@ def report(trace: list[tuple[int, OnlineEstimate]], final: OnlineEstimate | None
                f"{CHI2_2DOF_3SIGMA:.2f}): recalibrate" if final.outside else
                f"inside the estimate's 3-sigma region (d^2 {final.mahalanobis2:.1f})")
     lines.append(f"  configured geometry: {verdict}")
+    if sc is not None and sc.determined:
+        lines.append("  paste into the parameter file (the scale from the reference):")
+        scaled = replace(final, multipliers=sc.multipliers, stddevs=sc.stddevs)
+        lines += ["    " + b for b in scaled.block().splitlines()]
+        return "\n".join(lines)
     lines.append("  paste into the parameter file (the scale stays the configured one; the "
-                 "gyro cannot see it):")
+                 "gyro cannot see it" + (", the reference has not yet determined it" if sc
+                                         else "") + "):")
     lines += ["    " + b for b in final.block().splitlines()]
     return "\n".join(lines)
 
@@ -95,8 +159,11 @@ def row(e: OnlineEstimate) -> str:
     """One estimate as a table row."""
     cells = [f"{m:.5f} +- {s:.5f}" for m, s in zip(e.multipliers, e.stddevs, strict=True)]
     mark = "" if e.determined else "  (not yet determined)"
+    sc = e.scale  # with a reference: the mean radius and the gyro scale, as they converge
+    scale = "" if sc is None else (f"  radius x {sc.mean_radius[0]:.5f}, gyro x "
+                                   f"{sc.gyro_scale[0]:.5f}")
     return (f"{cells[0]:20s}  {cells[1]:20s}  {cells[2]:22s}  "
-            f"{e.turned[0]:5.1f} / {e.turned[1]:5.1f}{mark}")
+            f"{e.turned[0]:5.1f} / {e.turned[1]:5.1f}{mark}{scale}")
 
 
 def _spread(trace: list[tuple[int, OnlineEstimate]], n: int

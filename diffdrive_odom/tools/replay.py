@@ -38,9 +38,9 @@ from typing import TYPE_CHECKING
 from diffdrive_odom.core.bulk import fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.core.bulk.readings import count as reading_count
+from diffdrive_odom.core.estimation import online_geometry, online_scale
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.encoders import Reason
-from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
 from diffdrive_odom.core.estimation.pipeline import Outcome, PipelineStats, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
 from diffdrive_odom.core.estimation.stamps import StampSource
@@ -91,7 +91,7 @@ class ReplayStats:
     seconds: float = 0.0
     pipeline: PipelineStats = field(default_factory=PipelineStats)
     unit: str = "readings"  # what was fed: wheel readings, or (open loop) commands
-    online_trace: list[tuple[int, OnlineEstimate]] = field(default_factory=list)
+    online_trace: list[tuple[int, online_geometry.OnlineEstimate]] = field(default_factory=list)
 
     @property
     def usable(self) -> bool:
@@ -135,7 +135,7 @@ def _stretch_out(stretch: fastlane.Stretch, sink: Callable[[Published], None]) -
 
 
 def replay_readings(
-    readings: Iterable[JointReading | bagreadings.ImuSample | JointBlock],
+    readings: Iterable[bagreadings.Reading | JointBlock],
     settings: OdometrySettings,
     sink: Callable[[Published], None] | None = None,
     fast: bool = True,
@@ -158,13 +158,16 @@ def replay_readings(
     start = time.perf_counter()
     # The bag's log time is the receive time: the node's rules on stamps apply alike.
     def one_by_one(
-        rs: Iterable[JointReading | bagreadings.ImuSample | JointBlock],
+        rs: Iterable[bagreadings.Reading | JointBlock],
     ) -> Iterator[tuple[JointReading, Outcome]]:
         for item in rs:
             for r in item if isinstance(item, JointBlock) else (item,):
                 if isinstance(r, bagreadings.ImuSample):  # use_imu: gyro samples, as the node's
                     pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz, r.log_ns,
                                   covariance=r.covariance)
+                    continue
+                if isinstance(r, bagreadings.ReferenceSample):  # the online estimate's scale
+                    online_scale.feed_reference(pipe.online, r.stamp_ns, r.x, r.y, r.yaw)
                     continue
                 yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 
@@ -250,9 +253,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--plot", metavar="FILE",
                     help="a PNG: --eval's plot; --online-calibration's estimate with its sigma "
                     "(with both: FILE's name + '_online') (default: none)")
-    ap.add_argument("--online-calibration", action="store_true",
-                    help="print the gyro's online geometry estimate over the run and a block "
-                    "to paste (needs use_imu)")
+    online_report.add_arguments(ap)
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                     help="progress line on stderr (default: on a terminal, for long bags)")
     fleet.add_fleet_arguments(ap)
@@ -310,9 +311,7 @@ def _run_fleet(args: argparse.Namespace) -> int:
 
 def run_bag(args: argparse.Namespace) -> int:
     """One bag (``args.bag``) with the parsed flags: what ``replay BAG ...`` does."""
-    settings = settings_from_args(args)
-    if not isinstance(settings, str) and args.online_calibration:
-        settings = online_report.online_settings(settings)
+    settings = online_report.replay_settings(args, settings_from_args)
     if isinstance(settings, str):
         return _error(settings)
     problem = _output_problem(args)
@@ -429,15 +428,16 @@ def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplaySt
             return openloop_replay.replay_bag(reader, settings, args, traj, writer, csv_out,
                                               passthrough), traj
         jump = int(settings.estimator.time_jump_threshold * 1e9)
-        readings: Iterable[JointReading | bagreadings.ImuSample | JointBlock]
+        readings: Iterable[bagreadings.Reading | JointBlock]
         if settings.takes_bulk and passthrough is None:  # runs of alike messages at once
             readings = bagblocks.iter_joint_blocks(reader, args.topic, jump_back_ns=jump)
         else:
             gyro = settings.gyro
-            readings = bagreadings.iter_sensor_readings(
+            readings = bagreadings.iter_readings(
                 reader, args.topic, None if gyro is None else args.imu_topic,
                 passthrough, jump_back_ns=jump, imu_by_log_time=gyro is not None
-                and gyro.stamp_source is StampSource.RECEIVE_TIME)
+                and gyro.stamp_source is StampSource.RECEIVE_TIME,
+                reference_topic=online_report.reference_topic(settings))
         if progress.wanted(args.progress, total):
             readings = progress.progress(readings, total, PREFIX, weight=reading_count)
         sink = sinks.output_sink(settings, writer, csv_out, traj if args.eval else None,

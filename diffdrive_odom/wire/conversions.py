@@ -9,7 +9,7 @@ without importing either.
 from __future__ import annotations
 
 import math
-from typing import Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 
 def yaw_to_quaternion(theta: float) -> tuple[float, float, float, float]:
@@ -63,3 +63,14 @@ def ns_to_stamp(ns: int, stamp: S) -> S:
     """Fill a builtin_interfaces/Time (rclpy's or rosbags') from integer nanoseconds; returns it."""
     stamp.sec, stamp.nanosec = split_ns(ns)
     return stamp
+
+
+def reference_pose(msg: Any) -> tuple[int, float, float, float]:
+    """A nav_msgs/Odometry's or geometry_msgs/PoseStamped's stamp [ns], x, y and yaw.
+
+    rclpy's or rosbags' messages alike: the online estimate's reference pose
+    (``online_calibration_reference_topic``), read the same in the node and in replay.
+    """
+    pose = getattr(msg.pose, "pose", msg.pose)  # Odometry: PoseWithCovariance; PoseStamped: Pose
+    return (stamp_to_ns(msg.header.stamp), float(pose.position.x), float(pose.position.y),
+            quaternion_to_yaw(pose.orientation))

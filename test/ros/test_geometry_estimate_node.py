@@ -3,7 +3,9 @@
 The robot stands 1 s while a 200 Hz gyro reads a bias: the online estimate runs (its
 filter takes the standing windows for the bias), is not determined (no turn), and comes
 out as std_msgs/Float64MultiArray with the documented layout: one dimension, labelled
-with the field names, and /diagnostics says the same.
+with the field names, and /diagnostics says the same. A PoseStamped reference
+(``online_calibration_reference_topic``) is subscribed and its poses counted (issue 25
+item 4; standing, no window closes).
 """
 
 from __future__ import annotations
@@ -11,11 +13,11 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.core.estimation.online_geometry import FIELDS
-from diffdrive_odom.ros.geometry_estimate import QOS
+from diffdrive_odom.ros.geometry_estimate import FIELDS, QOS
 
 from diagutil import diagnosed
 from rosutil import (
@@ -50,17 +52,30 @@ def gyro(ns: int) -> Imu:
     return msg
 
 
+def pose(ns: int) -> PoseStamped:
+    msg = PoseStamped()
+    msg.header.stamp = stamp(ns)
+    msg.pose.position.x, msg.pose.orientation.w = 2.0, 1.0
+    return msg
+
+
 def test_geometry_estimate_has_the_documented_layout() -> None:
-    with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true"]) as peer:
+    with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true", "-p",
+                                     "online_calibration_reference_topic:=/ref", "-p",
+                                     "online_calibration_reference_type:=pose_stamped"]) as peer:
         ex = peer.executor
         got: list[Any] = []
         peer.node.create_subscription(Float64MultiArray, "/odometry_node/geometry_estimate",
                                       got.append, QOS)
         joints, imu, sink = gyro_rig(peer.node, ex)
+        ref = peer.node.create_publisher(PoseStamped, "/ref", 10)
+        assert spin_until(ex, lambda: ref.get_subscription_count() > 0, 15.0)
         send_first(ex, joints, sink, reading(0))
         for k in range(51):
             for j in range(4):
                 imu.publish(gyro(T0_NS + k * STEP_NS + j * STEP_NS // 4))
+            if k % 5 == 1:
+                ref.publish(pose(T0_NS + k * STEP_NS - STEP_NS // 2))
             spin_for(ex, 0.002)
             if k:
                 joints.publish(reading(k))
@@ -77,5 +92,8 @@ def test_geometry_estimate_has_the_documented_layout() -> None:
         assert value["wheel_separation_multiplier"] == pytest.approx(1.0, abs=1e-9)
         assert value["excluded_standstill"] > 0 and value["steps"] == 0  # none moving
         assert value["gyro_bias"] == pytest.approx(BIAS, rel=0.05)
+        assert value["reference"] == 1.0 and value["scale_determined"] == 0.0
+        assert value["reference_poses"] > 0 and value["gyro_scale"] == 1.0
         status = peer.wait_for(lambda s: "online calibration" in s.values, 15.0)
         assert status.values["online calibration"] == "not yet determined"
+        assert status.values["online scale"] == "from the reference: not yet determined"

@@ -7,7 +7,9 @@ Marchionni and Oriolo, "Simultaneous calibration of odometry and sensor paramete
 for mobile robots", IEEE T-RO 2013, first step, with a gyro in place of the scan
 matcher). A small Kalman filter on ``(u, v, bias)`` with a random walk on each
 estimates them recursively. The absolute scale (the mean radius, so ``b`` itself) is
-not observable from rotation: it is held at the configured one.
+not observable from rotation: it is held at the configured one, unless a reference pose
+measures it (:mod:`~diffdrive_odom.core.estimation.online_scale`, which also divides the
+ratios by the gyro's scale factor it measures).
 
 Which steps count: only those the gyro judged for good (after the deferred judgement
 of :mod:`~diffdrive_odom.core.estimation.gyro`, so on any IMU timing) whose slip test
@@ -43,6 +45,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig, ScaleEstimate
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
@@ -95,6 +98,7 @@ class OnlineConfig:
 
     min_turn: float = 3.0  # rad turned each way before the estimate is determined
     random_walk: float = 1.0e-5  # 1/sqrt(s): relative random walk of each ratio
+    reference: ReferenceConfig | None = None  # the scale's reference pose (online_scale)
 
     def __post_init__(self) -> None:
         for name, value in (("online_calibration_min_turn", self.min_turn),
@@ -129,6 +133,7 @@ class OnlineEstimate:
     steps: int
     windows: int
     excluded: Mapping[str, int]
+    scale: ScaleEstimate | None = None  # with a reference topic only
 
     def block(self) -> str:
         """The estimate as the three lines of a parameter YAML (to paste), with 1-sigma."""
@@ -190,6 +195,10 @@ class OnlineGeometry:
         self.trace: list[tuple[int, OnlineEstimate]] = []
         self._trace_every = 1
         self._open()
+        ref = config.reference  # the scale and the gyro's scale factor (online_scale)
+        self.scale = None if ref is None else OnlineScale(
+            ref, geometry, noise_density, noise, config.min_turn, config.random_walk,
+            measured_density)
 
     def _open(self) -> None:
         self._w0: int | None = None
@@ -202,12 +211,16 @@ class OnlineGeometry:
     def set_geometry(self, geometry: Geometry) -> None:
         """The configured geometry changed (a parameter at runtime): the reference and scale."""
         self.geometry = geometry
+        if self.scale is not None:
+            self.scale.geometry = geometry
 
     def observe(self, geometry: Geometry, t0: int, t1: int, arcs: tuple[float, float],
                 raw: float | None, slip: bool, standing: bool) -> None:
         """One step judged for good: its wheel arcs, the gyro's angle ``raw`` (None: none)."""
         if t1 <= t0:
             return
+        if self.scale is not None:
+            self.scale.observe(geometry, t0, t1, arcs, raw, slip, self.x)
         if raw is None or slip:
             self.excluded["no_gyro" if raw is None else "slip"] += 1
             self._flush()
@@ -315,10 +328,12 @@ class OnlineGeometry:
         """The estimate now (see :class:`OnlineEstimate`)."""
         (u, v, bias), p = self.x, self.p
         cov = (p[0][0], p[0][1], p[1][0], p[1][1])
+        if self.scale is not None:  # over the gyro's scale factor the reference measured
+            (u, v), cov = self.scale.correct((u, v), cov)
         u0, v0 = _ratios(self.geometry)
         du, dv = u - u0, v - v0
-        det = p[0][0] * p[1][1] - p[0][1] * p[1][0]
-        d2 = ((p[1][1] * du * du - 2.0 * p[0][1] * du * dv + p[0][0] * dv * dv) / det
+        det = cov[0] * cov[3] - cov[1] * cov[2]
+        d2 = ((cov[3] * du * du - 2.0 * cov[1] * du * dv + cov[0] * dv * dv) / det
               if det > 0.0 else 0.0)
         determined = self.determined
         mult, sig = multipliers(self.geometry, (u, v), cov)
@@ -328,7 +343,8 @@ class OnlineGeometry:
             mahalanobis2=d2, outside=determined and d2 > CHI2_2DOF_3SIGMA,
             turned=(self.turned[0], self.turned[1]), distance=self.distance,
             steps=self.steps, windows=self.windows,
-            excluded=MappingProxyType(dict(self.excluded)))
+            excluded=MappingProxyType(dict(self.excluded)),
+            scale=None if self.scale is None else self.scale.estimate(mult, sig))
 
 
 def _ratios(g: Geometry) -> tuple[float, float]:

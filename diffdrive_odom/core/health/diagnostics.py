@@ -285,4 +285,26 @@ def _online(est: OnlineEstimate | None, problems: list[tuple[Level, str]]
         ("online distance [m]", f"{est.distance:.1f}"),
         ("online steps used", str(est.steps)),
         *((f"online steps excluded: {k}", str(v)) for k, v in est.excluded.items()),
+        *_scale(est),
+    ]
+
+
+def _scale(est: OnlineEstimate) -> list[tuple[str, str]]:
+    """The scale: the configured one (no reference topic, said so) or the reference's."""
+    sc = est.scale
+    if sc is None:
+        return [("online scale", "configured (no reference topic): mean radius held, gyro "
+                                 "scale factor taken as 1")]
+    names = ("left_wheel_radius_multiplier", "right_wheel_radius_multiplier",
+             "wheel_separation_multiplier")
+    return [
+        ("online scale", "from the reference: " + (
+            "determined" if sc.determined else "not yet determined")),
+        *((f"{n} (with the reference)", f"{m:.5f} +- {sd:.5f}")
+          for n, m, sd in zip(names, sc.multipliers, sc.stddevs, strict=True)),
+        ("mean radius multiplier (reference)", "{:.5f} +- {:.5f}".format(*sc.mean_radius)),
+        ("gyro scale factor (reference)", "{:.5f} +- {:.5f}".format(*sc.gyro_scale)),
+        ("reference poses / windows", f"{sc.poses} / {sc.windows}"),
+        ("reference distance [m] / turned [rad]", f"{sc.distance:.1f} / {sc.turned:.1f}"),
+        *((f"reference excluded: {k}", str(v)) for k, v in sc.excluded.items()),
     ]

@@ -85,6 +85,10 @@ class SimConfig:
     slip_events: tuple[SlipEvent, ...] = ()
     gyro_bias: float = 0.0  # rad/s added to the simulated gyro's yaw rate
     gyro_noise_density: float = 0.0  # rad/s/sqrt(Hz) of its white noise
+    # The gyro reads this times the true yaw rate (1: exact). Its error maps one for one
+    # into the ratios the gyro estimates online (online_geometry), unless a reference
+    # measures it (online_scale).
+    gyro_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.wheels_per_side, int) or self.wheels_per_side < 1:
@@ -116,6 +120,8 @@ class SimConfig:
             raise SimConfigError("sim_gyro_bias", "must be finite")
         if not (math.isfinite(self.gyro_noise_density) and self.gyro_noise_density >= 0.0):
             raise SimConfigError("sim_gyro_noise_density", "must be finite and >= 0")
+        if not (math.isfinite(self.gyro_scale) and self.gyro_scale > 0.0):
+            raise SimConfigError("sim_gyro_scale", "must be finite and > 0")
 
     @property
     def joints(self) -> int:
@@ -252,7 +258,7 @@ class DiffDriveSim:
     # -- outputs ------------------------------------------------------------------
 
     def gyro(self, sample_rate: float) -> float:
-        """A gyro's yaw rate [rad/s]: the true mean since its last read, bias, white noise.
+        """A gyro's yaw rate [rad/s]: scale x the true mean since its last read, bias, noise.
 
         The mean over the sample's period, as an integrating (or anti-aliased) gyro
         gives it, so its samples add up to the turn the ground truth made: the rate of
@@ -273,7 +279,7 @@ class DiffDriveSim:
         if cfg.gyro_noise_density > 0.0:
             sigma = cfg.gyro_noise_density * math.sqrt(sample_rate)
             noise = sigma * float(self._gyro_rng.standard_normal())
-        return rate + cfg.gyro_bias + noise
+        return cfg.gyro_scale * rate + cfg.gyro_bias + noise
 
     @property
     def time_ns(self) -> int:

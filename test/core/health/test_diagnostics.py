@@ -133,6 +133,22 @@ def test_odometry_reports_the_online_estimate_and_warns_when_outside() -> None:
     r = odometry_report(health(gyro=gyro, online=estimate(True)), None, TH)
     assert r.level is Level.WARN and "recalibrate" in r.message
     assert dict(r.values)["online Mahalanobis d^2 of configured geometry"].startswith("40.00")
+    # The scale: the configured one, said so; or the reference's with its sigma.
+    assert dict(r.values)["online scale"].startswith("configured (no reference topic)")
+    from dataclasses import replace
+
+    from diffdrive_odom.core.estimation.online_scale import ScaleEstimate
+    scale = ScaleEstimate(determined=True, mean_radius=(1.0025, 0.0015),
+                          gyro_scale=(1.01, 0.0013), multipliers=(1.0, 1.005, 1.01),
+                          stddevs=(0.0015, 0.0015, 0.0021), poses=3000, windows=116,
+                          distance=48.0, turned=24.0, excluded=MappingProxyType({"slip": 34}))
+    v = dict(odometry_report(health(gyro=gyro, online=replace(estimate(False), scale=scale)),
+                             None, TH).values)
+    assert v["online scale"] == "from the reference: determined"
+    assert v["wheel_separation_multiplier (with the reference)"] == "1.01000 +- 0.00210"
+    assert v["gyro scale factor (reference)"] == "1.01000 +- 0.00130"
+    assert v["mean radius multiplier (reference)"] == "1.00250 +- 0.00150"
+    assert v["reference excluded: slip"] == "34"
 
 
 def test_odometry_says_when_it_integrates_velocities() -> None:

@@ -65,6 +65,19 @@ def test_the_gyro_samples_add_up_to_the_turn_the_ground_made() -> None:
     assert turned == pytest.approx(sim.pose.theta, abs=1e-12)
 
 
+def test_the_gyro_scale_factor_multiplies_the_true_rate_not_the_bias() -> None:
+    """Issue 25 item 5: ``sim_gyro_scale`` s reads s times the turn, the bias as it is."""
+    sim = DiffDriveSim(SimConfig(G, command_timeout=0.0, gyro_bias=0.01, gyro_scale=1.02))
+    sim.command([-2.0, 2.0])
+    sim.advance(10_000_000)
+    assert sim.gyro(100.0) == pytest.approx(1.02 * 4 * 0.033 / 0.16 + 0.01, abs=1e-12)
+    assert sim_settings({"sim_gyro_scale": 0.98}).config.gyro_scale == 0.98
+    for bad in (0.0, -1.0, math.inf):
+        with pytest.raises((ParameterError, SimConfigError)) as err:
+            sim_settings({"sim_gyro_scale": bad})
+        assert getattr(err.value, "name", "") == "sim_gyro_scale"
+
+
 def test_turning_the_gyro_on_keeps_the_slip_noise_of_a_seed() -> None:
     def run(density: float) -> float:
         sim = DiffDriveSim(SimConfig(G, command_timeout=0.0, slip_stddev=0.01, seed=3,

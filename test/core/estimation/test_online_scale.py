@@ -1,0 +1,193 @@
+"""The scale of the online estimate from a reference pose, and the gyro's scale factor.
+
+Issue 25 items 4 and 5. The streams: wheels and IMU on their own clocks
+(``gyrostreams``), a reference pose on a third (``refstreams``: 30 Hz, 50 ms late, in
+a frame of its own, noisy), all in receive-time order. The robot's true geometry
+differs from the configured one and its gyro reads ``s`` times the true yaw rate.
+Expected values in closed form from the true geometry: the gyro alone estimates
+``s r_R/b``, ``s r_L/b``; with the reference, the gyro scale ``s``, the mean radius
+``(r_L + r_R) / 2R`` and ddc's multipliers ``r_L/R``, ``r_R/R``, ``b/B``.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+
+import pytest
+from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, R, Truth, stream, truth
+from refstreams import Reference, merge, reference
+
+from diffdrive_odom.core.estimation.online_geometry import CHI2_2DOF_3SIGMA, OnlineEstimate
+from diffdrive_odom.core.estimation.online_scale import (
+    SCALE_FIELDS,
+    feed_reference,
+    scale_values,
+)
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.settings.errors import ParameterError
+from diffdrive_odom.settings.odometry import odometry_settings
+
+BIAS = math.radians(0.3)
+ND = 3e-4
+TRUE = (R * 0.998, R * 1.003, B * 1.01)  # the mean radius 0.05 % small, track 1 % wide
+SCALE = 1.02  # the gyro reads 2 % too much
+MIXED = ISSUE_ROUTE  # 76 s, 26 m, 7.6 rad left, 4.8 rad right, four slips
+TIMING = {t.name: t for t in TIMINGS}["173 Hz jittered"]
+EXACT_WHEELS = {"wheel_noise_k_left": 0.0, "wheel_noise_k_right": 0.0}
+REF = {"online_calibration_reference_topic": "/ref",
+       "online_calibration_reference_position_stddev": 0.002,
+       "online_calibration_reference_heading_stddev": 0.001}
+
+
+@cache
+def _truth(geometry: tuple[float, float, float]) -> Truth:
+    return truth(MIXED, *geometry)
+
+
+def run(ref: Reference | None, geometry: tuple[float, float, float] = TRUE,
+        scale: float = SCALE, seed: int = 1, **values: object
+        ) -> tuple[OnlineEstimate, list[str], ReadingPipeline]:
+    """Feed the streams as a node does; the final estimate and the warnings said."""
+    tru = _truth(geometry)
+    messages = stream(MIXED, TIMING, BIAS, ND, seed, tru, scale)
+    both = merge(messages, [] if ref is None else reference(tru, ref, MIXED.seconds, seed))
+    pipe = ReadingPipeline(odometry_settings(
+        {"wheel_radius": R, "wheel_separation": B, "use_imu": True, **EXACT_WHEELS,
+         **({} if ref is None else REF), **values}))
+    warnings = []
+    for m in both:
+        if m[0] == "i":
+            pipe.feed_imu(m[2], 0.0, 0.0, m[3], receive_ns=m[1])
+        elif m[0] == "r":
+            assert feed_reference(pipe.online, m[2], m[3], m[4], m[5]) == ""  # type: ignore[misc]
+        elif (w := pipe.feed(m[2], NAMES, (m[3], m[4]), receive_ns=m[1]).warning):
+            warnings.append(w)
+    est = pipe.stats.online
+    assert est is not None
+    return est, warnings, pipe
+
+
+def distance2(est: OnlineEstimate, u: float, v: float) -> float:
+    """The ratios ``(u, v)``'s squared Mahalanobis distance from the estimate."""
+    du, dv = est.ratios[0] - u, est.ratios[1] - v
+    a, c, _, d = est.covariance
+    return (d * du * du - 2 * c * du * dv + a * dv * dv) / (a * d - c * c)
+
+
+def test_without_reference_the_gyro_scale_maps_into_the_ratios() -> None:
+    """The gyro alone finds ``s`` times the true ratios, and warns though nothing changed."""
+    rl, rr, b = TRUE
+    est, _, _ = run(None)
+    assert est.scale is None and est.determined
+    assert distance2(est, SCALE * rr / b, SCALE * rl / b) < CHI2_2DOF_3SIGMA
+    assert distance2(est, rr / b, rl / b) > 100.0  # 2 % off: far outside
+    # The separation it suggests is the true one over s (mean radius held).
+    mb, sb = est.multipliers[2], est.stddevs[2]
+    assert abs(mb - 2 * R * b / ((rl + rr) * B) / SCALE) < 3 * sb
+    # The configured geometry is the truth, the gyro 2 % off: a false warning.
+    _, warnings, _ = run(None, geometry=(R, R, B))
+    assert any("outside" in w for w in warnings)
+    values = scale_values(est.scale, est.multipliers, est.stddevs)
+    named = dict(zip(SCALE_FIELDS, values, strict=True))
+    assert named["reference"] == 0.0 and named["gyro_scale"] == 1.0
+    assert named["scaled_wheel_separation_multiplier"] == est.multipliers[2]
+
+
+def test_with_reference_scale_and_separation_are_recovered() -> None:
+    rl, rr, b = TRUE
+    est, _, _ = run(Reference())
+    sc = est.scale
+    assert sc is not None and sc.determined and est.determined
+    (s, ss), (k, sk) = sc.gyro_scale, sc.mean_radius
+    assert abs(s - SCALE) < 3 * ss and ss < 0.002
+    assert abs(k - (rl + rr) / (2 * R)) < 3 * sk and sk < 0.002
+    for got, sigma, want in zip(sc.multipliers, sc.stddevs, (rl / R, rr / R, b / B),
+                                strict=True):
+        assert abs(got - want) < 3 * sigma
+        assert sigma < 0.003
+    # The ratios are corrected by s: the truth is inside their 3-sigma region.
+    assert distance2(est, rr / b, rl / b) < CHI2_2DOF_3SIGMA
+    assert sc.windows > 50 and not sc.excluded.get("outlier")
+
+
+def test_with_reference_no_false_warning_from_the_gyro_scale() -> None:
+    _, warnings, _ = run(Reference(), geometry=(R, R, B))
+    assert not any("outside" in w for w in warnings)
+
+
+def test_a_lagging_dropping_jumping_reference() -> None:
+    """AMCL-like: 2 Hz, 0.4 s late, silent 7 s, three jumps: refused and counted."""
+    rl, rr, b = TRUE
+    amcl = Reference(hz=2.0, latency=0.4, position_stddev=0.005, heading_stddev=0.003,
+                     dropout=(35.0, 42.0), jumps=((20.0, 0.15, -0.1, 0.0),
+                                                  (48.0, 0.0, 0.2, 0.05),
+                                                  (65.0, -0.2, 0.0, -0.08)))
+    est, _, _ = run(amcl, online_calibration_reference_position_stddev=0.005,
+                    online_calibration_reference_heading_stddev=0.003)
+    sc = est.scale
+    assert sc is not None and sc.determined
+    assert sc.excluded["outlier"] >= 3  # each jump spoils the window across it
+    (s, ss), (k, sk) = sc.gyro_scale, sc.mean_radius
+    assert abs(s - SCALE) < 3 * ss
+    assert abs(k - (rl + rr) / (2 * R)) < 3 * sk
+    assert abs(sc.multipliers[2] - b / B) < 3 * sc.stddevs[2]
+
+
+def test_settings_are_checked_at_start() -> None:
+    base = {"wheel_radius": R, "wheel_separation": B, "use_imu": True}
+    with pytest.raises(ParameterError, match="online_calibration_reference_type"):
+        odometry_settings({**base, **REF, "online_calibration_reference_type": "tf"})
+    with pytest.raises(ParameterError, match="online_calibration_reference_position_stddev"):
+        odometry_settings({**base, "online_calibration_reference_position_stddev": 0.0})
+    cfg = odometry_settings({**base, **REF, "online_calibration_reference_type":
+                             "pose_stamped"}).online
+    assert cfg is not None and cfg.reference is not None
+    assert cfg.reference.kind == "pose_stamped" and cfg.reference.topic == "/ref"
+    off = odometry_settings(base).online
+    assert off is not None and off.reference is None
+    # Without a reference topic (or without the online estimate) a pose is ignored.
+    assert feed_reference(ReadingPipeline(odometry_settings(base)).online, 1, 0.0, 0.0,
+                          0.0) == ""
+
+
+def test_scale_core_exact_data_and_a_time_reset() -> None:
+    """OnlineScale alone on exact data: k and s in closed form; a bag loop starts over."""
+    from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig
+    from diffdrive_odom.core.geometry.kinematics import Geometry
+    from diffdrive_odom.core.uncertainty.noise import NoiseModel
+
+    g = Geometry(R, B)
+    k, s = 1.01, 0.98  # the true radii 1 % larger; the gyro reads 2 % less
+    scale = OnlineScale(ReferenceConfig("/ref", position_stddev=1e-4, heading_stddev=1e-4),
+                        g, 1e-5, NoiseModel(k_left=0.0, k_right=0.0), 1.0, 0.0)
+    state = [s * k * R / B, s * k * R / B, 0.0]  # the gyro's ratios: s times the truth
+
+    def drive(t0: int, seconds: float, v: float, w: float, pose: list[float]) -> int:
+        dt = 20_000_000
+        for i in range(round(seconds * 50)):
+            a, b = t0 + i * dt, t0 + (i + 1) * dt
+            # The wheels' angles for the true twist; arcs in the configured radius.
+            phi_l, phi_r = ((v - 0.5 * B * k * w) * 0.02 / (k * R),
+                            (v + 0.5 * B * k * w) * 0.02 / (k * R))
+            th = pose[2] + 0.5 * w * 0.02
+            pose[0] += v * 0.02 * math.cos(th)
+            pose[1] += v * 0.02 * math.sin(th)
+            pose[2] += w * 0.02
+            scale.observe(g, a, b, (phi_l * R, phi_r * R), s * w * 0.02, False, state)
+            if i % 5 == 4:
+                assert scale.feed(b, *pose) == ""
+        return t0 + round(seconds * 50) * dt
+
+    pose = [0.0, 0.0, 0.0]
+    t = drive(10**18, 10.0, 0.5, 0.0, pose)
+    assert not scale.determined and scale.turned < 0.01  # straight: s not seen yet
+    assert scale.x[0] == pytest.approx(k, rel=1e-4)  # the distance is
+    t = drive(t, 10.0, 0.3, 0.4, pose)
+    t = drive(t, 10.0, 0.3, -0.4, pose)
+    assert scale.x[:2] == pytest.approx([k, s], rel=1e-4)
+    assert scale.determined and not scale.excluded
+    windows = scale.windows
+    drive(10**18, 10.0, 0.3, 0.5, [0.0, 0.0, 0.0])  # the bag again: time went back 30 s
+    assert scale.windows > windows and not scale.excluded.get("stale")
+    assert scale.x[:2] == pytest.approx([k, s], rel=1e-4)
