@@ -2,7 +2,8 @@
 
 One dimension, its label the comma-separated field names of
 :data:`diffdrive_odom.core.estimation.online_geometry.FIELDS` then
-:data:`diffdrive_odom.core.estimation.online_scale.SCALE_FIELDS` (so a reader finds each
+:data:`diffdrive_odom.core.estimation.online_scale.SCALE_FIELDS` then
+:data:`diffdrive_odom.core.estimation.online_apply.APPLY_FIELDS` (so a reader finds each
 value by name, and a field added later does not shift silently), its size their count.
 Published once a second when the estimate changed (a filter update), reliable and
 transient local, so a late subscriber gets the last one.
@@ -17,6 +18,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
+from diffdrive_odom.core.estimation.online_apply import APPLY_FIELDS
 from diffdrive_odom.core.estimation.online_geometry import FIELDS as GYRO_FIELDS
 from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
 from diffdrive_odom.core.estimation.online_scale import SCALE_FIELDS, scale_values
@@ -24,7 +26,7 @@ from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 
 TOPIC = "~/geometry_estimate"
 PERIOD_S = 1.0
-FIELDS = GYRO_FIELDS + SCALE_FIELDS
+FIELDS = GYRO_FIELDS + SCALE_FIELDS + APPLY_FIELDS
 LABEL = ",".join(FIELDS)
 QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -34,7 +36,8 @@ def estimate_message(est: OnlineEstimate) -> Float64MultiArray:
     """The message for ``est`` (see the module for the layout)."""
     msg = Float64MultiArray()
     msg.layout.dim = [MultiArrayDimension(label=LABEL, size=len(FIELDS), stride=len(FIELDS))]
-    values = est.values() + scale_values(est.scale, est.multipliers, est.stddevs)
+    values = (est.values() + scale_values(est.scale, est.multipliers, est.stddevs)
+              + (float(est.applied),))
     msg.data = [float(v) for v in values]
     return msg
 

@@ -125,13 +125,14 @@ REFERENCE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("online_calibration_reference_heading_stddev", "double", _R.heading_stddev,
               "1-sigma of each reference heading [rad].", read_only=True, range=POSITIVE),
 )
-ONLINE_MODES = ("disabled", "monitor")
+ONLINE_MODES = ("disabled", "monitor", "apply")
 ONLINE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("online_calibration", "string", "monitor",
               "monitor: estimate the wheel geometry from the gyro while driving (use_imu "
               "only), publish it on ~/geometry_estimate and /diagnostics, warn when the "
-              "configured one leaves its 3-sigma region; disabled: not at all (apply is "
-              "not implemented yet)."),
+              "configured one leaves its 3-sigma region; apply: the same, and integrate "
+              "with the estimate once determined and below online_calibration_apply_sigma "
+              "(the parameters stay as set); disabled: not at all."),
     ParamSpec("online_calibration_min_turn", "double", _O.min_turn,
               "Radians to turn each way before the online estimate is determined (and "
               "the configured geometry tested against it).", range=NON_NEGATIVE),
@@ -139,6 +140,10 @@ ONLINE_PARAMS: tuple[ParamSpec, ...] = (
               "How fast the wheel geometry may change [1/sqrt(s)], relative: each ratio's "
               "variance grows by its square times the ratio squared per second.",
               range=NON_NEGATIVE),
+    ParamSpec("online_calibration_apply_sigma", "double", _O.apply_sigma,
+              "With apply: the relative 1-sigma both wheel ratios (radius / separation) "
+              "must be below before the estimate is integrated with (0.002 = 0.2 %).",
+              range=POSITIVE),
     *REFERENCE_PARAMS,
 )
 
@@ -320,19 +325,18 @@ def _open_loop_config(v: Mapping[str, Any], pose_diag: tuple[float, ...],
 
 
 def _online_config(v: Mapping[str, Any]) -> OnlineConfig | None:
-    """``online_calibration``'s settings with ``monitor``, None with ``disabled``."""
+    """``online_calibration``'s settings with ``monitor`` or ``apply``, None with ``disabled``."""
     mode = v["online_calibration"]
-    if mode == "apply":
-        raise ParameterError("online_calibration",
-                             "apply is not implemented yet (use monitor or disabled)")
     if mode not in ONLINE_MODES:
         raise ParameterError("online_calibration",
                              f"must be one of {', '.join(ONLINE_MODES)}, got {mode!r}")
     with as_parameter_error():
         cfg = OnlineConfig(min_turn=v["online_calibration_min_turn"],
                            random_walk=v["online_calibration_random_walk"],
+                           apply=mode == "apply",
+                           apply_sigma=v["online_calibration_apply_sigma"],
                            reference=_reference_config(v))
-    return cfg if mode == "monitor" else None
+    return None if mode == "disabled" else cfg
 
 
 def _reference_config(v: Mapping[str, Any]) -> ReferenceConfig | None:

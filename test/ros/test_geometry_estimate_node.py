@@ -5,7 +5,8 @@ filter takes the standing windows for the bias), is not determined (no turn), an
 out as std_msgs/Float64MultiArray with the documented layout: one dimension, labelled
 with the field names, and /diagnostics says the same. A PoseStamped reference
 (``online_calibration_reference_topic``) is subscribed and its poses counted (issue 25
-item 4; standing, no window closes).
+item 4; standing, no window closes). In ``online_calibration: apply`` (item 3) it says
+the estimate is not applied (not determined).
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ def pose(ns: int) -> PoseStamped:
 
 def test_geometry_estimate_has_the_documented_layout() -> None:
     with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true", "-p",
+                                     "online_calibration:=apply", "-p",
                                      "online_calibration_reference_topic:=/ref", "-p",
                                      "online_calibration_reference_type:=pose_stamped"]) as peer:
         ex = peer.executor
@@ -87,6 +89,7 @@ def test_geometry_estimate_has_the_documented_layout() -> None:
         assert msg.layout.dim[0].size == len(FIELDS) == len(msg.data)
         value = dict(zip(FIELDS, msg.data, strict=True))
         assert value["determined"] == 0.0 and value["outside"] == 0.0
+        assert value["applied"] == 0.0
         # Standing: the ratios keep their start values (the configured geometry).
         assert value["left_wheel_radius_multiplier"] == pytest.approx(1.0, abs=1e-9)
         assert value["wheel_separation_multiplier"] == pytest.approx(1.0, abs=1e-9)
@@ -96,4 +99,5 @@ def test_geometry_estimate_has_the_documented_layout() -> None:
         assert value["reference_poses"] > 0 and value["gyro_scale"] == 1.0
         status = peer.wait_for(lambda s: "online calibration" in s.values, 15.0)
         assert status.values["online calibration"] == "not yet determined"
+        assert status.values["online estimate applied"] == "false"
         assert status.values["online scale"] == "from the reference: not yet determined"

@@ -22,7 +22,7 @@ from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
-ONLINE_NEEDS_IMU = ("online_calibration is monitor but use_imu is false: online "
+ONLINE_NEEDS_IMU = ("online_calibration is monitor or apply but use_imu is false: online "
                     "calibration disabled (it needs the gyro)")
 
 
@@ -83,7 +83,7 @@ class OdometrySettings:
     stamp_source: StampSource = StampSource.HEADER
     gyro: GyroConfig | None = None  # use_imu false: None (wheels only, as before)
     open_loop: OpenLoopConfig | None = None  # open_loop true: from commands, not encoders
-    # online_calibration: monitor (None: disabled; without use_imu it does nothing).
+    # online_calibration: monitor or apply (None: disabled; without use_imu: nothing).
     online: OnlineConfig | None = None
 
     @property

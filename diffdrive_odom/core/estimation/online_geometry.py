@@ -34,6 +34,14 @@ two (correlated) ratios beyond chi-square's 2-dof quantile at the 3-sigma level
 (99.73 %) says the robot changed (a warning, once, then at most every
 ``WARN_INTERVAL_S`` while it stays outside). Pure Python, no numpy: a window update
 is a 3x3 filter step, a few microseconds, at most a few per second.
+
+``apply``: once determined and each ratio's relative 1-sigma is below ``apply_sigma``,
+:attr:`OnlineGeometry.applied` is the geometry to integrate with (the estimate's
+multipliers, the configured mean radius held), refreshed at every window update while
+that holds and kept when it no longer does; the pipeline swaps it in between two
+steps (:mod:`~diffdrive_odom.core.estimation.online_apply`), so the pose never jumps,
+and the covariance takes its uncertainty (:mod:`~diffdrive_odom.core.uncertainty.ratios`).
+The configured geometry stays the reference of the test above and the scale.
 """
 
 from __future__ import annotations
@@ -41,13 +49,18 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import MappingProxyType
 
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig, ScaleEstimate
 from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
+from diffdrive_odom.core.uncertainty.ratios import (
+    mean_radius_stddev_ratio,
+    ratio_geometry_covariance,
+)
 
 __all__ = ["CHI2_2DOF_3SIGMA", "FIELDS", "OnlineConfig", "OnlineEstimate", "OnlineGeometry"]
 
@@ -94,10 +107,12 @@ class OnlineConfigError(ConfigError):
 
 @dataclass(frozen=True)
 class OnlineConfig:
-    """``online_calibration: monitor`` (None in the settings when disabled)."""
+    """``online_calibration: monitor`` or ``apply`` (None in the settings when disabled)."""
 
     min_turn: float = 3.0  # rad turned each way before the estimate is determined
     random_walk: float = 1.0e-5  # 1/sqrt(s): relative random walk of each ratio
+    apply: bool = False  # integrate with the estimate once determined and precise enough
+    apply_sigma: float = 0.002  # relative 1-sigma each ratio must be below to be applied
     reference: ReferenceConfig | None = None  # the scale's reference pose (online_scale)
 
     def __post_init__(self) -> None:
@@ -105,6 +120,9 @@ class OnlineConfig:
                             ("online_calibration_random_walk", self.random_walk)):
             if not (math.isfinite(value) and value >= 0.0):
                 raise OnlineConfigError(name, f"must be finite and >= 0, got {value!r}")
+        if not (math.isfinite(self.apply_sigma) and self.apply_sigma > 0.0):
+            raise OnlineConfigError("online_calibration_apply_sigma",
+                                    f"must be finite and > 0, got {self.apply_sigma!r}")
 
 
 @dataclass(frozen=True)
@@ -133,6 +151,7 @@ class OnlineEstimate:
     steps: int
     windows: int
     excluded: Mapping[str, int]
+    applied: bool = False  # the odometry integrates with it (apply)
     scale: ScaleEstimate | None = None  # with a reference topic only
 
     def block(self) -> str:
@@ -157,6 +176,7 @@ class OnlineEstimate:
         ml, mr, mb = self.multipliers
         sl, sr, sb = self.stddevs
         state = ("determined" if self.determined else "not yet determined (turn both ways)")
+        state += ", applied" if self.applied else ""
         return (f"left {ml:.5f} +- {sl:.5f}, right {mr:.5f} +- {sr:.5f}, separation "
                 f"{mb:.5f} +- {sb:.5f} (mean radius held); turned {self.turned[0]:.1f} rad "
                 f"left, {self.turned[1]:.1f} rad right over {self.distance:.1f} m: {state}")
@@ -194,6 +214,11 @@ class OnlineGeometry:
         # (stamp, estimate) after updates, thinned to at most TRACE_MAX: replay prints it.
         self.trace: list[tuple[int, OnlineEstimate]] = []
         self._trace_every = 1
+        # apply: the geometry the odometry integrates with (None: the configured one) and
+        # its S over (ln r_l, ln r_r, ln b) (core.uncertainty.ratios).
+        self.applied: Geometry | None = None
+        self.applied_covariance: Matrix | None = None
+        self.in_use: Geometry | None = None  # what online_apply.geometry_in_use handed out
         self._open()
         ref = config.reference  # the scale and the gyro's scale factor (online_scale)
         self.scale = None if ref is None else OnlineScale(
@@ -213,6 +238,14 @@ class OnlineGeometry:
         self.geometry = geometry
         if self.scale is not None:
             self.scale.geometry = geometry
+        if self.applied is not None:
+            self._apply(refresh=True)
+
+    def set_config(self, config: OnlineConfig) -> None:
+        """New settings at runtime; from apply to monitor the estimate is no longer used."""
+        self.config = config
+        if not config.apply:
+            self.applied = self.applied_covariance = None
 
     def observe(self, geometry: Geometry, t0: int, t1: int, arcs: tuple[float, float],
                 raw: float | None, slip: bool, standing: bool) -> None:
@@ -293,7 +326,38 @@ class OnlineGeometry:
         self.steps += n
         self.windows += 1
         self.distance += dist
+        if self.config.apply:
+            self._apply(refresh=self.determined and self._precise())
         self._check(w1)
+
+    def _corrected(self) -> tuple[tuple[float, float], tuple[float, float, float, float]]:
+        """The ratios and their covariance as printed (over the gyro's scale factor, if any)."""
+        p = self.p
+        ratios, cov = (self.x[0], self.x[1]), (p[0][0], p[0][1], p[1][0], p[1][1])
+        return (ratios, cov) if self.scale is None else self.scale.correct(ratios, cov)
+
+    def _precise(self) -> bool:
+        """Each ratio's relative 1-sigma below ``apply_sigma``."""
+        (u, v), cov = self._corrected()
+        limit = self.config.apply_sigma
+        return cov[0] < (limit * u) ** 2 and cov[3] < (limit * v) ** 2
+
+    def _apply(self, refresh: bool) -> None:
+        """The geometry to integrate with: refreshed at each update while precise enough.
+
+        Once taken it is kept when the sigma grows above the threshold again (a long
+        stretch turning one way: the random walk), not dropped for the worse configured
+        one; its ``S`` follows the filter's covariance either way.
+        """
+        (u, v), cov = self._corrected()
+        if refresh:
+            (ml, mr, mb), _ = multipliers(self.geometry, (u, v), (0.0, 0.0, 0.0, 0.0))
+            self.applied = replace(self.geometry, left_wheel_radius_multiplier=ml,
+                                   right_wheel_radius_multiplier=mr,
+                                   wheel_separation_multiplier=mb)
+        if self.applied is not None:
+            self.applied_covariance = ratio_geometry_covariance(
+                (u, v), cov, mean_radius_stddev_ratio(self.noise.radius_stddev_ratio))
 
     def _check(self, stamp_ns: int) -> None:
         est = self.estimate()
@@ -343,7 +407,7 @@ class OnlineGeometry:
             mahalanobis2=d2, outside=determined and d2 > CHI2_2DOF_3SIGMA,
             turned=(self.turned[0], self.turned[1]), distance=self.distance,
             steps=self.steps, windows=self.windows,
-            excluded=MappingProxyType(dict(self.excluded)),
+            excluded=MappingProxyType(dict(self.excluded)), applied=self.applied is not None,
             scale=None if self.scale is None else self.scale.estimate(mult, sig))
 
 

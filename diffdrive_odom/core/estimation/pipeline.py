@@ -9,7 +9,8 @@ time reset, gap, speed check, integration); the ``publish_rate`` gate decides wh
 the pose goes out. The outcome and a set of counters come back, so the node logs,
 replay summarises and diagnostics report from the same numbers. With ``use_imu`` the
 IMU's samples come in through :meth:`ReadingPipeline.feed_imu` and the estimator takes
-each step's heading from :mod:`diffdrive_odom.core.estimation.gyro` (gyrodometry). Pure Python.
+each step's heading from :mod:`diffdrive_odom.core.estimation.gyro` (gyrodometry) and its
+geometry from :func:`~.online_apply.geometry_in_use` (``apply``). Pure Python.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from diffdrive_odom.core.estimation.estimator import OdometryEstimator, Step
 from diffdrive_odom.core.estimation.gate import GateState, PublishGate
 from diffdrive_odom.core.estimation.gyro import GyroHeading, SlipStats
 from diffdrive_odom.core.estimation.imuinput import ImuInput
+from diffdrive_odom.core.estimation.online_apply import geometry_in_use
 from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate, OnlineGeometry
 from diffdrive_odom.core.estimation.setpose import (
     PoseRefusal,
@@ -97,7 +99,7 @@ class PipelineStats:
     last_usable_stamp_ns: int | None = None
     velocity_fallback: bool = False
     gyro: GyroStats | None = None  # use_imu true only
-    online: OnlineEstimate | None = None  # online_calibration monitor with use_imu only
+    online: OnlineEstimate | None = None  # online_calibration monitor|apply, use_imu only
 
     @property
     def dropped_total(self) -> int:
@@ -222,7 +224,7 @@ class ReadingPipeline:
                 quantization_variance(enc.ticks_per_revolution, len(enc.left_wheel_names)),
                 gyro.standstill.measured_density)
         else:
-            self._online.config = settings.online
+            self._online.set_config(settings.online)
             self._online.set_geometry(settings.geometry)
         if gyro is not None:
             gyro.observer = None if self._online is None else self._online.observe
@@ -305,8 +307,10 @@ class ReadingPipeline:
                 warning = self._clock.check(stamp_ns, receive_ns)
         else:
             receive_ns = None
-        gyro = self._gyro
+        gyro, est = self._gyro, self._estimator
         steps = 0 if gyro is None else gyro.steps
+        geometry, switched = geometry_in_use(self._online, self._settings.geometry, est.uncertainty)
+        est.set_geometry(geometry)
         verdict = (
             self._estimator.update(stamp_ns, names, position, velocity, receive_ns)
             if stamp_ns > 0 else ZERO_STAMP
@@ -328,7 +332,7 @@ class ReadingPipeline:
             self._time_resets += 1
         elif verdict.code is Reason.GAP:
             self._gap_reanchors += 1
-        note = ""
+        note = switched
         if self._estimator.from_velocity != self._velocity:
             self._velocity = not self._velocity
             note = VELOCITY_ON if self._velocity else VELOCITY_OFF

@@ -172,7 +172,7 @@ class ReadingHealth:
     time_resets: int = 0
     velocity_fallback: bool = False
     gyro: GyroStats | None = None  # use_imu true: the gyro's counters and slip events
-    online: OnlineEstimate | None = None  # online_calibration monitor (with use_imu)
+    online: OnlineEstimate | None = None  # online_calibration monitor|apply (use_imu)
 
 
 def odometry_report(
@@ -277,6 +277,7 @@ def _online(est: OnlineEstimate | None, problems: list[tuple[Level, str]]
              "wheel_separation_multiplier")
     return [
         ("online calibration", "determined" if est.determined else "not yet determined"),
+        ("online estimate applied", "true" if est.applied else "false"),
         *((f"{n} (online estimate)", f"{m:.5f} +- {sd:.5f}")
           for n, m, sd in zip(names, est.multipliers, est.stddevs, strict=True)),
         ("online Mahalanobis d^2 of configured geometry",

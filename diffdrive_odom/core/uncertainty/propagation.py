@@ -32,7 +32,10 @@ and Kleeman): one draw per robot, not per step, so it is not added step by step.
 and the published pose covariance adds ``J S J^T`` with ``S = diag(sr^2, sr^2, sb^2)``,
 ``sr`` / ``sb`` = ``wheel_radius_stddev_ratio`` / ``wheel_separation_stddev_ratio``
 (each radius independent). That term grows with distance squared where ``P`` grows with
-distance. Reset sets both ``P`` and ``J`` back to zero.
+distance. Reset sets both ``P`` and ``J`` back to zero. When the steps go on with
+another geometry (``online_calibration: apply``), ``S`` is that geometry's own
+(:mod:`~.ratios`) and the stretch before is folded into ``P`` at the switch
+(:meth:`PoseUncertainty.switch_geometry`).
 
 Encoder quantization (the Caltech ME/CS 133 notes, "Kinematics and Odometry for a
 Differential Drive Vehicle", list it among the four sources of drift) is *not*
@@ -225,6 +228,9 @@ class PoseUncertainty:
         # variance (the bias is one draw over that stretch, as the geometry above).
         self.bias_sensitivity: tuple[float, float, float] = ZERO_VEC
         self.bias_variance = 0.0
+        # S over (ln r_l, ln r_r, ln b) of the geometry in use when it is not the configured
+        # one (online_calibration apply: :mod:`~.ratios`); None: the model's diagonal.
+        self.geometry_covariance: Matrix | None = None
 
     def reset(self) -> None:
         """Back to the start value (a reset or restart of the odometry); twist forgotten."""
@@ -241,6 +247,27 @@ class PoseUncertainty:
         """
         self.covariance, self.sensitivity = before.covariance, before.sensitivity
         self.bias_sensitivity, self.bias_variance = before.bias_sensitivity, before.bias_variance
+        self.geometry_covariance = before.geometry_covariance
+
+    def switch_geometry(self, covariance: Matrix | None) -> None:
+        """The steps from now on integrate with another geometry, whose ``S`` is ``covariance``.
+
+        The pose's error from the geometry so far is done: it is folded into ``P`` with the
+        ``S`` it had and the sensitivity starts over (as the gyro's bias does when its
+        variance shrinks), so the published covariance never drops at the switch.
+        """
+        self.covariance = add3(self.covariance, self._geometry_term())
+        self.sensitivity = ZERO3
+        self.geometry_covariance = covariance
+
+    def _geometry_term(self) -> Matrix:
+        """``J S J^T``: the model's diagonal ``S``, or the geometry in use's own."""
+        s = self.geometry_covariance
+        if s is not None:
+            return congruence3(self.sensitivity, s)
+        model = self.model
+        return geometry_term(self.sensitivity, model.radius_stddev_ratio,
+                             model.separation_stddev_ratio)
 
     def forget_twist(self) -> None:
         """Empty the twist window (the estimator forgot its rates)."""
@@ -344,9 +371,9 @@ class PoseUncertainty:
         """Covariance of ``pose``: wheel noise, geometry uncertainty, quantization floor."""
         model = self.model
         cov = self.covariance
-        if model.radius_stddev_ratio or model.separation_stddev_ratio:
-            cov = add3(cov, geometry_term(self.sensitivity, model.radius_stddev_ratio,
-                                           model.separation_stddev_ratio))
+        if (model.radius_stddev_ratio or model.separation_stddev_ratio
+                or self.geometry_covariance is not None):
+            cov = add3(cov, self._geometry_term())
         if self.bias_sensitivity is not ZERO_VEC:
             jb = self.bias_sensitivity
             cov = add3(cov, outer3(jb, self.bias_variance))

@@ -171,8 +171,12 @@ def test_multipliers_hold_the_mean_radius() -> None:
 
 def test_settings_modes() -> None:
     base = {"wheel_radius": R, "wheel_separation": B}
-    with pytest.raises(ParameterError, match=r"online_calibration.*not implemented"):
-        odometry_settings({**base, "online_calibration": "apply"})
+    applying = odometry_settings({**base, "online_calibration": "apply"}).online
+    assert applying is not None and applying.apply and applying.apply_sigma == 0.002
+    for bad in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(ParameterError, match="online_calibration_apply_sigma"):
+            odometry_settings({**base, "online_calibration": "apply",
+                               "online_calibration_apply_sigma": bad})
     with pytest.raises(ParameterError, match="online_calibration"):
         odometry_settings({**base, "online_calibration": "off"})
     assert odometry_settings({**base, "online_calibration": "disabled"}).online is None
