@@ -350,14 +350,19 @@ class OnlineGeometry:
         one; its ``S`` follows the filter's covariance either way.
         """
         (u, v), cov = self._corrected()
+        # The scale: the reference's mean radius once it is determined (all three scaled
+        # by k, its sigma the scale's), else the configured one with its sigma.
+        k, scale_sd = 1.0, mean_radius_stddev_ratio(self.noise.radius_stddev_ratio)
+        if self.scale is not None and self.scale.determined:
+            k, vk = self.scale.x[0], self.scale.p[0][0]
+            scale_sd = math.sqrt(max(vk, 0.0)) / k
         if refresh:
             (ml, mr, mb), _ = multipliers(self.geometry, (u, v), (0.0, 0.0, 0.0, 0.0))
-            self.applied = replace(self.geometry, left_wheel_radius_multiplier=ml,
-                                   right_wheel_radius_multiplier=mr,
-                                   wheel_separation_multiplier=mb)
+            self.applied = replace(self.geometry, left_wheel_radius_multiplier=k * ml,
+                                   right_wheel_radius_multiplier=k * mr,
+                                   wheel_separation_multiplier=k * mb)
         if self.applied is not None:
-            self.applied_covariance = ratio_geometry_covariance(
-                (u, v), cov, mean_radius_stddev_ratio(self.noise.radius_stddev_ratio))
+            self.applied_covariance = ratio_geometry_covariance((u, v), cov, scale_sd)
 
     def _check(self, stamp_ns: int) -> None:
         est = self.estimate()

@@ -191,3 +191,21 @@ def test_scale_core_exact_data_and_a_time_reset() -> None:
     drive(10**18, 10.0, 0.3, 0.5, [0.0, 0.0, 0.0])  # the bag again: time went back 30 s
     assert scale.windows > windows and not scale.excluded.get("stale")
     assert scale.x[:2] == pytest.approx([k, s], rel=1e-4)
+
+
+def test_apply_with_reference_integrates_with_the_reference_scale() -> None:
+    """In apply, once the scale is determined the radii and separation take it too."""
+    rl, rr, b = TRUE
+    est, _, pipe = run(Reference(), online_calibration="apply")
+    online = pipe.online
+    assert online is not None and est.applied and est.scale is not None
+    assert est.scale.determined
+    g = online.applied
+    assert g is not None
+    for got, sigma, want in zip((g.left_radius / R, g.right_radius / R, g.separation / B),
+                                est.scale.stddevs, (rl / R, rr / R, b / B), strict=True):
+        assert abs(got - want) < 3 * sigma
+    # The truth's mean radius is 0.05 % small: held at the configured one it would not be.
+    k, sk = est.scale.mean_radius
+    assert (g.left_radius + g.right_radius) / (2 * R) == pytest.approx(k, rel=1e-12)
+    assert online.applied_covariance is not None
