@@ -95,7 +95,7 @@ def sim_stream(route: Route, seed: int, timing: Timing = SIM_TIMING, true: Geome
     distance: dict[int, float] = {}
     kw = ki = 0
     heading = 0.0  # the true heading unwrapped (the sim's pose wraps it)
-    last = (0, 0.0)  # the previous gyro sample's time [ns] and true heading
+    last = 0  # the previous gyro sample's time [ns]
     for t_ns, kind in events:
         sim.advance(t_ns - sim.time_ns)
         rl, rr = wheel_rates(true, *_twist(route, t_ns * 1e-9))
@@ -110,15 +110,12 @@ def sim_stream(route: Route, seed: int, timing: Timing = SIM_TIMING, true: Geome
             distance[stamp] = sim.distance
             kw += 1
         else:
-            # An integrating gyro: the mean true rate over its own period, measured at the
-            # period's middle (a point sample of the sim's last physics step would miss the
-            # ground slip of steps that ended at a wheel reading), times the sim gyro's
-            # scale, plus its bias and white noise.
-            t0, h0 = last
-            mean = (heading - h0) / ((t_ns - t0) * 1e-9)
-            scale = sim.config.gyro_scale
-            rate = scale * mean + sim.gyro(timing.imu_hz) - scale * sim.twist.angular
-            last = (t_ns, heading)
+            # The sim's gyro integrates: the mean true rate since its previous read (this
+            # sample's period) times its scale, plus its bias and white noise; stamped at
+            # the period's middle.
+            t0 = last
+            rate = sim.gyro(timing.imu_hz)
+            last = t_ns
             stamp = T0 + (t0 + t_ns) // 2 + round((timing.imu_offset + jit[ki]) * 1e9)
             out.append(("i", T0 + t_ns + round(ilat[ki] * 1e9), stamp, float(rate), 0.0))
             ki += 1

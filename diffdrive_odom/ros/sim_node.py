@@ -3,7 +3,8 @@
 Thin rclpy shell around :class:`diffdrive_odom.core.sim.model.DiffDriveSim`: it takes the
 cmd_vel node's wheel commands, steps the simulation at a fixed rate and publishes
 what a real base's driver would (``joint_states``, header-stamped, radians or
-ticks; with ``imu_rate`` a gyro on ``imu``: true yaw rate, bias, white noise) plus
+ticks; with ``imu_rate`` a gyro on ``imu``: the true yaw rate over each sample's
+period, stamped at its middle, bias, white noise) plus
 what only a simulator knows: the true pose on ``ground_truth/odom``. Scripted
 ``slip_events`` make a wheel spin without moving the ground.
 
@@ -184,17 +185,21 @@ class SimNode(Node):
     # --- time -------------------------------------------------------------------
 
     def _advance(self, dt_ns: int, end_ns: int) -> None:
-        """Move the simulation to ``end_ns``; with an IMU, a gyro sample per piece."""
+        """Move the simulation to ``end_ns``; with an IMU, a gyro sample per piece.
+
+        A sample is the mean rate over its piece: it is stamped at the piece's middle,
+        the time that mean belongs to (stamped at the end it would lag half a piece).
+        """
         if self._imu_pub is None:
             self._sim.advance(dt_ns)
             return
         n = self._imu_per_step
         rate = n * 1e9 / dt_ns
         for i in range(n):
-            piece = dt_ns * (i + 1) // n - dt_ns * i // n
-            self._sim.advance(piece)
+            a, b = dt_ns * i // n, dt_ns * (i + 1) // n
+            self._sim.advance(b - a)
             msg = Imu()
-            ns_to_stamp(end_ns - dt_ns + dt_ns * (i + 1) // n, msg.header.stamp)
+            ns_to_stamp(end_ns - dt_ns + (a + b) // 2, msg.header.stamp)
             msg.header.frame_id = self._settings.imu_frame_id
             msg.orientation_covariance[0] = -1.0  # no orientation (REP-145)
             msg.linear_acceleration_covariance[0] = -1.0

@@ -40,6 +40,12 @@ def test_accuracy_bench_prints_its_table() -> None:
     assert len(rows) == 4 * 2, out
 
 
+def test_online_sim_bench_prints_its_table() -> None:
+    out = run_bench("bench_online_sim.py", 240)
+    assert len(re.findall(r"^\s+\d+\s+0\.\d{5} \+- ", out, re.M)) == 3, out  # --quick: 3 seeds
+    assert re.search(r"^z rms left/right/separation: [\d.]+/[\d.]+/[\d.]+;", out, re.M), out
+
+
 @pytest.mark.slow
 @pytest.mark.serial
 def test_live_bench_prints_its_table() -> None:

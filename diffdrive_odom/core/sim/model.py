@@ -143,6 +143,7 @@ class _State:
     pose: Pose2D = field(default_factory=Pose2D)
     twist: Twist2D = field(default_factory=Twist2D)
     distance: float = 0.0  # path length of the axle centre on the ground [m]
+    yaw: float = 0.0  # heading turned since the start, not wrapped [rad]
     last_command_ns: int | None = None
 
 
@@ -163,6 +164,7 @@ class DiffDriveSim:
         self._state = _State()
         # The gyro's own stream, so turning it on does not change the slip noise's.
         self._gyro_rng = np.random.default_rng([config.seed, 1])
+        self._gyro_read = (0, 0.0)  # (time, yaw) at the gyro's previous read
 
     def reconfigure(self, config: SimConfig) -> None:
         """New physics/sensors from now on; pose, wheel angles and rates carry on."""
@@ -240,6 +242,7 @@ class DiffDriveSim:
         st = self._state
         st.pose = compose(st.pose, ds, dtheta)
         st.distance += abs(ds)
+        st.yaw += dtheta
         if dt > 0.0:
             st.twist = Twist2D(ds / dt, dtheta / dt)
 
@@ -255,17 +258,28 @@ class DiffDriveSim:
     # -- outputs ------------------------------------------------------------------
 
     def gyro(self, sample_rate: float) -> float:
-        """A gyro's yaw rate [rad/s] now: the true one times its scale, plus bias and noise.
+        """A gyro's yaw rate [rad/s]: scale x the true mean since its last read, bias, noise.
 
-        The noise of one sample read at ``sample_rate`` Hz is ``density * sqrt(rate)``
-        (a rate noise density integrated over the sample's bandwidth).
+        The mean over the sample's period, as an integrating (or anti-aliased) gyro
+        gives it, so its samples add up to the turn the ground truth made: the rate of
+        the last physics substep alone would carry that substep's slip noise
+        (``slip_stddev``), which grows as one over the root of the substep's length,
+        many times the gyro's own noise, and which standing still never shows. With no
+        time passed since the last read: the last substep's rate. The noise of one
+        sample read at ``sample_rate`` Hz is ``density * sqrt(rate)`` (a rate noise
+        density integrated over the sample's bandwidth).
         """
         cfg = self.config
+        st = self._state
+        t_read, yaw_read = self._gyro_read
+        self._gyro_read = (st.time_ns, st.yaw)
+        rate = ((st.yaw - yaw_read) / ((st.time_ns - t_read) * 1e-9)
+                if st.time_ns > t_read else st.twist.angular)
         noise = 0.0
         if cfg.gyro_noise_density > 0.0:
             sigma = cfg.gyro_noise_density * math.sqrt(sample_rate)
             noise = sigma * float(self._gyro_rng.standard_normal())
-        return cfg.gyro_scale * self._state.twist.angular + cfg.gyro_bias + noise
+        return cfg.gyro_scale * rate + cfg.gyro_bias + noise
 
     @property
     def time_ns(self) -> int:
