@@ -221,7 +221,7 @@ class OnlineScale:
 
     def feed(self, stamp_ns: int, x: float, y: float, yaw: float) -> str:
         """One reference pose; '' if kept, else the code it was refused with."""
-        if not all(math.isfinite(v) for v in (x, y, yaw)) or stamp_ns <= 0:
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(yaw)) or stamp_ns <= 0:
             return "non_finite"
         if self._last_ref is not None and stamp_ns <= self._last_ref:
             if self._last_ref - stamp_ns < RESTART_S * 1e9:
@@ -269,7 +269,8 @@ class OnlineScale:
         self._append((t1, last[1] + turn, last[2] + phi_r * c, last[3] + phi_r * s,
                       last[4] + phi_l * c, last[5] + phi_l * s, last[6] + int(bad),
                       last[7] + travel, 0.5 * (arcs[0] + arcs[1]) / dt, turn / dt))
-        self._process()
+        if self._refs:  # reference poses waiting for the wheels to reach them
+            self._process()
 
     def _append(self, point: _Point) -> None:
         self._stamps.append(point[0])
@@ -294,8 +295,9 @@ class OnlineScale:
         if b[6] != a[6]:
             return "slip"  # inside an excluded step
         f = (stamp - a[0]) / (b[0] - a[0])
-        return (stamp, *(a[j] + f * (b[j] - a[j]) for j in range(1, 6)), a[6],
-                a[7] + f * (b[7] - a[7]), b[8], b[9])  # type: ignore[return-value]
+        return (stamp, a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2]),
+                a[3] + f * (b[3] - a[3]), a[4] + f * (b[4] - a[4]), a[5] + f * (b[5] - a[5]),
+                a[6], a[7] + f * (b[7] - a[7]), b[8], b[9])
 
     # --- windows -----------------------------------------------------------------
 
