@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
+from fuzzing import examples
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -30,7 +31,7 @@ from diffdrive_odom.settings.cmd_vel import (
 )
 from diffdrive_odom.settings.errors import ParameterError
 
-FUZZ = settings(max_examples=2000, derandomize=True, deadline=None, database=None,
+FUZZ = settings(max_examples=examples(2000), derandomize=True, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 NAN = math.nan
 SETTLE_S = 12.0  # > the slowest convergence the drawn limits allow (see robots())

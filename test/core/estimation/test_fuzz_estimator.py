@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 import pytest
+from fuzzing import examples
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -202,7 +203,7 @@ shapes = st.sampled_from(SHAPES)
 
 
 @pytest.mark.slow  # hypothesis: thousands of runs, 15-25 s
-@settings(FUZZ, max_examples=1500)
+@settings(FUZZ, max_examples=examples(1500))
 @given(data=st.data())
 def test_the_estimator_survives_anything_and_then_tracks_a_clean_drive(
     data: st.DataObject,
@@ -219,7 +220,7 @@ def test_the_estimator_survives_anything_and_then_tracks_a_clean_drive(
 
 
 @pytest.mark.slow  # hypothesis: thousands of runs, 15-25 s
-@settings(FUZZ, max_examples=1000)
+@settings(FUZZ, max_examples=examples(1000))
 @given(data=st.data())
 def test_the_pipeline_survives_anything_and_counts_every_reading(
     data: st.DataObject,
