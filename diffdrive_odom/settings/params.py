@@ -56,6 +56,9 @@ def _as_bool(name: str, value: ParamValue) -> bool:
 
 
 def _as_str(name: str, value: ParamValue) -> str:
+    if isinstance(value, bool):  # YAML 1.1 and ``-p`` read off/on/no/yes as a boolean
+        raise ParameterError(name, f"must be a string, got {value!r} (off, on, no and yes "
+                                   "are read as booleans: quote the value)")
     if not isinstance(value, str):
         raise ParameterError(name, f"must be a string, got {value!r}")
     return value

@@ -179,6 +179,9 @@ def test_settings_modes() -> None:
                                "online_calibration_apply_sigma": bad})
     with pytest.raises(ParameterError, match="online_calibration"):
         odometry_settings({**base, "online_calibration": "off"})
+    # Unquoted, `-p online_calibration:=off` reaches the node as false (rclpy's YAML).
+    with pytest.raises(ParameterError, match=r"online_calibration.*quote the value"):
+        odometry_settings({**base, "online_calibration": False})
     assert odometry_settings({**base, "online_calibration": "disabled"}).online is None
     wheels_only = ReadingPipeline(odometry_settings(base))
     assert wheels_only.settings.online_note == ONLINE_NEEDS_IMU
