@@ -91,12 +91,16 @@ def test_the_fit_recovers_the_true_geometry_with_the_slips_left_out_not_without(
 def test_umbmark_bridges_the_slips_too(runs: tuple[Run, Run]) -> None:
     """UMBmark's end errors with the slips bridged: the geometry's alone (no square here,
     so only the bridged end pose is checked: the truth's, with the true geometry)."""
-    _, gyro = runs
+    plain, gyro = runs
     true = with_values(PLAIN.geometry, *TRUE)
     x, y, _ = leftout.integrate(gyro.steps, true, leftout.bridges(gyro))
     assert gyro.reference is not None
     end = umbmark.reference_end(gyro, gyro.reference)
     assert math.hypot(x[-1] - end[0], y[-1] - end[1]) < 1e-4
+    # UMBmark's own end error (what its passes correct): bridged, none is left for the
+    # true geometry; the same steps unjudged keep the slips' end error.
+    assert math.hypot(*umbmark._end_error(gyro, true, end)) < 1e-4
+    assert math.hypot(*umbmark._end_error(plain, true, end)) > 0.1
 
 
 def test_without_bridges_the_integration_is_the_batch_paths_and_a_gap_widens_a_bridge(
@@ -107,6 +111,10 @@ def test_without_bridges_the_integration_is_the_batch_paths_and_a_gap_widens_a_b
         np.testing.assert_array_equal(a, b)
     assert gyro.reference is not None
     first = leftout.bridges(gyro)[0]
+    # With bridges, the piecewise integration is the batch path's up to the first bridge.
+    for a, b in zip(leftout.integrate(gyro.steps, PLAIN.geometry, leftout.bridges(gyro)),
+                    batch.integrate_steps(gyro.steps, PLAIN.geometry), strict=True):
+        np.testing.assert_allclose(a[:first.start], b[:first.start], rtol=0, atol=1e-12)
     stamps = leftout.pose_stamps(gyro.steps)
     ref = gyro.reference
     at = stamps[first.start]  # 2 s of reference gone up to (and over) the slip's start
