@@ -78,6 +78,7 @@ def messages(seed: int) -> list[tuple[int, str, int, tuple[float, ...]]]:
     c, s = math.cos(frame[2]), math.sin(frame[2])
     out: list[tuple[int, str, int, tuple[float, ...]]] = []
     k_cmd = 0
+    last_gyro = 0  # sim ns of the previous gyro read: a sample is the mean rate since
     for te, kind in events:
         while k_cmd < len(schedule) and schedule[k_cmd][0] <= te:
             sim.command(schedule[k_cmd][1])
@@ -86,8 +87,11 @@ def messages(seed: int) -> list[tuple[int, str, int, tuple[float, ...]]]:
         ns = T0 + sim.time_ns
         if kind == "j":
             out.append((ns + 1_000_000, "j", ns, tuple(float(a) for a in sim.joint_angles)))
-        elif kind == "i":  # an integrating gyro: the mean rate over its own period
-            stamp = ns + round(rng.uniform(-0.5e-3, 0.5e-3) * 1e9)
+        elif kind == "i":  # an integrating gyro: the mean rate over its own period,
+            # stamped at the period's middle (as sim_node does), with jitter
+            mid = T0 + (last_gyro + sim.time_ns) // 2
+            last_gyro = sim.time_ns
+            stamp = mid + round(rng.uniform(-0.5e-3, 0.5e-3) * 1e9)
             late = round((3e-3 + rng.uniform(-2e-3, 2e-3)) * 1e9)
             out.append((ns + late, "i", stamp, (sim.gyro(IMU_HZ),)))
         else:
