@@ -60,7 +60,10 @@ def test_a_straight_line_with_the_estimate_in_use() -> None:
     cuu, cuv, _, cvv = COV
     var_diff = cuu / U**2 - 2 * cuv / (U * V) + cvv / V**2
     assert cov[1][1] == pytest.approx((length**2 / (2 * b)) ** 2 * var_diff, rel=1e-9)
-    assert cov[0][0] == pytest.approx(length**2 / 4 * quad(s, (1.0, 1.0, 0.0)), rel=1e-9)
+    # ln r_L + ln r_R = 2 ln 2m + ln u + ln v - 2 ln(u + v), the scale's sm in each radius
+    du, dv = 1 / U - 2 / (U + V), 1 / V - 2 / (U + V)
+    var_sum = du * du * cuu + 2 * du * dv * cuv + dv * dv * cvv + 4 * SM**2
+    assert cov[0][0] == pytest.approx(length**2 / 4 * var_sum, rel=1e-9)
     assert cov[2][2] == pytest.approx((length / b) ** 2 * var_diff, rel=1e-9)
 
 
