@@ -53,7 +53,12 @@ from dataclasses import dataclass, replace
 from types import MappingProxyType
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig, ScaleEstimate
+from diffdrive_odom.core.estimation.online_scale import (
+    OnlineScale,
+    ReferenceConfig,
+    ScaleEstimate,
+    kalman_update,
+)
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
@@ -313,14 +318,7 @@ class OnlineGeometry:
         if innovation * innovation > GATE_SIGMAS ** 2 * s:
             self.excluded["outlier"] += n
             return
-        k = [v / s for v in ph]
-        for i in range(3):
-            x[i] += k[i] * innovation
-        # Joseph form is not needed at this size; keep P symmetric explicitly.
-        self.p = [[p[i][j] - k[i] * ph[j] for j in range(3)] for i in range(3)]
-        for i in range(3):
-            for j in range(i):
-                self.p[i][j] = self.p[j][i] = 0.5 * (self.p[i][j] + self.p[j][i])
+        kalman_update(x, p, list(h), innovation, r)
         net = angle - x[2] * dt
         self.turned[0 if net > 0.0 else 1] += abs(net)
         self.steps += n

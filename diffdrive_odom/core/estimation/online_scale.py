@@ -45,8 +45,8 @@ from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
-__all__ = ["REFERENCE_TYPES", "SCALE_FIELDS", "OnlineScale", "ReferenceConfig",
-           "ScaleEstimate", "feed_reference", "scale_values"]
+__all__ = ["REFERENCE_TYPES", "SCALE_FIELDS", "OnlineScale", "ReferenceConfig", "ScaleEstimate",
+           "feed_reference", "kalman_update", "scale_values"]
 
 ODOMETRY, POSE_STAMPED = "odometry", "pose_stamped"
 REFERENCE_TYPES = (ODOMETRY, POSE_STAMPED)
@@ -386,7 +386,7 @@ class OnlineScale:
                 self._fresh_anchor()
                 return
         for e, hv, r in updates:
-            _kalman(x, p, hv, e, r)
+            kalman_update(x, p, hv, e, r)
         keep = (0, 1, 5, 6, 7)
         self.x = [x[i] for i in keep]
         self.p = [[p[i][j] for j in keep] for i in keep]
@@ -432,8 +432,9 @@ def _quadratic(p: list[list[float]], h: list[float]) -> float:
     return sum(h[i] * p[i][j] * h[j] for i in range(n) for j in range(n) if h[i] and h[j])
 
 
-def _kalman(x: list[float], p: list[list[float]], h: list[float], e: float, r: float) -> None:
-    """One scalar measurement (``H = h``, innovation ``e``, noise ``r``), in place."""
+def kalman_update(x: list[float], p: list[list[float]], h: list[float], e: float,
+                  r: float) -> None:
+    """One scalar update in place, P kept symmetric: both online filters' (ratios, scale)."""
     n = len(x)
     ph = [sum(p[i][j] * h[j] for j in range(n) if h[j]) for i in range(n)]
     s = sum(h[i] * ph[i] for i in range(n)) + r
