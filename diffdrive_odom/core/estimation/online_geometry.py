@@ -393,10 +393,8 @@ class OnlineGeometry:
 
     def estimate(self) -> OnlineEstimate:
         """The estimate now (see :class:`OnlineEstimate`)."""
-        (u, v, bias), p = self.x, self.p
-        cov = (p[0][0], p[0][1], p[1][0], p[1][1])
-        if self.scale is not None:  # over the gyro's scale factor the reference measured
-            (u, v), cov = self.scale.correct((u, v), cov)
+        bias, p = self.x[2], self.p
+        (u, v), cov = self._corrected()  # over the gyro's scale factor, with a reference
         u0, v0 = _ratios(self.geometry)
         du, dv = u - u0, v - v0
         det = cov[0] * cov[3] - cov[1] * cov[2]
