@@ -1,11 +1,12 @@
 """A reference pose stream (a lidar odometry, motion capture, AMCL) from a route's truth.
 
 On its own clock: its own rate and phase, stamps at the true measurement time plus a
-jitter, arriving ``latency`` later (a lidar odometry's processing), in a frame of its
-own (``map``: the truth turned and shifted), with white noise on each pose, an
-optional dropout and jumps (AMCL relocalising: the pose off by a fixed amount from
-then on). :func:`merge` puts its messages among a ``gyrostreams`` stream in
-receive-time order. Nothing here calls the package.
+constant clock offset and a jitter, arriving ``latency`` (itself jittered) later (a
+lidar odometry's processing), in a frame of its own (``map``: the truth turned and
+shifted), with white noise on each pose, an optional dropout and jumps (AMCL
+relocalising: the pose off by a fixed amount from then on). :func:`merge` puts its
+messages among a ``gyrostreams`` stream in receive-time order. Nothing here calls the
+package.
 """
 
 from __future__ import annotations
@@ -27,7 +28,9 @@ class Reference:
     hz: float = 30.0
     phase: float = 7.3e-3  # s: its first pose after the wheels' first reading
     stamp_jitter: float = 0.5e-3  # s: uniform +- on each stamp
+    stamp_offset: float = -3e-3  # s: its clock against the wheels' (constant)
     latency: float = 0.05  # s: measurement to arrival
+    latency_jitter: float = 0.01  # s: uniform +- on each arrival
     position_stddev: float = 0.002  # m, white, per pose
     heading_stddev: float = 0.001  # rad, white, per pose
     frame: tuple[float, float, float] = (3.0, -2.0, 0.7)  # its frame's x, y, yaw in odom's
@@ -55,8 +58,10 @@ def reference(tru: Truth, ref: Reference, seconds: float, seed: int = 7) -> list
         mx = fx + c * x - s * y + ref.position_stddev * n[0]
         my = fy + s * x + c * y + ref.position_stddev * n[1]
         yaw = math.remainder(fth + th + ref.heading_stddev * n[2], 2 * math.pi)
-        stamp = T0 + round((tk + rng.uniform(-1, 1) * ref.stamp_jitter) * 1e9)
-        out.append(("r", T0 + round((tk + ref.latency) * 1e9), stamp, mx, my, yaw))
+        stamp = T0 + round((tk + ref.stamp_offset + rng.uniform(-1, 1) * ref.stamp_jitter)
+                           * 1e9)
+        late = ref.latency + rng.uniform(-1, 1) * ref.latency_jitter
+        out.append(("r", T0 + round((tk + late) * 1e9), stamp, mx, my, yaw))
     return out
 
 
