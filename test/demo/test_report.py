@@ -183,7 +183,10 @@ def _straight_with_slip() -> Recording:
                                     ()))
         truth_t.append(stamp)
         truth_x.append(V * moving(t))
-    imu = tuple(ImuReading(T0 + k * 10_000_000, 0.0, 0.0, BIAS) for k in range(int(END * 100) + 1))
+    # The IMU on its own clock: 97 Hz, 3.7 ms after the wheels' first reading (the robot
+    # does not turn: each sample is the bias).
+    imu = tuple(ImuReading(T0 + 3_700_000 + round(k * 1e9 / 97), 0.0, 0.0, BIAS)
+                for k in range(int(END * 97) + 1))
     truth = Trajectory.from_arrays(truth_t, truth_x, [0.0] * len(truth_x), [0.0] * len(truth_x))
     return Recording(tuple(readings), truth, truth, (), 0.0, imu)
 
