@@ -57,8 +57,10 @@ def soak(seconds: float, rate: int, interval: float) -> bool:
         while feeder.is_alive() and bench_live.cpu_seconds(system.pid) - cpu0 < 0.05:
             time.sleep(0.1)
         samples: list[tuple[float, float, float]] = []  # (t, RSS MB, CPU s)
+        # Sampled while fed only: the subscriber's idle wait at the end would otherwise
+        # enter the last fifth as near-zero CPU and hide a slowdown.
         t0 = time.monotonic()
-        while feeder.is_alive():
+        while feeder.is_alive() and time.monotonic() - t0 <= seconds + 0.5 * interval:
             samples.append((time.monotonic() - t0, rss_mb(system.pid),
                             bench_live.cpu_seconds(system.pid)))
             feeder.join(interval)
