@@ -28,16 +28,18 @@ its true geometry's ratios and its own pose. Every message goes through the node
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import statistics
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "test"))
+sys.path.insert(0, str(ROOT / "bench"))
 
-from gyrostreams import ISSUE_ROUTE, Route  # noqa: E402
+from gyrostreams import ISSUE_ROUTE, Message, Route  # noqa: E402
+from interleaved import interleaved, ratio_rows  # noqa: E402
 from simstreams import (  # noqa: E402
     NAMES,
     SLIP_STDDEV,
@@ -57,6 +59,14 @@ LONG = Route(ISSUE_ROUTE.segments * 8)
 GOAL = 0.001  # the issue's: the ratios within 0.1 %
 
 
+def pipeline(mode: str, use_imu: bool = True, values: dict[str, object] | None = None,
+             trace: bool = True) -> ReadingPipeline:
+    """The pipeline with ``online_calibration: mode`` (``trace``: the estimate's history)."""
+    return ReadingPipeline(odometry_settings(
+        {"wheel_radius": R, "wheel_separation": B, "use_imu": use_imu,
+         "online_calibration": mode, **(values or {})}), trace=trace)
+
+
 def feed(s: SimStream, mode: str, use_imu: bool = True, watch: bool = False,
          values: dict[str, object] | None = None
          ) -> tuple[ReadingPipeline, list[tuple[int, float, float]]]:
@@ -64,9 +74,7 @@ def feed(s: SimStream, mode: str, use_imu: bool = True, watch: bool = False,
 
     Returns the pipeline and, per wheel stamp, (stamp, heading in use, configured).
     """
-    pipe = ReadingPipeline(odometry_settings(
-        {"wheel_radius": R, "wheel_separation": B, "use_imu": use_imu,
-         "online_calibration": mode, **(values or {})}))
+    pipe = pipeline(mode, use_imu, values)
     configured = pipe.settings.geometry
     used = conf = 0.0
     rows: list[tuple[int, float, float]] = []
@@ -196,21 +204,24 @@ def heading(seeds: int) -> None:
           f"worst {max(ratios):.3f} (goal: at most 0.2)")
 
 
-def cpu(runs: int) -> None:
-    print(f"\n== 3. CPU per wheel reading with its IMU samples, {runs} interleaved runs each")
+def feed_one(pipe: ReadingPipeline, m: Message) -> None:
+    """One message of a sim stream, as the node gives it."""
+    kind, rx, stamp, a, b = m
+    if kind == "i":
+        pipe.feed_imu(stamp, 0.0, 0.0, a, receive_ns=rx)
+    else:
+        pipe.feed(stamp, NAMES, (a, b), receive_ns=rx)
+
+
+def cpu(rounds: int) -> None:
+    print(f"\n== 3. CPU per wheel reading with its IMU samples, {rounds} rounds, the cases "
+          "interleaved message by message")
     s = sim_stream(MIXED, 0)
     n = sum(1 for m in s.messages if m[0] == "j")
-    times: dict[str, list[float]] = {"disabled": [], "monitor": [], "apply": []}
-    for _ in range(runs):
-        for mode in times:
-            t = time.process_time()
-            feed(s, mode)
-            times[mode].append(time.process_time() - t)
-    base = statistics.median(times["disabled"])
-    for mode, values in times.items():
-        med = statistics.median(values)
-        print(f"  use_imu, online_calibration {mode:9s} {med / n * 1e6:7.1f} us per reading "
-              f"({med / base:.2f} x disabled)")
+    cases = {mode: functools.partial(pipeline, mode, trace=False)
+             for mode in ("disabled", "monitor", "apply")}
+    print("\n".join(ratio_rows(interleaved(cases, feed_one, s.messages, rounds),
+                               "disabled", n)))
 
 
 def main() -> None:

@@ -26,10 +26,12 @@ scale factor maps into the ratios: a false WARN; with it the ratios are correcte
 from __future__ import annotations
 
 import argparse
+import functools
 import heapq
 import math
 import statistics
-import time
+import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -39,6 +41,9 @@ from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import DiffDriveSim, SimConfig, SlipEvent
 from diffdrive_odom.settings.odometry import odometry_settings
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from interleaved import interleaved, ratio_rows
 
 R, B = 0.05, 0.3
 TRUE = (R, R * 1.005, B * 1.01)  # left, right radius, separation
@@ -93,20 +98,25 @@ def messages(seed: int) -> list[tuple[int, str, int, tuple[float, ...]]]:
             last_gyro = sim.time_ns
             stamp = mid + round(rng.uniform(-0.5e-3, 0.5e-3) * 1e9)
             late = round((3e-3 + rng.uniform(-2e-3, 2e-3)) * 1e9)
-            out.append((ns + late, "i", stamp, (sim.gyro(IMU_HZ),)))
+            out.append((ns + late, "i", stamp, (float(sim.gyro(IMU_HZ)),)))
         else:
             p, n = sim.pose, rng.standard_normal(3)
             x = frame[0] + c * p.x - s * p.y + REF_SIGMA[0] * n[0]
             y = frame[1] + s * p.x + c * p.y + REF_SIGMA[0] * n[1]
-            out.append((ns + 80_000_000, "r", ns, (x, y, frame[2] + p.theta + REF_SIGMA[1] * n[2])))
+            yaw = frame[2] + p.theta + REF_SIGMA[1] * n[2]
+            # Python floats, as the node's decoders give them (numpy scalars would make
+            # every step's arithmetic numpy's, several times slower)
+            out.append((ns + 80_000_000, "r", ns, (float(x), float(y), float(yaw))))
     heapq.heapify(out)
     return [heapq.heappop(out) for _ in range(len(out))]
 
 
-def run(msgs: list[tuple[int, str, int, tuple[float, ...]]], reference: bool,
-        configured_true: bool = False, mode: str = "monitor"
-        ) -> tuple[OnlineEstimate | None, int]:
-    """The final estimate and the number of warnings the node would have logged.
+Message = tuple[int, str, int, tuple[float, ...]]
+
+
+def pipeline(reference: bool, configured_true: bool = False, mode: str = "monitor"
+             ) -> ReadingPipeline:
+    """The node's pipeline with the gyro and ``online_calibration: mode``.
 
     ``configured_true``: the node is given the true geometry (a warning is then false);
     ``mode``: ``online_calibration`` (``disabled``: the gyro mode alone, no estimate).
@@ -120,48 +130,46 @@ def run(msgs: list[tuple[int, str, int, tuple[float, ...]]], reference: bool,
         values.update({"online_calibration_reference_topic": "/reference",
                        "online_calibration_reference_position_stddev": REF_SIGMA[0],
                        "online_calibration_reference_heading_stddev": REF_SIGMA[1]})
-    pipe = ReadingPipeline(odometry_settings(values))
-    warnings = 0
-    for rx, kind, stamp, v in msgs:
-        if kind == "i":
-            pipe.feed_imu(stamp, 0.0, 0.0, v[0], receive_ns=rx)
-        elif kind == "r":
-            if pipe.online is not None:
-                feed_reference(pipe.online, stamp, *v)
-        else:
-            warnings += bool(pipe.feed(stamp, NAMES, v, receive_ns=rx).warning.startswith(
-                "online calibration"))
+    return ReadingPipeline(odometry_settings(values))
+
+
+def feed(pipe: ReadingPipeline, msg: Message) -> bool:
+    """One message as the node gives it; True if it raised the online estimate's warning."""
+    rx, kind, stamp, v = msg
+    if kind == "i":
+        pipe.feed_imu(stamp, 0.0, 0.0, v[0], receive_ns=rx)
+    elif kind == "r":
+        if pipe.online is not None:
+            feed_reference(pipe.online, stamp, *v)
+    else:
+        return pipe.feed(stamp, NAMES, v, receive_ns=rx).warning.startswith(
+            "online calibration")
+    return False
+
+
+def run(msgs: list[Message], reference: bool, configured_true: bool = False,
+        mode: str = "monitor") -> tuple[OnlineEstimate | None, int]:
+    """The final estimate and the number of warnings the node would have logged."""
+    pipe = pipeline(reference, configured_true, mode)
+    warnings = sum(feed(pipe, m) for m in msgs)
     return pipe.stats.online, warnings
 
 
-def cpu(msgs: list[tuple[int, str, int, tuple[float, ...]]], runs: int) -> None:
-    """Process time per wheel reading (its IMU samples and reference poses included).
+def cpu(msgs: list[Message], rounds: int) -> None:
+    """Time per wheel reading (its IMU samples and reference poses included).
 
-    Against the gyro mode without online calibration (issue 25: within 1.3x). Each round
-    runs every case back to back (order rotated), so a round's ratios share the
-    machine's state; printed: the median of the per-round ratios, and the ratio of the
-    fastest runs (the least disturbed) beside it. The reference poses are fed in every
-    case (unused when disabled).
+    Against the gyro mode without online calibration (issue 25: within 1.3x), the four
+    cases interleaved message by message (:mod:`interleaved`); the reference poses are
+    fed in every case (unused without one).
     """
     wheels = sum(m[1] == "j" for m in msgs)
     cases = {"disabled": (False, "disabled"), "monitor": (False, "monitor"),
              "monitor + reference": (True, "monitor"), "apply + reference": (True, "apply")}
-    names = list(cases)
-    times: dict[str, list[float]] = {k: [] for k in cases}
-    for r in range(runs):
-        for name in names[r % len(names):] + names[:r % len(names)]:
-            ref, mode = cases[name]
-            t0 = time.process_time()
-            run(msgs, ref, mode=mode)
-            times[name].append(time.process_time() - t0)
-    base = times["disabled"]
-    print(f"\nCPU per wheel reading ({runs} rounds), use_imu, online_calibration:")
-    for name, values in times.items():
-        ratios = [v / b for v, b in zip(values, base, strict=True)]
-        print(f"  {name:20s} median {statistics.median(values) / wheels * 1e6:6.1f} us, "
-              f"fastest {min(values) / wheels * 1e6:6.1f} us; x disabled: median of rounds "
-              f"{statistics.median(ratios):.2f} (range {min(ratios):.2f}-{max(ratios):.2f}), "
-              f"fastest {min(values) / min(base):.2f}")
+    times = interleaved({k: functools.partial(pipeline, ref, mode=mode)
+                         for k, (ref, mode) in cases.items()}, feed, msgs, rounds)
+    print(f"\nTime per wheel reading ({rounds} rounds, the cases interleaved message by "
+          "message), use_imu, online_calibration:")
+    print("\n".join(ratio_rows(times, "disabled", wheels)))
 
 
 def main() -> None:
@@ -210,7 +218,7 @@ def main() -> None:
         print(f"  {k:12s} within 1 sigma {within1:4.0%}, within 2 {within2:4.0%}; RMS error "
               f"{rms * 100:.3f} %, median sigma {statistics.median(sigmas[k]) * 100:.3f} %, "
               f"worst |error| {max(abs(e) for e in errs[k]) * 100:.3f} %")
-    cpu(messages(0), 1 if args.quick else 5)
+    cpu(messages(0), 1 if args.quick else 7)
 
 
 if __name__ == "__main__":

@@ -125,3 +125,32 @@ def test_gyro_bench_prints_its_table() -> None:
             for m in ("wheels only", "gyrodometry (default)")}
     assert rows["gyrodometry (default)"] < 0.1 * rows["wheels only"], out
     assert "us per reading" in out
+
+
+def test_interleaved_gives_every_case_every_message_in_order() -> None:
+    """The CPU benches' comparison: each case a fresh pipeline per round, fed all messages
+    in order (only the order among the cases rotates), its time counted to itself."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from interleaved import interleaved, ratio_rows
+
+    made: list[tuple[str, list[int]]] = []
+
+    def case(name: str) -> list[int]:
+        seen: list[int] = []
+        made.append((name, seen))
+        return seen
+
+    calls: list[str] = []
+
+    def feed(seen: list[int], msg: int) -> None:
+        seen.append(msg)
+        calls.append(next(n for n, s in made if s is seen))
+
+    times = interleaved({"a": lambda: case("a"), "b": lambda: case("b"),
+                         "c": lambda: case("c")}, feed, list(range(7)), 2)
+    assert [n for n, _ in made] == ["a", "b", "c"] * 2
+    assert all(seen == list(range(7)) for _, seen in made)
+    assert calls[:6] == ["a", "b", "c", "b", "c", "a"]  # rotated at every message
+    assert all(len(v) == 2 and all(t > 0.0 for t in v) for v in times.values())
+    rows = ratio_rows(times, "a", 7)
+    assert len(rows) == 3 and "x a: median 1.00 (range 1.00-1.00)" in rows[0]
