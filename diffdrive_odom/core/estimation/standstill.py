@@ -51,6 +51,7 @@ class Standstill:
         self.missed: Counter[str] = Counter()
         self._warned = False
         self._rates: deque[tuple[float, float]] = deque(maxlen=NOISE_WINDOW)  # (z, dt)
+        self._density: float | None = None  # measured_density of _rates (None: not yet)
         self._noise_said = False
         self.noise_warning = ""
         self._held: list[tuple[float, float]] = []  # rates offered before the noise is known
@@ -76,8 +77,11 @@ class Standstill:
         """
         if len(self._rates) < NOISE_AFTER:
             return 0.0
-        scaled = [z * math.sqrt(dt) for z, dt in self._rates]
-        return 1.4826 / math.sqrt(2.0) * median(abs(b - a) for a, b in pairwise(scaled))
+        if self._density is None:  # kept until the next rate: the online filters ask often
+            scaled = [z * math.sqrt(dt) for z, dt in self._rates]
+            self._density = 1.4826 / math.sqrt(2.0) * median(
+                abs(b - a) for a, b in pairwise(scaled))
+        return self._density
 
     def offer(self, z: float, dt: float, noise_density: float, sigmas: float) -> bool:
         """The wheels stood still over ``dt`` s, the gyro's mean rate was ``z``.
@@ -88,6 +92,7 @@ class Standstill:
         bias). The first :data:`NOISE_AFTER` rates wait until the noise is measured.
         """
         self._rates.append((z, dt))
+        self._density = None
         if len(self._rates) < NOISE_AFTER:  # the noise is not known yet: held
             self._held.append((z, dt))
             return True
