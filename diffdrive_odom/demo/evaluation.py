@@ -196,7 +196,7 @@ def replay(readings: Sequence[JointSample], odo: OdometrySettings,
     the one rule the node and ``replay`` count with (:mod:`diffdrive_odom.core.estimation.slips`),
     and the online geometry estimate's trace (``online_calibration: monitor``; [] if off).
     """
-    pipe = ReadingPipeline(odo)
+    pipe = ReadingPipeline(odo, trace=True)
     stamps: list[int] = []
     poses: list[tuple[float, float, float]] = []
     for item in merged(readings, imu if odo.gyro is not None else ()):

@@ -152,7 +152,7 @@ def replay_readings(
     """
     from diffdrive_odom.tools import bagreadings  # rosbags: only where bags are read
 
-    pipe = ReadingPipeline(settings)
+    pipe = ReadingPipeline(settings, trace=True)
     est = pipe.estimator
     stats = ReplayStats()
     start = time.perf_counter()

@@ -53,17 +53,14 @@ from dataclasses import dataclass, replace
 from types import MappingProxyType
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimation.online_scale import (
-    OnlineScale,
-    ReferenceConfig,
-    ScaleEstimate,
-    kalman_update,
-)
+from diffdrive_odom.core.estimation.kalman import kalman_update
+from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig, ScaleEstimate
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
 from diffdrive_odom.core.uncertainty.ratios import (
     mean_radius_stddev_ratio,
+    multipliers,
     ratio_geometry_covariance,
 )
 
@@ -193,7 +190,8 @@ class OnlineGeometry:
     def __init__(self, config: OnlineConfig, geometry: Geometry, noise_density: float,
                  bias: float, bias_stddev: float, bias_random_walk: float,
                  noise: NoiseModel, quantization: float = 0.0,
-                 measured_density: Callable[[], float] = lambda: 0.0) -> None:
+                 measured_density: Callable[[], float] = lambda: 0.0,
+                 trace: bool = False) -> None:
         self.config = config
         # The gyro's noise seen standing still (0: not yet): the larger one is used, so a
         # gyro noisier than declared does not make the estimate overconfident.
@@ -216,7 +214,9 @@ class OnlineGeometry:
         self._updated_ns: int | None = None
         self._warned_ns: int | None = None
         self._warning = ""
-        # (stamp, estimate) after updates, thinned to at most TRACE_MAX: replay prints it.
+        # (stamp, estimate) after updates, thinned to at most TRACE_MAX: replay prints it
+        # (kept only with ``trace``: an estimate is built for it at each update).
+        self.keep_trace = trace
         self.trace: list[tuple[int, OnlineEstimate]] = []
         self._trace_every = 1
         # apply: the geometry the odometry integrates with (None: the configured one) and
@@ -257,15 +257,17 @@ class OnlineGeometry:
         """One step judged for good: its wheel arcs, the gyro's angle ``raw`` (None: none)."""
         if t1 <= t0:
             return
+        r_r, r_l = geometry.right_radius, geometry.left_radius
+        phi_r, phi_l = arcs[1] / r_r, arcs[0] / r_l
         if self.scale is not None:
-            self.scale.observe(geometry, t0, t1, arcs, raw, slip, self.x)
+            self.scale.observe(t0, t1, phi_r, phi_l, 0.5 * (arcs[0] + arcs[1]), raw, slip,
+                               self.x)
         if raw is None or slip:
             self.excluded["no_gyro" if raw is None else "slip"] += 1
             self._flush()
             return
         if self._w1 is not None and t0 != self._w1:
             self._flush()
-        phi_r, phi_l = arcs[1] / geometry.right_radius, arcs[0] / geometry.left_radius
         rate = (self.x[0] * phi_r - self.x[1] * phi_l) / ((t1 - t0) * 1e-9)
         if self._w0 is None:
             self._w0 = t0
@@ -277,8 +279,8 @@ class OnlineGeometry:
         s[1] += phi_l
         s[2] += raw
         noise = self.noise
-        s[3] += noise.k_right * abs(phi_r) / geometry.right_radius
-        s[4] += noise.k_left * abs(phi_l) / geometry.left_radius
+        s[3] += noise.k_right * abs(phi_r) / r_r
+        s[4] += noise.k_left * abs(phi_l) / r_l
         self._dist += 0.5 * abs(arcs[0] + arcs[1])
         if standing:
             self.excluded["standstill"] += 1
@@ -363,16 +365,25 @@ class OnlineGeometry:
             self.applied_covariance = ratio_geometry_covariance((u, v), cov, scale_sd)
 
     def _check(self, stamp_ns: int) -> None:
+        """After an update: the trace, and the warning when it is due.
+
+        The estimate with its printed fields is built only for those (updates come twice
+        a second).
+        """
+        traced = self.keep_trace and self.windows % self._trace_every == 0
+        last = self._warned_ns  # throttled whether or not it came back inside meanwhile
+        due = (self.determined and (last is None or stamp_ns - last >= WARN_INTERVAL_S * 1e9)
+               and _mahalanobis2(*self._corrected(), _ratios(self.geometry))
+               > CHI2_2DOF_3SIGMA)
+        if not (traced or due):
+            return
         est = self.estimate()
-        if self.windows % self._trace_every == 0:
+        if traced:
             self.trace.append((stamp_ns, est))
             if len(self.trace) >= TRACE_MAX:
                 self.trace = self.trace[::2]
                 self._trace_every *= 2
-        if not est.outside:
-            return
-        last = self._warned_ns  # throttled whether or not it came back inside meanwhile
-        if last is None or stamp_ns - last >= WARN_INTERVAL_S * 1e9:
+        if due:
             self._warned_ns = stamp_ns
             self._warning = (
                 "online calibration: the configured geometry is outside the estimate's "
@@ -395,11 +406,7 @@ class OnlineGeometry:
         """The estimate now (see :class:`OnlineEstimate`)."""
         bias, p = self.x[2], self.p
         (u, v), cov = self._corrected()  # over the gyro's scale factor, with a reference
-        u0, v0 = _ratios(self.geometry)
-        du, dv = u - u0, v - v0
-        det = cov[0] * cov[3] - cov[1] * cov[2]
-        d2 = ((cov[3] * du * du - 2.0 * cov[1] * du * dv + cov[0] * dv * dv) / det
-              if det > 0.0 else 0.0)
+        d2 = _mahalanobis2((u, v), cov, _ratios(self.geometry))
         determined = self.determined
         mult, sig = multipliers(self.geometry, (u, v), cov)
         return OnlineEstimate(
@@ -416,22 +423,10 @@ def _ratios(g: Geometry) -> tuple[float, float]:
     return g.right_radius / g.separation, g.left_radius / g.separation
 
 
-def multipliers(g: Geometry, ratios: tuple[float, float],
-                cov: tuple[float, float, float, float]
-                ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-    """The multipliers of ddc's YAML from the ratios (mean radius held), with 1-sigma.
-
-    With ``s = u + v`` and the mean radius ``m``: ``r_R = 2 m u / s``, ``r_L = 2 m v /
-    s``, ``b = 2 m / s``; the sigmas through their Jacobian in ``(u, v)``.
-    """
-    u, v = ratios
-    s = u + v
-    m = 0.5 * (g.left_radius + g.right_radius)
-    kr, kb = 2.0 * m / g.wheel_radius, 2.0 * m / g.wheel_separation
-    values = (kr * v / s, kr * u / s, kb / s)
-    s2 = s * s
-    jac = ((-kr * v / s2, kr * u / s2), (kr * v / s2, -kr * u / s2), (-kb / s2, -kb / s2))
-    a, b, c, d = cov
-    sig = tuple(math.sqrt(max(j0 * j0 * a + j0 * j1 * (b + c) + j1 * j1 * d, 0.0))
-                for j0, j1 in jac)
-    return values, (sig[0], sig[1], sig[2])
+def _mahalanobis2(ratios: tuple[float, float], cov: tuple[float, float, float, float],
+                  configured: tuple[float, float]) -> float:
+    """The configured ratios' squared Mahalanobis distance from the estimate (0: singular)."""
+    du, dv = ratios[0] - configured[0], ratios[1] - configured[1]
+    det = cov[0] * cov[3] - cov[1] * cov[2]
+    return ((cov[3] * du * du - 2.0 * cov[1] * du * dv + cov[0] * dv * dv) / det
+            if det > 0.0 else 0.0)

@@ -42,11 +42,12 @@ from types import MappingProxyType
 from typing import Protocol
 
 from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.estimation.kalman import kalman_update, quadratic
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
 __all__ = ["REFERENCE_TYPES", "SCALE_FIELDS", "OnlineScale", "ReferenceConfig", "ScaleEstimate",
-           "feed_reference", "kalman_update", "scale_values"]
+           "feed_reference", "scale_values"]
 
 ODOMETRY, POSE_STAMPED = "odometry", "pose_stamped"
 REFERENCE_TYPES = (ODOMETRY, POSE_STAMPED)
@@ -230,45 +231,49 @@ class OnlineScale:
             self._refs.clear()  # a new timeline: the estimate carries on
             self._anchor = None
         self._last_ref = stamp_ns
-        self._refs.append((stamp_ns, x, y, yaw))
+        # Python floats whatever the caller gave (numpy's scalars would reach the applied
+        # geometry and make every later step's arithmetic several times slower)
+        self._refs.append((stamp_ns, float(x), float(y), float(yaw)))
         if len(self._refs) > MAX_PENDING:
             self._refs.popleft()
             self.excluded["uncovered"] += 1
         self._process()
         return ""
 
-    def observe(self, geometry: Geometry, t0: int, t1: int, arcs: tuple[float, float],
+    def observe(self, t0: int, t1: int, phi_r: float, phi_l: float, advance: float,
                 raw: float | None, slip: bool, state: list[float]) -> None:
         """One wheel step judged for good (as :meth:`OnlineGeometry.observe` gets it).
 
+        ``phi_r``, ``phi_l``: the wheels' turns [rad]; ``advance``: the centre's arc [m];
         ``state``: the gyro filter's ``(u, v, bias)`` now.
         """
         if t1 <= t0:
             return
-        self._ratios = (state[0], state[1])
         dt = (t1 - t0) * 1e-9
-        if self._stamps and t0 < self._stamps[-1]:  # the wheels' time went back: start over
-            self._stamps.clear()
-            self._points.clear()
+        stamps, points = self._stamps, self._points
+        if stamps and t0 < stamps[-1]:  # the wheels' time went back: start over
+            stamps.clear()
+            points.clear()
             self._anchor = None
-        last = self._points[-1] if self._points else None
+        last = points[-1] if points else None
         if last is None or last[0] != t0:  # a hole: nothing is known over it
             last = (t0, 0.0, 0.0, 0.0, 0.0, 0.0, 1, 0.0, 0.0, 0.0) if last is None else (
                 t0, *last[1:6], last[6] + 1, last[7], 0.0, 0.0)
             self._append(last)
+        self._ratios = (state[0], state[1])
         turn = 0.0 if raw is None else raw - state[2] * dt
         # The wheels are laid along the true heading (the gyro's over its scale factor): a
         # chord along a heading turning s times too much would be off by about
         # (s - 1) theta^2 / 12 over a window turning theta.
-        mid = self._heading + 0.5 * turn / self.x[1]
-        self._heading += turn / self.x[1]
+        true_turn = turn / self.x[1]
+        heading = self._heading
+        self._heading = heading + true_turn
+        mid = heading + 0.5 * true_turn
         c, s = math.cos(mid), math.sin(mid)
-        phi_r, phi_l = arcs[1] / geometry.right_radius, arcs[0] / geometry.left_radius
-        bad = raw is None or slip
-        travel = 0.5 * abs(arcs[0] + arcs[1])
         self._append((t1, last[1] + turn, last[2] + phi_r * c, last[3] + phi_r * s,
-                      last[4] + phi_l * c, last[5] + phi_l * s, last[6] + int(bad),
-                      last[7] + travel, 0.5 * (arcs[0] + arcs[1]) / dt, turn / dt))
+                      last[4] + phi_l * c, last[5] + phi_l * s,
+                      last[6] + 1 if raw is None or slip else last[6], last[7] + abs(advance),
+                      advance / dt, turn / dt))
         if self._refs:  # reference poses waiting for the wheels to reach them
             self._process()
 
@@ -381,7 +386,7 @@ class OnlineScale:
                             x[0] ** 2 * 0.25 * (n.k_left + n.k_right) * (b[7] - a[7])
                             + (x[0] * (b[8] - a[8]) * TIMING_STDDEV) ** 2))
         for e, hv, r in updates:  # a jump shows in either: the whole window is refused
-            if e * e > GATE_SIGMAS ** 2 * (_quadratic(p, hv) + r):
+            if e * e > GATE_SIGMAS ** 2 * (quadratic(p, hv) + r):
                 self.excluded["outlier"] += 1
                 self._fresh_anchor()
                 return
@@ -424,27 +429,3 @@ class OnlineScale:
             multipliers=(mult[0], mult[1], mult[2]), stddevs=(sig[0], sig[1], sig[2]),
             poses=self.poses, windows=self.windows, distance=self.distance,
             turned=self.turned, excluded=MappingProxyType(dict(self.excluded)))
-
-
-def _quadratic(p: list[list[float]], h: list[float]) -> float:
-    """``h' P h``."""
-    n = len(h)
-    return sum(h[i] * p[i][j] * h[j] for i in range(n) for j in range(n) if h[i] and h[j])
-
-
-def kalman_update(x: list[float], p: list[list[float]], h: list[float], e: float,
-                  r: float) -> None:
-    """One scalar update in place, P kept symmetric: both online filters' (ratios, scale)."""
-    n = len(x)
-    ph = [sum(p[i][j] * h[j] for j in range(n) if h[j]) for i in range(n)]
-    s = sum(h[i] * ph[i] for i in range(n)) + r
-    if s <= 0.0:
-        return
-    k = [v / s for v in ph]
-    for i in range(n):
-        x[i] += k[i] * e
-        for j in range(n):
-            p[i][j] -= k[i] * ph[j]
-    for i in range(n):  # symmetric, as it should be
-        for j in range(i):
-            p[i][j] = p[j][i] = 0.5 * (p[i][j] + p[j][i])

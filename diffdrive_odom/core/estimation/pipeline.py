@@ -170,8 +170,10 @@ class Handover:
 class ReadingPipeline:
     """The estimator and the publish gate behind one ``feed`` call, with counters."""
 
-    def __init__(self, settings: OdometrySettings) -> None:
+    def __init__(self, settings: OdometrySettings, trace: bool = False) -> None:
+        """``trace``: keep ``online.trace``, the estimate's history (replay, the demo)."""
         self._settings = settings
+        self._trace = trace
         self._estimator = OdometryEstimator(
             settings.geometry, settings.encoders, settings.estimator, settings.noise
         )
@@ -222,7 +224,7 @@ class ReadingPipeline:
                 settings.online, settings.geometry, cfg.noise_density, gyro.bias,
                 math.sqrt(gyro.bias_variance), cfg.bias_random_walk, gyro.noise,
                 quantization_variance(enc.ticks_per_revolution, len(enc.left_wheel_names)),
-                gyro.standstill.measured_density)
+                gyro.standstill.measured_density, trace=self._trace)
         else:
             self._online.set_config(settings.online)
             self._online.set_geometry(settings.geometry)

@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import math
 
+from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix, symmetric
 
-__all__ = ["mean_radius_stddev_ratio", "ratio_geometry_covariance"]
+__all__ = ["mean_radius_stddev_ratio", "multipliers", "ratio_geometry_covariance"]
 
 
 def mean_radius_stddev_ratio(radius_stddev_ratio: float) -> float:
@@ -52,3 +53,24 @@ def ratio_geometry_covariance(ratios: tuple[float, float],
     scale2 = scale_stddev_ratio * scale_stddev_ratio
     return symmetric(entry(0, 0), entry(0, 1), entry(0, 2), entry(1, 1), entry(1, 2),
                      entry(2, 2))
+
+
+def multipliers(g: Geometry, ratios: tuple[float, float],
+                cov: tuple[float, float, float, float]
+                ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The multipliers of ddc's YAML from the ratios (mean radius held), with 1-sigma.
+
+    With ``s = u + v`` and the mean radius ``m``: ``r_R = 2 m u / s``, ``r_L = 2 m v /
+    s``, ``b = 2 m / s``; the sigmas through their Jacobian in ``(u, v)``.
+    """
+    u, v = ratios
+    s = u + v
+    m = 0.5 * (g.left_radius + g.right_radius)
+    kr, kb = 2.0 * m / g.wheel_radius, 2.0 * m / g.wheel_separation
+    values = (kr * v / s, kr * u / s, kb / s)
+    s2 = s * s
+    jac = ((-kr * v / s2, kr * u / s2), (kr * v / s2, -kr * u / s2), (-kb / s2, -kb / s2))
+    a, b, c, d = cov
+    sig = tuple(math.sqrt(max(j0 * j0 * a + j0 * j1 * (b + c) + j1 * j1 * d, 0.0))
+                for j0, j1 in jac)
+    return values, (sig[0], sig[1], sig[2])

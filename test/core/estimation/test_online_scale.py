@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from functools import cache
 
+import numpy as np
 import pytest
 from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, R, Truth, stream, truth
 from refstreams import Reference, merge, reference
@@ -46,21 +47,26 @@ def _truth(geometry: tuple[float, float, float]) -> Truth:
 
 
 def run(ref: Reference | None, geometry: tuple[float, float, float] = TRUE,
-        scale: float = SCALE, seed: int = 1, **values: object
-        ) -> tuple[OnlineEstimate, list[str], ReadingPipeline]:
-    """Feed the streams as a node does; the final estimate and the warnings said."""
+        scale: float = SCALE, seed: int = 1, trace: bool = False, as_numpy: bool = False,
+        **values: object) -> tuple[OnlineEstimate, list[str], ReadingPipeline]:
+    """Feed the streams as a node does; the final estimate and the warnings said.
+
+    ``trace``: the pipeline keeps the estimate's history; ``as_numpy``: the reference's
+    values given as numpy scalars (a script's own reader), not the decoders' floats.
+    """
     tru = _truth(geometry)
     messages = stream(MIXED, TIMING, BIAS, ND, seed, tru, scale)
     both = merge(messages, [] if ref is None else reference(tru, ref, MIXED.seconds, seed))
     pipe = ReadingPipeline(odometry_settings(
         {"wheel_radius": R, "wheel_separation": B, "use_imu": True, **EXACT_WHEELS,
-         **({} if ref is None else REF), **values}))
+         **({} if ref is None else REF), **values}), trace=trace)
     warnings = []
     for m in both:
         if m[0] == "i":
             pipe.feed_imu(m[2], 0.0, 0.0, m[3], receive_ns=m[1])
         elif m[0] == "r":
-            assert feed_reference(pipe.online, m[2], m[3], m[4], m[5]) == ""  # type: ignore[misc]
+            x, y, yaw = (np.float64(v) for v in m[3:6]) if as_numpy else m[3:6]  # type: ignore[misc]
+            assert feed_reference(pipe.online, m[2], x, y, yaw) == ""
         elif (w := pipe.feed(m[2], NAMES, (m[3], m[4]), receive_ns=m[1]).warning):
             warnings.append(w)
     est = pipe.stats.online
@@ -174,7 +180,8 @@ def test_scale_core_exact_data_and_a_time_reset() -> None:
             pose[0] += v * 0.02 * math.cos(th)
             pose[1] += v * 0.02 * math.sin(th)
             pose[2] += w * 0.02
-            scale.observe(g, a, b, (phi_l * R, phi_r * R), s * w * 0.02, False, state)
+            scale.observe(a, b, phi_r, phi_l, 0.5 * (phi_l + phi_r) * R, s * w * 0.02, False,
+                          state)
             if i % 5 == 4:
                 assert scale.feed(b, *pose) == ""
         return t0 + round(seconds * 50) * dt
@@ -209,3 +216,23 @@ def test_apply_with_reference_integrates_with_the_reference_scale() -> None:
     k = est.scale.mean_radius[0]
     assert (g.left_radius + g.right_radius) / (2 * R) == pytest.approx(k, rel=1e-12)
     assert online.applied_covariance is not None
+
+
+def test_trace_and_numpy_inputs_change_nothing_but_what_is_kept() -> None:
+    """The node keeps no history of the estimate (it builds one per update only for a
+    tool); replay's trace ends at the same estimate. A reference given as numpy scalars
+    gives the same estimate bit for bit, and the applied geometry stays Python floats
+    (numpy's would make every later step's arithmetic several times slower)."""
+    plain, _, pipe = run(Reference(), online_calibration="apply")
+    assert pipe.online is not None and pipe.online.trace == []
+    traced, _, tpipe = run(Reference(), trace=True, online_calibration="apply")
+    assert tpipe.online is not None and len(tpipe.online.trace) > 10
+    assert traced == plain
+    assert tpipe.online.trace[-1][1].windows == plain.windows  # traced at every update
+    numpy, _, npipe = run(Reference(), as_numpy=True, online_calibration="apply")
+    assert numpy == plain
+    applied = npipe.online.applied if npipe.online is not None else None
+    assert applied is not None
+    assert all(type(getattr(applied, f)) is float for f in (
+        "left_wheel_radius_multiplier", "right_wheel_radius_multiplier",
+        "wheel_separation_multiplier"))
