@@ -250,9 +250,11 @@ class DiffDriveSim:
         """Ground angle increments: each side's arc plus N(0, sigma^2 * |arc|) metres."""
         g = self.config.geometry
         sigma = self.config.slip_stddev
-        z = self.rng.standard_normal(2)
-        left = d_left + z[0] * sigma * math.sqrt(abs(d_left) * g.left_radius) / g.left_radius
-        right = d_right + z[1] * sigma * math.sqrt(abs(d_right) * g.right_radius) / g.right_radius
+        # Python floats: numpy's scalars would carry into the pose, the gyro and every
+        # consumer's arithmetic (several times slower, the same values)
+        z0, z1 = (float(z) for z in self.rng.standard_normal(2))
+        left = d_left + z0 * sigma * math.sqrt(abs(d_left) * g.left_radius) / g.left_radius
+        right = d_right + z1 * sigma * math.sqrt(abs(d_right) * g.right_radius) / g.right_radius
         return left, right
 
     # -- outputs ------------------------------------------------------------------
