@@ -53,6 +53,8 @@ from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate  # noq
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline  # noqa: E402
 from diffdrive_odom.settings.odometry import odometry_settings  # noqa: E402
 
+from oracle import mahalanobis2  # noqa: E402
+
 R, B = TRUE.wheel_radius, TRUE.wheel_separation
 MIXED = Route(ISSUE_ROUTE.segments * 2)
 LONG = Route(ISSUE_ROUTE.segments * 8)
@@ -142,9 +144,9 @@ def convergence(seeds: int, slip_stddev: float = SLIP_STDDEV, matched: bool = Fa
         worst = max(worst, abs(eu), abs(ev))
         within += max(abs(eu), abs(ev)) < GOAL
         tu, tv = true_ratios()
-        a, c, _, d = est.covariance
+        a, _, _, d = est.covariance
         du, dv = est.ratios[0] - tu, est.ratios[1] - tv
-        d2 = (d * du * du - 2 * c * du * dv + a * dv * dv) / (a * d - c * c)
+        d2 = mahalanobis2(est.ratios, est.covariance, (tu, tv))
         joint1 += d2 < -2 * math.log(1 - 0.6827)
         joint2 += d2 < -2 * math.log(1 - 0.9545)
         pairs = [(du, math.sqrt(a)), (dv, math.sqrt(d)),

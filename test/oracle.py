@@ -110,3 +110,12 @@ def sensor_clock(rate_hz: float, seconds: float, jitter_s: float = 0.0, phase_s:
 def mean_rate(stamps_ns: list[int]) -> float:
     """Average rate [Hz] of a stream: intervals over the time they span."""
     return (len(stamps_ns) - 1) / ((stamps_ns[-1] - stamps_ns[0]) * 1e-9)
+
+
+def mahalanobis2(value: tuple[float, float], covariance: tuple[float, float, float, float],
+                 truth: tuple[float, float]) -> float:
+    """``truth``'s squared Mahalanobis distance from a 2-vector estimate with its
+    row-major 2x2 covariance (the online estimate's ratios), by the 2x2 inverse."""
+    du, dv = value[0] - truth[0], value[1] - truth[1]
+    a, c, _, d = covariance
+    return (d * du * du - 2 * c * du * dv + a * dv * dv) / (a * d - c * c)

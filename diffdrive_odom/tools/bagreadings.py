@@ -48,7 +48,7 @@ class ReferenceSample:
 
 
 REFERENCE_TYPES = (ODOMETRY, "geometry_msgs/msg/PoseStamped")
-Reading = JointReading | ImuSample | ReferenceSample  # what iter_sensor_readings yields
+Reading = JointReading | ImuSample | ReferenceSample  # what iter_readings yields
 
 
 def _reading(msg: Any, log_ns: int) -> JointReading:
@@ -145,7 +145,7 @@ def iter_readings(
     decode = JointStateReader(reader)
     order = Reorder(window, jump_back_ns)
     for conn, log_ns, raw in reader.messages(connections=conns):
-        item: JointReading | ImuSample | ReferenceSample
+        item: Reading
         if passthrough is not None:
             passthrough(conn, log_ns, raw)
         if id(conn) in joint_ids:

@@ -21,14 +21,15 @@ from bagutil import TB3_PARAMS, write_params, write_sensor_bag
 from rosutil import DATA
 
 TRUE = (R, R * 1.005, B * 1.01)
+JITTERED = {t.name: t for t in TIMINGS}["173 Hz jittered"]
 MIXED = Route(ISSUE_ROUTE.segments * 2)
 
 
 def _replay(tmp_path: Path, capsys: pytest.CaptureFixture[str], route: Route,
             *extra: str, **values: object) -> tuple[int, str, str]:
     bag = tmp_path / f"bag{len(list(tmp_path.iterdir()))}"
-    write_sensor_bag(bag, stream(route, TIMINGS[2], math.radians(0.3), 3e-4, 1,
-                                 truth(route, *TRUE)), TIMINGS[2].imu_hz)
+    write_sensor_bag(bag, stream(route, JITTERED, math.radians(0.3), 3e-4, 1,
+                                 truth(route, *TRUE)), JITTERED.imu_hz)
     params = write_params(tmp_path / "p.yaml", {
         "wheel_radius": R, "wheel_separation": B, "wheel_noise_k_left": 0.0,
         "wheel_noise_k_right": 0.0, **values})

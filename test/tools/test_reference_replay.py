@@ -35,7 +35,7 @@ def _blocks(out: str) -> dict[str, tuple[float, float]]:
 def test_replay_recovers_scale_and_gyro_scale_factor(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     tru = truth(ISSUE_ROUTE, *TRUE)
-    timing = TIMINGS[2]
+    timing = {t.name: t for t in TIMINGS}["173 Hz jittered"]
     messages = merge(stream(ISSUE_ROUTE, timing, math.radians(0.3), 3e-4, 1, tru, SCALE),
                      reference(tru, Reference(), ISSUE_ROUTE.seconds))
     write_sensor_bag(tmp_path / "bag", messages, timing.imu_hz)

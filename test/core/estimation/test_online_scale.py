@@ -29,6 +29,8 @@ from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
 
+from oracle import mahalanobis2
+
 BIAS = math.radians(0.3)
 ND = 3e-4
 TRUE = (R * 0.998, R * 1.003, B * 1.01)  # the mean radius 0.05 % small, track 1 % wide
@@ -76,9 +78,7 @@ def run(ref: Reference | None, geometry: tuple[float, float, float] = TRUE,
 
 def distance2(est: OnlineEstimate, u: float, v: float) -> float:
     """The ratios ``(u, v)``'s squared Mahalanobis distance from the estimate."""
-    du, dv = est.ratios[0] - u, est.ratios[1] - v
-    a, c, _, d = est.covariance
-    return (d * du * du - 2 * c * du * dv + a * dv * dv) / (a * d - c * c)
+    return mahalanobis2(est.ratios, est.covariance, (u, v))
 
 
 def test_without_reference_the_gyro_scale_maps_into_the_ratios() -> None:
@@ -173,9 +173,9 @@ def test_scale_core_exact_data_and_a_time_reset() -> None:
         dt = 20_000_000
         for i in range(round(seconds * 50)):
             a, b = t0 + i * dt, t0 + (i + 1) * dt
-            # The wheels' angles for the true twist; arcs in the configured radius.
-            phi_l, phi_r = ((v - 0.5 * B * k * w) * 0.02 / (k * R),
-                            (v + 0.5 * B * k * w) * 0.02 / (k * R))
+            # The wheels' angles for the true twist (radii k R, separation B).
+            phi_l, phi_r = ((v - 0.5 * B * w) * 0.02 / (k * R),
+                            (v + 0.5 * B * w) * 0.02 / (k * R))
             th = pose[2] + 0.5 * w * 0.02
             pose[0] += v * 0.02 * math.cos(th)
             pose[1] += v * 0.02 * math.sin(th)

@@ -2,7 +2,8 @@
 
 The run is ``gyrostreams``' route with four scripted slips of a robot whose right wheel
 is 0.5 % larger and whose track is 1 % wider than configured, the IMU on its own clock
-(stamped 5 ms early); its truth is integrated there, independently of the package, and
+(173 Hz, its own phase, stamps jittered, latency jittered; in receive order, put in stamp
+order by replay's own reordering); its truth is integrated there, independently of the package, and
 the expected geometry is that true one.
 """
 
@@ -21,8 +22,10 @@ from diffdrive_odom.core.evaluation import calibration, leftout, umbmark
 from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.core.evaluation.recorded_run import Run, with_values
 from diffdrive_odom.settings.odometry import odometry_settings
+from diffdrive_odom.tools.reorder import REORDER_WINDOW, Reorder
 
 TRUE = np.array([R, R * 1.005, B * 1.01])
+JITTERED = {t.name: t for t in TIMINGS}["173 Hz jittered"]
 PLAIN = odometry_settings({"wheel_radius": R, "wheel_separation": B})
 GYRO = odometry_settings({"wheel_radius": R, "wheel_separation": B, "use_imu": True,
                           "online_calibration": "disabled"})
@@ -36,13 +39,15 @@ class Imu(NamedTuple):
 
 
 def _items(route: Route) -> tuple[list[JointReading | Imu], Trajectory]:
-    """The route's readings and gyro samples by stamp (the IMU's first), and its truth."""
+    """The route's readings and gyro samples in stamp order, as replay's reordering puts
+    what arrives (in receive order), and its truth."""
     tr = truth(route, *TRUE)
+    order = Reorder(REORDER_WINDOW, 1_000_000_000)
     items: list[JointReading | Imu] = []
-    for kind, rx, stamp, a, b in stream(route, TIMINGS[2], math.radians(0.3), 3e-4, 1, tr):
-        items.append(JointReading(stamp, rx, NAMES, (a, b), ()) if kind == "j"
-                     else Imu(stamp, 0.0, 0.0, a))
-    items.sort(key=lambda r: (r.stamp_ns, isinstance(r, JointReading)))
+    for kind, rx, stamp, a, b in stream(route, JITTERED, math.radians(0.3), 3e-4, 1, tr):
+        items += order.push(JointReading(stamp, rx, NAMES, (a, b), ()) if kind == "j"
+                            else Imu(stamp, 0.0, 0.0, a))
+    items += order.flush()
     every = slice(None, None, 100)  # 100 Hz
     ref = Trajectory.from_arrays(T0 + np.round(tr.t[every] * 1e9).astype(np.int64),
                                  tr.x[every], tr.y[every], tr.theta[every])
