@@ -267,9 +267,9 @@ class GyroHeading:
             self.silent = True
             if standing:
                 self.standstill.miss("silent")
+            self._give_up()  # the pending steps first: the observers see steps in time order
             if self.observer is not None:
                 self.observer(geometry, t0, t1, arcs, None, False, standing)
-            self._give_up()
             self.skip(t1)
             return None
         self.silent = False
