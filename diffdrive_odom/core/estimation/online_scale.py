@@ -65,7 +65,8 @@ RESTART_S = 1.0  # s: a stamp this far back is a new timeline (a bag loop), not 
 EXCLUDED = {
     "slip": "a step inside its window (or at its stamp) was excluded (slip, no gyro) or "
             "missing",
-    "uncovered": "its stamp is outside the wheel steps kept (too late, or before the first)",
+    "uncovered": "its stamp is outside the wheel steps kept (too late, or before the first), "
+                 f"or its window would span over {MAX_LAG_S:g} s (the reference was silent)",
     "stale": "its stamp is not after the previous reference pose's",
     "outlier": f"its window disagreed with the estimate by over {GATE_SIGMAS:g} sigma "
                "(a reference jump)",
@@ -282,9 +283,7 @@ class OnlineScale:
         self._points.append(point)
         if len(self._stamps) & 255:  # pruned every 256 steps
             return
-        keep = point[0] - int(MAX_LAG_S * 1e9)
-        if self._anchor is not None:
-            keep = min(keep, self._anchor[1][0])
+        keep = point[0] - int(MAX_LAG_S * 1e9)  # a window's start pose is in its anchor
         cut = bisect.bisect_left(self._stamps, keep) - 1
         if cut > 0:
             del self._stamps[:cut]
@@ -322,6 +321,11 @@ class OnlineScale:
                 self._fresh_anchor()
                 continue
             ref0, there = self._anchor
+            if ref[0] - ref0[0] > MAX_LAG_S * 1e9:  # the reference was silent: too long a
+                self.excluded["uncovered"] += 1  # window for its noise model, start anew
+                self._anchor = (ref, here)
+                self._fresh_anchor()
+                continue
             if here[6] != there[6]:
                 self.excluded["slip"] += 1
                 self._anchor = (ref, here)

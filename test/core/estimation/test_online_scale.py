@@ -236,3 +236,37 @@ def test_trace_and_numpy_inputs_change_nothing_but_what_is_kept() -> None:
     assert all(type(getattr(applied, f)) is float for f in (
         "left_wheel_radius_multiplier", "right_wheel_radius_multiplier",
         "wheel_separation_multiplier"))
+
+
+def test_a_long_silent_reference_starts_anew_and_keeps_ten_seconds() -> None:
+    """The reference silent 20 s mid-route (MAX_LAG_S is 10): the steps kept stay about
+    10 s all along (they grew without bound while a window was open), the first pose
+    after the silence starts a new window (counted ``uncovered``), and the estimate
+    still covers the truth."""
+    from diffdrive_odom.core.estimation.online_scale import MAX_LAG_S
+
+    rl, rr, b = TRUE
+    tru = _truth(TRUE)
+    ref = Reference(dropout=(30.0, 50.0))
+    both = merge(stream(MIXED, TIMING, BIAS, ND, 1, tru, SCALE),
+                 reference(tru, ref, MIXED.seconds, 1))
+    pipe = ReadingPipeline(odometry_settings(
+        {"wheel_radius": R, "wheel_separation": B, "use_imu": True, **EXACT_WHEELS, **REF}))
+    scale = pipe.online.scale if pipe.online is not None else None
+    assert scale is not None
+    most = 0
+    for m in both:
+        if m[0] == "i":
+            pipe.feed_imu(m[2], 0.0, 0.0, m[3], receive_ns=m[1])
+        elif m[0] == "r":
+            assert feed_reference(pipe.online, m[2], m[3], m[4], m[5]) == ""  # type: ignore[misc]
+        else:
+            pipe.feed(m[2], NAMES, (m[3], m[4]), receive_ns=m[1])
+            most = max(most, len(scale._stamps))
+    assert most <= MAX_LAG_S * 50 + 256 + 2  # 50 Hz wheels, pruned every 256 steps
+    est = pipe.stats.online
+    assert est is not None and est.scale is not None and est.scale.determined
+    assert est.scale.excluded["uncovered"] >= 1
+    (k, sk), sc = est.scale.mean_radius, est.scale
+    assert abs(k - (rl + rr) / (2 * R)) < 3 * sk
+    assert abs(sc.multipliers[2] - b / B) < 3 * sc.stddevs[2]
