@@ -206,7 +206,7 @@ class GyroHeading:
     def add(self, stamp_ns: int, wx: float, wy: float, wz: float) -> str:
         """Offer one IMU sample (rates in the IMU frame); '' if kept, else the drop code."""
         ax, ay, az = self._axis
-        w = ax * wx + ay * wy + az * wz
+        w = float(ax * wx + ay * wy + az * wz)  # a Python float whatever the caller gave
         if not math.isfinite(w):
             return "non_finite"
         if max(abs(wx), abs(wy), abs(wz)) >= self.config.max_rate:

@@ -53,7 +53,7 @@ from dataclasses import dataclass, replace
 from types import MappingProxyType
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimation.kalman import kalman_update
+from diffdrive_odom.core.estimation.kalman import kalman_update, quadratic
 from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig, ScaleEstimate
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix
@@ -249,6 +249,8 @@ class OnlineGeometry:
     def set_config(self, config: OnlineConfig) -> None:
         """New settings at runtime; from apply to monitor the estimate is no longer used."""
         self.config = config
+        if self.scale is not None:  # the reference's filter turns and wanders alike
+            self.scale.min_turn, self.scale.random_walk = config.min_turn, config.random_walk
         if not config.apply:
             self.applied = self.applied_covariance = None
 
@@ -307,20 +309,18 @@ class OnlineGeometry:
             p[1][1] += (rw * x[1]) ** 2 * grow
             p[2][2] += self.bias_random_walk ** 2 * grow
         self._updated_ns = w1
-        h = (phi_r, -phi_l, dt)
+        h = [phi_r, -phi_l, dt]
         u2, v2 = x[0] * x[0], x[1] * x[1]
         q = self.quantization
         turn = x[0] * phi_r - x[1] * phi_l
         density = max(self.noise_density, self.measured_density())
         r = (density ** 2 * dt + 2.0 * q * (u2 + v2) + u2 * var_r + v2 * var_l
              + self.noise.k_rotation * abs(turn) + (change * TIMING_STDDEV) ** 2)
-        ph = [sum(p[i][j] * h[j] for j in range(3)) for i in range(3)]
-        s = sum(h[i] * ph[i] for i in range(3)) + r
         innovation = angle - (turn + x[2] * dt)
-        if innovation * innovation > GATE_SIGMAS ** 2 * s:
+        if innovation * innovation > GATE_SIGMAS ** 2 * (quadratic(p, h) + r):
             self.excluded["outlier"] += n
             return
-        kalman_update(x, p, list(h), innovation, r)
+        kalman_update(x, p, h, innovation, r)
         net = angle - x[2] * dt
         self.turned[0 if net > 0.0 else 1] += abs(net)
         self.steps += n

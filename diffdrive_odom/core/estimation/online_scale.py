@@ -357,15 +357,15 @@ class OnlineScale:
         """
         dt = (ref1[0] - ref0[0]) * 1e-9
         cfg = self.config
+        if self._updated_ns is not None:  # in the kept state: a refused window grows it too
+            grow = max(ref1[0] - self._updated_ns, 0) * 1e-9 * self.random_walk ** 2
+            self.p[0][0] += grow * self.x[0] ** 2
+            self.p[1][1] += grow * self.x[1] ** 2
+        self._updated_ns = ref1[0]
         x = [*self.x, 0.0, 0.0, 0.0]
         p = [[*row, 0.0, 0.0, 0.0] for row in self.p] + [[0.0] * 8 for _ in range(3)]
         p[5][5], p[6][6] = cfg.heading_stddev ** 2, cfg.position_stddev ** 2
         p[7][7] = p[6][6]
-        if self._updated_ns is not None:
-            grow = max(ref1[0] - self._updated_ns, 0) * 1e-9 * self.random_walk ** 2
-            p[0][0] += grow * x[0] ** 2
-            p[1][1] += grow * x[1] ** 2
-        self._updated_ns = ref1[0]
         gyro = b[1] - a[1]
         turn = gyro + math.remainder(ref1[3] - ref0[3] - gyro, math.tau)
         density = max(self.noise_density, self.measured_density())

@@ -270,3 +270,15 @@ def test_a_long_silent_reference_starts_anew_and_keeps_ten_seconds() -> None:
     (k, sk), sc = est.scale.mean_radius, est.scale
     assert abs(k - (rl + rr) / (2 * R)) < 3 * sk
     assert abs(sc.multipliers[2] - b / B) < 3 * sc.stddevs[2]
+
+
+def test_runtime_settings_reach_the_reference_filter() -> None:
+    """online_calibration_min_turn and _random_walk set at runtime (ros2 param set)
+    reach the reference's filter as they reach the gyro's."""
+    values = {"wheel_radius": R, "wheel_separation": B, "use_imu": True, **REF}
+    pipe = ReadingPipeline(odometry_settings(values))
+    pipe.reconfigure(odometry_settings({**values, "online_calibration_min_turn": 5.0,
+                                        "online_calibration_random_walk": 2e-5}))
+    online = pipe.online
+    assert online is not None and online.scale is not None
+    assert (online.scale.min_turn, online.scale.random_walk) == (5.0, 2e-5)
