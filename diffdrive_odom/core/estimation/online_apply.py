@@ -34,8 +34,8 @@ def geometry_in_use(online: OnlineGeometry | None, configured: Geometry,
     The applied estimate, else the configured one: the one rule for the node, replay
     and the demo (the pipeline asks before each reading, so a switch falls between two
     steps). The covariance follows: the applied estimate's ``S`` while it is in use,
-    refreshed with it; a switch either way folds the stretch before
-    (:meth:`PoseUncertainty.switch_geometry`).
+    refreshed with it; a switch either way, and the estimate's scale becoming the
+    reference's, folds the stretch before (:meth:`PoseUncertainty.switch_geometry`).
     """
     applied = None if online is None else online.applied
     note = ""
@@ -43,9 +43,15 @@ def geometry_in_use(online: OnlineGeometry | None, configured: Geometry,
         online.in_use = applied
         note = (APPLIED_NOTE + online.estimate().line() if applied is not None
                 else CONFIGURED_NOTE)
+    rescaled = (online is not None and applied is not None
+                and online.applied_scaled != online.in_use_scaled)
+    if rescaled and online is not None:
+        online.in_use_scaled = online.applied_scaled
     if uncertainty is not None:
         s = None if online is None or applied is None else online.applied_covariance
-        if (s is None) != (uncertainty.geometry_covariance is None):
+        if (s is None) != (uncertainty.geometry_covariance is None) or rescaled:
+            # to or from the estimate, or its scale now the reference's: the error so far
+            # was made with another S, folded in (the published covariance never drops)
             uncertainty.switch_geometry(s)
         elif s is not None:
             uncertainty.geometry_covariance = s

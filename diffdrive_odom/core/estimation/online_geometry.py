@@ -224,6 +224,10 @@ class OnlineGeometry:
         self.applied: Geometry | None = None
         self.applied_covariance: Matrix | None = None
         self.in_use: Geometry | None = None  # what online_apply.geometry_in_use handed out
+        # Whether the applied geometry's scale is the reference's k (else the configured
+        # mean radius), and as handed out: a change of source folds the covariance.
+        self.applied_scaled = self.in_use_scaled = False
+        self._applied_scale_sd = 0.0
         self._open()
         ref = config.reference  # the scale and the gyro's scale factor (online_scale)
         self.scale = None if ref is None else OnlineScale(
@@ -350,19 +354,23 @@ class OnlineGeometry:
         one; its ``S`` follows the filter's covariance either way.
         """
         (u, v), cov = self._corrected()
-        # The scale: the reference's mean radius once it is determined (all three scaled
-        # by k, its sigma the scale's), else the configured one with its sigma.
-        k, scale_sd = 1.0, mean_radius_stddev_ratio(self.noise.radius_stddev_ratio)
-        if self.scale is not None and self.scale.determined:
-            k, vk = self.scale.x[0], self.scale.p[0][0]
-            scale_sd = math.sqrt(max(vk, 0.0)) / k
         if refresh:
+            # The scale: the reference's mean radius once it is determined (all three
+            # scaled by k, its sigma the scale's), else the configured one with its sigma;
+            # S keeps the sigma of the k the applied geometry was made with.
+            k, scale_sd = 1.0, mean_radius_stddev_ratio(self.noise.radius_stddev_ratio)
+            self.applied_scaled = self.scale is not None and self.scale.determined
+            if self.scale is not None and self.applied_scaled:
+                k, vk = self.scale.x[0], self.scale.p[0][0]
+                scale_sd = math.sqrt(max(vk, 0.0)) / k
+            self._applied_scale_sd = scale_sd
             (ml, mr, mb), _ = multipliers(self.geometry, (u, v), (0.0, 0.0, 0.0, 0.0))
             self.applied = replace(self.geometry, left_wheel_radius_multiplier=k * ml,
                                    right_wheel_radius_multiplier=k * mr,
                                    wheel_separation_multiplier=k * mb)
         if self.applied is not None:
-            self.applied_covariance = ratio_geometry_covariance((u, v), cov, scale_sd)
+            self.applied_covariance = ratio_geometry_covariance((u, v), cov,
+                                                                self._applied_scale_sd)
 
     def _check(self, stamp_ns: int) -> None:
         """After an update: the trace, and the warning when it is due.

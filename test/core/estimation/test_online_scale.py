@@ -282,3 +282,34 @@ def test_runtime_settings_reach_the_reference_filter() -> None:
     online = pipe.online
     assert online is not None and online.scale is not None
     assert (online.scale.min_turn, online.scale.random_walk) == (5.0, 2e-5)
+
+
+def test_the_covariance_does_not_drop_when_the_applied_scale_becomes_the_references() -> None:
+    """The reference silent for the first 45 s: apply takes the gyro's estimate with the
+    configured mean radius first, the reference's k later. Its S then holds k's sigma
+    (several times smaller than the configured radii's): the error made so far with the
+    old S is folded in, so the published position variance does not drop there (it
+    dropped by 6.7e-5 m^2 when the old S was only replaced)."""
+    tru = _truth(TRUE)
+    both = merge(stream(MIXED, TIMING, BIAS, ND, 1, tru, SCALE),
+                 reference(tru, Reference(dropout=(0.0, 45.0)), MIXED.seconds, 1))
+    pipe = ReadingPipeline(odometry_settings(
+        {"wheel_radius": R, "wheel_separation": B, "use_imu": True, **EXACT_WHEELS, **REF,
+         "online_calibration": "apply"}))
+    online, est = pipe.online, pipe.estimator
+    assert online is not None and est.uncertainty is not None
+    states, variance = [], []
+    for m in both:
+        if m[0] == "i":
+            pipe.feed_imu(m[2], 0.0, 0.0, m[3], receive_ns=m[1])
+        elif m[0] == "r":
+            assert feed_reference(online, m[2], m[3], m[4], m[5]) == ""  # type: ignore[misc]
+        else:
+            pipe.feed(m[2], NAMES, (m[3], m[4]), receive_ns=m[1])
+            c = est.uncertainty.pose_covariance(est.pose, est.geometry)
+            states.append((online.in_use is not None, online.in_use_scaled))
+            variance.append(c[0][0] + c[1][1])
+    applied = states.index((True, False))  # the gyro's estimate, the configured scale
+    scaled = states.index((True, True))  # then the reference's scale
+    assert 0 < applied < scaled
+    assert variance[scaled] >= variance[scaled - 1]
