@@ -207,7 +207,10 @@ def _run(bag: str, settings: Settings, args: argparse.Namespace, reference: bool
     if imu is not None and isinstance(gyro, str):
         raise CalibrationError(f"{bag} has an IMU ({imu}) to find slips with, but the gyro's "
                                f"settings cannot work: {gyro} (or --imu-topic none)")
-    used = plain if imu is None or isinstance(gyro, str) else gyro
+    # Without an IMU the wheels alone, even with use_imu in the params: the gyro path would
+    # run its slip test on no samples (and say so) and lose the fast lane.
+    used = (dataclasses.replace(plain, gyro=None, online=None) if imu is None
+            else plain if isinstance(gyro, str) else gyro)
     jump = int(used.estimator.time_jump_threshold * 1e9)
     if imu is None:
         steps = batch.wheel_steps(bagblocks.read_joint_blocks(bag, args.topic, jump), used)

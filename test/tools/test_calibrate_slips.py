@@ -81,6 +81,24 @@ def test_calibrate_leaves_out_the_slips_the_gyro_finds_and_recovers_the_truth(
         assert off["wheel separation"] > 3.0, fitted  # the slips pulled it off
 
 
+def test_without_an_imu_nothing_is_said_left_out_even_with_use_imu_in_the_params(
+        bags: tuple[list[str], Path], capfd: pytest.CaptureFixture[str]) -> None:
+    """--imu-topic none with use_imu: true in the params: the wheels alone, as with the
+    plain params (the gyro's path on no samples reported "0 slip event(s) ... left out")."""
+    paths, params = bags
+    gyro_params = write_params(params.parent / "gyro.yaml", {
+        "wheel_radius": R, "wheel_separation": B, "use_imu": True})
+    out = {}
+    for name, p in (("plain", params), ("use_imu", gyro_params)):
+        code = cli(["calibrate", paths[0], "--params-file", str(p), "--imu-topic", "none",
+                    "--force"])
+        said = capfd.readouterr()
+        assert code == 0, said.err
+        out[name] = said.out
+    assert not [ln for ln in out["use_imu"].splitlines() if ln.startswith("slip test:")]
+    assert _fitted(out["use_imu"]) == _fitted(out["plain"])
+
+
 def test_calibrate_of_the_turtlebot3_bag_leaves_its_slips_out(
         tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """Recorded (Gazebo) data whose wheels slip: with the slips left out the fit stays
