@@ -19,7 +19,6 @@ from pathlib import Path
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.online_geometry import (
     CHI2_2DOF_3SIGMA,
-    OnlineConfig,
     OnlineEstimate,
 )
 
@@ -62,7 +61,13 @@ def replay_settings(args: argparse.Namespace,
     settings = reference_override(args) or load(args)
     if isinstance(settings, str) or not args.online_calibration:
         return settings
-    return online_settings(settings)
+    if settings.gyro is None:
+        return NEEDS_IMU
+    if settings.online is None:  # disabled in the params: as the node in monitor, the
+        # reference and the other online_calibration_* parameters read as it reads them
+        args.ros_params = [*args.ros_params, ("param", "online_calibration:=monitor")]
+        settings = load(args)
+    return settings
 
 
 def reference_topic(settings: OdometrySettings) -> str | None:
@@ -70,13 +75,6 @@ def reference_topic(settings: OdometrySettings) -> str | None:
     online = settings.online
     ref = None if settings.gyro is None or online is None else online.reference
     return None if ref is None else ref.topic
-
-
-def online_settings(settings: OdometrySettings) -> OdometrySettings | str:
-    """The settings with the online estimate on (monitor), or why it cannot run."""
-    if settings.gyro is None:
-        return NEEDS_IMU
-    return settings if settings.online is not None else replace(settings, online=OnlineConfig())
 
 
 def report(trace: list[tuple[int, OnlineEstimate]], final: OnlineEstimate | None) -> str:

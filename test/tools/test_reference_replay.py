@@ -32,8 +32,11 @@ def _blocks(out: str) -> dict[str, tuple[float, float]]:
         r"^\s+(\w+_multiplier): ([0-9.]+)  # \+- ([0-9.]+)", out, re.M)}
 
 
+@pytest.mark.parametrize("mode", ["monitor", "disabled"])
 def test_replay_recovers_scale_and_gyro_scale_factor(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], mode: str) -> None:
+    """``--online-calibration`` runs the estimate (as monitor) even where the params file
+    disables it, with the reference and the noise the file gives."""
     tru = truth(ISSUE_ROUTE, *TRUE)
     timing = {t.name: t for t in TIMINGS}["173 Hz jittered"]
     messages = merge(stream(ISSUE_ROUTE, timing, math.radians(0.3), 3e-4, 1, tru, SCALE),
@@ -41,7 +44,7 @@ def test_replay_recovers_scale_and_gyro_scale_factor(
     write_sensor_bag(tmp_path / "bag", messages, timing.imu_hz)
     params = write_params(tmp_path / "p.yaml", {
         "wheel_radius": R, "wheel_separation": B, "use_imu": True,
-        "wheel_noise_k_left": 0.0, "wheel_noise_k_right": 0.0,
+        "wheel_noise_k_left": 0.0, "wheel_noise_k_right": 0.0, "online_calibration": mode,
         "online_calibration_reference_type": "pose_stamped",
         "online_calibration_reference_position_stddev": 0.002,
         "online_calibration_reference_heading_stddev": 0.001})
