@@ -37,6 +37,7 @@ from diffdrive_odom.core.evaluation.recorded_run import (
 from diffdrive_odom.core.evaluation.umbmark import reference_end, umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.motion.paths import Point
+from diffdrive_odom.core.uncertainty.ratios import multipliers
 
 from .report import (
     FIT,
@@ -237,11 +238,10 @@ def replay_rows(rec: Recording, odo: OdometrySettings, gyro: OdometrySettings
 def true_multipliers(nominal: Geometry, true: Geometry) -> tuple[float, float, float]:
     """The true geometry as the online estimate gives it: multipliers, mean radius held.
 
-    The gyro sees the two ratios ``r/b`` only; with the configured mean radius held,
-    ``r_L = 2 m r_L' / (r_L' + r_R')`` and ``b = 2 m b' / (r_L' + r_R')`` (primes: true).
+    The gyro sees the two ratios ``r/b`` only: the true ones, through the estimate's own
+    mapping (:func:`~diffdrive_odom.core.uncertainty.ratios.multipliers`).
     """
-    m = 0.5 * (nominal.left_radius + nominal.right_radius)
-    s = true.left_radius + true.right_radius
-    return (2.0 * m * true.left_radius / s / nominal.wheel_radius,
-            2.0 * m * true.right_radius / s / nominal.wheel_radius,
-            2.0 * m * true.separation / s / nominal.wheel_separation)
+    b = true.separation
+    values, _ = multipliers(nominal, (true.right_radius / b, true.left_radius / b),
+                            (0.0, 0.0, 0.0, 0.0))
+    return values
