@@ -177,9 +177,9 @@ class DemoResult:
 
         def error(position: float | None, heading: float | None) -> str:
             if position is None or heading is None:
-                return f"{'-':>19} {'-':>14}"
+                return f"{'-':>21} {'-':>14}"
             share = 100.0 * position / self.distance_m if self.distance_m > 0 else math.nan
-            return f"{position:.4f} m ({share:5.2f} %) {math.degrees(heading):>10.3f} deg"
+            return f"{position:>9.4f} m ({share:5.2f} %) {math.degrees(heading):>10.3f} deg"
 
         kinds = "CW then CCW" if len(self.squares) == 2 else (
             "CW" if self.squares[0].clockwise else "CCW")
@@ -192,11 +192,11 @@ class DemoResult:
             f"odometry; ground truth within {100 * self.cross_track_truth_m:.1f} cm of the "
             "commanded path",
             "",
-            f"{'':<32} {'':>17} {'':>17} {'':>17} {'end error, every wheel step':>34}"
-            + (f" {'end error, slip steps left out':>34}" if gone else ""),
+            f"{'':<32} {'':>17} {'':>17} {'':>17} {'end error, every wheel step':>36}"
+            + (f" {'end error, slip steps left out':>36}" if gone else ""),
             f"{'geometry':<32} {'r_left [m]':>17} {'r_right [m]':>17} {'b [m]':>17} "
-            f"{'position':>19} {'heading':>14}"
-            + (f" {'position':>19} {'heading':>14}" if gone else ""),
+            f"{'position':>21} {'heading':>14}"
+            + (f" {'position':>21} {'heading':>14}" if gone else ""),
         ]
         for key in (NOMINAL, FIT, UMBMARK, TRUE, WHEELS, GYRO):
             row = self.rows.get(key)
