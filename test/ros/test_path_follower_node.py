@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 from rclpy.node import Node
@@ -58,6 +58,7 @@ class Truth:
     py: list[float] = field(default_factory=list)
     speed: list[float] = field(default_factory=list)
     done: list[bool] = field(default_factory=list)
+    command_t: list[float] = field(default_factory=list)  # truth's time at each cmd_vel
 
     def add(self, msg: Odometry) -> None:
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
@@ -70,6 +71,14 @@ class Truth:
     def arrays(self) -> tuple[np.ndarray, ...]:
         t = np.array(self.t)
         return t, np.array(self.px), np.array(self.py), np.array(self.speed)
+
+    def command(self, _: Twist) -> None:
+        if self.t:
+            self.command_t.append(self.t[-1])
+
+    def longest_command_gap(self) -> float:
+        """Simulated seconds the loop went without a new command (its stalls, 4x the wall's)."""
+        return float(np.max(np.diff(self.command_t))) if len(self.command_t) > 1 else math.inf
 
     def moving_since(self) -> float:
         """Simulated time of the first sample with the robot moving."""
@@ -105,6 +114,7 @@ def closed_loop(params: Path) -> Iterator[tuple[Node, Any, Truth]]:
     with ros_test_node("follower_test_peer") as (node, executor), ExitStack() as stack:
         truth = Truth()
         node.create_subscription(Odometry, "/ground_truth/odom", truth.add, 500)
+        node.create_subscription(Twist, "/cmd_vel", truth.command, 500)
         latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                              reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -208,7 +218,11 @@ def square_distance(x: np.ndarray, y: np.ndarray, side: float) -> np.ndarray:
     return np.asarray(np.where((dx > 0) | (dy > 0), outside, inside), dtype=float)
 
 
+@pytest.mark.serial
 def test_square_is_followed_with_the_error_peaking_at_the_corners(tmp_path: Path) -> None:
+    """Serial: at 4x real time a 100 ms stall of any of the loop's four processes drives
+    0.12 m on a stale command (at a corner: 0.168 m off once on a loaded CI, against the
+    fillet's 0.073 m); run alone the largest error is 0.071-0.072 m."""
     side, corner = 2.0, 0.25
     params = write_params(tmp_path, {"follower.k_p": 2.0, "follower.path_type": "route",
                                      "follower.route": "square", "follower.route_size": side,
@@ -225,9 +239,10 @@ def test_square_is_followed_with_the_error_peaking_at_the_corners(tmp_path: Path
     # A fillet of radius rho cut into a right angle lies at most rho (1 - 1/sqrt 2)
     # from the sides (its midpoint); P on the fillet peaks there.
     fillet_gap = corner * (1.0 - 1.0 / math.sqrt(2.0))
-    assert np.max(e) < fillet_gap + 0.01, np.max(e)
-    assert to_corner[np.argmax(e)] < corner
-    assert np.max(e[to_corner > 2.0 * corner]) < 0.02, np.max(e[to_corner > 2.0 * corner])
+    gap = f"longest gap between commands {truth.longest_command_gap():.3f} s (simulated)"
+    assert np.max(e) < fillet_gap + 0.01, (np.max(e), gap)
+    assert to_corner[np.argmax(e)] < corner, gap
+    assert np.max(e[to_corner > 2.0 * corner]) < 0.02, (np.max(e[to_corner > 2.0 * corner]), gap)
     assert np.all(np.abs(v[t > t[-1] - 0.5]) < 1e-3), "not stopped after done"
     assert math.hypot(px[-1] - 0.0, py[-1] - 0.0) < 0.1  # back at the start
 
