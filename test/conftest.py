@@ -1,7 +1,7 @@
 """Test-session setup: every run (each xdist worker) gets its own DDS domain, on loopback
 only; a test marked neither ``process`` nor ``dds`` may start neither (the tiers); the
 colcon workspace that test_colcon and test_launch share; the odometry_node rig of the
-DDS tests (``odom_rig``)."""
+DDS tests (``odom_rig``); Hypothesis without its wall-clock deadline."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
+from hypothesis import settings
 
 from paths import ROOT
 
@@ -34,6 +35,11 @@ if os.environ.get("PYTEST_XDIST_WORKER", "").startswith("gw"):
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.pop("ROS_LOCALHOST_ONLY", None)
 os.environ.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+
+# No per-example wall-clock deadline: on four workers sharing two cores an example can be
+# descheduled past Hypothesis's 200 ms, which says nothing about the property.
+settings.register_profile("diffdrive_odom", deadline=None)
+settings.load_profile("diffdrive_odom")
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
