@@ -22,7 +22,6 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, JointState
-from std_srvs.srv import Trigger
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.pipeline import IMU_SILENT, Outcome, ReadingPipeline
@@ -42,7 +41,7 @@ from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS, TF_QOS
 from diffdrive_odom.ros.reference_input import ReferenceSubscription
 from diffdrive_odom.ros.runtime import run
-from diffdrive_odom.ros.set_pose import SetPoseSubscription
+from diffdrive_odom.ros.set_pose import ResetService, SetPoseSubscription
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, odometry_settings
 from diffdrive_odom.settings.params import ParamValue
@@ -91,7 +90,7 @@ class OdometryEndpoints:
         # use_imu is read-only: the subscription exists for the node's whole life or not.
         self._imu_sub = None if settings.gyro is None else node.create_subscription(
             Imu, "imu", self._on_imu, SENSOR_IN_QOS, raw=True)
-        self._reset_srv = node.create_service(Trigger, "~/reset_odometry", self._on_reset)
+        self._reset_srv = ResetService(node, self._pipeline.reset)
         self._set_pose = SetPoseSubscription(node, self._pipeline, self._throttle)
         # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
         # and a missing clock is one of the mistakes this warning is for.
@@ -128,7 +127,7 @@ class OdometryEndpoints:
         if self._estimate_pub is not None:
             self._estimate_pub.destroy()
         node.destroy_timer(self._input_timer)
-        node.destroy_service(self._reset_srv)
+        self._reset_srv.destroy()
         self._set_pose.destroy()
         node.destroy_subscription(self._sub)
         if self._imu_sub is not None:
@@ -147,13 +146,6 @@ class OdometryEndpoints:
         self._build_messages(settings)
         self._pipeline.reconfigure(settings)
         self._node.get_logger().info("parameters updated")
-
-    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        self._pipeline.reset()
-        response.success = True
-        response.message = "odometry reset to the origin"
-        self._node.get_logger().info(response.message)
-        return response
 
     def _check_input(self) -> None:
         """Say once if nothing arrived: the topic name (namespace, remap) is the usual cause."""

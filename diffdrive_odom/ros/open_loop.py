@@ -18,7 +18,6 @@ import time
 
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from std_srvs.srv import Trigger
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.open_loop import (
@@ -35,7 +34,7 @@ from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, TF_QOS
-from diffdrive_odom.ros.set_pose import SetPoseSubscription
+from diffdrive_odom.ros.set_pose import ResetService, SetPoseSubscription
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
@@ -72,7 +71,7 @@ class OpenLoopEndpoints:
         self._odom_pub = create_publisher(node, Odometry, "odom", RELIABLE_OUT_QOS)
         self._tf_pub = create_publisher(node, TFMessage, "/tf", TF_QOS)
         self._input = CommandInput(node, cfg.topic, cfg.stamped, self._on_command)
-        self._reset_srv = node.create_service(Trigger, "~/reset_odometry", self._on_reset)
+        self._reset_srv = ResetService(node, self._odo.reset)
         self._set_pose = SetPoseSubscription(node, self, self._throttle)
         self._rate_hz = publication_rate(settings.publish_rate)
         self._timer = node.create_timer(1.0 / self._rate_hz, self._on_timer)
@@ -93,7 +92,7 @@ class OpenLoopEndpoints:
         self._guard.close()
         self._diagnostics.destroy()
         node.destroy_timer(self._timer)
-        node.destroy_service(self._reset_srv)
+        self._reset_srv.destroy()
         self._set_pose.destroy()
         self._input.destroy()
         destroy_publisher(node, self._tf_pub)
@@ -162,13 +161,6 @@ class OpenLoopEndpoints:
     def set_pose(self, request: PoseRequest) -> str | PoseRefusal:
         """``~/set_pose`` (the same subscription as with encoders), in the odom frame."""
         return self._odo.set_pose(request, self._settings.odom_frame_id)
-
-    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        self._odo.reset()
-        response.success = True
-        response.message = "odometry reset to the origin"
-        self._node.get_logger().info(response.message)
-        return response
 
     def _diagnose(self) -> Report:
         now = time.monotonic()

@@ -1,6 +1,8 @@
-"""``~/set_pose`` on the odometry node: geometry_msgs/PoseWithCovarianceStamped in.
+"""The odometry node's pose inputs: ``~/set_pose`` and ``~/reset_odometry``.
 
-Private (``~/``), like ``~/reset_odometry``, so it cannot meet robot_localization's own
+Both modes (wheels, open loop) take them the same way. ``~/set_pose``
+(geometry_msgs/PoseWithCovarianceStamped) is private (``~/``), like ``~/reset_odometry``
+(std_srvs/Trigger), so it cannot meet robot_localization's own
 ``set_pose`` (relative, same type) that usually runs beside this node. The rule (what is
 refused, when the pose takes effect) is the core's
 (:mod:`diffdrive_odom.core.estimation.setpose`); here the message becomes a request and
@@ -10,15 +12,18 @@ reason (WARN, throttled per reason).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Protocol
 
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.node import Node
+from std_srvs.srv import Trigger
 
 from diffdrive_odom.core.estimation.setpose import PoseRefusal, PoseRequest
 from diffdrive_odom.ros.throttle import KeyedThrottle
 
 TOPIC = "~/set_pose"
+RESET_SERVICE = "~/reset_odometry"
 
 
 def pose_request(msg: PoseWithCovarianceStamped) -> PoseRequest:
@@ -55,3 +60,22 @@ class SetPoseSubscription:
                                    f"set_pose refused [{out.code}]: {out.reason}")
         else:
             self._node.get_logger().info(out)
+
+
+class ResetService:
+    """The ``~/reset_odometry`` service of one odometry node: its pose back to the origin."""
+
+    def __init__(self, node: Node, reset: Callable[[], None]) -> None:
+        self._node, self._reset = node, reset
+        self._srv = node.create_service(Trigger, RESET_SERVICE, self._on_reset)
+
+    def destroy(self) -> None:
+        """Remove the service from the node."""
+        self._node.destroy_service(self._srv)
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self._reset()
+        response.success = True
+        response.message = "odometry reset to the origin"
+        self._node.get_logger().info(response.message)
+        return response
