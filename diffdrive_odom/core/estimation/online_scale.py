@@ -45,6 +45,7 @@ from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.kalman import kalman_update, quadratic
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
+from diffdrive_odom.core.uncertainty.ratios import ratio_geometry
 
 __all__ = ["REFERENCE_TYPES", "SCALE_FIELDS", "OnlineScale", "ReferenceConfig", "ScaleEstimate",
            "feed_reference", "scale_values"]
@@ -374,9 +375,8 @@ class OnlineScale:
         updates = [(gyro - x[1] * true_turn, [0.0, true_turn, x[1], 0.0, 0.0, -x[1], 0.0, 0.0],
                     density ** 2 * dt + (x[1] * (b[9] - a[9]) * TIMING_STDDEV) ** 2)]
         # The wheels' chord with the gyro's ratios at the configured mean radius.
-        u, v = self._ratios
-        m = 0.5 * (self.geometry.left_radius + self.geometry.right_radius)
-        rr, rl = (2.0 * m * u / (u + v), 2.0 * m * v / (u + v)) if u + v > 0.0 else (m, m)
+        rl, rr, _ = ratio_geometry(self._ratios,
+                                   0.5 * (self.geometry.left_radius + self.geometry.right_radius))
         h = 0.5 * math.hypot(rr * (b[2] - a[2]) + rl * (b[4] - a[4]),
                              rr * (b[3] - a[3]) + rl * (b[5] - a[5]))
         dx, dy = ref1[1] - ref0[1], ref1[2] - ref0[2]

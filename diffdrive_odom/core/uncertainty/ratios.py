@@ -25,12 +25,26 @@ import math
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix, symmetric
 
-__all__ = ["mean_radius_stddev_ratio", "multipliers", "ratio_geometry_covariance"]
+__all__ = ["mean_radius_stddev_ratio", "multipliers", "ratio_geometry", "ratio_geometry_covariance"]
 
 
 def mean_radius_stddev_ratio(radius_stddev_ratio: float) -> float:
     """Relative 1-sigma of the mean of two radii, each known to ``radius_stddev_ratio``."""
     return radius_stddev_ratio / math.sqrt(2.0)
+
+
+def ratio_geometry(ratios: tuple[float, float], mean_radius: float
+                   ) -> tuple[float, float, float]:
+    """``(r_L, r_R, b)`` made of ``(u, v) = (r_R / b, r_L / b)``, ``mean_radius`` held.
+
+    The module's formula; ratios summing to zero or less (no estimate) give the mean
+    radius for both wheels and no separation (0).
+    """
+    u, v = ratios
+    s = u + v
+    if not s > 0.0:
+        return mean_radius, mean_radius, 0.0
+    return 2.0 * mean_radius * v / s, 2.0 * mean_radius * u / s, 2.0 * mean_radius / s
 
 
 def ratio_geometry_covariance(ratios: tuple[float, float],
@@ -66,8 +80,9 @@ def multipliers(g: Geometry, ratios: tuple[float, float],
     u, v = ratios
     s = u + v
     m = 0.5 * (g.left_radius + g.right_radius)
+    rl, rr, b = ratio_geometry(ratios, m)
+    values = (rl / g.wheel_radius, rr / g.wheel_radius, b / g.wheel_separation)
     kr, kb = 2.0 * m / g.wheel_radius, 2.0 * m / g.wheel_separation
-    values = (kr * v / s, kr * u / s, kb / s)
     s2 = s * s
     jac = ((-kr * v / s2, kr * u / s2), (kr * v / s2, -kr * u / s2), (-kb / s2, -kb / s2))
     a, b, c, d = cov

@@ -20,6 +20,7 @@ from diffdrive_odom.core.uncertainty.noise import NoiseModel
 from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty
 from diffdrive_odom.core.uncertainty.ratios import (
     mean_radius_stddev_ratio,
+    ratio_geometry,
     ratio_geometry_covariance,
 )
 
@@ -79,3 +80,12 @@ def test_the_switch_folds_the_stretch_before() -> None:
     unc.switch_geometry(ratio_geometry_covariance((U, V), COV, SM))
     assert unc.pose_covariance(pose, g) == before
     assert unc.sensitivity == ((0.0,) * 3,) * 3
+
+
+def test_the_geometry_made_of_the_ratios_holds_the_mean_radius() -> None:
+    """A geometry's own ratios give it back when its mean radius is held; no estimate
+    (ratios summing to zero) gives both wheels the mean radius."""
+    r_l, r_r, b = 0.049, 0.0515, 0.31
+    got = ratio_geometry((r_r / b, r_l / b), 0.5 * (r_l + r_r))
+    assert got == pytest.approx((r_l, r_r, b), rel=1e-15)
+    assert ratio_geometry((0.0, 0.0), 0.05) == (0.05, 0.05, 0.0)
