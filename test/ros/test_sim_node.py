@@ -11,6 +11,7 @@ import itertools
 import math
 import subprocess
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -84,6 +85,26 @@ def drive(node: Node, ex: Any, pub: Any, values: list[float], seconds: float) ->
         spin_for(ex, 0.02)
 
 
+def drive_until(ex: Any, pub: Any, values: list[float], done: Callable[[], Any],
+                timeout: float = 20.0) -> bool:
+    """Command ``values`` every 20 ms (at least once) until ``done()`` or ``timeout`` s.
+
+    The command is held until its effect is seen, however long this test or the sim
+    stalls meanwhile (a stall over command_timeout only pauses the motion).
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        pub.publish(Float64MultiArray(data=values))
+        if spin_until(ex, done, 0.02):
+            return True
+        if time.monotonic() > deadline:
+            return False
+
+
+def standing(m: Odometry) -> bool:
+    return bool(m.twist.twist.linear.x == 0.0 and m.twist.twist.angular.z == 0.0)
+
+
 def test_wrapping_counter_and_flipped_joint_are_undone_by_the_odometry_parameters() -> None:
     tpr, bits, start = 1000.0, 12, 4090.0
     encoder = ["-p", f"ticks_per_revolution:={tpr}", "-p", f"encoder_counter_bits:={bits}",
@@ -105,11 +126,25 @@ def test_wrapping_counter_and_flipped_joint_are_undone_by_the_odometry_parameter
         pub = node.create_publisher(Float64MultiArray, "/wheel_commands", 10)
         # The joints heard from the start: the counters' wrap below is checked on them.
         assert spin_until(ex, lambda: pub.get_subscription_count() > 0 and len(sink.joints) > 0
-                          and len(sink.odom["/odom"]) > 0 and len(sink.odom["/odom_wrong"]) > 0,
+                          and len(sink.truth) > 0 and len(sink.odom["/odom"]) > 0
+                          and len(sink.odom["/odom_wrong"]) > 0,
                           25.0), output(sim) + output(odo) + output(wrong)
-        # An arc: 0.2 m/s, 0.5 rad/s, for about 2 s; then the sim's timeout stops it.
-        drive(node, ex, pub, rates(0.2, 0.5, 1, -1), 2.0)
-        spin_for(ex, 1.5)
+        # An arc: 0.2 m/s, 0.5 rad/s, until the ground truth has turned 0.7 rad (1.4 s of
+        # motion; a stall over the sim's command_timeout pauses it on the same arc), then
+        # stopped by a zero command. The sim moves on only while commands come in and
+        # 0.3 s after (command_timeout, however long this test stalls): the motion stays
+        # far from 2.36 s, where the wrong odometry's heading (-1.33 rad/s) would wrap.
+        assert drive_until(ex, pub, rates(0.2, 0.5, 1, -1),
+                           lambda: yaw(sink.truth[-1].pose.pose.orientation) >= 0.7), (
+            output(sim))
+        stop_sent = node.get_clock().now().nanoseconds  # the sim stamps on the same clock
+        assert drive_until(ex, pub, [0.0, 0.0], lambda: ns(sink.truth[-1].header.stamp)
+                           > stop_sent and standing(sink.truth[-1])), output(sim)
+        stop_ns = ns(sink.truth[-1].header.stamp)
+        # Both odometries have read the joint states up to the stop.
+        assert spin_until(ex, lambda: all(
+            odom and ns(odom[-1].header.stamp) >= stop_ns for odom in sink.odom.values()),
+            10.0), output(odo) + output(wrong)
         truth = {ns(m.header.stamp): m for m in sink.truth}
         common = [m for m in sink.odom["/odom"] if ns(m.header.stamp) in truth]
         assert common, "no odometry stamped like the ground truth"
@@ -119,8 +154,8 @@ def test_wrapping_counter_and_flipped_joint_are_undone_by_the_odometry_parameter
         for a, b in itertools.pairwise(sink.truth):
             pa, pb = a.pose.pose.position, b.pose.pose.position
             distance += math.hypot(pb.x - pa.x, pb.y - pa.y)
-        assert distance > 0.25  # it really drove (about 0.4 m)
-        assert abs(yaw(gt.pose.pose.orientation)) > 0.6  # and turned left (about 1 rad)
+        assert distance > 0.25  # it really drove (about 0.3 m)
+        assert abs(yaw(gt.pose.pose.orientation)) > 0.6  # and turned left (about 0.7 rad)
 
         # Encoder resolution: one tick per wheel, so heading within (2 tick arcs) / b at
         # every instant, position within 2 tick arcs + distance * that heading bound.
@@ -214,9 +249,14 @@ def test_counts_per_second_and_bad_commands() -> None:
         # Turning on the spot at 1 rad/s: right wheel +w b/2 / r rad/s, in counts/s.
         per_rad = tpr / (2 * math.pi)
         right = 1.0 * B / 2 / R
-        drive(node, ex, pub, [-right * per_rad, right * per_rad], 0.5)
-        assert abs(sink.truth[-1].twist.twist.angular.z - 1.0) < 1e-9
-        assert abs(sink.truth[-1].twist.twist.linear.x) < 1e-9
+        # Commanded until the truth moves and the right wheel has turned forwards (at
+        # least a tick) on joint_states: every step on the command is exactly the turn.
+        assert drive_until(ex, pub, [-right * per_rad, right * per_rad], lambda: any(
+            not standing(m) for m in sink.truth) and sink.joints[-1].position[1] > 0), (
+            output(sim))
+        moving = [m for m in sink.truth if not standing(m)]
+        assert all(abs(m.twist.twist.angular.z - 1.0) < 1e-9 for m in moving)
+        assert all(abs(m.twist.twist.linear.x) < 1e-9 for m in moving)
         # Radians on joint_states, quantized to whole ticks.
         tick = 2 * math.pi / tpr
         pos = sink.joints[-1].position[1]
