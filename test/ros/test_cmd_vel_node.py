@@ -384,7 +384,10 @@ cmd_vel_node:
 def test_ticks_params_file_acceleration_limit_and_cmd_vel_out(tmp_path: Path) -> None:
     path = tmp_path / "params.yaml"
     path.write_text(PARAMS_YAML)
-    with cmd_vel_node(["--params-file", str(path)]) as (proc, node, ex):
+    # cmd_vel_timeout past a stall of the node on a loaded CI (up to 0.5 s): the command
+    # must not expire mid-ramp (that would rightly ramp down, and start again).
+    with cmd_vel_node(["--params-file", str(path), "-p", "cmd_vel_timeout:=1.0"]) as (
+            proc, node, ex):
         sink, limited = Sink(), Sink()
         node.create_subscription(Float64MultiArray, "/wheel_commands", sink.add, 100)
         node.create_subscription(TwistStamped, "/cmd_vel_out", limited.add, 100)
