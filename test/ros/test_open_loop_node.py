@@ -198,38 +198,70 @@ def test_from_the_cmd_vel_nodes_limited_output() -> None:
     """``open_loop_source: cmd_vel_out``: what cmd_vel_node really asked the wheels for
     (ramped at linear.x.max_acceleration), not the raw command."""
     limits = [*GEOMETRY, "-p", "publish_limited_velocity:=true",
-              "-p", "linear.x.max_acceleration:=0.5"]
+              "-p", "linear.x.max_acceleration:=0.5", "-p", f"cmd_vel_timeout:={HOLD}"]
     odom: list[Odometry] = []
-    limited: list[tuple[float, float]] = []  # (receive time, linear.x)
-    args = [*OPEN_LOOP, "-p", "open_loop_source:=cmd_vel_out"]
+    limited: list[tuple[int, float]] = []  # (stamp [ns], linear.x) of each cmd_vel_out
+    args = [*OPEN_LOOP, "-p", "open_loop_source:=cmd_vel_out", "-p", f"cmd_vel_timeout:={HOLD}"]
     with node_process("cmd_vel_node", ["--ros-args", *limits]) as base, \
             diagnosed("odometry_node", args) as peer:
         node = peer.node
         node.create_subscription(Odometry, "odom", odom.append, 100)
         node.create_subscription(
             TwistStamped, "cmd_vel_out",
-            lambda m: limited.append((time.monotonic(), m.twist.linear.x)), 100)
+            lambda m: limited.append((ns_of(m.header.stamp), m.twist.linear.x)), 100)
         pub = node.create_publisher(Twist, "cmd_vel", 10)
         assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0
                           and bool(odom) and bool(limited), 20.0)
         status = peer.wait_for(lambda s: "/cmd_vel_out" in s.message, 10.0)
         msg = Twist()
         msg.linear.x = 0.4
-        start = time.monotonic()
-        while time.monotonic() - start < 2.0:
+
+        def at_full_speed() -> bool:
             pub.publish(msg)
             spin_for(peer.executor, 0.05)
-        spin_for(peer.executor, 2.5)  # cmd_vel_node's timeout, its ramp down, ours
+            return any(o.twist.twist.linear.x == 0.4 for o in odom)
+
+        # Commanded (at 10-20 Hz) until the odometry follows the ramp's top, then not.
+        assert spin_until(peer.executor, at_full_speed, 10.0)
+        # Until cmd_vel_node's timeout and ramp down have reached the odometry and us.
+        assert spin_until(peer.executor, lambda: odom[-1].twist.twist.linear.x == 0.0
+                          and any(o.twist.twist.linear.x > 0.0 for o in odom)
+                          and limited[-1][1] == 0.0, 10.0)
         assert base.poll() is None
     assert status.message.startswith("open loop")
     speeds = [o.twist.twist.linear.x for o in odom]
     assert max(speeds) == pytest.approx(0.4, abs=1e-12)
     ramp = [v for v in speeds if 0.0 < v < 0.4]
     assert len(ramp) > 10  # 0.8 s of acceleration at 40 Hz: the limited twist, not 0.4 at once
-    # The distance is the integral of the limited twist over its arrivals (the sender's
-    # 50 Hz heartbeat), as the test received it: within the transport's delay.
-    distance = sum(v * (t1 - t0) for (t0, v), (t1, _) in itertools.pairwise(limited))
-    assert odom[-1].pose.pose.position.x == pytest.approx(distance, abs=0.4 * DELAY)
+    # The distance is the integral of the limited twist, each held from its arrival at the
+    # odometry to the next's: sum of v_j (a_(j+1) - a_j) = -sum of a_j (v_j - v_(j-1)) from
+    # rest to rest, so only the arrivals of the changes count. Each lies after its stamp
+    # and after the last pose that did not show it, and by the first pose that did (or a
+    # later change: a change lost on the way counts as arriving with the next one).
+    assert limited[0][1] == 0.0 and limited[-1][1] == 0.0
+    changes = [(0, 0.0)] + [(ts, v) for (_, u), (ts, v) in itertools.pairwise(limited)
+                            if v != u]
+    ref = ns_of(odom[0].header.stamp)
+    shown = []  # the latest change each pose shows, in order
+    j = 0
+    for k, o in enumerate(odom):
+        while changes[j][1] != o.twist.twist.linear.x:
+            j += 1
+            assert j < len(changes), (
+                f"pose {k} shows {o.twist.twist.linear.x} m/s: no later cmd_vel_out says so")
+        shown.append(j)
+    low = high = 0.0
+    for j in range(1, len(changes)):
+        after = [ns_of(o.header.stamp) for o, c in zip(odom, shown, strict=True) if c < j]
+        by = [ns_of(o.header.stamp) for o, c in zip(odom, shown, strict=True) if c >= j]
+        window = ((max([changes[j][0], *after[-1:]]) - ref) * 1e-9, (by[0] - ref) * 1e-9)
+        dv = changes[j][1] - changes[j - 1][1]
+        low += min(-dv * a for a in window)
+        high += max(-dv * a for a in window)
+    x = odom[-1].pose.pose.position.x
+    print(f"open loop from cmd_vel_out: {x:.4f} m, arrivals bound it to "
+          f"[{low:.4f}, {high:.4f}] m over {len(changes) - 1} changes")
+    assert low - 1e-9 <= x <= high + 1e-9
     assert odom[-1].twist.twist.linear.x == 0.0
 
 
