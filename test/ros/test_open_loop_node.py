@@ -319,32 +319,36 @@ def test_on_simulated_time_the_pose_is_the_closed_form() -> None:
     from rosutil import stamp
 
     odom: list[Odometry] = []
-    args = ["--ros-args", *OPEN_LOOP, "-p", "use_sim_time:=true", "-p", "cmd_vel_timeout:=0.5"]
-    with node_process("odometry_node", args) as proc, ros_test_node() as (node, ex):
+    args = [*OPEN_LOOP, "-p", "use_sim_time:=true", "-p", "cmd_vel_timeout:=0.5"]
+    with diagnosed("odometry_node", args) as peer:
+        node, ex = peer.node, peer.executor
         clock = node.create_publisher(Clock, "/clock", 10)
         node.create_subscription(Odometry, "/odom", odom.append, 100)
         pub = node.create_publisher(Twist, "/cmd_vel", 10)
         t0 = 100 * 10**9
 
         def tick(t_ns: int) -> None:
-            clock.publish(Clock(clock=stamp(t_ns)))
-            spin_for(ex, 0.3)  # the node has it before anything else is sent
+            """The clock at ``t_ns`` until the node has published a pose stamped so: it
+            has the time and its timer ran at it, before anything else is sent."""
+            for _ in range(100):
+                clock.publish(Clock(clock=stamp(t_ns)))
+                if spin_until(ex, lambda: any(ns_of(o.header.stamp) == t_ns for o in odom),
+                              0.3):
+                    return
+            raise AssertionError(f"no pose stamped {t_ns} ns on simulated time")
 
         assert spin_until(ex, lambda: clock.get_subscription_count() > 0
                           and pub.get_subscription_count() > 0, 20.0)
-        for _ in range(100):  # until the node has the clock: a pose stamped t0
-            tick(t0)
-            if any(o.header.stamp.sec == 100 for o in odom):
-                break
-        assert odom, "no odometry on simulated time"
+        handshake(node, ex, "/odometry_node")  # it hears us: the command arrives
+        tick(t0)
         msg = Twist()
         msg.linear.x, msg.angular.z = V, W
-        pub.publish(msg)  # arrives at t0 on the node's clock
-        spin_for(ex, 0.3)
+        pub.publish(msg)  # arrives at t0 on the node's clock (paused there)
+        # Held until the node reports it taken (wall-clock diagnostics), then time goes on.
+        peer.wait_for(lambda s: s.values.get("commands") == "1", 10.0)
         tick(t0 + 300_000_000)  # the command is followed ...
         tick(t0 + 2 * 10**9)  # ... until its timeout at t0 + 0.5 s, then at rest
         tick(t0 + 2 * 10**9 + 100_000_000)
-        assert proc.poll() is None
     stamps = {o.header.stamp.sec * 10**9 + o.header.stamp.nanosec: o for o in odom}
     for t_ns, held in ((t0 + 300_000_000, 0.3), (t0 + 2 * 10**9, 0.5)):
         o = stamps[t_ns]
