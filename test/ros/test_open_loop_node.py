@@ -278,19 +278,29 @@ def test_the_managed_node_runs_open_loop_while_active() -> None:
         manager = LifecycleManager(node, ex, "/odometry_lifecycle_node")
         assert manager.change(Transition.TRANSITION_CONFIGURE)
         assert spin_until(ex, lambda: pub.get_subscription_count() > 0, 20.0)
+        handshake(node, ex, "/odometry_lifecycle_node")  # it hears us: the command arrives
         msg = Twist()
         msg.linear.x = 0.2
+        sent_ns = time.time_ns()
         pub.publish(msg)  # inactive: integrated, not published (held: no timeout)
         spin_for(ex, 1.0)
         assert not odom
+        activate_ns = time.time_ns()
         assert manager.change(Transition.TRANSITION_ACTIVATE)
         assert spin_until(ex, lambda: len(odom) > 10, 20.0)
         assert proc.poll() is None
-    first = odom[0].pose.pose.position.x
-    assert first > 0.2 * 0.5  # the command sent while inactive moved it already
     assert all(o.pose.pose.position.y == 0.0 for o in odom)
-    xs = [o.pose.pose.position.x for o in odom]
-    assert xs == sorted(xs) and all(o.twist.twist.linear.x == 0.2 for o in odom)
+    assert all(o.twist.twist.linear.x == 0.2 for o in odom)
+    # Each pose is 0.2 m/s held since one arrival (on the node's clock, its stamps) ...
+    t = [(ns_of(o.header.stamp) - sent_ns) * 1e-9 for o in odom]
+    arrival = t[0] - odom[0].pose.pose.position.x / 0.2
+    for o, ti in zip(odom, t, strict=True):
+        assert o.pose.pose.position.x == pytest.approx(0.2 * (ti - arrival), abs=1e-9)
+    # ... after we sent it, and before we asked to activate: the command sent while
+    # inactive moved it already.
+    print(f"managed open loop: the command arrived {arrival * 1e3:.1f} ms after it was "
+          f"sent, {(activate_ns - sent_ns) * 1e-6 - arrival * 1e3:.0f} ms before activate")
+    assert 0.0 <= arrival < (activate_ns - sent_ns) * 1e-9
 
 
 def test_commands_of_the_other_type_are_named() -> None:
