@@ -29,6 +29,7 @@ from diagutil import Peer, diagnosed
 from rosutil import (
     DATA,
     LifecycleManager,
+    call_service,
     handshake,
     node_parameters,
     node_process,
@@ -370,9 +371,11 @@ def test_on_simulated_time_the_pose_is_the_closed_form() -> None:
     assert stamps[t0 + 2 * 10**9].twist.twist.linear.x == 0.0
 
 
-def test_set_pose_in_open_loop() -> None:
-    """~/set_pose works in open loop as with encoders: stamped zero, the pose now."""
+def test_set_pose_and_reset_in_open_loop() -> None:
+    """~/set_pose works in open loop as with encoders: stamped zero, the pose now; then
+    ~/reset_odometry puts it back at the origin."""
     from geometry_msgs.msg import PoseWithCovarianceStamped
+    from std_srvs.srv import Trigger
 
     odom: list[Odometry] = []
     with node_process("odometry_node", ["--ros-args", *OPEN_LOOP]) as proc, \
@@ -387,7 +390,13 @@ def test_set_pose_in_open_loop() -> None:
         msg.pose.covariance[0] = msg.pose.covariance[7] = msg.pose.covariance[35] = 0.04
         pub.publish(msg)
         assert spin_until(ex, lambda: odom[-1].pose.pose.position.x == 1.5, 10.0)
+        last = odom[-1]
+        answer = call_service(node, ex, Trigger, "/odometry_node/reset_odometry",
+                              Trigger.Request())
+        assert answer.success and answer.message == "odometry reset to the origin"
+        assert spin_until(ex, lambda: odom[-1].pose.pose.position.x == 0.0, 10.0)
         assert proc.poll() is None
-    last = odom[-1]
     assert (last.pose.pose.position.x, last.pose.pose.position.y) == (1.5, -2.0)
     assert last.pose.covariance[0] == pytest.approx(0.04, rel=1e-6)
+    reset = odom[-1].pose.pose
+    assert (reset.position.x, reset.position.y, yaw(reset.orientation)) == (0.0, 0.0, 0.0)
