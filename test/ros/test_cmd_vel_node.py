@@ -37,6 +37,7 @@ from rosutil import (
     assert_refused_in_process,
     assert_refuses_to_start,
     node_process,
+    ns_of,
     ros_test_node,
     spin_for,
     spin_until,
@@ -160,15 +161,12 @@ def wait_connected(ex: Any, pub: Any, sink: Sink, proc: Any) -> None:
     )
 
 
-def drive(ex: Any, pub: Any, make: Callable[[], Any], seconds: float, hz: float = 20.0) -> float:
-    """Publish ``make()`` at ``hz`` for ``seconds``; return the time of the last publish."""
+def drive(ex: Any, pub: Any, make: Callable[[], Any], seconds: float, hz: float = 20.0) -> None:
+    """Publish ``make()`` at ``hz`` for ``seconds``."""
     end = time.monotonic() + seconds
-    last = time.monotonic()
     while time.monotonic() < end:
         pub.publish(make())
-        last = time.monotonic()
         spin_for(ex, 1.0 / hz)
-    return last
 
 
 def twist(v: float, w: float, vy: float = 0.0) -> Twist:
@@ -192,8 +190,9 @@ def is_zero(values: Any) -> bool:
     return all(x == 0.0 for x in values)
 
 
-def ns_of(stamp: Time) -> int:
-    return int(stamp.sec) * 10**9 + int(stamp.nanosec)
+def timeline(msgs: list[tuple[float, Any]]) -> list[tuple[int, float, float]]:
+    """(stamp [ns], linear.x, angular.z) of received TwistStamped: the node's ticks."""
+    return [(ns_of(m.header.stamp), m.twist.linear.x, m.twist.angular.z) for _, m in msgs]
 
 
 def tick_gaps(msgs: list[tuple[float, Any]]) -> list[float]:
@@ -252,32 +251,30 @@ def test_twist_to_float64_array_watchdog_rate_nan_and_runtime_parameters() -> No
         pub.publish(twist(v2, w2))
 
         def after_stop() -> list[tuple[int, float, float]]:
-            timeline = [(ns_of(m.header.stamp), m.twist.linear.x, m.twist.angular.z)
-                        for _, m in ticks.msgs]
-            last = max((i for i, (_, x, z) in enumerate(timeline) if (x, z) == (v2, w2)),
+            ticked = timeline(ticks.msgs)
+            last = max((i for i, (_, x, z) in enumerate(ticked) if (x, z) == (v2, w2)),
                        default=None)
-            return [] if last is None else timeline[last + 1:]
+            return [] if last is None else ticked[last + 1:]
 
         # Held until the zeros are seen, and a heartbeat of them after (RATE / 2 ticks).
         assert spin_until(ex, lambda: len(after_stop()) > RATE / 2, 10.0), (
             "the node never stopped after the last command: " + output(proc))
-        timeline = [(ns_of(m.header.stamp), m.twist.linear.x, m.twist.angular.z)
-                    for _, m in ticks.msgs]
-        first = next(i for i, (_, x, z) in enumerate(timeline) if (x, z) == (v2, w2))
-        zero = next(i for i in range(first, len(timeline)) if timeline[i][1:] == (0.0, 0.0))
-        before, held = timeline[first - 1], timeline[zero - 1]
-        assert all(t[1:] == (v2, w2) for t in timeline[first:zero]), timeline[first:zero]
-        assert all(t[1:] == (0.0, 0.0) for t in timeline[zero:])
+        ticked = timeline(ticks.msgs)
+        first = next(i for i, (_, x, z) in enumerate(ticked) if (x, z) == (v2, w2))
+        zero = next(i for i in range(first, len(ticked)) if ticked[i][1:] == (0.0, 0.0))
+        before, held = ticked[first - 1], ticked[zero - 1]
+        assert all(t[1:] == (v2, w2) for t in ticked[first:zero]), ticked[first:zero]
+        assert all(t[1:] == (0.0, 0.0) for t in ticked[zero:])
         timeout_ns, slack_ns = round(TIMEOUT * 1e9), STAMP_SLACK_NS
         print(f"watchdog: the last command followed from its first tick for "
-              f"{(held[0] - timeline[first][0]) * 1e-6:.0f} ms, zeros "
-              f"{(timeline[zero][0] - timeline[first][0]) * 1e-6:.0f} ms after it "
+              f"{(held[0] - ticked[first][0]) * 1e-6:.0f} ms, zeros "
+              f"{(ticked[zero][0] - ticked[first][0]) * 1e-6:.0f} ms after it "
               f"(timeout {TIMEOUT * 1e3:.0f} ms, period {PERIOD * 1e3:.0f} ms)")
         # Zeros on the first tick past the timeout from the arrival (after ``before``,
         # after our send; at or before ``first``): held up to it, not one tick more.
-        assert timeline[zero][0] - before[0] > timeout_ns - slack_ns
-        assert timeline[zero][0] - sent_ns > timeout_ns - slack_ns
-        assert held[0] - timeline[first][0] <= timeout_ns + slack_ns
+        assert ticked[zero][0] - before[0] > timeout_ns - slack_ns
+        assert ticked[zero][0] - sent_ns > timeout_ns - slack_ns
+        assert held[0] - ticked[first][0] <= timeout_ns + slack_ns
         # The wheels got the same, tick for tick: the new command as often, then zeros.
         wheel = [list(m.data) for _, m in sink.msgs[n1:]]
         new = [i for i, d in enumerate(wheel) if d == pytest.approx(wheels(v2, w2))]
@@ -410,26 +407,25 @@ def test_ticks_params_file_acceleration_limit_and_cmd_vel_out(tmp_path: Path) ->
         # The node's tick clock: cmd_vel_out's stamps. Each step may add at most
         # max_acceleration times its period, capped at two periods (a stall must not
         # allow a leap); and short of the target it adds exactly that (no slower).
-        timeline = [(ns_of(m.header.stamp), m.twist.linear.x, m.twist.angular.z)
-                    for _, m in limited.msgs]
-        start = next(i for i, (_, x, _) in enumerate(timeline) if x > 0.0) - 1
-        full = next(i for i, (_, x, _) in enumerate(timeline) if x >= v - 1e-12)
-        assert start >= 0 and timeline[start][1] == 0.0
+        ramped = timeline(limited.msgs)
+        start = next(i for i, (_, x, _) in enumerate(ramped) if x > 0.0) - 1
+        full = next(i for i, (_, x, _) in enumerate(ramped) if x >= v - 1e-12)
+        assert start >= 0 and ramped[start][1] == 0.0
         accel, cap, slack = 2.0, 2 * 0.02, STAMP_SLACK_NS * 1e-9
         for i in range(start + 1, full + 1):
-            dv = timeline[i][1] - timeline[i - 1][1]
-            dt = (timeline[i][0] - timeline[i - 1][0]) * 1e-9
+            dv = ramped[i][1] - ramped[i - 1][1]
+            dt = (ramped[i][0] - ramped[i - 1][0]) * 1e-9
             assert dv <= accel * min(dt + slack, cap) + 1e-9, (i - start, dv, dt)
             if i < full:
                 assert dv >= accel * min(dt - slack, cap) - 1e-9, (i - start, dv, dt)
         assert max(dv for dv in (b[1] - a[1] for a, b in itertools.pairwise(
-            timeline[start:full + 1]))) <= accel * cap + 1e-9
-        ramp = (timeline[full][0] - timeline[start][0]) * 1e-9
+            ramped[start:full + 1]))) <= accel * cap + 1e-9
+        ramp = (ramped[full][0] - ramped[start][0]) * 1e-9
         print(f"limiter: 0 -> 1 m/s in {ramp * 1e3:.0f} ms of the node's ticks at 2 m/s^2 "
               f"(at least 500 ms; {full - start} ticks)")
         assert ramp >= v / accel - slack  # 0 -> 1 m/s at 2 m/s^2: 0.5 s at the least
         # angular.z has no acceleration limit: at its 3 rad/s cap from the first tick on.
-        assert all(z == pytest.approx(3.0) for _, _, z in timeline[start + 1:full + 1])
+        assert all(z == pytest.approx(3.0) for _, _, z in ramped[start + 1:full + 1])
 
 
 @pytest.mark.dds

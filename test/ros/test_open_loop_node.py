@@ -53,22 +53,19 @@ DELAY = 0.05  # s: the transport's delay on a loaded two-core machine, with marg
 HOLD = 1.0
 
 
-def drive(peer: Peer, pub: object, seconds: float, rate: float = 20.0) -> tuple[float, float]:
-    """Publish (V, W) at ``rate`` for ``seconds``; the first and last send times (monotonic)."""
-    msg = Twist()
-    msg.linear.x, msg.angular.z = V, W
-    first = last = time.monotonic()
-    while last - first < seconds:
-        last = time.monotonic()
-        pub.publish(msg)  # type: ignore[attr-defined]
-        spin_for(peer.executor, 1.0 / rate)
-    return first, last
-
-
 def twist(v: float, w: float) -> Twist:
     msg = Twist()
     msg.linear.x, msg.angular.z = v, w
     return msg
+
+
+def drive(peer: Peer, pub: object, seconds: float, rate: float = 20.0) -> None:
+    """Publish (V, W) at ``rate`` for ``seconds``."""
+    msg = twist(V, W)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pub.publish(msg)  # type: ignore[attr-defined]
+        spin_for(peer.executor, 1.0 / rate)
 
 
 def on_circle(o: Odometry, radius: float) -> float:
@@ -177,8 +174,7 @@ def test_the_shipped_ddc_yaml_with_open_loop_true(tmp_path: Path) -> None:
         js = node.create_publisher(JointState, "/joint_states", 10)
         assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0
                           and bool(odom), 20.0)
-        msg = Twist()
-        msg.linear.x = 0.3
+        msg = twist(0.3, 0.0)
         start = time.monotonic()
         pub.publish(msg)  # one command, then silence: 0.8 s of 0.3 m/s
         while time.monotonic() - start < 2.0:
@@ -214,8 +210,7 @@ def test_from_the_cmd_vel_nodes_limited_output() -> None:
         assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0
                           and bool(odom) and bool(limited), 20.0)
         status = peer.wait_for(lambda s: "/cmd_vel_out" in s.message, 10.0)
-        msg = Twist()
-        msg.linear.x = 0.4
+        msg = twist(0.4, 0.0)
 
         def at_full_speed() -> bool:
             pub.publish(msg)
@@ -280,8 +275,7 @@ def test_the_managed_node_runs_open_loop_while_active() -> None:
         assert manager.change(Transition.TRANSITION_CONFIGURE)
         assert spin_until(ex, lambda: pub.get_subscription_count() > 0, 20.0)
         handshake(node, ex, "/odometry_lifecycle_node")  # it hears us: the command arrives
-        msg = Twist()
-        msg.linear.x = 0.2
+        msg = twist(0.2, 0.0)
         sent_ns = time.time_ns()
         pub.publish(msg)  # inactive: integrated, not published (held: no timeout)
         spin_for(ex, 1.0)
@@ -352,8 +346,7 @@ def test_on_simulated_time_the_pose_is_the_closed_form() -> None:
                           and pub.get_subscription_count() > 0, 20.0)
         handshake(node, ex, "/odometry_node")  # it hears us: the command arrives
         tick(t0)
-        msg = Twist()
-        msg.linear.x, msg.angular.z = V, W
+        msg = twist(V, W)
         pub.publish(msg)  # arrives at t0 on the node's clock (paused there)
         # Held until the node reports it taken (wall-clock diagnostics), then time goes on.
         peer.wait_for(lambda s: s.values.get("commands") == "1", 10.0)

@@ -29,6 +29,7 @@ from rosutil import (
     assert_refused_in_process,
     assert_refuses_to_start,
     node_process,
+    ns_of,
     ros_test_node,
     set_parameter,
     spin_for,
@@ -38,10 +39,6 @@ from rosutil import (
 pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 R, B = 0.05, 0.30  # nominal = true geometry in these tests
-
-
-def ns(stamp: Any) -> int:
-    return int(stamp.sec) * 10**9 + int(stamp.nanosec)
 
 
 def yaw(q: Any) -> float:
@@ -63,7 +60,7 @@ def listen(node: Node, odom_topics: tuple[str, ...] = ()) -> Sink:
     for topic in odom_topics:
         sink.odom[topic] = []
         node.create_subscription(Odometry, topic, sink.odom[topic].append, 200)
-    node.create_subscription(Clock, "/clock", lambda m: sink.clock.append(ns(m.clock)), 200)
+    node.create_subscription(Clock, "/clock", lambda m: sink.clock.append(ns_of(m.clock)), 200)
     return sink
 
 
@@ -76,13 +73,6 @@ def output(proc: subprocess.Popen[str]) -> str:
 def rates(v: float, w: float, left_sign: int = 1, right_sign: int = 1) -> list[float]:
     """Inverse kinematics by hand: joint rates of each side, with the joint signs."""
     return [left_sign * (v - w * B / 2) / R, right_sign * (v + w * B / 2) / R]
-
-
-def drive(node: Node, ex: Any, pub: Any, values: list[float], seconds: float) -> None:
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        pub.publish(Float64MultiArray(data=values))
-        spin_for(ex, 0.02)
 
 
 def drive_until(ex: Any, pub: Any, values: list[float], done: Callable[[], Any],
@@ -99,6 +89,11 @@ def drive_until(ex: Any, pub: Any, values: list[float], done: Callable[[], Any],
             return True
         if time.monotonic() > deadline:
             return False
+
+
+def drive(ex: Any, pub: Any, values: list[float], seconds: float) -> None:
+    """Command ``values`` every 20 ms for ``seconds``."""
+    drive_until(ex, pub, values, lambda: False, seconds)
 
 
 def standing(m: Odometry) -> bool:
@@ -138,18 +133,18 @@ def test_wrapping_counter_and_flipped_joint_are_undone_by_the_odometry_parameter
                            lambda: yaw(sink.truth[-1].pose.pose.orientation) >= 0.7), (
             output(sim))
         stop_sent = node.get_clock().now().nanoseconds  # the sim stamps on the same clock
-        assert drive_until(ex, pub, [0.0, 0.0], lambda: ns(sink.truth[-1].header.stamp)
+        assert drive_until(ex, pub, [0.0, 0.0], lambda: ns_of(sink.truth[-1].header.stamp)
                            > stop_sent and standing(sink.truth[-1])), output(sim)
-        stop_ns = ns(sink.truth[-1].header.stamp)
+        stop_ns = ns_of(sink.truth[-1].header.stamp)
         # Both odometries have read the joint states up to the stop.
         assert spin_until(ex, lambda: all(
-            odom and ns(odom[-1].header.stamp) >= stop_ns for odom in sink.odom.values()),
+            odom and ns_of(odom[-1].header.stamp) >= stop_ns for odom in sink.odom.values()),
             10.0), output(odo) + output(wrong)
-        truth = {ns(m.header.stamp): m for m in sink.truth}
-        common = [m for m in sink.odom["/odom"] if ns(m.header.stamp) in truth]
+        truth = {ns_of(m.header.stamp): m for m in sink.truth}
+        common = [m for m in sink.odom["/odom"] if ns_of(m.header.stamp) in truth]
         assert common, "no odometry stamped like the ground truth"
         last = common[-1]
-        gt = truth[ns(last.header.stamp)]
+        gt = truth[ns_of(last.header.stamp)]
         distance = 0.0
         for a, b in itertools.pairwise(sink.truth):
             pa, pb = a.pose.pose.position, b.pose.pose.position
@@ -203,7 +198,7 @@ def test_clock_stamps_formats_and_timeout() -> None:
         assert simulated < rtf * wall * 1.2
         # joint_states are stamped with the simulated time: on the /clock's grid of
         # exactly 20 ms steps, and in step with it.
-        stamps = [ns(m.header.stamp) for m in sink.joints if ns(m.header.stamp) >= clock0]
+        stamps = [ns_of(m.header.stamp) for m in sink.joints if ns_of(m.header.stamp) >= clock0]
         assert len(stamps) > 50
         assert all((s - clock0) % 20_000_000 == 0 for s in stamps)
         assert {b - a for a, b in itertools.pairwise(stamps)} == {20_000_000}
@@ -242,8 +237,8 @@ def test_counts_per_second_and_bad_commands() -> None:
         assert spin_until(ex, lambda: pub.get_subscription_count() > 0 and sink.truth,
                           20.0), output(sim)
         # Wrong length and NaN: dropped, the robot does not move, the node lives on.
-        drive(node, ex, pub, [100.0, 100.0, 100.0], 0.3)
-        drive(node, ex, pub, [math.nan, 100.0], 0.3)
+        drive(ex, pub, [100.0, 100.0, 100.0], 0.3)
+        drive(ex, pub, [math.nan, 100.0], 0.3)
         assert sink.truth[-1].pose.pose.position.x == 0.0
         assert sim.poll() is None
         # Turning on the spot at 1 rad/s: right wheel +w b/2 / r rad/s, in counts/s.
