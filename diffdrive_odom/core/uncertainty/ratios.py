@@ -80,8 +80,8 @@ def multipliers(g: Geometry, ratios: tuple[float, float],
     u, v = ratios
     s = u + v
     m = 0.5 * (g.left_radius + g.right_radius)
-    rl, rr, b = ratio_geometry(ratios, m)
-    values = (rl / g.wheel_radius, rr / g.wheel_radius, b / g.wheel_separation)
+    rl, rr, sep = ratio_geometry(ratios, m)
+    values = (rl / g.wheel_radius, rr / g.wheel_radius, sep / g.wheel_separation)
     kr, kb = 2.0 * m / g.wheel_radius, 2.0 * m / g.wheel_separation
     s2 = s * s
     jac = ((-kr * v / s2, kr * u / s2), (kr * v / s2, -kr * u / s2), (-kb / s2, -kb / s2))
