@@ -12,12 +12,13 @@ Expected values in closed form from the true geometry: the gyro alone estimates
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import cache
 
 import numpy as np
 import pytest
-from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, R, Truth, stream, truth
-from refstreams import Reference, merge, reference
+from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, Message, R, Truth, stream, truth
+from refstreams import Reference, RefMessage, merge, reference
 
 from diffdrive_odom.core.estimation.online_geometry import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.core.estimation.online_scale import (
@@ -62,18 +63,30 @@ def run(ref: Reference | None, geometry: tuple[float, float, float] = TRUE,
     pipe = ReadingPipeline(odometry_settings(
         {"wheel_radius": R, "wheel_separation": B, "use_imu": True, **EXACT_WHEELS,
          **({} if ref is None else REF), **values}), trace=trace)
+    warnings = feed(pipe, both, as_numpy=as_numpy)
+    est = pipe.stats.online
+    assert est is not None
+    return est, warnings, pipe
+
+
+def feed(pipe: ReadingPipeline, messages: list[Message | RefMessage],
+         each: Callable[[], object] = lambda: None,
+         as_numpy: bool = False) -> list[str]:
+    """The merged streams into ``pipe`` in receive order, as a node takes them; the
+    warnings said. ``each()`` after every wheel reading; ``as_numpy``: the reference's
+    values as numpy scalars (a script's own reader), not the decoders' floats."""
     warnings = []
-    for m in both:
+    for m in messages:
         if m[0] == "i":
             pipe.feed_imu(m[2], 0.0, 0.0, m[3], receive_ns=m[1])
         elif m[0] == "r":
             x, y, yaw = (np.float64(v) for v in m[3:6]) if as_numpy else m[3:6]  # type: ignore[misc]
             assert feed_reference(pipe.online, m[2], x, y, yaw) == ""
-        elif (w := pipe.feed(m[2], NAMES, (m[3], m[4]), receive_ns=m[1]).warning):
-            warnings.append(w)
-    est = pipe.stats.online
-    assert est is not None
-    return est, warnings, pipe
+        else:
+            if (w := pipe.feed(m[2], NAMES, (m[3], m[4]), receive_ns=m[1]).warning):
+                warnings.append(w)
+            each()
+    return warnings
 
 
 def distance2(est: OnlineEstimate, u: float, v: float) -> float:
@@ -254,16 +267,9 @@ def test_a_long_silent_reference_starts_anew_and_keeps_ten_seconds() -> None:
         {"wheel_radius": R, "wheel_separation": B, "use_imu": True, **EXACT_WHEELS, **REF}))
     scale = pipe.online.scale if pipe.online is not None else None
     assert scale is not None
-    most = 0
-    for m in both:
-        if m[0] == "i":
-            pipe.feed_imu(m[2], 0.0, 0.0, m[3], receive_ns=m[1])
-        elif m[0] == "r":
-            assert feed_reference(pipe.online, m[2], m[3], m[4], m[5]) == ""  # type: ignore[misc]
-        else:
-            pipe.feed(m[2], NAMES, (m[3], m[4]), receive_ns=m[1])
-            most = max(most, len(scale._stamps))
-    assert most <= MAX_LAG_S * 50 + 256 + 2  # 50 Hz wheels, pruned every 256 steps
+    kept: list[int] = []
+    feed(pipe, both, lambda: kept.append(len(scale._stamps)))
+    assert max(kept) <= MAX_LAG_S * 50 + 256 + 2  # 50 Hz wheels, pruned every 256 steps
     est = pipe.stats.online
     assert est is not None and est.scale is not None and est.scale.determined
     assert est.scale.excluded["uncovered"] >= 1
@@ -299,16 +305,14 @@ def test_the_covariance_does_not_drop_when_the_applied_scale_becomes_the_referen
     online, est = pipe.online, pipe.estimator
     assert online is not None and est.uncertainty is not None
     states, variance = [], []
-    for m in both:
-        if m[0] == "i":
-            pipe.feed_imu(m[2], 0.0, 0.0, m[3], receive_ns=m[1])
-        elif m[0] == "r":
-            assert feed_reference(online, m[2], m[3], m[4], m[5]) == ""  # type: ignore[misc]
-        else:
-            pipe.feed(m[2], NAMES, (m[3], m[4]), receive_ns=m[1])
-            c = est.uncertainty.pose_covariance(est.pose, est.geometry)
-            states.append((online.in_use is not None, online.in_use_scaled))
-            variance.append(c[0][0] + c[1][1])
+
+    def record() -> None:
+        assert online is not None and est.uncertainty is not None
+        c = est.uncertainty.pose_covariance(est.pose, est.geometry)
+        states.append((online.in_use is not None, online.in_use_scaled))
+        variance.append(c[0][0] + c[1][1])
+
+    feed(pipe, both, record)
     applied = states.index((True, False))  # the gyro's estimate, the configured scale
     scaled = states.index((True, True))  # then the reference's scale
     assert 0 < applied < scaled
