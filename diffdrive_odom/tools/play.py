@@ -110,6 +110,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     from rosgraph_msgs.msg import Clock
 
     from diffdrive_odom.ros import qos as ros_qos
+    from diffdrive_odom.ros.runtime import shutdown_after_stop
     from diffdrive_odom.tools import cdrconvert
 
     conns: list[Connection] = [
@@ -167,7 +168,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
         pass
     finally:
         node.destroy_node()
-        rclpy.try_shutdown()
+        shutdown_after_stop()  # Ctrl-C: rclpy's handler may be shutting down as well
     return 0
 
 
