@@ -43,6 +43,7 @@ from diffdrive_odom.core.estimation.gyrosamples import GyroSamples
 from diffdrive_odom.core.estimation.slips import SlipEvents, SlipStats
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.estimation.standstill import Standstill
+from diffdrive_odom.core.estimation.wheelturn import HOLD_S, RatioModel, StampJitter, turn_variance
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel, joint_variances
 from diffdrive_odom.core.uncertainty.propagation import GyroStep, wheel_jacobian
@@ -138,8 +139,17 @@ class GyroHeading:
     """The sample buffer, the bias estimate and the per-step gyrodometry decision."""
 
     def __init__(self, config: GyroConfig, noise: NoiseModel | None = None,
-                 time_jump_threshold: float = 1.0, max_reading_gap: float = 1.0) -> None:
+                 time_jump_threshold: float = 1.0, max_reading_gap: float = 1.0,
+                 quantization: float = 0.0) -> None:
         self.config = config
+        self.quantization = quantization  # rad^2: a joint's variance per reading (ticks)
+        self.jitter = StampJitter()  # the wheel stamps' timing error, measured turning
+        # The ratios the wheels' turn is judged with (the online estimate's), None: the
+        # configured geometry's with the noise model's sigmas.
+        self.ratio_model: Callable[[], RatioModel | None] | None = None
+        self._moved_ns: int | None = None  # the last wheel stamp that moved
+        self._held_from: int | None = None  # start of the readings held since then
+        self._held_turn = 0.0  # the gyro's turn handed out over them (provisional)
         # The wheels' model the decision weighs them by (the default one when the
         # published covariance is static: the decision must not depend on that choice).
         self.noise = noise or NoiseModel()
@@ -228,6 +238,8 @@ class GyroHeading:
         return ""
 
     def _start_over(self) -> None:
+        self._moved_ns = self._held_from = None
+        self._held_turn = 0.0
         self.samples.clear()
         self._pending.clear()
         self._judged_to = None
@@ -247,39 +259,58 @@ class GyroHeading:
         self._prune(t1)
 
     def _prune(self, t1: int) -> None:
-        self.samples.prune(self._pending[0].t0 if self._pending else t1)
+        keep = self._pending[0].t0 if self._pending else t1
+        self.samples.prune(keep if self._held_from is None else min(keep, self._held_from))
 
     # --- one wheel step ------------------------------------------------------------
 
     def step(self, geometry: Geometry, t0: int, t1: int,
              d_left: float, d_right: float, arcs: tuple[float, float]) -> GyroStep | None:
-        """Heading (and distance) of the step ``t0 -> t1``; None: wheels only (IMU silent)."""
+        """Heading (and distance) of the step ``t0 -> t1``; None: wheels only (IMU silent).
+
+        A reading with no motion within :data:`~.wheelturn.HOLD_S` of the last that moved
+        is one the driver held (the same counters again), not a standstill: its step takes
+        the gyro's turn for now, and the next step is judged over the whole interval since
+        the last reading that moved (what it hands out less what the held steps did).
+        """
         self.wheel_stamp_ns = t1
         self.steps += 1
         cfg = self.config
         dt_ns = t1 - t0
-        standing = dt_ns > 0 and (max(abs(arcs[0]), abs(arcs[1]))
-                                  <= cfg.zero_velocity_speed * dt_ns * 1e-9)
-        if standing:
-            self.standstill.stood(dt_ns)
+        still = dt_ns > 0 and (max(abs(arcs[0]), abs(arcs[1]))
+                               <= cfg.zero_velocity_speed * dt_ns * 1e-9)
+        moved = self._moved_ns
+        held = still and moved is not None and t1 - moved < HOLD_S * 1e9
+        if dt_ns > 0 and not still:
+            self._moved_ns = t1
         self._settle(t1)
         if dt_ns <= 0 or not self.covers(t0, t1):
-            self.silent = True
-            if standing:
-                self.standstill.miss("silent")
-            self._give_up()  # the pending steps first: the observers see steps in time order
-            if self.observer is not None:
-                self.observer(geometry, t0, t1, arcs, None, False, standing)
-            self.skip(t1)
-            return None
+            self._held_from, self._held_turn = None, 0.0
+            return self._silent(geometry, t0, t1, arcs, still and not held, dt_ns)
         self.silent = False
-        still = self.standstill
-        still.grow(t1, cfg.bias_random_walk)
+        gyro = self.standstill
+        gyro.grow(t1, cfg.bias_random_walk)
+        if held:
+            if self._held_from is None:
+                self._held_from = t0
+            turn = self._provisional(geometry, t0, t1, arcs) - gyro.bias * dt_ns * 1e-9
+            self._held_turn += turn
+            self._prune(t1)
+            return GyroStep(ds=0.0, dtheta=turn, b=((0.0, 0.0), (0.0, 0.0)), c=(0.0, 1.0),
+                            var_gyro=cfg.noise_density ** 2 * dt_ns * 1e-9, dt=dt_ns * 1e-9,
+                            geometry=((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), slip=False)
+        standing = still and self._held_from is None
+        handed_out = self._held_turn
+        if self._held_from is not None:  # the interval since the last reading that moved
+            t0, self._held_from, self._held_turn = self._held_from, None, 0.0
+            dt_ns = t1 - t0
+        if standing:
+            gyro.stood(dt_ns)
         raw = self._provisional(geometry, t0, t1, arcs)
         decided = self._judge(geometry, dt_ns * 1e-9, d_left, d_right, arcs, raw,
-                              still.bias, still.variance)
-        interval = _Interval(geometry, t0, t1, d_left, d_right, arcs, still.bias,
-                             still.variance, standing, decided)
+                              gyro.bias, gyro.variance, t0, t1, standing)
+        interval = _Interval(geometry, t0, t1, d_left, d_right, arcs, gyro.bias,
+                             gyro.variance, standing, decided)
         last = self.samples.last
         if not self._pending and last is not None and last >= t1:
             self._judged(interval, decided, raw)  # its samples are all in: final now
@@ -287,11 +318,23 @@ class GyroHeading:
             self._pending.append(interval)
         out = decided.step
         ds, dtheta = self._debt
-        if ds or dtheta:
-            out = replace(out, ds=out.ds + ds, dtheta=out.dtheta + dtheta)
+        if ds or dtheta or handed_out:
+            out = replace(out, ds=out.ds + ds, dtheta=out.dtheta + dtheta - handed_out)
             self._debt = (0.0, 0.0)
         self._prune(t1)
         return out
+
+    def _silent(self, geometry: Geometry, t0: int, t1: int, arcs: tuple[float, float],
+                standing: bool, dt_ns: int) -> None:
+        """No samples cover the step: wheels only, the pending steps given up."""
+        self.silent = True
+        if standing:
+            self.standstill.stood(dt_ns)
+            self.standstill.miss("silent")
+        self._give_up()  # the pending steps first: the observers see steps in time order
+        if self.observer is not None:
+            self.observer(geometry, t0, t1, arcs, None, False, standing)
+        self.skip(t1)
 
     def _provisional(self, geometry: Geometry, t0: int, t1: int,
                      arcs: tuple[float, float]) -> float:
@@ -318,7 +361,8 @@ class GyroHeading:
             if last is not None and last >= p.t1:
                 raw = self.samples.integrate(p.t0, p.t1)
                 final = self._judge(p.geometry, (p.t1 - p.t0) * 1e-9, p.d_left, p.d_right,
-                                    p.arcs, raw, p.bias, p.bias_variance)
+                                    p.arcs, raw, p.bias, p.bias_variance, p.t0, p.t1,
+                                    p.standing)
                 ds, dtheta = self._debt
                 self._debt = (ds + final.step.ds - p.decided.step.ds,
                               dtheta + final.step.dtheta - p.decided.step.dtheta)
@@ -336,9 +380,23 @@ class GyroHeading:
             self._judged(p, p.decided, None)
         self._debt = (0.0, 0.0)
 
+    def _ratios(self, geometry: Geometry) -> RatioModel:
+        """The ratios the wheels' turn is judged with: the online estimate, else configured."""
+        model = None if self.ratio_model is None else self.ratio_model()
+        if model is not None:
+            return model
+        sep = geometry.separation
+        u, v = geometry.right_radius / sep, geometry.left_radius / sep
+        rr, sr = self.noise.radius_stddev_ratio ** 2, self.noise.separation_stddev_ratio ** 2
+        return RatioModel(u, v, u * u * (rr + sr), u * v * sr, v * v * (rr + sr))
+
     def _judged(self, p: _Interval, judged: _Judged, raw: float | None) -> None:
         """A step judged for good: its slip counted, a standstill's bias update."""
         self._slips.step(judged.slip, p.t1, judged.error)
+        if raw is not None and not p.standing and p.arcs != (0.0, 0.0):
+            dt = (p.t1 - p.t0) * 1e-9
+            turn = raw - p.bias * dt
+            self.jitter.offer(-judged.error, turn / dt)
         self._judged_to = p.t1
         if self.observer is not None:
             self.observer(p.geometry, p.t0, p.t1, p.arcs, raw, judged.slip, p.standing)
@@ -353,23 +411,38 @@ class GyroHeading:
 
     def _judge(self, geometry: Geometry, dt: float, d_left: float, d_right: float,
                arcs: tuple[float, float], raw: float, bias: float,
-               bias_variance: float) -> _Judged:
-        """The step's decision on the gyro angle ``raw`` [rad] (no state changes)."""
+               bias_variance: float, t0: int, t1: int, standing: bool) -> _Judged:
+        """The step's decision on the gyro angle ``raw`` [rad] (no state changes).
+
+        The wheels' turn is taken with the current estimate of the ratios
+        (:mod:`~diffdrive_odom.core.estimation.wheelturn`): a geometry a few percent off
+        is the estimate's to explain, not a slip; a slip is what remains beyond it, its
+        uncertainty, the encoders' and the gyro's quantization and the stamps' jitter
+        (which moves nothing while the wheels stand).
+        """
         cfg = self.config
         s_l, s_r = arcs
         sep = geometry.separation
-        ds_w, dth_w = 0.5 * (s_l + s_r), (s_r - s_l) / sep
+        ds_w = 0.5 * (s_l + s_r)
+        phi_r, phi_l = s_r / geometry.right_radius, s_l / geometry.left_radius
+        model = self._ratios(geometry)
+        dth_w = model.turn(phi_r, phi_l)
         var_white = cfg.noise_density ** 2 * dt
         g = raw - bias * dt
-        var_g = var_white + bias_variance * dt * dt
+        # Each sample's rounding (uniform over a resolution step) held over its period,
+        # independent between samples: q^2 / 12 * period * dt.
+        quantum = self.samples.quantum
+        var_g = (var_white + bias_variance * dt * dt
+                 + quantum * quantum / 12.0 * self.samples.period * dt)
         if geometry is not self._geometry:
             self._geometry, self._b = geometry, wheel_jacobian(geometry)
         b = self._b
-        noise = self.noise
-        var_l, var_r = joint_variances(noise, geometry, d_left, d_right)
-        rr, sr = noise.radius_stddev_ratio ** 2, noise.separation_stddev_ratio ** 2
-        var_w = (b[1][0] ** 2 * var_l + b[1][1] ** 2 * var_r
-                 + rr * (s_l * s_l + s_r * s_r) / (sep * sep) + sr * dth_w * dth_w)
+        var_l, var_r = joint_variances(self.noise, geometry, d_left, d_right)
+        u, v = model.u, model.v
+        rates = ((0.0, 0.0) if standing
+                 else (self.samples.rate(t0) - bias, self.samples.rate(t1) - bias))
+        var_w = u * u * var_r + v * v * var_l + turn_variance(
+            model, phi_r, phi_l, self.quantization, self.jitter.sigma, rates)
         diff = g - dth_w
         slip = diff * diff > cfg.slip_sigmas ** 2 * (var_w + var_g)
         geo_ds = (0.5 * s_l, 0.5 * s_r, 0.0)
@@ -379,19 +452,19 @@ class GyroHeading:
             w_w = 1.0 - w_g
             return _Judged(False, -diff, GyroStep(
                 ds=ds_w, dtheta=w_w * dth_w + w_g * g,
-                b=(b[0], (w_w * b[1][0], w_w * b[1][1])), c=(0.0, w_g), var_gyro=var_white,
+                b=(b[0], (-w_w * v, w_w * u)), c=(0.0, w_g), var_gyro=var_white,
                 dt=dt, geometry=(geo_ds, tuple(w_w * v for v in geo_th)), slip=False))
         if not cfg.slip_distance_from_other_wheel:
             step = GyroStep(ds=ds_w, dtheta=g, b=(b[0], (0.0, 0.0)), c=(0.0, 1.0),
                             var_gyro=var_white, dt=dt, geometry=(geo_ds, (0.0, 0.0, 0.0)),
                             slip=True)
         elif abs(s_l) <= abs(s_r):  # the right wheel spun: the left one and the gyro
-            half = 0.5 * sep
+            half = 0.5 * geometry.left_radius / v  # half the track the ratios give
             step = GyroStep(ds=s_l + half * g, dtheta=g, b=((2.0 * b[0][0], 0.0), (0.0, 0.0)),
                             c=(half, 1.0), var_gyro=var_white, dt=dt,
                             geometry=((s_l, 0.0, half * g), (0.0, 0.0, 0.0)), slip=True)
         else:
-            half = 0.5 * sep
+            half = 0.5 * geometry.right_radius / u
             step = GyroStep(ds=s_r - half * g, dtheta=g, b=((0.0, 2.0 * b[0][1]), (0.0, 0.0)),
                             c=(-half, 1.0), var_gyro=var_white, dt=dt,
                             geometry=((0.0, s_r, -half * g), (0.0, 0.0, 0.0)), slip=True)

@@ -14,6 +14,8 @@ from itertools import pairwise
 
 # Samples kept at most (wheels silent while the IMU goes on): 10 s at 1 kHz.
 MAX_SAMPLES = 10_000
+# Times the smallest step between two rates must recur to be taken as the resolution.
+QUANTUM_SEEN = 20
 
 
 class GyroSamples:
@@ -22,6 +24,10 @@ class GyroSamples:
     def __init__(self) -> None:
         self.ts: list[int] = []
         self.ws: list[float] = []
+        # rad/s: the smallest step between two different consecutive rates (a raw gyro's
+        # resolution: its values come in whole steps), and how often it was seen.
+        self._smallest = 0.0
+        self._seen = 0
 
     @property
     def last(self) -> int | None:
@@ -36,6 +42,8 @@ class GyroSamples:
     def insert(self, stamp_ns: int, w: float) -> bool:
         """Keep one sample; False for a duplicate stamp."""
         ts = self.ts
+        if self.ws and w != self.ws[-1]:
+            self._resolution(abs(w - self.ws[-1]))
         if not ts or stamp_ns > ts[-1]:
             ts.append(stamp_ns)
             self.ws.append(w)
@@ -48,6 +56,26 @@ class GyroSamples:
         if len(ts) > MAX_SAMPLES:
             del ts[0], self.ws[0]
         return True
+
+    def _resolution(self, step: float) -> None:
+        if not self._smallest or step < 0.99 * self._smallest:
+            self._smallest, self._seen = step, 1
+        elif step <= 1.01 * self._smallest:
+            self._seen += 1
+
+    @property
+    def quantum(self) -> float:
+        """The gyro's resolution [rad/s]: its smallest step once seen QUANTUM_SEEN times, else 0.
+
+        A gyro whose values are continuous keeps finding smaller steps and has none.
+        """
+        return self._smallest if self._seen >= QUANTUM_SEEN else 0.0
+
+    @property
+    def period(self) -> float:
+        """The samples' mean interval [s] over the buffer (0: fewer than two)."""
+        ts = self.ts
+        return (ts[-1] - ts[0]) * 1e-9 / (len(ts) - 1) if len(ts) > 1 else 0.0
 
     def prune(self, keep_from: int) -> None:
         """Drop samples no later interval needs (keep the last one at or before ``keep_from``)."""

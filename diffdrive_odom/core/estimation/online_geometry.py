@@ -55,6 +55,7 @@ from types import MappingProxyType
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.kalman import kalman_update, quadratic
 from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig, ScaleEstimate
+from diffdrive_odom.core.estimation.wheelturn import RatioModel
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
@@ -191,8 +192,10 @@ class OnlineGeometry:
                  bias: float, bias_stddev: float, bias_random_walk: float,
                  noise: NoiseModel, quantization: float = 0.0,
                  measured_density: Callable[[], float] = lambda: 0.0,
-                 trace: bool = False) -> None:
+                 trace: bool = False, jitter: Callable[[], float] = lambda: 0.0) -> None:
         self.config = config
+        # The wheel stamps' timing error [s] (the gyro's measure of it): a window's ends.
+        self.jitter = jitter
         # The gyro's noise seen standing still (0: not yet): the larger one is used, so a
         # gyro noisier than declared does not make the estimate overconfident.
         self.measured_density = measured_density
@@ -300,7 +303,8 @@ class OnlineGeometry:
         w0, w1, n = self._w0, self._w1, self._n
         phi_r, phi_l, angle, var_r, var_l = self._sum
         dist = self._dist
-        change = self._rates[1] - self._rates[0]
+        r0, r1 = self._rates
+        change = r1 - r0
         self._open()
         if w0 is None or w1 is None or w1 <= w0:
             return
@@ -319,7 +323,8 @@ class OnlineGeometry:
         turn = x[0] * phi_r - x[1] * phi_l
         density = max(self.noise_density, self.measured_density())
         r = (density ** 2 * dt + 2.0 * q * (u2 + v2) + u2 * var_r + v2 * var_l
-             + self.noise.k_rotation * abs(turn) + (change * TIMING_STDDEV) ** 2)
+             + self.noise.k_rotation * abs(turn) + (change * TIMING_STDDEV) ** 2
+             + self.jitter() ** 2 * (r0 * r0 + r1 * r1))
         innovation = angle - (turn + x[2] * dt)
         if innovation * innovation > GATE_SIGMAS ** 2 * (quadratic(p, h) + r):
             self.excluded["outlier"] += n
@@ -398,6 +403,11 @@ class OnlineGeometry:
                 f"3-sigma region (Mahalanobis d^2 {est.mahalanobis2:.1f} > "
                 f"{CHI2_2DOF_3SIGMA:.2f}): the robot changed, recalibrate; estimate: "
                 + est.line())
+
+    def ratio_model(self) -> RatioModel:
+        """The ratios as the gyro sees them now (its scale factor in them), for its slip test."""
+        p = self.p
+        return RatioModel(self.x[0], self.x[1], p[0][0], p[0][1], p[1][1])
 
     def take_warning(self) -> str:
         """The warning due (once, then throttled), '' if none; taking it clears it."""

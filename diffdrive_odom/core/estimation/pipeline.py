@@ -202,8 +202,10 @@ class ReadingPipeline:
             self._gyro = None
         elif self._gyro is None:
             est = settings.estimator
+            enc = settings.encoders
             self._gyro = GyroHeading(cfg, settings.noise, est.time_jump_threshold,
-                                     est.max_reading_gap)
+                                     est.max_reading_gap, quantization_variance(
+                                         enc.ticks_per_revolution, len(enc.left_wheel_names)))
             self._imu = ImuInput(self._gyro)
         else:
             self._gyro.set_config(cfg)
@@ -224,12 +226,14 @@ class ReadingPipeline:
                 settings.online, settings.geometry, cfg.noise_density, gyro.bias,
                 math.sqrt(gyro.bias_variance), cfg.bias_random_walk, gyro.noise,
                 quantization_variance(enc.ticks_per_revolution, len(enc.left_wheel_names)),
-                gyro.standstill.measured_density, trace=self._trace)
+                gyro.standstill.measured_density, trace=self._trace,
+                jitter=lambda: gyro.jitter.sigma)
         else:
             self._online.set_config(settings.online)
             self._online.set_geometry(settings.geometry)
         if gyro is not None:
             gyro.observer = None if self._online is None else self._online.observe
+            gyro.ratio_model = None if self._online is None else self._online.ratio_model
 
     @property
     def online(self) -> OnlineGeometry | None:

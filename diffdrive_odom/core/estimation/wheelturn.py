@@ -1,0 +1,113 @@
+"""How far the wheels' turn over an interval may be from the gyro's when nothing slipped.
+
+Why apart from the decision (:mod:`~diffdrive_odom.core.estimation.gyro`): the slip test,
+the fusion's weights and the online filter's windows
+(:mod:`~diffdrive_odom.core.estimation.online_geometry`) need the same account of what a
+real robot's wheels get wrong without slipping, and it is measured while driving. Beyond
+the wheels' travel noise (:mod:`~diffdrive_odom.core.uncertainty.noise`), three terms:
+
+- **geometry**: the wheels' turn is ``u dphi_R - v dphi_L`` with the ratios ``u = r_R/b``,
+  ``v = r_L/b``. A few percent off until calibrated, that error is proportional to the
+  turn, in every turn: the current estimate of the ratios (online calibration) and its
+  covariance take it, so it is never read as slip (else the configured geometry with the
+  noise model's relative sigmas).
+- **quantization**: each reading's joint angle is a whole number of ticks; the turn
+  between two readings is off by ``2 q (u^2 + v^2)``, ``q`` a joint's variance per reading.
+- **timing**: a driver stamps a reading when it publishes it, not when its counters were
+  read. A Kobuki's driver republishes the last counters at 40 Hz while they change every
+  50-70 ms; the counters it sends are up to a period old. So the wheels' turn over an
+  interval is the turn of a slightly shifted one: off by the turn rate times the
+  difference of the two ends' stamp errors. Their sigma is measured from the data
+  (:class:`StampJitter`): the robust spread of (wheels' turn - gyro's turn) / turn rate
+  over intervals turning faster than :data:`MIN_RATE`, which a constant geometry error
+  (a constant offset of that ratio's centre) does not widen.
+
+Readings a driver holds (positions equal to the last while the wheels move) are no
+measurement at all: the decision merges them into the next interval
+(:data:`HOLD_S`). Pure Python.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from statistics import median
+
+__all__ = ["HOLD_S", "MIN_RATE", "RatioModel", "StampJitter", "turn_variance"]
+
+# s: readings with no motion this soon after the wheels last moved are held by the driver
+# (no new counters), not a standstill: merged into the next interval that moves.
+HOLD_S = 0.25
+# rad/s: intervals turning faster than this measure the stamps' jitter.
+MIN_RATE = 0.1
+# s: the stamps' jitter assumed (1 sigma per stamp) until :data:`JITTER_AFTER` intervals
+# measured it: a few ms is what a driver on USB or a serial bus gives.
+DEFAULT_JITTER_S = 0.005
+JITTER_WINDOW, JITTER_AFTER = 400, 25
+
+
+@dataclass(frozen=True, slots=True)
+class RatioModel:
+    """The ratios ``(u, v) = (r_R/b, r_L/b)`` the wheels' turn is taken with.
+
+    With their covariance ``(cuu, cuv, cvv)``: the online estimate's, or the configured
+    geometry's.
+    """
+
+    u: float
+    v: float
+    cuu: float
+    cuv: float
+    cvv: float
+
+    def turn(self, phi_r: float, phi_l: float) -> float:
+        """The wheels' turn [rad] for joint increments ``phi_r``, ``phi_l`` [rad]."""
+        return self.u * phi_r - self.v * phi_l
+
+    def variance(self, phi_r: float, phi_l: float) -> float:
+        """Its variance from the ratios' uncertainty: ``h C h'``, ``h = (phi_r, -phi_l)``."""
+        return (self.cuu * phi_r * phi_r - 2.0 * self.cuv * phi_r * phi_l
+                + self.cvv * phi_l * phi_l)
+
+
+class StampJitter:
+    """The wheel stamps' timing error [s, 1 sigma per stamp], measured while turning."""
+
+    def __init__(self) -> None:
+        self._shifts: deque[float] = deque(maxlen=JITTER_WINDOW)
+        self._sigma: float | None = None
+
+    def offer(self, disagreement: float, rate: float) -> None:
+        """One interval: wheels' turn minus the gyro's [rad], the gyro's turn rate [rad/s]."""
+        if abs(rate) >= MIN_RATE and math.isfinite(disagreement):
+            self._shifts.append(disagreement / rate)
+            self._sigma = None
+
+    @property
+    def measured(self) -> bool:
+        """Enough turning intervals to have measured it."""
+        return len(self._shifts) >= JITTER_AFTER
+
+    @property
+    def sigma(self) -> float:
+        """1-sigma of one stamp's error: MAD of the shifts over sqrt(2) (two ends each)."""
+        if not self.measured:
+            return DEFAULT_JITTER_S
+        if self._sigma is None:
+            shifts = list(self._shifts)
+            mid = median(shifts)
+            self._sigma = 1.4826 * median(abs(s - mid) for s in shifts) / math.sqrt(2.0)
+        return self._sigma
+
+
+def turn_variance(ratios: RatioModel, phi_r: float, phi_l: float, quantization: float,
+                  jitter: float, rates: tuple[float, float]) -> float:
+    """Variance [rad^2] of an interval's wheel turn beyond travel noise (see the module).
+
+    ``quantization``: a joint's variance per reading [rad^2]; ``jitter``: a stamp's 1-sigma
+    [s]; ``rates``: the turn rate at its start and at its end [rad/s].
+    """
+    q = 2.0 * quantization * (ratios.u * ratios.u + ratios.v * ratios.v)
+    timing = jitter * jitter * (rates[0] * rates[0] + rates[1] * rates[1])
+    return ratios.variance(phi_r, phi_l) + q + timing
