@@ -1,34 +1,31 @@
 """Gyrodometry: wheels for distance, a gyro for turning, slip named when it happens.
 
 After Borenstein and Feng, "Gyrodometry: A New Method for Combining Data from Gyros
-and Odometry in Mobile Robots" (ICRA 1996): per wheel step, compare the heading
-change the wheels report with the one the gyro reports. While they agree the wheels
-are fine (here the two are fused, each weighted by the inverse of its variance);
-where they disagree by more than ``slip_sigmas`` times their combined standard
-deviation a wheel slipped, so the gyro's heading is used and a slip event counted.
-Beyond the paper: when a wheel slipped, the distance comes from the other wheel and
-the gyro (a spinning wheel reads more than it rolled, so the wheel with the shorter
-arc is trusted), and the gyro's bias is estimated online whenever the wheels stand
-still (a zero-velocity update: a scalar Kalman filter on the bias, whose variance
-grows by the bias random walk between updates).
+and Odometry in Mobile Robots" (ICRA 1996): per wheel step, compare the heading change
+the wheels report with the gyro's. While they agree the two are fused, each weighted by
+the inverse of its variance; where they disagree beyond ``slip_sigmas`` combined sigmas
+a wheel slipped: the gyro's heading is used and a slip counted
+(:mod:`~diffdrive_odom.core.estimation.slips`; the distance:
+:mod:`~diffdrive_odom.core.estimation.slipstep`). The wheels' turn and its variance are
+a real robot's (:mod:`~diffdrive_odom.core.estimation.wheelturn`): with the online
+estimate of the ratios, so a geometry a few percent off is never a slip, the encoders'
+and the gyro's quantization, and the stamps' timing error measured while turning.
+Readings a driver holds (no motion within ``HOLD_S`` of the last that moved) take the
+gyro's turn for now and the next step is judged over the interval since the last
+reading that moved. The bias is estimated whenever the wheels stand still for longer
+(:mod:`~diffdrive_odom.core.estimation.standstill`).
 
-Time: the yaw rate is integrated over exactly each wheel step's interval by header
-stamps, linear between samples, the rate held at the ends
-(:mod:`~diffdrive_odom.core.estimation.gyrosamples`). An IMU on its own clock gives
-no order: the samples covering a step may come before the wheel reading, with it or
-an IMU period or a latency later. So each step is decided at once on what has come
-(the part past the newest sample filled with the wheels' turn), kept pending,
-and judged again when the samples covering it have come: the slip event
-(:mod:`~diffdrive_odom.core.estimation.slips`) and the zero-velocity update
-(:mod:`~diffdrive_odom.core.estimation.standstill`) are decided then only, and what
-the final judgement changes in the step's heading and distance is added to the next
-step, so the provisional part leaves no error in the pose. A step the samples never cover
-is given up ``imu_timeout`` after its end. A hole in the samples longer than
-``imu_timeout`` makes the step wheels-only (IMU silent): each step takes its
-heading change from one source or the other, so switching never makes the pose jump.
-
-Pure Python: the pipeline feeds samples (:meth:`GyroHeading.add`) and the estimator
-asks for each step's heading (:meth:`GyroHeading.step`).
+Time: the yaw rate is integrated over exactly each step's interval by header stamps
+(:mod:`~diffdrive_odom.core.estimation.gyrosamples`). An IMU on its own clock gives no
+order, so each step is decided at once on the samples that came (the part past the
+newest filled with the wheels' turn), kept pending, and judged again when the samples
+covering it have come; what the final judgement changes is added to the next step, so
+the provisional part leaves no error in the pose. A step the samples never cover is
+given up ``imu_timeout`` after its end; a hole longer than ``imu_timeout`` makes the step
+wheels-only (IMU silent): each step takes its heading from one source or the other, so
+switching never makes the pose jump. Pure Python: the pipeline feeds samples
+(:meth:`GyroHeading.add`) and the estimator asks for each step's heading
+(:meth:`GyroHeading.step`).
 """
 
 from __future__ import annotations
@@ -41,6 +38,7 @@ from dataclasses import dataclass, replace
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.gyrosamples import GyroSamples
 from diffdrive_odom.core.estimation.slips import SlipEvents, SlipStats
+from diffdrive_odom.core.estimation.slipstep import slip_step
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.estimation.standstill import Standstill
 from diffdrive_odom.core.estimation.wheelturn import HOLD_S, RatioModel, StampJitter, turn_variance
@@ -268,10 +266,8 @@ class GyroHeading:
              d_left: float, d_right: float, arcs: tuple[float, float]) -> GyroStep | None:
         """Heading (and distance) of the step ``t0 -> t1``; None: wheels only (IMU silent).
 
-        A reading with no motion within :data:`~.wheelturn.HOLD_S` of the last that moved
-        is one the driver held (the same counters again), not a standstill: its step takes
-        the gyro's turn for now, and the next step is judged over the whole interval since
-        the last reading that moved (what it hands out less what the held steps did).
+        A held reading (see the module) takes the gyro's turn; the next step is judged
+        since the last that moved, less what the held steps handed out.
         """
         self.wheel_stamp_ns = t1
         self.steps += 1
@@ -286,7 +282,8 @@ class GyroHeading:
         self._settle(t1)
         if dt_ns <= 0 or not self.covers(t0, t1):
             self._held_from, self._held_turn = None, 0.0
-            return self._silent(geometry, t0, t1, arcs, still and not held, dt_ns)
+            self._silent(geometry, t0, t1, arcs, still and not held, dt_ns)
+            return None
         self.silent = False
         gyro = self.standstill
         gyro.grow(t1, cfg.bias_random_walk)
@@ -393,7 +390,7 @@ class GyroHeading:
     def _judged(self, p: _Interval, judged: _Judged, raw: float | None) -> None:
         """A step judged for good: its slip counted, a standstill's bias update."""
         self._slips.step(judged.slip, p.t1, judged.error)
-        if raw is not None and not p.standing and p.arcs != (0.0, 0.0):
+        if raw is not None and not p.standing and not judged.slip and p.arcs != (0.0, 0.0):
             dt = (p.t1 - p.t0) * 1e-9
             turn = raw - p.bias * dt
             self.jitter.offer(-judged.error, turn / dt)
@@ -422,50 +419,31 @@ class GyroHeading:
         """
         cfg = self.config
         s_l, s_r = arcs
-        sep = geometry.separation
-        ds_w = 0.5 * (s_l + s_r)
         phi_r, phi_l = s_r / geometry.right_radius, s_l / geometry.left_radius
         model = self._ratios(geometry)
         dth_w = model.turn(phi_r, phi_l)
         var_white = cfg.noise_density ** 2 * dt
         g = raw - bias * dt
-        # Each sample's rounding (uniform over a resolution step) held over its period,
-        # independent between samples: q^2 / 12 * period * dt.
-        quantum = self.samples.quantum
-        var_g = (var_white + bias_variance * dt * dt
-                 + quantum * quantum / 12.0 * self.samples.period * dt)
+        var_g = var_white + bias_variance * dt * dt + self.samples.rounding_variance(dt)
         if geometry is not self._geometry:
             self._geometry, self._b = geometry, wheel_jacobian(geometry)
-        b = self._b
+        b, (u, v) = self._b, (model.u, model.v)
         var_l, var_r = joint_variances(self.noise, geometry, d_left, d_right)
-        u, v = model.u, model.v
         rates = ((0.0, 0.0) if standing
                  else (self.samples.rate(t0) - bias, self.samples.rate(t1) - bias))
-        var_w = u * u * var_r + v * v * var_l + turn_variance(
-            model, phi_r, phi_l, self.quantization, self.jitter.sigma, rates)
+        var_w = turn_variance(model, phi_r, phi_l, (var_r, var_l), self.quantization,
+                              self.jitter.sigma, rates)
         diff = g - dth_w
         slip = diff * diff > cfg.slip_sigmas ** 2 * (var_w + var_g)
         geo_ds = (0.5 * s_l, 0.5 * s_r, 0.0)
-        geo_th = (-s_l / sep, s_r / sep, -dth_w)
+        geo_th = (-s_l / geometry.separation, s_r / geometry.separation, -dth_w)
         if not slip:
             w_g = var_w / (var_w + var_g) if var_w + var_g > 0.0 else 0.0
             w_w = 1.0 - w_g
             return _Judged(False, -diff, GyroStep(
-                ds=ds_w, dtheta=w_w * dth_w + w_g * g,
+                ds=0.5 * (s_l + s_r), dtheta=w_w * dth_w + w_g * g,
                 b=(b[0], (-w_w * v, w_w * u)), c=(0.0, w_g), var_gyro=var_white,
-                dt=dt, geometry=(geo_ds, tuple(w_w * v for v in geo_th)), slip=False))
-        if not cfg.slip_distance_from_other_wheel:
-            step = GyroStep(ds=ds_w, dtheta=g, b=(b[0], (0.0, 0.0)), c=(0.0, 1.0),
-                            var_gyro=var_white, dt=dt, geometry=(geo_ds, (0.0, 0.0, 0.0)),
-                            slip=True)
-        elif abs(s_l) <= abs(s_r):  # the right wheel spun: the left one and the gyro
-            half = 0.5 * geometry.left_radius / v  # half the track the ratios give
-            step = GyroStep(ds=s_l + half * g, dtheta=g, b=((2.0 * b[0][0], 0.0), (0.0, 0.0)),
-                            c=(half, 1.0), var_gyro=var_white, dt=dt,
-                            geometry=((s_l, 0.0, half * g), (0.0, 0.0, 0.0)), slip=True)
-        else:
-            half = 0.5 * geometry.right_radius / u
-            step = GyroStep(ds=s_r - half * g, dtheta=g, b=((0.0, 2.0 * b[0][1]), (0.0, 0.0)),
-                            c=(-half, 1.0), var_gyro=var_white, dt=dt,
-                            geometry=((0.0, s_r, -half * g), (0.0, 0.0, 0.0)), slip=True)
+                dt=dt, geometry=(geo_ds, tuple(w_w * e for e in geo_th)), slip=False))
+        step = slip_step(geometry, (u, v), arcs, g, dt, b, var_white,
+                         cfg.slip_sigmas * self.jitter.sigma, cfg.slip_distance_from_other_wheel)
         return _Judged(True, -diff, step)

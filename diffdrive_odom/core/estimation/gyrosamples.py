@@ -71,11 +71,15 @@ class GyroSamples:
         """
         return self._smallest if self._seen >= QUANTUM_SEEN else 0.0
 
-    @property
-    def period(self) -> float:
-        """The samples' mean interval [s] over the buffer (0: fewer than two)."""
-        ts = self.ts
-        return (ts[-1] - ts[0]) * 1e-9 / (len(ts) - 1) if len(ts) > 1 else 0.0
+    def rounding_variance(self, dt: float) -> float:
+        """Variance [rad^2] the resolution adds to an angle integrated over ``dt`` s.
+
+        Each sample's rounding (uniform over a step of :attr:`quantum`) is held over its
+        period, independent between samples: ``q^2 / 12 * period * dt``.
+        """
+        ts, q = self.ts, self.quantum
+        period = (ts[-1] - ts[0]) * 1e-9 / (len(ts) - 1) if len(ts) > 1 else 0.0
+        return q * q / 12.0 * period * dt
 
     def prune(self, keep_from: int) -> None:
         """Drop samples no later interval needs (keep the last one at or before ``keep_from``)."""

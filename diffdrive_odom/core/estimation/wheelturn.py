@@ -101,13 +101,16 @@ class StampJitter:
         return self._sigma
 
 
-def turn_variance(ratios: RatioModel, phi_r: float, phi_l: float, quantization: float,
-                  jitter: float, rates: tuple[float, float]) -> float:
-    """Variance [rad^2] of an interval's wheel turn beyond travel noise (see the module).
+def turn_variance(ratios: RatioModel, phi_r: float, phi_l: float,
+                  travel: tuple[float, float], quantization: float, jitter: float,
+                  rates: tuple[float, float]) -> float:
+    """Variance [rad^2] of an interval's wheel turn (see the module).
 
-    ``quantization``: a joint's variance per reading [rad^2]; ``jitter``: a stamp's 1-sigma
-    [s]; ``rates``: the turn rate at its start and at its end [rad/s].
+    ``travel``: the right and left joint increments' travel-noise variances [rad^2];
+    ``quantization``: a joint's variance per reading [rad^2]; ``jitter``: a stamp's
+    1-sigma [s]; ``rates``: the turn rate at its start and at its end [rad/s].
     """
-    q = 2.0 * quantization * (ratios.u * ratios.u + ratios.v * ratios.v)
+    u2, v2 = ratios.u * ratios.u, ratios.v * ratios.v
+    q = 2.0 * quantization * (u2 + v2) + u2 * travel[0] + v2 * travel[1]
     timing = jitter * jitter * (rates[0] * rates[0] + rates[1] * rates[1])
     return ratios.variance(phi_r, phi_l) + q + timing

@@ -1,0 +1,128 @@
+"""The real TurtleBot2 recordings of ``../shared/data/phil_train``, read in place (GPL-3.0).
+
+For the tests and ``bench/bench_real_gyro.py``: each run in receive order through the
+node's ``ReadingPipeline``, and the anchor every gyro-aided result is judged against, a
+ten-line gyrodometry written here without the package (heading = the gyro's trapezoid
+integral less its mean rate over the first 2 s standing, distance = the wheels' mean arc
+per reading, poses by the midpoint heading). Nominal geometry from the recordings' own
+processing script: radius 0.035 m, track 0.23 m, 2578.33 ticks per revolution.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.evaluation.metrics import Trajectory
+from diffdrive_odom.settings.odometry import odometry_settings
+from diffdrive_odom.tools.bagio import open_bag
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "phil_train"
+MISSING = f"{DATA} is not here (a user's clone): phil_train is read from ../shared/data"
+RUNS = (0, 2, 4, 5, 6, 7, 9)
+RADIUS, TRACK, TICKS = 0.035, 0.23, 2578.33
+NOMINAL: dict[str, Any] = {"wheel_radius": RADIUS, "wheel_separation": TRACK,
+           "left_wheel_names": ["wheel_left_joint"], "right_wheel_names": ["wheel_right_joint"],
+           "ticks_per_revolution": TICKS, "encoder_counter_bits": 16}
+
+
+@dataclass
+class Run:
+    """One recording in receive order: (kind, log ns, message)."""
+
+    messages: list[tuple[str, int, Any]]
+    truth: Trajectory | None
+
+
+def stamp(msg: Any) -> int:
+    """A header's stamp [ns]."""
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def load(path: Path) -> Run:
+    """One run: its sensor messages in receive order, the Vicon as a trajectory."""
+    messages: list[tuple[str, int, Any]] = []
+    gt: list[tuple[int, float, float, float]] = []
+    with open_bag(path) as reader:
+        for conn, log_ns, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == "/ground_truth/pose":
+                q = msg.pose.orientation
+                yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+                gt.append((stamp(msg), msg.pose.position.x, msg.pose.position.y, yaw))
+            else:
+                messages.append((conn.topic, log_ns, msg))
+    truth = Trajectory.from_arrays(*zip(*gt, strict=True)) if gt else None
+    return Run(messages, truth)
+
+
+def package(run: Run, params: dict[str, Any]) -> tuple[Trajectory, ReadingPipeline]:
+    """The node's estimator over the run (nominal geometry + ``params``): poses, pipeline."""
+    pipe = ReadingPipeline(odometry_settings({**NOMINAL, **params}))
+    ts: list[int] = []
+    poses: list[tuple[float, float, float]] = []
+    for topic, log_ns, msg in run.messages:
+        if topic == "/imu":
+            w = msg.angular_velocity
+            pipe.feed_imu(stamp(msg), w.x, w.y, w.z, receive_ns=log_ns)
+        elif topic == "/joint_states":
+            pipe.feed(stamp(msg), list(msg.name), list(msg.position), receive_ns=log_ns)
+            p = pipe.estimator.pose
+            ts.append(stamp(msg))
+            poses.append((p.x, p.y, p.theta))
+    x, y, th = zip(*poses, strict=True)
+    return Trajectory.from_arrays(ts, x, y, th), pipe
+
+
+def anchor(run: Run) -> Trajectory:
+    """The ten-line gyrodometry: the gyro's heading (less its first 2 s), the wheels' distance."""
+    js = [(stamp(m), *m.position) for t, _, m in run.messages if t == "/joint_states"]
+    imu = [(stamp(m), m.angular_velocity.z) for t, _, m in run.messages if t == "/imu"]
+    tj, left, right = (np.array(c, dtype=float) for c in zip(*js, strict=True))
+    ti, w = (np.array(c, dtype=float) for c in zip(*sorted(imu), strict=True))
+    arc = [RADIUS * 2 * math.pi / TICKS
+           * ((np.diff(c) + 32768) % 65536 - 32768) for c in (left, right)]
+    bias = w[ti < ti[0] + 2e9].mean()
+    heading = np.concatenate(([0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(ti) * 1e-9)))
+    th = np.interp(tj, ti, heading - bias * (ti - ti[0]) * 1e-9)
+    mid, ds = 0.5 * (th[1:] + th[:-1]), 0.5 * (arc[0] + arc[1])
+    x = np.concatenate(([0.0], np.cumsum(ds * np.cos(mid))))
+    y = np.concatenate(([0.0], np.cumsum(ds * np.sin(mid))))
+    return Trajectory.from_arrays(tj.astype(np.int64), x, y, th)
+
+
+def turned(traj: Trajectory) -> float:
+    """Radians turned either way."""
+    return float(np.sum(np.abs(np.diff(traj.yaw))))
+
+
+def vicon_ratios(runs: list[Run], window_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """The ratios ``(u, v) = (r_R/b, r_L/b)`` fitted to the Vicon's heading, and their covariance.
+
+    Least squares over windows of ``window_s``: the Vicon's heading change against the
+    wheels' joint increments ``(dphi_R, -dphi_L)``, windows pooled over ``runs``; the
+    covariance from the residuals' spread (each window's error independent).
+    """
+    rows, ys = [], []
+    tick = 2 * math.pi / TICKS
+    for run in runs:
+        assert run.truth is not None
+        js = [(stamp(m), *m.position) for t, _, m in run.messages if t == "/joint_states"]
+        tj, left, right = (np.array(c, dtype=float) for c in zip(*js, strict=True))
+        phi = [np.concatenate(([0.0], np.cumsum(tick * ((np.diff(c) + 32768) % 65536 - 32768))))
+               for c in (left, right)]
+        edges = np.arange(tj[0], tj[-1], window_s * 1e9)
+        pl, pr = (np.interp(edges, tj, p) for p in phi)
+        yaw = np.interp(edges, run.truth.stamp_ns.astype(float), run.truth.yaw)
+        rows += list(zip(np.diff(pr), -np.diff(pl), strict=True))
+        ys += list(np.diff(yaw))
+    a, y = np.array(rows), np.array(ys)
+    x, *_ = np.linalg.lstsq(a, y, rcond=None)
+    resid = y - a @ x
+    cov = np.linalg.inv(a.T @ a) * float(resid @ resid) / (len(y) - 2)
+    return x, cov
