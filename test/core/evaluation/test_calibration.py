@@ -20,7 +20,13 @@ import pytest
 import yaml
 
 from diffdrive_odom.core.bulk import batch
-from diffdrive_odom.core.evaluation import calibration, crossval, determinacy, umbmark
+from diffdrive_odom.core.evaluation import (
+    calibration,
+    crossval,
+    determinacy,
+    objective,
+    umbmark,
+)
 from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.core.evaluation.recorded_run import Run, start_stamp, values_of
 from diffdrive_odom.core.geometry.kinematics import Geometry, wheel_rates
@@ -256,6 +262,10 @@ def test_held_out_verdict_on_lines_and_spins_cannot_tell() -> None:
     assert all("x more with the geometry" in why for _, why in v.left_out[:2]), v.left_out
     before = crossval.judge(runs, results, NOMINAL, max_leverage=math.inf)
     assert before is not None and before.check is not None and before.check.runs == 2
+    # nor can any fold choose an objective: the whole trajectory stays, nothing refitted
+    choice = objective.choose(runs, NOMINAL)
+    assert choice.objective == objective.TRAJECTORY and not choice.scores, choice
+    assert choice.why.startswith("none of the 3 folds can judge"), choice.why
 
 
 def test_held_out_verdict_names_a_one_direction_fold_and_rests_on_the_others() -> None:
