@@ -16,11 +16,11 @@ fit (:func:`~diffdrive_odom.core.evaluation.crossval.fold_reasons`: the others
 measure what the training runs lack, and on the OptiOdom circles an end-pose fit to
 one direction ends the other 0.53 m off, which would decide the choice). The
 objective whose worst such error is lowest is taken; a tie (within :data:`TIE_M`)
-goes to the earlier one (the whole trajectory first: it also keeps the path). By the worst, not the mean:
-the worst final error is the figure a calibration is judged by (the paper's, a
-user's: where the robot ends on the run it serves worst), and on the OptiOdom circles
-of December 2020 the mean picks end weight 1, whose worst on the other runs is above
-the paper's (``bench/bench_calibration_objective.py``). With one run, or no fold that
+goes to the earlier one (the whole trajectory first: it also keeps the path). By the
+worst, not the mean: the worst final error is the figure a calibration is judged by
+(the paper's, a user's: where the robot ends on the run it serves worst), and on the
+OptiOdom circles of December 2020 the mean picks end weight 1, whose worst on the other
+runs is above the paper's (``bench/bench_calibration_objective.py``). With one run, or no fold that
 can judge (lines and turns on the spot, one direction only), nothing is chosen: the
 whole trajectory, which ends the OptiOdom free paths and lines closer held out.
 """
