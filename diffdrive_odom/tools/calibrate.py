@@ -9,14 +9,13 @@ first line, exits 1 and prints no block (``--force`` prints it anyway); when no 
 remains it says it cannot tell and prints the block with that warning. With 3 runs or
 more it also fits ``rotation_noise_k`` (the turn's own noise) by maximum likelihood of the
 held-out final poses (:mod:`diffdrive_odom.core.evaluation.consistency`) and prints it,
-saying when the runs want none. The printed text: :mod:`~.calibration_report`.
-Where a bag has an IMU (``--imu-topic``, default: its only ``sensor_msgs/Imu`` topic),
-its readings go through the pipeline with the gyro (``use_imu``, the params' gyro
-settings), and the steps of each slip event the node's own rule finds are left out of
-the fit (:mod:`diffdrive_odom.core.evaluation.leftout`); a line per run says how many.
-Readings are decoded with the odometry node's own parameters and pipeline
-(:func:`diffdrive_odom.core.bulk.batch.wheel_steps`), ground truth with ``eval``'s readers, so
-a bag that replays or evaluates also calibrates. The result is printed as a
+saying when the runs want none. The objective fitted (the whole trajectory, with end
+positions weighted in, or the end poses only) is chosen by leave-one-run-out
+(:mod:`diffdrive_odom.core.evaluation.objective`) unless ``--objective``/``--end-weight``
+name one. The printed text: :mod:`~.calibration_report`.
+Bags become runs in :mod:`~.calibration_runs` (the node's own pipeline; where a bag has
+an IMU, the slips its gyro finds are left out of the fit, a line per run says how many).
+The result is printed as a
 ``/**: ros__parameters:`` block with the node's own parameter names, to paste into
 its params file (``--yaml FILE`` also writes it). The fit (scipy) and the bag reader
 (rosbags) are imported past the parsing, so ``--help`` works without the ``tools`` extra.
@@ -25,16 +24,13 @@ its params file (``--yaml FILE`` also writes it). The fit (scipy) and the bag re
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.evaluation import leftout, metrics
 from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run, trajectory
 from diffdrive_odom.core.evaluation.umbmark import reference_end, umbmark
@@ -43,7 +39,7 @@ from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_K,
     SESSION_DRIFT_RATIO,
 )
-from diffdrive_odom.tools import evaluate, fleet
+from diffdrive_odom.tools import calibration_runs, fleet
 from diffdrive_odom.tools.args import (
     add_param_arguments,
     add_reference_arguments,
@@ -55,20 +51,17 @@ from diffdrive_odom.tools.calibration_report import (
     check_lines,
     fit_report,
     left_out_lines,
+    objective_lines,
     params_block,
     rotation_line,
     umbmark_report,
 )
+from diffdrive_odom.tools.calibration_runs import PREFIX, Settings
 from diffdrive_odom.tools.cli import HelpFormatter
 
 if TYPE_CHECKING:  # scipy and rosbags (the ``tools`` extra) only where they are used
     from diffdrive_odom.core.evaluation import consistency
     from diffdrive_odom.core.evaluation.calibration import Fit
-
-PREFIX = "[calibrate]"
-# The node's settings as given, and with the gyro on (for the bags with an IMU).
-# (str: why the gyro's settings cannot work, said only for a bag that has an IMU).
-Settings = tuple[OdometrySettings, "OdometrySettings | str"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -117,10 +110,17 @@ def _parser() -> argparse.ArgumentParser:
                     "[deg], added to the covariance when rotation_noise_k is fitted (a motion "
                     "capture's: tracked point off the axle, markers' yaw; 0,0 for a "
                     "simulator's truth)")
-    ap.add_argument("--end-weight", type=float, default=0.0, metavar="W",
-                    help="also fit each run's final position, its square weighted W^2 times "
-                    "the run's mean squared error along the path (0: the whole trajectory "
-                    "alone; what each gives: doc/concepts/calibration.md)")
+    ap.add_argument("--objective", choices=("auto", "trajectory", "end-poses"), default=None,
+                    help="what the fit minimises: auto chooses among the whole trajectory, it "
+                    "with end weight 0.5 or 1, and the end poses only (OptiOdom's) by "
+                    "leave-one-run-out and prints the table; trajectory: the whole "
+                    "trajectory (with --end-weight W); end-poses: the end poses only "
+                    "(default: auto; trajectory when --end-weight is given)")
+    ap.add_argument("--end-weight", type=float, default=None, metavar="W",
+                    help="fit the whole trajectory and each run's final position, its square "
+                    "weighted W^2 times the run's mean squared error along the path (0: the "
+                    "trajectory alone; what each gives: doc/concepts/calibration.md; "
+                    "default: chosen, see --objective)")
     ap.add_argument("--window", default=None, help=argparse.SUPPRESS)  # refused: see below
     ap.add_argument("--no-mount", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--yaml", metavar="FILE",
@@ -160,8 +160,11 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
         if _reference_error(args.reference_error) is None:
             return ("--reference-error: give MM,DEG, two finite numbers >= 0, got "
                     f"{args.reference_error!r}")
-        if not (math.isfinite(args.end_weight) and args.end_weight >= 0.0):
-            return f"--end-weight: give a finite W >= 0, got {args.end_weight!r}"
+        w = args.end_weight
+        if w is not None and not (math.isfinite(w) and w >= 0.0):
+            return f"--end-weight: give a finite W >= 0, got {w!r}"
+        if w is not None and args.objective not in (None, "trajectory"):
+            return f"--end-weight weighs the trajectory objective, not --objective {args.objective}"
         if args.window is not None or args.no_mount:
             return ("--window/--no-mount are gone: the fit uses the whole trajectory with the "
                     "reference's start yaw as its only nuisance (offset from the axle and "
@@ -187,101 +190,6 @@ def _reference_error(text: str) -> tuple[float, float] | None:
     return mm / 1000.0, math.radians(deg)
 
 
-def _run(bag: str, settings: Settings, args: argparse.Namespace, reference: bool) -> Run:
-    """Decode one bag into its wheel steps (and read its ground truth when asked).
-
-    With an IMU topic (:func:`imu_topic`) the readings go through the pipeline with the
-    gyro, which judges each step for slip (``WheelSteps.slip_spans``).
-    """
-    from diffdrive_odom.tools import bagblocks, bagio, bagreadings
-
-    def notify(text: str) -> None:
-        print(f"{PREFIX} {text}", file=sys.stderr)
-
-    ref = None
-    if reference:
-        topic = evaluate.reference_topic(bag, args.ground_truth, (args.topic,), notify)
-        ref = evaluate.read_trajectory(bag, topic, args.child_frame)
-    plain, gyro = settings
-    imu = imu_topic(bag, args.imu_topic, notify)
-    if imu is not None and isinstance(gyro, str):
-        raise CalibrationError(f"{bag} has an IMU ({imu}) to find slips with, but the gyro's "
-                               f"settings cannot work: {gyro} (or --imu-topic none)")
-    # Without an IMU the wheels alone, even with use_imu in the params: the gyro path would
-    # run its slip test on no samples (and say so) and lose the fast lane.
-    used = (dataclasses.replace(plain, gyro=None, online=None) if imu is None
-            else plain if isinstance(gyro, str) else gyro)
-    jump = int(used.estimator.time_jump_threshold * 1e9)
-    if imu is None:
-        steps = batch.wheel_steps(bagblocks.read_joint_blocks(bag, args.topic, jump), used)
-    else:
-        assert used.gyro is not None
-        by_log = used.gyro.stamp_source is StampSource.RECEIVE_TIME
-        with bagio.open_bag(bag) as reader:
-            steps = batch.wheel_steps(bagreadings.iter_sensor_readings(
-                reader, args.topic, imu, jump_back_ns=jump, imu_by_log_time=by_log), used)
-    return Run(Path(bag).name, steps, ref)
-
-
-def imu_topic(bag: str, requested: str | None, notify: Callable[[str], None]) -> str | None:
-    """The Imu topic whose gyro judges the slips: ``requested``, else the bag's only one.
-
-    None: no slip test (``none`` asked for, or no Imu topic in the bag); BagError when
-    the bag has several and none is named.
-    """
-    if requested is not None:
-        return None if requested.lower() == "none" else requested
-    from diffdrive_odom.tools import bagio
-
-    with bagio.open_bag(bag) as reader:
-        found = sorted({str(c.topic) for c in reader.connections if c.msgtype == bagio.IMU})
-    if len(found) > 1:
-        raise bagio.BagError(f"{bag}: several Imu topics ({', '.join(found)}): name the one "
-                             "to find slips with, --imu-topic TOPIC (or none)")
-    if found:
-        notify(f"{Path(bag).name}: the gyro on {found[0]} finds the slips to leave out of the "
-               "fit (--imu-topic none: keep every step)")
-    return found[0] if found else None
-
-
-def gyro_settings(args: argparse.Namespace, settings: OdometrySettings) -> OdometrySettings | str:
-    """How a bag with an IMU is decoded: the node's settings with the gyro on.
-
-    ``use_imu`` true, its gyro parameters from the params given, no online estimate.
-    """
-    if settings.gyro is None:
-        extra = argparse.Namespace(**vars(args))
-        extra.ros_params = [*args.ros_params, ("param", "use_imu:=true")]
-        got = settings_from_args(extra)
-        if isinstance(got, str):
-            return got
-        settings = got
-    return dataclasses.replace(settings, online=None)
-
-
-def _decode_all(args: argparse.Namespace, plain: OdometrySettings,
-                gyro: OdometrySettings | str) -> list[Run] | str:
-    """Every bag decoded, on ``--jobs`` processes or a ``--dask`` cluster, in the order given.
-
-    The fit is joint, so it is not made on what is left: every bag that failed is named
-    (the one line returned), not only the first.
-    """
-    if args.jobs is not None and args.jobs < 1:
-        return f"--jobs must be >= 1, got {args.jobs}"
-    calls = [(bag, (plain, gyro), args, True) for bag in args.bags]
-    try:
-        done = fleet.map_calls(_run, calls, args.jobs, args.dask)
-    except fleet.FleetError as err:
-        return str(err)
-    bad = [(bag, r) for bag, r in zip(args.bags, done, strict=True) if isinstance(r, Exception)]
-    if len(bad) == 1:
-        return str(bad[0][1])  # the error names its bag
-    if bad:
-        return (f"{len(bad)} of {len(done)} bags failed, so no fit: "
-                + "; ".join(f"{bag}: {err}" for bag, err in bad))
-    return done
-
-
 def main(argv: Sequence[str]) -> int:
     """``diffdrive-odom calibrate``; exit 2 with one line for a bad bag, topic or option."""
     args = _parser().parse_args(list(argv))
@@ -295,13 +203,13 @@ def main(argv: Sequence[str]) -> int:
         return _error("open_loop is true: calibrate fits the wheel geometry to encoder "
                       "readings (joint_states), which open loop does not read; set "
                       "open_loop:=false for the calibration")
-    gyro = gyro_settings(args, settings)
+    gyro = calibration_runs.gyro_settings(args, settings)
     from diffdrive_odom.tools import bagio
 
     try:
         if args.umbmark is not None:
             return _umbmark(args, (settings, gyro))
-        runs = _decode_all(args, settings, gyro)
+        runs = calibration_runs.decode_all(args, settings, gyro)
         if isinstance(runs, str):
             return _error(runs)
         return _least_squares(args, settings, runs)
@@ -315,15 +223,20 @@ def main(argv: Sequence[str]) -> int:
 def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
                    runs: Sequence[Run]) -> int:
     """Fit, check it on held-out runs, bootstrap its sigma; print (or refuse) the block."""
-    from diffdrive_odom.core.evaluation import calibration, crossval
+    from diffdrive_odom.core.evaluation import crossval, determinacy, objective
 
     nominal = settings.geometry
-    w = args.end_weight
-    result = calibration.fit(runs, nominal, end_weight=w)
+    shapes = [determinacy.shape(r, nominal) for r in runs] if len(runs) >= 2 else None
+    chosen = objective.chosen_by(args.objective, args.end_weight, runs, nominal, shapes)
+    goal = chosen.objective
+    result = goal.fit(runs, nominal)
     in_sample = [r.after.final_position_error_aligned_m for r in result.runs]
-    folds = crossval.held_out(runs, nominal, fitter=crossval.default_fitter(nominal, w))
-    verdict = crossval.judge(runs, folds, nominal, in_sample) if len(runs) >= 2 else None
-    covariance = crossval.bootstrap(runs, nominal, end_weight=w)
+    folds = chosen.folds() or crossval.held_out(runs, nominal, fitter=goal.fitter(nominal))
+    verdict = crossval.judge(runs, folds, nominal, in_sample, shapes=shapes) if shapes else None
+    spread = goal.spread  # whose refits give the sigma and rotation_noise_k
+    spread_folds = (folds if spread == goal else chosen.folds(spread)
+                    or crossval.held_out(runs, nominal, fitter=spread.fitter(nominal)))
+    covariance = crossval.bootstrap(runs, nominal, fitter=spread.weighted(runs, nominal))
     printed = None if covariance is None else crossval.with_drift(result.values, covariance,
                                                                   args.session_drift)
     ratios = None if printed is None else crossval.stddev_ratios(result.values, printed)
@@ -331,13 +244,15 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
     print(check_lines(verdict, len(runs), refused and args.force))
     for line in left_out_lines(runs, nominal):
         print(line)
-    how = f"least squares on {len(runs)} run(s)"
+    print(objective_lines(chosen))
+    how = f"least squares on {len(runs)} run(s), {goal.name}"
     if verdict is not None and verdict.cannot_tell:
         how += "; held-out check CANNOT TELL, see its first line"
     rotation = None
     reference = _reference_error(args.reference_error) or (0.0, 0.0)  # checked at the start
     if ratios is not None:
-        rotation = rotation_fit(runs, [h.geometry for h in folds], settings, ratios, reference)
+        rotation = rotation_fit(runs, [h.geometry for h in spread_folds], settings, ratios,
+                                reference)
     text = params_block(result.geometry, ratios, how,
                         None if rotation is None else rotation.noise.k_rotation)
     if args.plot:
@@ -374,8 +289,8 @@ def rotation_fit(runs: Sequence[Run], geometries: Sequence[Geometry | None],
 
 def _umbmark(args: argparse.Namespace, settings: Settings) -> int:
     typed = args.cw_end is not None
-    cw = _run(args.umbmark[0], settings, args, not typed)
-    ccw = _run(args.umbmark[1], settings, args, not typed)
+    cw = calibration_runs.decode(args.umbmark[0], settings, args, not typed)
+    ccw = calibration_runs.decode(args.umbmark[1], settings, args, not typed)
     for line in left_out_lines((cw, ccw), settings[0].geometry):
         print(line)
     if typed:

@@ -27,7 +27,7 @@ from diffdrive_odom.core.uncertainty.noise import (
 from diffdrive_odom.settings.params import yaml_text
 
 if TYPE_CHECKING:  # scipy (the ``tools`` extra) only where it is used
-    from diffdrive_odom.core.evaluation import consistency, crossval
+    from diffdrive_odom.core.evaluation import consistency, crossval, objective
     from diffdrive_odom.core.evaluation.calibration import Fit
 
 
@@ -111,6 +111,27 @@ def check_lines(v: crossval.Verdict | None, runs: int, forced: bool) -> str:
     return "\n".join([head, *left])
 
 
+def objective_lines(c: objective.Choice) -> str:
+    """Which objective was fitted and why; when chosen, the table it was chosen from."""
+    name = c.objective.name
+    if c.forced:
+        return f"objective: {name} (as asked; --objective auto chooses it held out)"
+    if not c.scores:
+        return f"objective: {name} (the default, not chosen: {c.why})"
+    counted = len(c.scores[0].judged)
+    lines = [f"objective: {name}, chosen by leave-one-run-out on the {c.runs} runs: each "
+             f"refitted without one run, that run's final position error (start aligned) "
+             f"over the {counted} folds that can judge a fit; the lowest worst taken",
+             f"  {'objective':40s} {'worst [m]':>9s} {'mean [m]':>9s}  to force it"]
+    for s in c.scores:
+        o = s.objective
+        flag = ("--objective end-poses" if o.ends_only else
+                f"--end-weight {o.end_weight:g}" if o.end_weight else "--objective trajectory")
+        mark = "*" if o == c.objective else " "
+        lines.append(f"{mark} {o.name:40s} {s.worst:9.4f} {s.mean:9.4f}  {flag}")
+    return "\n".join(lines)
+
+
 def _num(value: float) -> str:
     return yaml_text(float(f"{value:.7g}"))
 
@@ -157,8 +178,9 @@ def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None,
     from diffdrive_odom.core.evaluation import calibration, crossval
 
     nominal = values_of(fit.nominal)
-    how = "whole trajectory" + (f" + end positions x{fit.end_weight:g}" if fit.end_weight
-                                 else "")
+    from diffdrive_odom.core.evaluation import objective
+
+    how = objective.Objective(fit.end_weight, fit.ends_only).name
     lines = [f"calibrated from {len(fit.runs)} run(s): {how}, {fit.samples} "
              f"samples, {fit.loss} loss, {fit.evaluations} evaluations, {fit.seconds:.2f} s",
              f"{'':22s} {'nominal':>10s} {'fitted':>10s} {'bootstrap':>10s} {'1-sigma':>10s}"]
@@ -175,10 +197,13 @@ def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None,
         f"1-sigma: covers the geometry on other days: bootstrap over runs "
         f"({crossval.BOOTSTRAP_RUNS} resamples) and a drift between sessions of "
         f"{100 * drift:.2f} % of each value (--session-drift), in quadrature"
+        + (" (the whole trajectory's refits: end poses alone leave a resample turning one "
+           "way a combination of the values free)" if fit.ends_only else "")
         if std is not None else
         f"1-sigma: not given: it needs {crossval.MIN_RUNS_FOR_SIGMA} or more runs; the "
         "node's default stddev ratios stay")
-    lines.append(f"fitted nuisance: the reference's yaw about the start "
+    lines.append("fitted nuisance: none (the end poses as they are)" if fit.ends_only else
+                 f"fitted nuisance: the reference's yaw about the start "
                  f"{math.degrees(fit.start_yaw):+.3f} deg")
     for what, value, why in calibration.FIXED:
         lines.append(f"fixed, not fitted: {what} = {value} ({why})")

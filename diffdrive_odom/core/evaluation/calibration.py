@@ -94,6 +94,7 @@ class Fit:
     seconds: float
     evaluations: int
     end_weight: float = 0.0  # see :func:`fit`
+    ends_only: bool = False
 
 
 @dataclass(frozen=True)
@@ -228,6 +229,7 @@ def fit(
         seconds=time.perf_counter() - start,
         evaluations=evaluations,
         end_weight=end_weight,
+        ends_only=ends_only,
     )
 
 

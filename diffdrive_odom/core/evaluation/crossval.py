@@ -48,10 +48,9 @@ MIN_RUNS_FOR_SIGMA = 3
 SEED = 16  # fixed: the same runs print the same sigma
 
 
-def default_fitter(nominal: Geometry, end_weight: float = 0.0) -> Fitter:
-    """The product's fit (:func:`calibration.fit` with its defaults), geometry only."""
-    return lambda runs: calibration.fit(runs, nominal, end_weight=end_weight,
-                                        figures=False).geometry
+def default_fitter(nominal: Geometry) -> Fitter:
+    """:func:`calibration.fit` with its defaults (the whole trajectory), geometry only."""
+    return lambda runs: calibration.fit(runs, nominal, figures=False).geometry
 
 
 @dataclass(frozen=True)
@@ -157,16 +156,12 @@ def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
           in_sample: Sequence[float] = (), groups: Sequence[Hashable] | None = None,
           shapes: Sequence[determinacy.Shape] | None = None,
           max_leverage: float = determinacy.MAX_LEVERAGE) -> Verdict | None:
-    """:func:`check` over the folds that can judge the fit, with its margin.
+    """:func:`check` over the folds that can judge the fit (:func:`fold_reasons`), with its margin.
 
-    A fold counts when its training runs determine the geometry
-    (:func:`determinacy.coverage`), its held-out run's end depends on it
-    (:func:`determinacy.judges`) and lies within what the training runs determine
-    (:func:`determinacy.extrapolates`, ``max_leverage``; inf: not asked, the rule
-    before). ``results`` from :func:`held_out` with the same
-    ``groups``; ``in_sample``: the full fit's final position error on each run, in
-    order (the margin; empty: none); ``shapes`` (one per run, :func:`determinacy.shape`) when the
-    caller has them. None when no run could be held out.
+    ``results`` from :func:`held_out` with the same ``groups``; ``in_sample``: the full
+    fit's final position error on each run, in order (the margin; empty: none);
+    ``shapes`` (one per run, :func:`determinacy.shape`) when the caller has them. None
+    when no run could be held out.
     """
     every = check(results)
     if every is None:
@@ -174,21 +169,15 @@ def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
     labels: Sequence[Hashable] = list(range(len(runs))) if groups is None else groups
     shown = list(shapes) if shapes is not None else [determinacy.shape(r, nominal)
                                                      for r in runs]
-    training: dict[Hashable, list[determinacy.Shape]] = {
-        g: [s for s, lab in zip(shown, labels, strict=True) if lab != g]
-        for g in dict.fromkeys(labels)}
-    lacks = {g: determinacy.coverage(t).reason for g, t in training.items()}
+    reasons = fold_reasons(shown, labels, max_leverage)
     # held_out's order: group by group, each group's runs in their order
     order = [i for g in dict.fromkeys(labels) for i, lab in enumerate(labels) if lab == g]
     kept, left = [], []
     for h, i in zip(results, order, strict=True):
         if h.held_out is None:
             continue
-        why = (f"its training runs do not determine the geometry: {lacks[h.group]}"
-               if lacks[h.group] else determinacy.judges(shown[i])
-               or determinacy.extrapolates(training[h.group], shown[i], max_leverage))
-        if why:
-            left.append((h.run, why))
+        if reasons[i]:
+            left.append((h.run, reasons[i]))
         else:
             kept.append(h)
     judging = ([e for e, s in zip(in_sample, shown, strict=True) if not determinacy.judges(s)]
@@ -198,19 +187,39 @@ def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
     return Verdict(check(kept), every, tuple(left), margin)
 
 
+def fold_reasons(shapes: Sequence[determinacy.Shape], groups: Sequence[Hashable] | None = None,
+                 max_leverage: float = determinacy.MAX_LEVERAGE) -> list[str]:
+    """Per run (in order): why its held-out fold cannot judge a fit ("" when it can).
+
+    A fold counts when its training runs (the other groups) determine the geometry
+    (:func:`determinacy.coverage`), its held-out run's end depends on it
+    (:func:`determinacy.judges`) and lies within what the training runs determine
+    (:func:`determinacy.extrapolates`, ``max_leverage``; inf: not asked). It depends on
+    the runs' shapes alone, not on the fit judged. ``groups`` as for :func:`held_out`.
+    """
+    labels: Sequence[Hashable] = list(range(len(shapes))) if groups is None else groups
+    training: dict[Hashable, list[determinacy.Shape]] = {
+        g: [s for s, lab in zip(shapes, labels, strict=True) if lab != g]
+        for g in dict.fromkeys(labels)}
+    lacks = {g: determinacy.coverage(t).reason for g, t in training.items()}
+    return [f"its training runs do not determine the geometry: {lacks[lab]}" if lacks[lab]
+            else determinacy.judges(s) or determinacy.extrapolates(training[lab], s, max_leverage)
+            for s, lab in zip(shapes, labels, strict=True)]
+
+
 def bootstrap(runs: Sequence[Run], nominal: Geometry, resamples: int = BOOTSTRAP_RUNS,
-              seed: int = SEED, fitter: Callable[[Sequence[float]], FloatArray] | None = None,
-              end_weight: float = 0.0) -> FloatArray | None:
+              seed: int = SEED, fitter: Callable[[Sequence[float]], FloatArray] | None = None
+              ) -> FloatArray | None:
     """3x3 covariance of (left radius, right radius, separation) [m^2]; None below 3 runs.
 
-    ``fitter`` maps per-run weights to fitted values (default: :func:`calibration.fit`
-    with ``end_weight``).
+    ``fitter`` maps per-run weights to fitted values (default: :func:`calibration.fit`;
+    ``calibrate``'s: its objective's, :meth:`~.objective.Objective.weighted`).
     """
     if len(runs) < MIN_RUNS_FOR_SIGMA:
         return None
 
     def default(weights: Sequence[float]) -> FloatArray:
-        return values_of(calibration.fit(runs, nominal, weights=weights, end_weight=end_weight,
+        return values_of(calibration.fit(runs, nominal, weights=weights,
                                          figures=False).geometry)
 
     refit = fitter or default

@@ -20,7 +20,13 @@ import pytest
 import yaml
 
 from diffdrive_odom.core.bulk import batch
-from diffdrive_odom.core.evaluation import calibration, crossval, determinacy, umbmark
+from diffdrive_odom.core.evaluation import (
+    calibration,
+    crossval,
+    determinacy,
+    objective,
+    umbmark,
+)
 from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.core.evaluation.recorded_run import Run, start_stamp, values_of
 from diffdrive_odom.core.geometry.kinematics import Geometry, wheel_rates
@@ -256,6 +262,10 @@ def test_held_out_verdict_on_lines_and_spins_cannot_tell() -> None:
     assert all("x more with the geometry" in why for _, why in v.left_out[:2]), v.left_out
     before = crossval.judge(runs, results, NOMINAL, max_leverage=math.inf)
     assert before is not None and before.check is not None and before.check.runs == 2
+    # nor can any fold choose an objective: the whole trajectory stays, nothing refitted
+    choice = objective.choose(runs, NOMINAL)
+    assert choice.objective == objective.TRAJECTORY and not choice.scores, choice
+    assert choice.why.startswith("none of the 3 folds can judge"), choice.why
 
 
 def test_held_out_verdict_names_a_one_direction_fold_and_rests_on_the_others() -> None:
@@ -468,6 +478,7 @@ def test_cli_end_weight_fits_the_final_positions_and_judges_that_fit(
     out = capsys.readouterr().out
     assert code == 0, out
     assert "whole trajectory + end positions x0.5" in out
+    assert "objective: whole trajectory + end positions x0.5 (as asked" in out, out
     entry = yaml.safe_load(_block(out))["/**"]["ros__parameters"]
     fit = calibration.fit(_optiodom_runs(), Geometry(0.042, 0.2), end_weight=0.5)
     assert entry["wheel_separation_multiplier"] == pytest.approx(
@@ -531,14 +542,14 @@ def test_cli_refuses_a_fit_that_is_worse_on_every_held_out_run(
     held-out run, judged by its final error (the robot at rest: the offset does not touch
     it), ends further off than with the nominal geometry, which is the true one. Every
     fold counts; the change is beyond the margin: NOT BETTER THAN NOMINAL, no block,
-    exit 1."""
-    bags = []
-    for run in _arcs_with_the_reference_clock_off(0.2):
-        bags.append(str(tmp_path / run.name))
-        _write_bag(tmp_path / run.name, run)
-    code = cli(["calibrate", *bags, "-p", "wheel_radius:=0.05", "-p", "wheel_separation:=0.3"])
+    exit 1. The whole trajectory is asked for: chosen, the end poses would win here
+    (test_cli_chooses_the_end_poses_where_a_late_reference_drags_the_path)."""
+    bags = _late_reference_bags(tmp_path)
+    code = cli(["calibrate", *bags, "-p", "wheel_radius:=0.05", "-p", "wheel_separation:=0.3",
+                "--objective", "trajectory"])
     out = capsys.readouterr().out
     assert code == 1, out
+    assert "objective: whole trajectory (as asked" in out, out
     first = out.splitlines()[0]
     assert first.startswith("NOT BETTER THAN NOMINAL on held-out runs"), out
     assert "left out" not in out, out  # every fold judged
@@ -548,12 +559,51 @@ def test_cli_refuses_a_fit_that_is_worse_on_every_held_out_run(
     assert nominal < 1e-3 and held_out > 0.02, first
 
 
+def _late_reference_bags(tmp_path: Path) -> list[str]:
+    """:func:`_arcs_with_the_reference_clock_off` (0.2 s) written as bags; their paths."""
+    bags = []
+    for run in _arcs_with_the_reference_clock_off(0.2):
+        bags.append(str(tmp_path / run.name))
+        _write_bag(tmp_path / run.name, run)
+    return bags
+
+
+def test_cli_chooses_the_end_poses_where_a_late_reference_drags_the_path(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The same four runs, nothing asked for: calibrate chooses the objective held out.
+    By construction the end poses are right (the robot at rest at both ends, the base
+    the nominal one) and the path is not (the reference 0.2 s late), so the end-pose fit
+    (OptiOdom's objective) of any three runs is the true geometry and each held-out run
+    ends where its reference does; the whole trajectory is dragged (radii ~4 % up) and
+    its held-out runs end over 2 cm off. The table names the end poses as taken (the
+    row starred), the block holds the true geometry, and it is not refused."""
+    bags = _late_reference_bags(tmp_path)
+    code = cli(["calibrate", *bags, "-p", "wheel_radius:=0.05", "-p", "wheel_separation:=0.3"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert ("objective: end poses only (OptiOdom's), chosen by leave-one-run-out on the 4 "
+            "runs") in out, out
+    rows = {name: (mark, float(worst), float(mean), force) for mark, name, worst, mean, force
+            in re.findall(r"^([* ]) (\S.*?)\s+([\d.]+)\s+([\d.]+)  (--.*)$", out, re.M)}
+    assert list(rows) == ["whole trajectory", "whole trajectory + end positions x0.5",
+                          "whole trajectory + end positions x1", "end poses only (OptiOdom's)"]
+    assert [r[0] for r in rows.values()] == [" ", " ", " ", "*"], out
+    assert rows["end poses only (OptiOdom's)"][1] < 1e-3, out
+    assert rows["end poses only (OptiOdom's)"][3] == "--objective end-poses"
+    assert rows["whole trajectory"][1] > 0.02, out
+    entry = yaml.safe_load(_block(out))["/**"]["ros__parameters"]
+    for key in ("left_wheel_radius_multiplier", "right_wheel_radius_multiplier",
+                "wheel_separation_multiplier"):
+        assert entry[key] == pytest.approx(1.0, abs=1e-3), entry
+
+
 def test_cli_with_one_run_says_the_check_cannot_be_made(
     capsys: pytest.CaptureFixture[str]
 ) -> None:
     assert cli(["calibrate", str(OPTIODOM / CCW_RUN), *NOMINAL_ARGS]) == 0
     out = capsys.readouterr().out
     assert out.startswith("held-out check: cannot be made with 1 run"), out
+    assert "objective: whole trajectory (the default, not chosen: one run" in out, out
     assert "/**:" in out
 
 
@@ -636,6 +686,10 @@ def test_cli_umbmark_from_topic_and_from_typed_end_points(
     ([str(OPTIODOM / CW_RUN), "--session-drift", "nan", *NOMINAL_ARGS], "--session-drift"),
     ([str(OPTIODOM / CW_RUN), "--end-weight", "-1", *NOMINAL_ARGS], "--end-weight"),
     ([str(OPTIODOM / CW_RUN), "--end-weight", "inf", *NOMINAL_ARGS], "--end-weight"),
+    ([str(OPTIODOM / CW_RUN), "--end-weight", "1", "--objective", "end-poses", *NOMINAL_ARGS],
+     "--end-weight"),
+    ([str(OPTIODOM / CW_RUN), "--end-weight", "1", "--objective", "auto", *NOMINAL_ARGS],
+     "--end-weight"),
     (["--umbmark", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN), *NOMINAL_ARGS], "--side"),
     (["--umbmark", str(OPTIODOM / CW_RUN), str(OPTIODOM / CCW_RUN), "--side", "1.7",
       "--cw-end", "1,2", "--ccw-end", "x", *NOMINAL_ARGS], "--ccw-end"),

@@ -1,0 +1,126 @@
+"""``diffdrive-odom calibrate``'s bags decoded into runs: wheel steps by the node's pipeline.
+
+Readings are decoded with the odometry node's own parameters and pipeline
+(:func:`diffdrive_odom.core.bulk.batch.wheel_steps`), ground truth with ``eval``'s
+readers, so a bag that replays or evaluates also calibrates. Where a bag has an IMU
+(``--imu-topic``, default: its only ``sensor_msgs/Imu`` topic), its readings go through
+the pipeline with the gyro (``use_imu``, the params' gyro settings), which judges each
+step for slip; those steps are left out of the fit
+(:mod:`diffdrive_odom.core.evaluation.leftout`). Bags are decoded on ``--jobs``
+processes or a ``--dask`` cluster (:mod:`~diffdrive_odom.tools.fleet`); rosbags is
+imported past the parsing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from diffdrive_odom.core.bulk import batch
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.estimation.stamps import StampSource
+from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run
+from diffdrive_odom.tools import evaluate, fleet
+from diffdrive_odom.tools.args import settings_from_args
+
+PREFIX = "[calibrate]"  # its lines on stderr
+# The node's settings as given, and with the gyro on (for the bags with an IMU).
+# (str: why the gyro's settings cannot work, said only for a bag that has an IMU).
+Settings = tuple[OdometrySettings, "OdometrySettings | str"]
+
+def decode(bag: str, settings: Settings, args: argparse.Namespace, reference: bool) -> Run:
+    """Decode one bag into its wheel steps (and read its ground truth when asked).
+
+    With an IMU topic (:func:`imu_topic`) the readings go through the pipeline with the
+    gyro, which judges each step for slip (``WheelSteps.slip_spans``).
+    """
+    from diffdrive_odom.tools import bagblocks, bagio, bagreadings
+
+    def notify(text: str) -> None:
+        print(f"{PREFIX} {text}", file=sys.stderr)
+
+    ref = None
+    if reference:
+        topic = evaluate.reference_topic(bag, args.ground_truth, (args.topic,), notify)
+        ref = evaluate.read_trajectory(bag, topic, args.child_frame)
+    plain, gyro = settings
+    imu = imu_topic(bag, args.imu_topic, notify)
+    if imu is not None and isinstance(gyro, str):
+        raise CalibrationError(f"{bag} has an IMU ({imu}) to find slips with, but the gyro's "
+                               f"settings cannot work: {gyro} (or --imu-topic none)")
+    # Without an IMU the wheels alone, even with use_imu in the params: the gyro path would
+    # run its slip test on no samples (and say so) and lose the fast lane.
+    used = (dataclasses.replace(plain, gyro=None, online=None) if imu is None
+            else plain if isinstance(gyro, str) else gyro)
+    jump = int(used.estimator.time_jump_threshold * 1e9)
+    if imu is None:
+        steps = batch.wheel_steps(bagblocks.read_joint_blocks(bag, args.topic, jump), used)
+    else:
+        assert used.gyro is not None
+        by_log = used.gyro.stamp_source is StampSource.RECEIVE_TIME
+        with bagio.open_bag(bag) as reader:
+            steps = batch.wheel_steps(bagreadings.iter_sensor_readings(
+                reader, args.topic, imu, jump_back_ns=jump, imu_by_log_time=by_log), used)
+    return Run(Path(bag).name, steps, ref)
+
+
+def imu_topic(bag: str, requested: str | None, notify: Callable[[str], None]) -> str | None:
+    """The Imu topic whose gyro judges the slips: ``requested``, else the bag's only one.
+
+    None: no slip test (``none`` asked for, or no Imu topic in the bag); BagError when
+    the bag has several and none is named.
+    """
+    if requested is not None:
+        return None if requested.lower() == "none" else requested
+    from diffdrive_odom.tools import bagio
+
+    with bagio.open_bag(bag) as reader:
+        found = sorted({str(c.topic) for c in reader.connections if c.msgtype == bagio.IMU})
+    if len(found) > 1:
+        raise bagio.BagError(f"{bag}: several Imu topics ({', '.join(found)}): name the one "
+                             "to find slips with, --imu-topic TOPIC (or none)")
+    if found:
+        notify(f"{Path(bag).name}: the gyro on {found[0]} finds the slips to leave out of the "
+               "fit (--imu-topic none: keep every step)")
+    return found[0] if found else None
+
+
+def gyro_settings(args: argparse.Namespace, settings: OdometrySettings) -> OdometrySettings | str:
+    """How a bag with an IMU is decoded: the node's settings with the gyro on.
+
+    ``use_imu`` true, its gyro parameters from the params given, no online estimate.
+    """
+    if settings.gyro is None:
+        extra = argparse.Namespace(**vars(args))
+        extra.ros_params = [*args.ros_params, ("param", "use_imu:=true")]
+        got = settings_from_args(extra)
+        if isinstance(got, str):
+            return got
+        settings = got
+    return dataclasses.replace(settings, online=None)
+
+
+def decode_all(args: argparse.Namespace, plain: OdometrySettings,
+                gyro: OdometrySettings | str) -> list[Run] | str:
+    """Every bag decoded, on ``--jobs`` processes or a ``--dask`` cluster, in the order given.
+
+    The fit is joint, so it is not made on what is left: every bag that failed is named
+    (the one line returned), not only the first.
+    """
+    if args.jobs is not None and args.jobs < 1:
+        return f"--jobs must be >= 1, got {args.jobs}"
+    calls = [(bag, (plain, gyro), args, True) for bag in args.bags]
+    try:
+        done = fleet.map_calls(decode, calls, args.jobs, args.dask)
+    except fleet.FleetError as err:
+        return str(err)
+    bad = [(bag, r) for bag, r in zip(args.bags, done, strict=True) if isinstance(r, Exception)]
+    if len(bad) == 1:
+        return str(bad[0][1])  # the error names its bag
+    if bad:
+        return (f"{len(bad)} of {len(done)} bags failed, so no fit: "
+                + "; ".join(f"{bag}: {err}" for bag, err in bad))
+    return done
