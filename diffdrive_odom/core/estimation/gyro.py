@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.gyrosamples import GyroSamples
 from diffdrive_odom.core.estimation.slips import SlipEvents, SlipStats
-from diffdrive_odom.core.estimation.slipstep import slip_step
+from diffdrive_odom.core.estimation.slipstep import SPIN_SIGMAS, slip_step
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.estimation.standstill import Standstill
 from diffdrive_odom.core.estimation.wheelturn import HOLD_S, RatioModel, StampJitter, turn_variance
@@ -445,5 +445,5 @@ class GyroHeading:
                 b=(b[0], (-w_w * v, w_w * u)), c=(0.0, w_g), var_gyro=var_white,
                 dt=dt, geometry=(geo_ds, tuple(w_w * e for e in geo_th)), slip=False))
         step = slip_step(geometry, (u, v), arcs, g, dt, b, var_white,
-                         cfg.slip_sigmas * self.jitter.sigma, cfg.slip_distance_from_other_wheel)
+                         SPIN_SIGMAS * self.jitter.sigma, cfg.slip_distance_from_other_wheel)
         return _Judged(True, -diff, step)
