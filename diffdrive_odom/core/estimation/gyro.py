@@ -8,8 +8,8 @@ a wheel slipped: the gyro's heading is used and a slip counted
 (:mod:`~diffdrive_odom.core.estimation.slips`; the distance:
 :mod:`~diffdrive_odom.core.estimation.slipstep`). The wheels' turn and its variance are
 a real robot's (:mod:`~diffdrive_odom.core.estimation.wheelturn`): with the online
-estimate of the ratios, so a geometry a few percent off is never a slip, the encoders'
-and the gyro's quantization, and the stamps' timing error measured while turning.
+configured ratios and the noise model's sigmas, the encoders' and the gyro's
+quantization, and the stamps' timing error measured while turning.
 Readings a driver holds (no motion within ``HOLD_S`` of the last that moved) take the
 gyro's turn for now and the next step is judged over the interval since the last
 reading that moved. The bias is estimated whenever the wheels stand still for longer
@@ -142,9 +142,6 @@ class GyroHeading:
         self.config = config
         self.quantization = quantization  # rad^2: a joint's variance per reading (ticks)
         self.jitter = StampJitter()  # the wheel stamps' timing error, measured turning
-        # The ratios the wheels' turn is judged with (the online estimate's), None: the
-        # configured geometry's with the noise model's sigmas.
-        self.ratio_model: Callable[[], RatioModel | None] | None = None
         self._moved_ns: int | None = None  # the last wheel stamp that moved
         self._held_from: int | None = None  # start of the readings held since then
         self._held_turn = 0.0  # the gyro's turn handed out over them (provisional)
@@ -378,10 +375,11 @@ class GyroHeading:
         self._debt = (0.0, 0.0)
 
     def _ratios(self, geometry: Geometry) -> RatioModel:
-        """The ratios the wheels' turn is judged with: the online estimate, else configured."""
-        model = None if self.ratio_model is None else self.ratio_model()
-        if model is not None:
-            return model
+        """The ratios the wheels' turn is judged with: the geometry's, the noise model's sigmas.
+
+        Not the online estimate's: fed back, a bag whose wheels slip much (the TurtleBot3
+        sim) let slips into the estimate while its prior was wide, and it diverged.
+        """
         sep = geometry.separation
         u, v = geometry.right_radius / sep, geometry.left_radius / sep
         rr, sr = self.noise.radius_stddev_ratio ** 2, self.noise.separation_stddev_ratio ** 2
@@ -411,11 +409,10 @@ class GyroHeading:
                bias_variance: float, t0: int, t1: int, standing: bool) -> _Judged:
         """The step's decision on the gyro angle ``raw`` [rad] (no state changes).
 
-        The wheels' turn is taken with the current estimate of the ratios
-        (:mod:`~diffdrive_odom.core.estimation.wheelturn`): a geometry a few percent off
-        is the estimate's to explain, not a slip; a slip is what remains beyond it, its
-        uncertainty, the encoders' and the gyro's quantization and the stamps' jitter
-        (which moves nothing while the wheels stand).
+        The wheels' turn and its variance as a real robot's
+        (:mod:`~diffdrive_odom.core.estimation.wheelturn`): a slip is what remains beyond
+        the geometry's uncertainty, the encoders' and the gyro's quantization and the
+        stamps' jitter (which moves nothing while the wheels stand).
         """
         cfg = self.config
         s_l, s_r = arcs

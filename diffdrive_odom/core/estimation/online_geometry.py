@@ -55,7 +55,6 @@ from types import MappingProxyType
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.kalman import kalman_update, quadratic
 from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig, ScaleEstimate
-from diffdrive_odom.core.estimation.wheelturn import RatioModel
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
@@ -403,11 +402,6 @@ class OnlineGeometry:
                 f"3-sigma region (Mahalanobis d^2 {est.mahalanobis2:.1f} > "
                 f"{CHI2_2DOF_3SIGMA:.2f}): the robot changed, recalibrate; estimate: "
                 + est.line())
-
-    def ratio_model(self) -> RatioModel:
-        """The ratios as the gyro sees them now (its scale factor in them), for its slip test."""
-        p = self.p
-        return RatioModel(self.x[0], self.x[1], p[0][0], p[0][1], p[1][1])
 
     def take_warning(self) -> str:
         """The warning due (once, then throttled), '' if none; taking it clears it."""

@@ -233,7 +233,6 @@ class ReadingPipeline:
             self._online.set_geometry(settings.geometry)
         if gyro is not None:
             gyro.observer = None if self._online is None else self._online.observe
-            gyro.ratio_model = None if self._online is None else self._online.ratio_model
 
     @property
     def online(self) -> OnlineGeometry | None:

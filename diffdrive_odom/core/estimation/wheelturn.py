@@ -7,10 +7,9 @@ real robot's wheels get wrong without slipping, and it is measured while driving
 the wheels' travel noise (:mod:`~diffdrive_odom.core.uncertainty.noise`), three terms:
 
 - **geometry**: the wheels' turn is ``u dphi_R - v dphi_L`` with the ratios ``u = r_R/b``,
-  ``v = r_L/b``. A few percent off until calibrated, that error is proportional to the
-  turn, in every turn: the current estimate of the ratios (online calibration) and its
-  covariance take it, so it is never read as slip (else the configured geometry with the
-  noise model's relative sigmas).
+  ``v = r_L/b``, known to the noise model's relative sigmas (a geometry a few percent off
+  until calibrated is mostly covered by the timing term below, which grows with the turn
+  rate; the online estimate is not fed back: see ``GyroHeading._ratios``).
 - **quantization**: each reading's joint angle is a whole number of ticks; the turn
   between two readings is off by ``2 q (u^2 + v^2)``, ``q`` a joint's variance per reading.
 - **timing**: a driver stamps a reading when it publishes it, not when its counters were
@@ -51,8 +50,7 @@ JITTER_WINDOW, JITTER_AFTER = 400, 25
 class RatioModel:
     """The ratios ``(u, v) = (r_R/b, r_L/b)`` the wheels' turn is taken with.
 
-    With their covariance ``(cuu, cuv, cvv)``: the online estimate's, or the configured
-    geometry's.
+    With their covariance ``(cuu, cuv, cvv)``, from the noise model's relative sigmas.
     """
 
     u: float
