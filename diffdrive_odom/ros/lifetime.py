@@ -72,9 +72,11 @@ def watch(pid: int, on_end: Callable[[], None], grace: float) -> threading.Threa
     """
     def run() -> None:
         _wait_for_end(pid)
-        on_end()
-        time.sleep(grace)
-        os._exit(EXIT_ORPHANED)
+        try:
+            on_end()
+        finally:  # whatever on_end met (its output's reader was the parent: EPIPE)
+            time.sleep(grace)
+            os._exit(EXIT_ORPHANED)
 
     thread = threading.Thread(target=run, name=f"watch parent {pid}", daemon=True)
     thread.start()

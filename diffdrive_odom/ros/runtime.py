@@ -7,6 +7,7 @@ exactly the same way (rclpy alone does none of these reliably).
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import signal
@@ -116,10 +117,15 @@ PARENT_GRACE_S = 5.0
 
 
 def _parent_ended(pid: int) -> None:
-    """The watched parent has ended: stop as on SIGTERM (from the watching thread)."""
-    print(f"[{_program()}] the process that started it (pid {pid}) has ended: stopping",
-          file=sys.stderr, flush=True)
+    """The watched parent has ended: stop as on SIGTERM (from the watching thread).
+
+    The stop first: the output may be a pipe that the parent read (``ros2 launch``), and
+    writing to it now fails (EPIPE).
+    """
     os.kill(os.getpid(), signal.SIGTERM)
+    with contextlib.suppress(OSError):
+        print(f"[{_program()}] the process that started it (pid {pid}) has ended: stopping",
+              file=sys.stderr, flush=True)
 
 
 def shutdown_after_stop() -> None:
