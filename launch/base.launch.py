@@ -9,6 +9,7 @@ simulated base in place of the hardware driver; with ``use_follower:=true`` also
 file's geometry (its ``true_*`` parameters are left at 0 = nominal), a 50 ms motor lag
 and a 0.5 s command timeout, publishing at 50 Hz. It publishes ``/clock`` only with
 ``use_sim_time:=true``; it never follows ``/clock`` itself, since it is the clock.
+Every node ends with launch, however launch ends (see odometry.launch.py).
 """
 
 # ruff: noqa: I001 (ruff takes ./launch for first-party; this is ROS 2 launch)
@@ -20,6 +21,8 @@ from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, This
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
+
+from diffdrive_odom.ros.lifetime import child_env
 
 PACKAGE = "diffdrive_odom"
 
@@ -80,6 +83,7 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument(
             "rviz", default_value="false",
             description="Also start RViz2 with the odometry, its covariance, TF and the path"),
+        # First: it checks rviz:=true's RViz2 before any node starts.
         IncludeLaunchDescription(PythonLaunchDescriptionSource(
             PathJoinSubstitution([ThisLaunchFileDir(), "odometry.launch.py"]))),
         Node(
@@ -89,6 +93,7 @@ def generate_launch_description() -> LaunchDescription:
             namespace=namespace,
             parameters=[params_file, extra_params_file, {"use_sim_time": use_sim_time}],
             remappings=[("cmd_vel", LaunchConfiguration("cmd_vel_topic")), wheel_commands],
+            additional_env=child_env({}),  # launch's pid: the node ends with it
             output="screen",
         ),
         Node(
@@ -101,6 +106,7 @@ def generate_launch_description() -> LaunchDescription:
                 **SIM_PARAMETERS, "publish_clock": use_sim_time, "use_sim_time": False}],
             remappings=[
                 ("joint_states", LaunchConfiguration("joint_states_topic")), wheel_commands],
+            additional_env=child_env({}),  # launch's pid: the node ends with it
             output="screen",
         ),
         Node(
@@ -112,6 +118,7 @@ def generate_launch_description() -> LaunchDescription:
             parameters=[params_file, extra_params_file, {"use_sim_time": use_sim_time}],
             remappings=[("odom", LaunchConfiguration("odom_topic")),
                         ("cmd_vel", LaunchConfiguration("cmd_vel_topic"))],
+            additional_env=child_env({}),  # launch's pid: the node ends with it
             output="screen",
         ),
     ])

@@ -8,7 +8,11 @@ values over the shipped defaults). The node gets the fully qualified name
 files. With a namespace the frames are prefixed with it (``robot1/odom``) unless the
 file sets ``tf_frame_prefix``; ``/tf`` stays global, as tf2 expects. ``rviz:=true``
 also starts RViz2 with the package's view of the odometry (its covariance), the TF tree
-and the follower's path.
+and the follower's path; without RViz2 installed, launch stops with one line saying so
+before it starts anything (the node used to start, then stay after launch failed).
+
+The package's nodes are told launch's pid (``lifetime.child_env``) and stop by themselves
+once launch has ended, however it ended (SIGKILL, SIGHUP of a closed ssh session).
 """
 
 # ruff: noqa: I001 (ruff takes ./launch for first-party; this is ROS 2 launch)
@@ -19,6 +23,9 @@ from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
+
+from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+from diffdrive_odom.ros.lifetime import child_env
 
 PACKAGE = "diffdrive_odom"
 # The switches users flip most, as launch arguments; empty: the params files decide.
@@ -38,8 +45,26 @@ def _switches(context: LaunchContext) -> dict[str, bool]:
     return out
 
 
+def require_rviz(context: LaunchContext) -> None:
+    """With rviz:=true, RViz2 must be installed: say so before anything starts.
+
+    launch_ros looks a node's package up only when it starts that node, after the nodes
+    before it: the odometry node was up when launch failed on rviz2 (and stayed up).
+    Called first by :func:`_nodes`; base.launch.py includes this file before its nodes.
+    """
+    if not IfCondition(LaunchConfiguration("rviz")).evaluate(context):
+        return
+    try:
+        get_package_prefix("rviz2")
+    except PackageNotFoundError:
+        raise RuntimeError(
+            "rviz:=true needs RViz2, which is not installed (no package 'rviz2'): "
+            "sudo apt install ros-jazzy-rviz2, or launch without rviz:=true") from None
+
+
 def _nodes(context: LaunchContext) -> list[Node]:
     """odometry_node with the switches given, and RViz2 with rviz:=true."""
+    require_rviz(context)
     use_sim_time = ParameterValue(LaunchConfiguration("use_sim_time"), value_type=bool)
     namespace = LaunchConfiguration("namespace").perform(context).strip("/")
     odom = Node(
@@ -53,6 +78,7 @@ def _nodes(context: LaunchContext) -> list[Node]:
             ("joint_states", LaunchConfiguration("joint_states_topic")),
             ("odom", LaunchConfiguration("odom_topic")),
         ],
+        additional_env=child_env({}),  # launch's pid: the node ends with it
         output="screen",
     )
     # The config names the root-namespace topics; in a namespace they are remapped into

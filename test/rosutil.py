@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -53,6 +54,34 @@ def executable(name: str) -> str:
     if not path.exists():
         raise FileNotFoundError(f"{path} missing: run `make venv` (pip install -e .)")
     return str(path)
+
+
+def running(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, ended and waiting for its reaper, does not)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except FileNotFoundError:
+        return False
+
+
+def still_running(pids: Sequence[int], seconds: float) -> list[int]:
+    """Of ``pids``, those still running after up to ``seconds`` (held until all ended)."""
+    deadline = time.monotonic() + seconds
+    while any(running(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return [p for p in pids if running(p)]
+
+
+def kill_left(proc: subprocess.Popen[Any], pids: Sequence[int] = ()) -> None:
+    """A test's cleanup: kill ``proc`` and whichever of ``pids`` still run."""
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait()
+    for pid in pids:
+        if running(pid):
+            with suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
 
 
 @contextmanager

@@ -1,4 +1,9 @@
-"""The demo's nodes as child processes, each logging to a file, all stopped on leaving."""
+"""The demo's nodes as child processes, each logging to a file, all stopped on leaving.
+
+Each is told this process's pid (:func:`diffdrive_odom.ros.lifetime.child_env`) and
+stops by itself once this process has ended, however it ended: SIGKILL runs no
+``__exit__``, and the nodes used to keep running under init.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
+from diffdrive_odom.ros import lifetime
 from diffdrive_odom.tools import process
 
 from .settings import DemoError
@@ -48,7 +54,7 @@ class Children:
     """
 
     def __init__(self, env: Mapping[str, str], logs: Path, grace: float = 5.0) -> None:
-        self.env, self.logs, self.grace = dict(env), logs, grace
+        self.env, self.logs, self.grace = lifetime.child_env(env), logs, grace
         self.started: list[Child] = []
 
     def start(self, name: str, args: Sequence[str]) -> Child:

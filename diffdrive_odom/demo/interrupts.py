@@ -1,10 +1,15 @@
-"""Ctrl-C and SIGTERM for the demo: a KeyboardInterrupt, but never inside rclpy's C code.
+"""Ctrl-C, SIGTERM and SIGHUP for the demo: a KeyboardInterrupt, raised only where it is safe.
 
 Python raises KeyboardInterrupt wherever the main thread is when SIGINT arrives. Inside
 rclpy's deserialization (a C extension, run by the executor for every recorded message)
 pybind turns it into a TypeError with a traceback, and the demo would fail instead of
-stopping cleanly. So while the recorder spins, a signal only marks itself pending and is
-raised as KeyboardInterrupt when the spin returns; anywhere else it is raised at once.
+stopping cleanly. Inside ``subprocess.Popen.poll`` (the loop checks its children between
+spins) it can land between taking the Popen's waitpid lock and the ``try`` that releases
+it: the lock stays held, and stopping that child later waits for it forever (the demo did
+not end within 30 s of Ctrl-C under load). So while the children run (:func:`deferred`
+around the loop) a signal only marks itself pending and is raised as KeyboardInterrupt
+at the loop's safe point (:func:`check`) or when the outermost deferral is left; anywhere
+else it is raised at once.
 """
 
 from __future__ import annotations
@@ -14,6 +19,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 from typing import Any
+
+from diffdrive_odom.ros.lifetime import stop_signals
 
 _state = {"deferring": False, "pending": False}
 
@@ -27,9 +34,8 @@ def _on_signal(signum: int, frame: FrameType | None) -> None:
 
 @contextmanager
 def handled() -> Iterator[None]:
-    """SIGINT and SIGTERM raise KeyboardInterrupt (deferred out of spins) while inside."""
-    previous: dict[int, Any] = {
-        s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    """The stop signals raise KeyboardInterrupt (deferred inside :func:`deferred`) while inside."""
+    previous: dict[int, Any] = {s: signal.signal(s, _on_signal) for s in stop_signals()}
     _state["pending"] = False
     try:
         yield
@@ -40,13 +46,19 @@ def handled() -> Iterator[None]:
 
 @contextmanager
 def deferred() -> Iterator[None]:
-    """Hold a signal that arrives inside (an executor's spin) until the block is left."""
+    """Hold a signal that arrives inside until :func:`check` or until the block is left."""
     outer = _state["deferring"]
     _state["deferring"] = True
     try:
         yield
     finally:
         _state["deferring"] = outer
-        if not outer and _state["pending"]:
-            _state["pending"] = False
-            raise KeyboardInterrupt
+        if not outer:
+            check()
+
+
+def check() -> None:
+    """Raise the KeyboardInterrupt of a signal held by :func:`deferred`, if one came."""
+    if _state["pending"]:
+        _state["pending"] = False
+        raise KeyboardInterrupt

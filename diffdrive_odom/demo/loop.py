@@ -12,10 +12,14 @@ everything into a rosbag2 (raw CDR as received, so every reader can decode it).
 The child processes are :mod:`.children`, this process's node :mod:`.recorder`. Every
 resource is held by an ExitStack: the child processes are stopped and the ROS context
 and bag are closed when the demo ends, fails (a constructor included) or is
-interrupted. Everything is written into a hidden directory beside ``--output`` and
-moved into place only when the run has finished (:func:`diffdrive_odom.tools.outputs.staged`),
-so a failed or interrupted demo leaves no partial output, and a previous one stays
-until a new one replaces it.
+interrupted. While they are held, a stop signal is raised only at the waiting loop's
+check (:mod:`.interrupts`), never inside the code that polls or stops the children; the
+children end by themselves if this process is killed (:mod:`.children`).
+
+Everything is written into a hidden directory beside ``--output`` and moved into place only
+when the run has finished (:func:`diffdrive_odom.tools.outputs.staged`), so a failed or
+interrupted demo leaves no partial output, and a previous one stays until a new one replaces
+it.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ import numpy as np
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.tools.outputs import staged
 
-from . import evaluation
+from . import evaluation, interrupts
 from .children import Children
 from .recorder import Recorder
 from .report import DemoResult, Square
@@ -65,8 +69,12 @@ class _Waiter:
 
     def until(self, done: Callable[[], bool], deadline: float, what: str,
               fail: bool = True) -> bool:
-        """True once ``done()``; at the deadline DemoError, or False if not ``fail``."""
+        """True once ``done()``; at the deadline DemoError, or False if not ``fail``.
+
+        A stop signal held meanwhile is raised here (KeyboardInterrupt), between spins.
+        """
         while not done():
+            interrupts.check()
             self.children.check(what)
             if time.monotonic() > deadline:
                 if not fail:
@@ -170,7 +178,7 @@ def _run(opts: DemoOptions, settings: Settings, output: Path) -> DemoResult:
     args = ["--params-file", str(_run_params(opts, settings, output))]
 
     wall0 = time.monotonic()
-    with ExitStack() as stack:
+    with interrupts.deferred(), ExitStack() as stack:
         recorder = stack.enter_context(Recorder(domain, bag_path))
         children = stack.enter_context(Children(env, logs))
         for name in NODES:

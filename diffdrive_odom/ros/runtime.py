@@ -1,11 +1,13 @@
 """How every node process starts and ends: ``main()``, command-line checks, ``--help``, executors.
 
 Kept in one place so the nodes refuse a bad command line, print their usage and exit on
-Ctrl-C or SIGTERM in exactly the same way (rclpy alone does none of these reliably).
+Ctrl-C, SIGTERM or SIGHUP, and with the process that started them (:mod:`.lifetime`), in
+exactly the same way (rclpy alone does none of these reliably).
 """
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import signal
@@ -27,9 +29,11 @@ from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE, ParamSource
 from diffdrive_odom.settings.shadowed import shadowed_overrides_line
 
+from . import lifetime
+
 
 def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
-    """Init rclpy, build the node, spin until SIGINT/SIGTERM; a bad start exits 2 with one line.
+    """Init rclpy, build the node, spin until a stop signal; a bad start exits 2 with one line.
 
     Before rclpy sees the command line: ``--help`` prints :func:`usage` (exit 0);
     arguments outside ``--ros-args`` and a missing ``--params-file`` are named with
@@ -40,6 +44,10 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     also when more follow during the stop, as under ``ros2 launch`` (see
     :class:`_StopSignals` for why rclpy alone does not guarantee that). This is the
     process's main: it leaves the stop signals ignored for the interpreter's exit.
+
+    A process started with :data:`.lifetime.PARENT_ENV` (the demo's children, the launch
+    files' nodes) stops the same way once that process has ended, however it ended
+    (SIGKILL included), and exits 1 if the stop is not over :data:`PARENT_GRACE_S` later.
     """
     argv = list(args) if args is not None else list(sys.argv)
     problem = _check_command_line(argv)
@@ -50,6 +58,13 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
         print(f"[{_program()}] {problem}", file=sys.stderr)
         return 2
     stop = _StopSignals()  # before rclpy.init, so that rclpy's handlers chain to it
+    try:
+        watched = lifetime.named_parent()
+    except ValueError as err:
+        print(f"[{_program()}] {err}", file=sys.stderr)
+        return 2
+    if watched is not None:
+        lifetime.watch(watched, lambda: _parent_ended(watched), PARENT_GRACE_S)
     try:
         rclpy.init(args=argv)
     except Exception as err:  # rclpy's RCLError: an unreadable params file, a bad remap
@@ -96,6 +111,23 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     return 0
 
 
+# Longest a node's stop may take once the process that started it has ended [s]: then it
+# exits without finishing its teardown (SPIN_TIMEOUT_S plus a teardown is well under it).
+PARENT_GRACE_S = 5.0
+
+
+def _parent_ended(pid: int) -> None:
+    """The watched parent has ended: stop as on SIGTERM (from the watching thread).
+
+    The stop first: the output may be a pipe that the parent read (``ros2 launch``), and
+    writing to it now fails (EPIPE).
+    """
+    os.kill(os.getpid(), signal.SIGTERM)
+    with contextlib.suppress(OSError):
+        print(f"[{_program()}] the process that started it (pid {pid}) has ended: stopping",
+              file=sys.stderr, flush=True)
+
+
 def shutdown_after_stop() -> None:
     """``rclpy.try_shutdown()``, with rclpy's signal handler shutting down too.
 
@@ -118,8 +150,9 @@ SPIN_TIMEOUT_S = 0.1
 
 
 class _StopSignals:
-    """SIGINT and SIGTERM as a stop request the spin loop sees, never an exception.
+    """The stop signals as a stop request the spin loop sees, never an exception.
 
+    They are SIGINT, SIGTERM and SIGHUP (:func:`.lifetime.stop_signals`).
     rclpy's own handlers (installed by ``rclpy.init``) trigger the executors' signal
     guard condition and then shut the context down from another thread. A wait that
     took the guard's trigger just before the shutdown leaves the next wait with
@@ -127,14 +160,16 @@ class _StopSignals:
     message comes: the spin loop therefore waits at most SPIN_TIMEOUT_S and checks
     ``rclpy.ok()`` and this flag. rclpy then calls the handler found before it, which
     for SIGINT is Python's: its KeyboardInterrupt can land anywhere, even inside the
-    teardown (exit 1, traceback); this handler replaces it.
+    teardown (exit 1, traceback); this handler replaces it. rclpy leaves SIGHUP alone
+    (its default action ended the node at once, the demo's parent included): here it is a
+    stop like the others, seen by the spin loop through this flag.
 
     Signals come in threes under ``ros2 launch``: Ctrl-C in its terminal reaches the
     whole process group, launch then sends its own SIGINT, and a second Ctrl-C (or
     launch's SIGTERM) follows while the node stops. A repeat within
     :data:`REPEAT_GRACE_S` of the first is part of that one stop and is ignored; a later
     one ends a stuck spin (KeyboardInterrupt) or a stuck teardown (exit 130) at once.
-    After the teardown, :meth:`release` ignores both signals: Python's exit would
+    After the teardown, :meth:`release` ignores them: Python's exit would
     otherwise restore the default action, and a repeat landing there ends the process
     by the signal (``exit code -2`` in launch's log) after a clean stop.
     """
@@ -143,7 +178,8 @@ class _StopSignals:
         self.requested = False
         self._first = 0.0  # monotonic time of the first signal
         self._teardown = False
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        self._signals = lifetime.stop_signals()
+        for sig in self._signals:
             signal.signal(sig, self._on_signal)
 
     def _on_signal(self, signum: int, frame: Any) -> None:
@@ -163,7 +199,7 @@ class _StopSignals:
 
     def release(self) -> None:
         """Ignore further stop signals: the node is gone, the interpreter is exiting."""
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in self._signals:
             signal.signal(sig, signal.SIG_IGN)
 
 

@@ -22,6 +22,7 @@ from importlib import metadata
 from pathlib import Path
 from xml.etree import ElementTree
 
+from diffdrive_odom.ros.lifetime import stop_signals
 from diffdrive_odom.settings.dependencies import missing_text
 
 PROGRAM = "diffdrive-odom"
@@ -114,12 +115,14 @@ def usage() -> str:
 
 @contextmanager
 def terminate_as_interrupt() -> Iterator[None]:
-    """SIGTERM (``timeout``, a batch system's stop) ends a command as Ctrl-C does.
+    """SIGTERM and SIGHUP end a command as Ctrl-C does.
 
-    Why: SIGTERM's default ends the process on the spot, so a replay's staged outputs
-    stayed behind as ``.NAME.partial-PID``; as a KeyboardInterrupt they are removed on
-    the way out and the exit status is 130. Only where signals can be set (the main
-    thread); the earlier handler comes back afterwards.
+    SIGTERM: ``timeout``, a batch system's stop; SIGHUP: the terminal or ssh session closed
+    (not under ``nohup``, :func:`diffdrive_odom.ros.lifetime.stop_signals`). Why: SIGTERM's
+    default ends the process on the spot, so a replay's staged outputs stayed behind as
+    ``.NAME.partial-PID``; as a KeyboardInterrupt they are removed on the way out and the
+    exit status is 130. Only where signals can be set (the main thread); the earlier handler
+    comes back afterwards.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -128,11 +131,12 @@ def terminate_as_interrupt() -> Iterator[None]:
     def interrupt(signum: int, frame: object) -> None:
         raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    previous = {s: signal.signal(s, interrupt) for s in stop_signals() if s != signal.SIGINT}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -11,11 +11,14 @@ combined table of each bag's figures side by side (:data:`COLUMNS`; the work rec
 them with :func:`record`), also written as CSV or JSON with ``--summary``, so what is
 printed does not depend on scheduling. A bag that fails
 is named with its reason and does not stop the others; the exit status is the number
-of bags that failed (0: all worked).
+of bags that failed (0: all worked). The pool's workers end with this process however
+it ends (SIGKILL included: they used to wait for work under init forever), a bag they
+are on interrupted as by Ctrl-C, so its staged outputs go (:func:`_end_with_parent`).
 """
 
 from __future__ import annotations
 
+import _thread
 import argparse
 import csv
 import io
@@ -30,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from diffdrive_odom.ros import lifetime
 from diffdrive_odom.tools.outputs import output_problem
 
 Work = Callable[[argparse.Namespace], int]
@@ -142,9 +146,24 @@ def map_calls(fn: Callable[..., Any], calls: Sequence[tuple[Any, ...]], processe
     workers = processes or os.cpu_count() or 1
     if workers == 1 or len(calls) <= 1:
         return [_call(fn, c) for c in calls]
-    with ProcessPoolExecutor(max_workers=min(workers, len(calls))) as pool:
+    with ProcessPoolExecutor(max_workers=min(workers, len(calls)), initializer=_end_with_parent,
+                             initargs=(os.getpid(),)) as pool:
         futures: list[Future[Any]] = [pool.submit(fn, *c) for c in calls]
         return [_result(f) for f in futures]
+
+
+# Seconds a pool worker has, once the fleet's process has ended, to unwind the bag it is on.
+WORKER_GRACE_S = 2.0
+
+
+def _end_with_parent(parent: int) -> None:
+    """A pool worker's start: end once ``parent`` has ended.
+
+    The work is interrupted first (Ctrl-C's KeyboardInterrupt in the main thread: the
+    staged outputs are removed on the way out), then the worker exits; an idle one,
+    blocked on the pool's queue, exits after the grace.
+    """
+    lifetime.watch(parent, _thread.interrupt_main, WORKER_GRACE_S)
 
 
 def _call(fn: Callable[..., Any], call: tuple[Any, ...]) -> Any:

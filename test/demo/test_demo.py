@@ -22,6 +22,8 @@ import re
 import signal
 import subprocess
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -36,7 +38,7 @@ from diffdrive_odom.demo.settings import BAG_TOPICS, DEFAULT_PARAMS
 from diffdrive_odom.tools import bagio, bagreadings, evaluate
 
 import oracle
-from rosutil import executable
+from rosutil import executable, kill_left, still_running
 
 pytestmark = [pytest.mark.dds, pytest.mark.process, pytest.mark.demo, pytest.mark.slow]
 
@@ -314,11 +316,17 @@ def dense(points: np.ndarray[Any, Any], step: float = 0.005) -> np.ndarray[Any, 
     return np.array(out, dtype=float)
 
 
-def test_ctrl_c_stops_every_node(tmp_path: Path) -> None:
+@contextmanager
+def demo_with_nodes_up(tmp: Path) -> Iterator[tuple[subprocess.Popen[str], list[int]]]:
+    """``diffdrive-odom demo --short`` once its nodes are up: (the demo, the node pids).
+
+    Whatever of it is left at the end is killed (the demo, then its nodes).
+    """
     proc = subprocess.Popen(
-        [executable("diffdrive-odom"), "demo", "--output", str(tmp_path), "--no-plot",
-         "--domain-id", os.environ.get("ROS_DOMAIN_ID", "0")],
+        [executable("diffdrive-odom"), "demo", "--short", "--output", str(tmp / "out"),
+         "--no-plot", "--domain-id", os.environ.get("ROS_DOMAIN_ID", "0")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    children: list[int] = []
     try:
         assert proc.stdout is not None
         out = ""
@@ -330,12 +338,36 @@ def test_ctrl_c_stops_every_node(tmp_path: Path) -> None:
             out += line
         children = pids(out)
         assert "nodes up" in out, out  # the demo's ready line: the route starts now
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=20)
+        yield proc, children
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        kill_left(proc, children)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, pytest.param(
+    signal.SIGHUP, marks=pytest.mark.skipif(
+        signal.getsignal(signal.SIGHUP) == signal.SIG_IGN,
+        reason="SIGHUP ignored from the start (nohup): the demo ignores it too"))],
+    ids=["ctrl_c", "closed_terminal"])
+def test_ctrl_c_or_a_closed_terminal_stops_every_node(tmp_path: Path, signum: int) -> None:
+    """SIGHUP (the demo's terminal or ssh session closed) is a stop like Ctrl-C: it used
+    to end the demo on the spot, its four nodes left running under init."""
+    with demo_with_nodes_up(tmp_path) as (proc, children):
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=20)
     assert proc.returncode == 130, err
-    assert "interrupted" in err
+    assert "interrupted; every node stopped" in err
     assert_gone(children)
+
+
+def test_no_node_outlives_a_killed_demo(tmp_path: Path) -> None:
+    """SIGKILL runs nothing of the demo: each node, watching the demo's pid, stops by
+    itself (held until seen: a loaded machine may take seconds)."""
+    with demo_with_nodes_up(tmp_path) as (proc, children):
+        proc.kill()
+        proc.wait()
+        assert len(children) == NODES
+        assert not still_running(children, 30.0), "nodes outlived the demo"
+        logs = next(tmp_path.glob(".out.partial-*/out/logs"))
+        for name in ("sim_node", "cmd_vel_node", "odometry_node", "path_follower_node"):
+            text = (logs / f"{name}.log").read_text()
+            assert f"the process that started it (pid {proc.pid}) has ended" in text, text

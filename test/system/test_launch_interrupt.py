@@ -1,4 +1,5 @@
-"""Ctrl-C in the terminal of ``ros2 launch``: every node ends cleanly (exit 0).
+"""Ctrl-C in the terminal of ``ros2 launch``: every node ends cleanly (exit 0); and when
+launch itself is killed, or cannot start, no node stays behind.
 
 A terminal sends SIGINT to the whole foreground process group: ``ros2 launch`` and each
 node get it, then launch sends each node its own SIGINT. A user who presses Ctrl-C twice
@@ -7,26 +8,35 @@ the default action Python restores at its exit: ``process has died [... exit cod
 Here the real ``ros2 launch`` runs base.launch.py (odometry, cmd_vel, sim and follower
 nodes) from the colcon install in a session of its own, the test sends SIGINT to its
 process group as the terminal does, and launch's own log says how each process ended.
+
+A ``ros2 launch`` killed with SIGKILL (or SIGHUP, which it does not handle) runs no
+shutdown: its nodes, handed to init, kept running. Each now watches launch's pid and
+stops by itself. ``rviz:=true`` without RViz2 failed only when launch came to start it,
+after the odometry node, which stayed running: now it is named before anything starts.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import shlex
 import signal
 import subprocess
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 
-from rosutil import BIN
+from rosutil import BIN, still_running
 
 PACKAGE = "diffdrive_odom"
 NODES = {"odometry_node", "cmd_vel_node", "sim_node", "path_follower_node"}
 FINISHED = re.compile(r"\[INFO\] \[(\w+)-\d+\]: process has finished cleanly \[pid \d+\]")
+STARTED = re.compile(r"\[INFO\] \[(\w+)-\d+\]: process started with pid \[(\d+)\]")
 DIED = re.compile(r"\[ERROR\] \[(\w+)-\d+\]: process has died \[pid \d+, exit code (-?\d+)")
 
 pytestmark = [pytest.mark.xdist_group("colcon"), pytest.mark.dds, pytest.mark.process,
@@ -48,36 +58,87 @@ def ros2_env(colcon_ws: Path, tmp_path: Path) -> Iterator[dict[str, str]]:
            "ROS_LOG_DIR": str(tmp_path / "log")}
 
 
-@pytest.mark.parametrize("presses", [1, 2], ids=["ctrl_c", "ctrl_c_twice"])
-def test_ctrl_c_in_the_launch_terminal_ends_every_node_cleanly(
-    ros2_env: dict[str, str], presses: int
-) -> None:
+@contextmanager
+def launched(env: dict[str, str], *arguments: str
+             ) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:
+    """``ros2 launch diffdrive_odom ARGUMENTS`` in a session of its own, and its output
+    lines as they come; complete once the block is left, with whatever of the session is
+    left killed."""
     proc = subprocess.Popen(
-        [str(BIN / "ros2"), "launch", PACKAGE, "base.launch.py", "use_sim:=true",
-         "use_follower:=true"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ros2_env,
+        [str(BIN / "ros2"), "launch", PACKAGE, *arguments],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
         start_new_session=True)  # its own process group, as a terminal's foreground job
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(proc.stdout or ()), daemon=True)
     reader.start()
     try:
-        # Each node logs one INFO line once it is built: then all of them spin.
-        deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline and not all(
-                any(line.startswith(f"[{n}-") and "[INFO]" in line for line in lines)
-                for n in NODES):
-            assert proc.poll() is None, "".join(lines)
-            time.sleep(0.1)
+        yield proc, lines
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)  # launch, or nodes it left behind
+        proc.wait()
+        reader.join(10.0)
+
+
+def wait_for_nodes(proc: subprocess.Popen[str], lines: list[str]) -> None:
+    """Until each node has logged its first INFO line (built: all of them spin then)."""
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline and not all(
+            any(line.startswith(f"[{n}-") and "[INFO]" in line for line in lines)
+            for n in NODES):
+        assert proc.poll() is None, "".join(lines)
+        time.sleep(0.1)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, pytest.param(
+    signal.SIGHUP, marks=pytest.mark.skipif(
+        signal.getsignal(signal.SIGHUP) == signal.SIG_IGN,
+        reason="SIGHUP ignored from the start (nohup): launch would ignore it"))],
+    ids=["sigkill", "sighup"])
+def test_no_node_outlives_a_killed_launch(ros2_env: dict[str, str], signum: int) -> None:
+    """The signal to launch's pid only (``kill``, a closed ssh session): launch ends at
+    once, running no shutdown; each node, watching launch's pid, stops by itself."""
+    with launched(ros2_env, "base.launch.py", "use_sim:=true", "use_follower:=true"
+                  ) as (proc, lines):
+        wait_for_nodes(proc, lines)
+        pids = {m.group(1): int(m.group(2)) for m in STARTED.finditer("".join(lines))}
+        assert set(pids) == NODES, "".join(lines)
+        os.kill(proc.pid, signum)
+        assert proc.wait(timeout=30) == -signum, "".join(lines)
+        assert not still_running(list(pids.values()), 30.0), "".join(lines)
+
+
+def test_rviz_without_rviz2_is_named_before_any_node_starts(
+        ros2_env: dict[str, str]) -> None:
+    """On a machine without RViz2, the user's command: one line naming what is missing
+    and how to get it, exit 1, and no process started (launch's own log says which)."""
+    index = "share/ament_index/resource_index/packages/rviz2"
+    if any((Path(prefix) / index).exists()
+           for prefix in ros2_env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if prefix):
+        pytest.skip("RViz2 is installed here: nothing is missing")
+    command = ["base.launch.py", "use_sim:=true", "rviz:=true"]
+    with launched(ros2_env, *command) as (proc, lines):
+        code = proc.wait(timeout=60)
+    text = "".join(lines)
+    assert code == 1, f"ros2 launch {shlex.join(command)}:\n{text}"
+    errors = [ln for ln in text.splitlines() if "[ERROR]" in ln]
+    assert len(errors) == 1 and "rviz:=true needs RViz2" in errors[0], text
+    assert "apt install ros-jazzy-rviz2" in errors[0], text
+    assert not STARTED.search(text), text
+
+
+@pytest.mark.parametrize("presses", [1, 2], ids=["ctrl_c", "ctrl_c_twice"])
+def test_ctrl_c_in_the_launch_terminal_ends_every_node_cleanly(
+    ros2_env: dict[str, str], presses: int
+) -> None:
+    with launched(ros2_env, "base.launch.py", "use_sim:=true", "use_follower:=true"
+                  ) as (proc, lines):
+        wait_for_nodes(proc, lines)
         for press in range(presses):
             os.killpg(proc.pid, signal.SIGINT)
             if press + 1 < presses:
                 time.sleep(0.3)  # a second press while the nodes stop
         assert proc.wait(timeout=30) == 0, "".join(lines)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        reader.join(10.0)
     text = "".join(lines)
     assert {m.group(1): 0 for m in FINISHED.finditer(text)} | {
         m.group(1): int(m.group(2)) for m in DIED.finditer(text)} == dict.fromkeys(NODES, 0), text

@@ -6,7 +6,11 @@ order is the order the bags were given, whatever finished first.
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -14,7 +18,7 @@ import pytest
 from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import OPTIODOM_PARAMS, write_params
-from rosutil import DATA
+from rosutil import DATA, kill_left, running, still_running
 
 pytestmark = [pytest.mark.process]
 
@@ -113,3 +117,45 @@ def test_calibrate_decodes_its_bags_in_parallel(tmp_path: Path,
     err = capsys.readouterr().err
     assert "2 of 3 bags failed, so no fit" in err
     assert all(m in err for m in missing)
+
+
+# A fleet whose two workers are each on a long call (a bag that takes ten minutes).
+LONG_FLEET = r"""
+import time
+from diffdrive_odom.tools.fleet import map_calls
+map_calls(time.sleep, [(600.0,), (600.0,)], 2, None)
+"""
+
+
+def children_of(pid: int) -> list[int]:
+    """The running processes whose parent is ``pid`` (from /proc)."""
+    out = []
+    for entry in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{entry}/stat", "rb") as f:
+                ppid = int(f.read().rsplit(b")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == pid and running(int(entry)):
+            out.append(int(entry))
+    return out
+
+
+def test_the_pool_workers_end_when_the_fleet_is_killed() -> None:
+    """SIGKILL to the fleet's process runs none of the pool's shutdown: its workers used
+    to go on with their bags, then wait for work under init forever."""
+    fleet = subprocess.Popen([sys.executable, "-c", LONG_FLEET])
+    workers: list[int] = []
+    try:
+        deadline = time.monotonic() + 30.0
+        while len(workers) < 2 and time.monotonic() < deadline:
+            assert fleet.poll() is None
+            time.sleep(0.05)
+            workers = children_of(fleet.pid)
+        assert len(workers) == 2, workers
+        time.sleep(0.5)  # each on its call by now
+        fleet.kill()
+        fleet.wait()
+        assert not still_running(workers, 30.0), "pool workers outlived the fleet"
+    finally:
+        kill_left(fleet, workers)

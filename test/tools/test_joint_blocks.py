@@ -32,6 +32,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
+from diffdrive_odom.ros.lifetime import stop_signals
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools import (
     bagblocks,
@@ -396,12 +397,15 @@ def test_background_file_raises_a_failed_write() -> None:
     assert out.tell() >= 1 << 20
 
 
+@pytest.mark.parametrize("signum", [signal.SIGTERM, pytest.param(
+    signal.SIGHUP, marks=pytest.mark.skipif(
+        signal.SIGHUP not in stop_signals(), reason="SIGHUP ignored (nohup): not a stop"))])
 def test_sigterm_ends_a_replay_as_ctrl_c_with_no_output_left(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-        capfd: pytest.CaptureFixture[str]) -> None:
-    """A real SIGTERM to this process mid-replay (sent once the first block has gone
-    through): exit 130, the interrupted line, no output and no staged file left, and
-    SIGTERM's handler as it was before."""
+        capfd: pytest.CaptureFixture[str], signum: int) -> None:
+    """A real SIGTERM (or SIGHUP: the terminal closed) to this process mid-replay (sent
+    once the first block has gone through): exit 130, the interrupted line, no output
+    and no staged file left, and the signal's handler as it was before."""
     bag = DATA / "optiodom" / "square_231220200029_run-01"
     params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
     wrapped = progress.progress
@@ -409,14 +413,14 @@ def test_sigterm_ends_a_replay_as_ctrl_c_with_no_output_left(
     def then_terminate(items: Any, *args: Any, **kwargs: Any) -> Any:
         for k, item in enumerate(wrapped(items, *args, **kwargs)):
             if k == 1:
-                os.kill(os.getpid(), signal.SIGTERM)
+                os.kill(os.getpid(), signum)
             yield item
 
     monkeypatch.setattr(progress, "progress", then_terminate)
-    before = signal.getsignal(signal.SIGTERM)
+    before = signal.getsignal(signum)
     out = tmp_path / "out"
     assert cli(["replay", str(bag), "--params-file", str(params), "--progress", "-o", str(out),
                 "--csv", str(tmp_path / "out.csv")]) == 130
     assert "interrupted; no output written" in capfd.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.yaml"]
-    assert signal.getsignal(signal.SIGTERM) is before
+    assert signal.getsignal(signum) is before
