@@ -311,7 +311,8 @@ def _run_fleet(args: argparse.Namespace) -> int:
 
 def run_bag(args: argparse.Namespace) -> int:
     """One bag (``args.bag``) with the parsed flags: what ``replay BAG ...`` does."""
-    settings = online_report.replay_settings(args, settings_from_args)
+    settings = online_report.replay_settings(
+        args, settings_from_args, lambda text: print(f"{PREFIX} {text}", file=sys.stderr))
     if isinstance(settings, str):
         return _error(settings)
     problem = _output_problem(args)
