@@ -329,7 +329,8 @@ def run_bag(args: argparse.Namespace) -> int:
 
         try:
             gt_topic = evaluate.reference_topic(
-                args.bag, None if args.eval == AUTO_REFERENCE else args.eval, notify=notify)
+                args.bag, None if args.eval == AUTO_REFERENCE else args.eval, notify=notify,
+                flag="--eval TOPIC")
             ref = evaluate.read_trajectory(args.bag, gt_topic, args.child_frame,
                                            "--child-frame", notify)
         except bagio.BagError as err:
