@@ -179,7 +179,8 @@ def plot(path: str | None, trace: list[tuple[int, OnlineEstimate]], name: str) -
         return "online calibration plot: not written (no estimate: no step counted)\n"
     from diffdrive_odom.tools import online_plot
 
-    online_plot.write(path, trace, f"{name}: online geometry estimate from the gyro")
+    online_plot.write(path, trace, f"online calibration of {name}: the wheel geometry "
+                      "estimated from the gyro over the run")
     return f"online calibration plot: {path}\n"
 
 

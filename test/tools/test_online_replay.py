@@ -13,6 +13,7 @@ import re
 from importlib.resources import files
 from pathlib import Path
 
+import numpy as np
 import pytest
 from gyrostreams import ISSUE_ROUTE, TIMINGS, B, R, Route, stream, truth
 
@@ -46,6 +47,7 @@ def test_replay_prints_the_estimate_and_a_block_to_paste(
     code, out, err = _replay(tmp_path, capsys, MIXED, "--plot", str(png), use_imu=True)
     assert code == 0, err
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the estimate over the run, drawn
+    _assert_whole_and_titled(png, f"online calibration of {Path(_last_bag(tmp_path)).name}")
     assert f"online calibration plot: {png}" in out
     assert "online calibration (gyro" in out and "final:" in out
     assert "outside the estimate's 3-sigma region" in out
@@ -59,6 +61,22 @@ def test_replay_prints_the_estimate_and_a_block_to_paste(
     for name, (value, sigma) in block.items():
         assert abs(value - want[name]) < 3 * max(sigma, 1e-5)  # printed to 5 decimals
     assert "online calibration: the configured geometry is outside" in err  # the warning
+
+
+def _last_bag(tmp_path: Path) -> Path:
+    return max(tmp_path.glob("bag*"), key=lambda p: p.stat().st_mtime)
+
+
+def _assert_whole_and_titled(png: Path, title: str) -> None:
+    """Nothing drawn runs off the image (its four edges are background: the legend in
+    four columns ran past both sides), and the PNG's Title says what it shows."""
+    from PIL import Image
+
+    with Image.open(png) as im:
+        assert im.info.get("Title", "").startswith(title), im.info
+        rgb = np.asarray(im.convert("RGB"))
+    edges = np.concatenate([rgb[0], rgb[-1], rgb[:, 0], rgb[:, -1]])
+    assert (edges == 255).all(), "something drawn touches the image's edge (cut off)"
 
 
 def test_replay_says_when_not_determined_and_needs_the_gyro(
