@@ -84,6 +84,13 @@ try:
 except ImportError:
     html_theme = "alabaster"
 html_title = f"diffdrive_odom {release}"
+# The theme keeps table cells on one line in an 800 px column (wide tables scrolled
+# sideways, their key column off-screen): _static/tables.css wraps them.
+html_static_path = ["_static"]
+html_css_files = ["tables.css"]
+# A code block without a language is program output, not Python (Sphinx's default
+# would colour it as Python).
+highlight_language = "text"
 
 rosdoc2_settings = {
     # The API pages here document the core with autodoc already.

@@ -7,14 +7,15 @@ simulated base in place of the hardware driver; with ``use_follower:=true`` also
 ``path_follower_node`` (odom in, cmd_vel out, path from the params file's
 ``follower.*`` or the ``path`` topic). The simulation moves with the params
 file's geometry (its ``true_*`` parameters are left at 0 = nominal), a 50 ms motor lag
-and a 0.5 s command timeout, publishing at 50 Hz. It publishes ``/clock`` only with
-``use_sim_time:=true``; it never follows ``/clock`` itself, since it is the clock.
+and a 0.5 s command timeout, publishing at 50 Hz; with ``use_imu:=true`` also its gyro on
+``imu`` at 100 Hz (``imu_rate``), which the odometry then reads. It publishes ``/clock``
+only with ``use_sim_time:=true``; it never follows ``/clock`` itself, since it is the clock.
 Every node ends with launch, however launch ends (see odometry.launch.py).
 """
 
 # ruff: noqa: I001 (ruff takes ./launch for first-party; this is ROS 2 launch)
-from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription
+from launch import LaunchContext, LaunchDescription
+from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction
 from launch.conditions import IfCondition
 from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, ThisLaunchFileDir
@@ -31,6 +32,35 @@ SIM_PARAMETERS = {
     "motor_time_constant": 0.05,  # [s] first-order motor response
     "command_timeout": 0.5,  # [s] no wheel command -> the wheels stop
 }
+# [Hz] the simulated gyro with use_imu:=true: 2 samples per 50 Hz reading (the sim
+# publishes a whole number per reading), each stamped at the middle of its own period,
+# so none shares a wheel reading's stamp. Without it the odometry would say "IMU silent".
+SIM_IMU_RATE = 100.0
+
+
+def _sim_gyro(context: LaunchContext) -> dict[str, float]:
+    """sim_node's gyro when use_imu:=true is given (else the params files' imu_rate)."""
+    given = LaunchConfiguration("use_imu").perform(context).strip().lower()
+    return {"imu_rate": SIM_IMU_RATE} if given == "true" else {}
+
+
+def _sim_node(context: LaunchContext) -> list[Node]:
+    """sim_node with use_sim:=true: the simulated base, and its gyro with use_imu:=true."""
+    use_sim_time = ParameterValue(LaunchConfiguration("use_sim_time"), value_type=bool)
+    return [Node(
+        package=PACKAGE,
+        executable="sim_node",
+        name="sim_node",
+        namespace=LaunchConfiguration("namespace"),
+        condition=IfCondition(LaunchConfiguration("use_sim")),
+        parameters=[LaunchConfiguration("params_file"), LaunchConfiguration("extra_params_file"),
+                    {**SIM_PARAMETERS, **_sim_gyro(context),
+                     "publish_clock": use_sim_time, "use_sim_time": False}],
+        remappings=[("joint_states", LaunchConfiguration("joint_states_topic")),
+                    ("wheel_commands", LaunchConfiguration("wheel_commands_topic"))],
+        additional_env=child_env({}),  # launch's pid: the node ends with it
+        output="screen",
+    )]
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -76,7 +106,8 @@ def generate_launch_description() -> LaunchDescription:
             description="Wheel velocity commands out of cmd_vel_node (into the driver)"),
         DeclareLaunchArgument(
             "use_imu", default_value="",
-            description="Gyrodometry on the imu topic: true or false (empty: the params file's)"),
+            description="Gyrodometry on the imu topic: true or false (empty: the params "
+            "file's); true with use_sim also starts the sim's gyro (imu_rate 100 Hz)"),
         DeclareLaunchArgument(
             "enable_odom_tf", default_value="",
             description="Publish odom -> base_link on /tf: true or false (empty: the file's)"),
@@ -96,19 +127,7 @@ def generate_launch_description() -> LaunchDescription:
             additional_env=child_env({}),  # launch's pid: the node ends with it
             output="screen",
         ),
-        Node(
-            package=PACKAGE,
-            executable="sim_node",
-            name="sim_node",
-            namespace=namespace,
-            condition=IfCondition(LaunchConfiguration("use_sim")),
-            parameters=[params_file, extra_params_file, {
-                **SIM_PARAMETERS, "publish_clock": use_sim_time, "use_sim_time": False}],
-            remappings=[
-                ("joint_states", LaunchConfiguration("joint_states_topic")), wheel_commands],
-            additional_env=child_env({}),  # launch's pid: the node ends with it
-            output="screen",
-        ),
+        OpaqueFunction(function=_sim_node),
         Node(
             package=PACKAGE,
             executable="path_follower_node",

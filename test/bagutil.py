@@ -142,12 +142,13 @@ def joint_state_msg(t: Any, stamp_ns: int, left: float, right: float) -> Any:
 
 def write_sensor_bag(path: Path, messages: Iterable[tuple[Any, ...]],
                      imu_hz: float, noise_density: float = 3e-4, truth: Truth | None = None,
-                     truth_hz: float = 100.0, imu: bool = True) -> None:
+                     truth_hz: float = 100.0, imu: bool = True,
+                     truth_topic: str = "/ground_truth/pose") -> None:
     """An MCAP bag of ``gyrostreams`` messages, each logged at its receive time.
 
     JointStates on /joint_states (positions), Imu on /imu (the yaw rate, its
     angular_velocity_covariance honest: the density squared times the rate; ``imu``
-    False: none written). ``truth``: its poses at ``truth_hz`` on /ground_truth/pose
+    False: none written). ``truth``: its poses at ``truth_hz`` on ``truth_topic``
     (PoseStamped, stamped and logged at the true time). ``refstreams``' reference poses
     (if any) as PoseStamped on /reference.
     """
@@ -160,7 +161,7 @@ def write_sensor_bag(path: Path, messages: Iterable[tuple[Any, ...]],
         joints = writer.add_connection("/joint_states", JS, typestore=STORE)
         imus = writer.add_connection("/imu", IMU, typestore=STORE) if imu else None
         if truth is not None:
-            _write_truth(writer, truth, truth_hz)
+            _write_truth(writer, truth, truth_hz, truth_topic)
         messages = list(messages)
         ref = (writer.add_connection("/reference", POSE, typestore=STORE)
                if any(m[0] == "r" for m in messages) else None)
@@ -182,9 +183,9 @@ def write_sensor_bag(path: Path, messages: Iterable[tuple[Any, ...]],
                 writer.write(imus, rx, bytes(STORE.serialize_cdr(msg, IMU)))
 
 
-def _write_truth(writer: Writer, truth: Truth, rate_hz: float) -> None:
-    """``truth`` sampled at ``rate_hz`` as PoseStamped on /ground_truth/pose."""
-    conn = writer.add_connection("/ground_truth/pose", POSE, typestore=STORE)
+def _write_truth(writer: Writer, truth: Truth, rate_hz: float, topic: str) -> None:
+    """``truth`` sampled at ``rate_hz`` as PoseStamped on ``topic``."""
+    conn = writer.add_connection(topic, POSE, typestore=STORE)
     for s in np.arange(0.0, float(truth.t[-1]) + 1e-9, 1.0 / rate_hz):
         x, y, yaw = truth.at(float(s))
         stamp = T0 + round(float(s) * 1e9)

@@ -43,7 +43,7 @@ from diffdrive_odom.ros.reference_input import ReferenceSubscription
 from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.ros.set_pose import ResetService, SetPoseSubscription
 from diffdrive_odom.ros.throttle import KeyedThrottle
-from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, odometry_settings
+from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, odometry_settings, online_warning
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.wire.imu import ImuFields, decode_imu
 from diffdrive_odom.wire.jointstate import JointArrays, JointStateDecoder
@@ -105,8 +105,8 @@ class OdometryEndpoints:
         # With the gyro (read-only) the online estimate may run: monitor at any time.
         self._estimate_pub = None if settings.gyro is None else GeometryEstimatePublisher(
             node, lambda: self._pipeline.stats.online)
-        if settings.online_note:
-            node.get_logger().info(settings.online_note)
+        if online_warning(settings):
+            node.get_logger().warning(online_warning(settings))
         ref = None if settings.gyro is None or settings.online is None else (
             settings.online.reference)  # read-only: for the node's whole life or not
         self._ref_sub = None if ref is None else ReferenceSubscription(

@@ -339,6 +339,23 @@ def _online_config(v: Mapping[str, Any]) -> OnlineConfig | None:
     return None if mode == "disabled" else cfg
 
 
+APPLY_NEEDS_IMU = ("online_calibration is apply but use_imu is false: nothing is estimated "
+                   "or applied (the estimate needs the gyro); set use_imu: true, or "
+                   "online_calibration: monitor or disabled")
+
+
+def online_warning(settings: OdometrySettings) -> str:
+    """The start's warning about online calibration ('' for none).
+
+    ``monitor`` is the default and means "while the gyro is on": without ``use_imu``
+    there is nothing to monitor, which is no news to log at every start. ``apply``
+    asks for odometry integrated with an estimate that cannot exist without the gyro:
+    that is said.
+    """
+    online = settings.online
+    return APPLY_NEEDS_IMU if settings.gyro is None and online and online.apply else ""
+
+
 def _reference_config(v: Mapping[str, Any]) -> ReferenceConfig | None:
     """The reference pose's settings (checked even without a topic), None without one."""
     topic = v["online_calibration_reference_topic"]

@@ -12,7 +12,7 @@ once more, keeping where each value came from.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 from diffdrive_odom.settings.params import (
     ParamSource,
@@ -33,9 +33,14 @@ def _same(a: ParamValue, b: ParamValue) -> bool:
 
 
 def shadowed_overrides_line(
-    sources: Sequence[ParamSource], node_name: str, namespace: str = "/"
+    sources: Sequence[ParamSource], node_name: str, namespace: str = "/",
+    settled: Mapping[str, ParamValue] | None = None,
 ) -> str | None:
-    """One line naming each ``-p`` whose value the node does not get, and why; or None."""
+    """One line naming each ``-p`` whose value the node does not get, and why; or None.
+
+    ``settled``: values a tool sets after every source; a ``-p`` of the same value is
+    then not lost.
+    """
     fqn = fully_qualified_name(node_name, namespace)
     given: dict[str, tuple[str, ParamValue]] = {}
     for kind, item in sources:
@@ -52,6 +57,8 @@ def shadowed_overrides_line(
             if name in values and node_matches(pattern, fqn):
                 winner = pattern
         if winner is None or _same(entries[winner][name], value):
+            continue
+        if settled and name in settled and _same(settled[name], value):
             continue
         if winner == "/**":
             lost.append(f"-p {text} (a params file after it sets {name} in '/**')")

@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.settings.params import ParamSource, resolve_parameters
+from diffdrive_odom.settings.params import ParamSource, ParamValue, resolve_parameters
 from diffdrive_odom.settings.registry import unknown_parameters_report
 from diffdrive_odom.settings.shadowed import shadowed_overrides_line
 from diffdrive_odom.tools.outputs import output_problem
@@ -34,16 +34,18 @@ def fail(prefix: str, text: str) -> int:
 
 def load_settings(
     params: str | Path | Sequence[ParamSource], node_name: str = NODE_NAME,
-    namespace: str = "/",
+    namespace: str = "/", settled: Mapping[str, ParamValue] | None = None,
 ) -> OdometrySettings:
     """Return the node's settings from its params files and ``-p`` overrides.
 
     Sources are in command-line order, resolved as rclpy resolves them for this node
-    name and namespace, and validated exactly as the node does.
+    name and namespace, and validated exactly as the node does. ``settled``: values a
+    tool's own flag implies (``replay --online-calibration``: use_imu), set after every
+    source, as no ``-p`` can be (a node's own section beats it).
     """
     sources = [("file", str(params))] if isinstance(params, (str, Path)) else list(params)
-    values = resolve_parameters(sources, node_name, namespace)
-    shadowed = shadowed_overrides_line(sources, node_name, namespace)
+    values = {**resolve_parameters(sources, node_name, namespace), **(settled or {})}
+    shadowed = shadowed_overrides_line(sources, node_name, namespace, settled or {})
     for line in (*unknown_parameters_report(list(values)), shadowed):
         if line:
             print(f"[replay] {line}", file=sys.stderr)
@@ -79,7 +81,8 @@ def add_param_arguments(ap: argparse.ArgumentParser, required: bool, file_help: 
 def settings_from_args(args: argparse.Namespace) -> OdometrySettings | str:
     """The settings :func:`add_param_arguments`' flags give, or the one line why not."""
     try:
-        return load_settings(args.ros_params, args.node_name, args.namespace)
+        return load_settings(args.ros_params, args.node_name, args.namespace,
+                             getattr(args, "settled", None))
     except ParameterError as err:
         return str(err)
     except OSError as err:

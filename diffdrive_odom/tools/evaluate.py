@@ -69,13 +69,15 @@ REFERENCE_HINTS = ("ground_truth", "groundtruth", "mocap", "vicon", "optitrack")
 
 def reference_topic(
     bag: str | Path, requested: str | None, exclude: Iterable[str] = (),
-    notify: Notify | None = None,
+    notify: Notify | None = None, flag: str = "--ground-truth TOPIC",
 ) -> str:
     """The reference topic to read: ``requested``, else the default, else the one candidate.
 
     With no topic asked for and no :data:`DEFAULT_REFERENCE` in the bag, a pose-typed
     topic whose name looks like ground truth is taken when it is the only one (and
-    ``notify`` is told); otherwise BagError lists what there is.
+    ``notify`` is told); otherwise BagError lists what there is. ``flag``: how the
+    command running it names another topic (eval's, calibrate's ``--ground-truth``;
+    replay's ``--eval TOPIC``), in both.
     """
     if requested is not None:
         return requested
@@ -91,12 +93,12 @@ def reference_topic(
     if len(plausible) == 1:
         if notify is not None:
             notify(f"{DEFAULT_REFERENCE} is not in {bag}; using {plausible[0]}, its only "
-                   "ground-truth topic (--ground-truth to choose another)")
+                   f"ground-truth topic ({flag} to choose another)")
         return plausible[0]
     which = "several ground-truth topics" if plausible else "no ground-truth topic"
     raise bagio.BagError(
         f"{bag}: {DEFAULT_REFERENCE} is absent and there are {which}; name one with "
-        f"--ground-truth (pose topics: {', '.join(posed) or 'none'})")
+        f"{flag} (pose topics: {', '.join(posed) or 'none'})")
 
 
 def read_trajectory(

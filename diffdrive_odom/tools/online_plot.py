@@ -20,10 +20,11 @@ NAMES = ("left wheel radius", "right wheel radius", "wheel separation")
 COLORS = ("tab:blue", "tab:orange", "tab:green")
 
 
-def draw(ax: Any, trace: Trace, true: Sequence[float] | None = None) -> None:
+def draw(ax: Any, trace: Trace, true: Sequence[float] | None = None, columns: int = 4) -> None:
     """The estimate's multipliers with their 1-sigma bands on ``ax`` (a matplotlib Axes).
 
-    ``true``: the true multipliers in the same convention (a simulation's), dashed.
+    ``true``: the true multipliers in the same convention (a simulation's), dashed;
+    ``columns``: of the legend under the axes (the demo's panel is the figure's width).
     """
     import numpy as np
 
@@ -51,19 +52,23 @@ def draw(ax: Any, trace: Trace, true: Sequence[float] | None = None) -> None:
     ax.set_xlabel("distance the estimate counted [m]")
     ax.set_ylabel("multiplier (mean radius held)")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), fontsize=7.5, ncol=4)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), fontsize=8, ncol=columns)
 
 
 def write(path: str | Path, trace: Trace, title: str) -> None:
-    """A PNG of :func:`draw` alone."""
+    """A PNG of :func:`draw` alone, titled ``title`` (also the PNG's Title).
+
+    The legend sits under the axes in two columns and the image is cut to what is drawn
+    (``bbox_inches="tight"``): in four columns on a 9-inch figure it ran past both edges.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(9, 5))
-    draw(ax, trace)
+    fig, ax = plt.subplots(figsize=(9, 5.5))
+    draw(ax, trace, columns=2)
     ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=100, bbox_inches="tight", pad_inches=0.15,
+                metadata={"Title": title})
     plt.close(fig)

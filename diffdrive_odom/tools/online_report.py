@@ -6,7 +6,11 @@ estimate at a few points of the run, by distance, then the final one as a block 
 ddc's multipliers to paste into the parameter file, as ``calibrate`` prints its own;
 with ``--reference-topic`` the reference's scale too (the same as the node's parameter
 ``online_calibration_reference_topic``).
-Without ``use_imu`` there is nothing to estimate from, which is said.
+Without ``use_imu`` there is nothing to estimate from: ``--online-calibration`` turns it
+on where the bag has the gyro (its Imu topic), and says so; it is set after every params
+source, since a params file's own ``odometry_node`` section beats any ``-p`` (rclpy's
+order: ``/**``, where every ``-p`` goes, then the node's own). A bag without the gyro is
+said in one line.
 """
 
 from __future__ import annotations
@@ -21,53 +25,84 @@ from diffdrive_odom.core.estimation.online_geometry import (
     CHI2_2DOF_3SIGMA,
     OnlineEstimate,
 )
+from diffdrive_odom.settings.errors import ParameterError
+from diffdrive_odom.settings.params import ParamValue, resolve_parameters
 
 ROWS = 6  # estimates printed over the run besides the final one
-NEEDS_IMU = ("--online-calibration needs the gyro: set use_imu: true in the parameters "
-             "(or -p use_imu:=true) and give the bag's Imu topic (--imu-topic)")
+NEEDS_IMU = ("--online-calibration needs the gyro: {bag} has no sensor_msgs/Imu on {topic} "
+             "(name the bag's Imu topic with --imu-topic)")
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     """``--online-calibration`` and ``--reference-topic`` (replay's flags)."""
     ap.add_argument("--online-calibration", action="store_true",
                     help="print the gyro's online geometry estimate over the run and a block "
-                    "to paste (needs use_imu)")
+                    "to paste (turns use_imu on where the bag has the gyro on --imu-topic)")
     ap.add_argument("--reference-topic", default=None, metavar="TOPIC",
                     help="with --online-calibration: a reference pose in the bag (Odometry or "
                     "PoseStamped: lidar odometry, motion capture, AMCL) for the scale and the "
-                    "gyro's scale factor (= -p online_calibration_reference_topic:=TOPIC; "
-                    "default: none, the scale stays the configured one)")
-
-
-def reference_override(args: argparse.Namespace) -> str:
-    """``--reference-topic`` as the node's parameter, after every other source; '' or why not."""
-    if not args.reference_topic:
-        return ""
-    if not args.online_calibration:
-        return "--reference-topic needs --online-calibration"
-    args.ros_params = [*args.ros_params,
-                       ("param", f"online_calibration_reference_topic:={args.reference_topic}")]
-    return ""
+                    "gyro's scale factor (online_calibration_reference_topic, over the "
+                    "params; default: the params' (none): the scale stays the configured one)")
 
 
 def replay_settings(args: argparse.Namespace,
-                    load: Callable[[argparse.Namespace], OdometrySettings | str]
-                    ) -> OdometrySettings | str:
+                    load: Callable[[argparse.Namespace], OdometrySettings | str],
+                    notify: Callable[[str], None]) -> OdometrySettings | str:
     """The settings replay runs with, or the one line why not.
 
-    ``--reference-topic`` as the node's parameter; the estimate on with
-    ``--online-calibration``.
+    ``--reference-topic`` as the node's parameter; with ``--online-calibration`` the
+    gyro (where the bag has it: ``notify`` is told) and the estimate on, set after every
+    params source (``settled``, which ``load`` reads from its namespace).
     """
-    settings = reference_override(args) or load(args)
-    if isinstance(settings, str) or not args.online_calibration:
-        return settings
-    if settings.gyro is None:
-        return NEEDS_IMU
-    if settings.online is None:  # disabled in the params: as the node in monitor, the
-        # reference and the other online_calibration_* parameters read as it reads them
-        args.ros_params = [*args.ros_params, ("param", "online_calibration:=monitor")]
-        settings = load(args)
-    return settings
+    if args.reference_topic and not args.online_calibration:
+        return "--reference-topic needs --online-calibration"
+    if not args.online_calibration:
+        return load(args)
+    settled = _online_settled(args, notify)
+    if isinstance(settled, str):
+        return settled
+    return load(argparse.Namespace(**{**vars(args), "settled": settled}))
+
+
+def _online_settled(args: argparse.Namespace,
+                    notify: Callable[[str], None]) -> dict[str, ParamValue] | str:
+    """What ``--online-calibration`` sets after the params, or why the bag gives no estimate.
+
+    use_imu where they leave it off and the bag has the gyro; online_calibration monitor
+    where they disable it (as the node in monitor: the reference and the other
+    online_calibration_* read as it reads them); ``--reference-topic`` as
+    online_calibration_reference_topic.
+    """
+    try:
+        values = resolve_parameters(args.ros_params or [], args.node_name, args.namespace)
+    except (ParameterError, OSError):
+        return {}  # loading the settings says what is wrong
+    settled: dict[str, ParamValue] = {}
+    if values.get("use_imu") is not True:
+        missing = _no_gyro(args.bag, args.imu_topic)
+        if missing:
+            return missing
+        settled["use_imu"] = True
+        notify(f"--online-calibration: use_imu on (the parameters leave it off; the bag's "
+               f"gyro is on {args.imu_topic})")
+    if values.get("online_calibration") == "disabled":
+        settled["online_calibration"] = "monitor"
+    if args.reference_topic:
+        settled["online_calibration_reference_topic"] = args.reference_topic
+    return settled
+
+
+def _no_gyro(bag: str, topic: str) -> str:
+    """Why ``bag`` gives no gyro on ``topic`` ('' when it has sensor_msgs/Imu there)."""
+    from diffdrive_odom.tools import bagio  # the bag library only now: --help needs none
+
+    try:
+        with bagio.open_bag(bag) as reader:
+            found = any(c.topic == topic and c.msgtype == bagio.IMU
+                        for c in reader.connections)
+    except bagio.BagError as err:
+        return str(err)
+    return "" if found else NEEDS_IMU.format(bag=bag, topic=topic)
 
 
 def reference_topic(settings: OdometrySettings) -> str | None:
@@ -144,7 +179,8 @@ def plot(path: str | None, trace: list[tuple[int, OnlineEstimate]], name: str) -
         return "online calibration plot: not written (no estimate: no step counted)\n"
     from diffdrive_odom.tools import online_plot
 
-    online_plot.write(path, trace, f"{name}: online geometry estimate from the gyro")
+    online_plot.write(path, trace, f"online calibration of {name}: the wheel geometry "
+                      "estimated from the gyro over the run")
     return f"online calibration plot: {path}\n"
 
 

@@ -311,7 +311,8 @@ def _run_fleet(args: argparse.Namespace) -> int:
 
 def run_bag(args: argparse.Namespace) -> int:
     """One bag (``args.bag``) with the parsed flags: what ``replay BAG ...`` does."""
-    settings = online_report.replay_settings(args, settings_from_args)
+    settings = online_report.replay_settings(
+        args, settings_from_args, lambda text: print(f"{PREFIX} {text}", file=sys.stderr))
     if isinstance(settings, str):
         return _error(settings)
     problem = _output_problem(args)
@@ -328,7 +329,8 @@ def run_bag(args: argparse.Namespace) -> int:
 
         try:
             gt_topic = evaluate.reference_topic(
-                args.bag, None if args.eval == AUTO_REFERENCE else args.eval, notify=notify)
+                args.bag, None if args.eval == AUTO_REFERENCE else args.eval, notify=notify,
+                flag="--eval TOPIC")
             ref = evaluate.read_trajectory(args.bag, gt_topic, args.child_frame,
                                            "--child-frame", notify)
         except bagio.BagError as err:

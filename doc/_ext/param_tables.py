@@ -12,12 +12,43 @@ An unknown table name fails the build (``sphinx-build -W``) naming the known one
 
 from __future__ import annotations
 
+import html
+import re
 from typing import Any
 
 from docutils import nodes
 from docutils.parsers.rst import Directive
 
 from diffdrive_odom.settings.registry import TABLE_HEADER, TABLES, table_rows
+
+
+class name_literal(nodes.literal):  # noqa: N801 (docutils names its node classes so)
+    """A parameter name: a literal that HTML may break after ``_`` and ``.``.
+
+    Why: names run to 44 characters (``online_calibration_reference_position_stddev``)
+    and a browser breaks a word only at a space, so the name column would push the
+    table past the page; ``<wbr>`` marks where a line may break and is not copied
+    with the name.
+    """
+
+
+def visit_name_literal(translator: Any, node: name_literal) -> None:
+    """``<code>`` with ``<wbr>`` after each ``_`` and ``.`` of the name."""
+    parts = re.split(r"(?<=[_.])", node.astext())
+    translator.body.append('<code class="docutils literal notranslate"><span class="pre">'
+                           + "<wbr>".join(html.escape(p) for p in parts if p)
+                           + "</span></code>")
+    raise nodes.SkipNode
+
+
+def visit_plain_literal(translator: Any, node: name_literal) -> None:
+    """Other builders: the name as an ordinary literal."""
+    translator.visit_literal(node)
+
+
+def depart_plain_literal(translator: Any, node: name_literal) -> None:
+    """Other builders: the ordinary literal's end."""
+    translator.depart_literal(node)
 
 
 def _cell(*children: nodes.Node) -> nodes.entry:
@@ -38,7 +69,7 @@ def table_node(name: str) -> nodes.table:
     group += nodes.thead("", _row([_cell(nodes.Text(h)) for h in TABLE_HEADER]))
     body = nodes.tbody()
     for param, kind, default, meaning in table_rows(name):
-        body += _row([_cell(nodes.literal(param, param)), _cell(nodes.Text(kind)),
+        body += _row([_cell(name_literal(param, param)), _cell(nodes.Text(kind)),
                       _cell(nodes.literal(default, default)), _cell(nodes.Text(meaning))])
     group += body
     table = nodes.table("", group, classes=["param-table"])
@@ -64,4 +95,7 @@ class ParamTable(Directive):
 def setup(app: Any) -> dict[str, Any]:
     """Register the directive (Sphinx calls this for each entry of ``extensions``)."""
     app.add_directive("param-table", ParamTable)
+    plain = (visit_plain_literal, depart_plain_literal)
+    app.add_node(name_literal, html=(visit_name_literal, None), latex=plain, text=plain,
+                 man=plain, texinfo=plain)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}

@@ -20,9 +20,12 @@ from diagutil import diagnosed
 from rosutil import (
     GEOMETRY,
     NAMES,
+    ROOT,
     STEP_NS,
     T0_NS,
+    Output,
     gyro_rig,
+    node_process,
     ns_of,
     send_first,
     spin_for,
@@ -150,3 +153,23 @@ def test_sim_node_gyro_and_scripted_slip_through_the_gyro_aided_node() -> None:
     dist_true = math.hypot(t.pose.pose.position.x - t0.pose.pose.position.x,
                            t.pose.pose.position.y - t0.pose.pose.position.y)
     assert dist_true > 0.2 and abs(dist_est - dist_true) < 0.02
+
+
+@pytest.mark.parametrize(("args", "warned"), [
+    ([], False),  # ros2 run with no file: the default monitor, no gyro
+    (["--params-file", str(ROOT / "config" / "diffdrive_odom.yaml")], False),  # launch's file
+    (["-p", "online_calibration:=apply"], True),
+    (["-p", "online_calibration:=apply", "-p", "use_imu:=true"], False),
+], ids=["defaults", "shipped_file", "apply_without_imu", "apply_with_imu"])
+def test_online_calibration_is_mentioned_at_start_only_when_it_cannot_do_what_was_set(
+        args: list[str], warned: bool) -> None:
+    """Every start without an IMU used to log 'online_calibration is monitor or apply
+    but use_imu is false': the default (monitor: while the gyro is on) contradicted the
+    default (no gyro). Now only apply without the gyro is said, once, as a warning."""
+    with node_process("odometry_node", ["--ros-args", *GEOMETRY, *args]) as proc:
+        out = Output(proc)
+        assert out.wait_for("wheel odometry:"), out.text()  # the start's last line
+        said = out.matching("online_calibration")
+    assert len(said) == warned, out.text()
+    if warned:
+        assert "WARN" in said[0] and "apply but use_imu is false" in said[0], said

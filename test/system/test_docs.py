@@ -158,12 +158,12 @@ def test_readme_and_ddc_page_show_one_parity_table() -> None:
     assert readme == page and len(page) >= 10
 
 
-@pytest.mark.slow
-@pytest.mark.process
-def test_docs_build_with_warnings_as_errors(tmp_path: Path) -> None:
-    """`make docs`'s build, on a copy of doc/ with a broken draft in doc/incoming."""
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`make docs`'s build, on a copy of doc/ with a broken draft in doc/incoming: its html."""
     pytest.importorskip("sphinx")
     pytest.importorskip("myst_parser")
+    tmp_path = tmp_path_factory.mktemp("docs")
     src = tmp_path / "doc"
     shutil.copytree(DOC, src, ignore=shutil.ignore_patterns("_build"))
     shutil.copy(ROOT / "package.xml", tmp_path / "package.xml")
@@ -174,12 +174,75 @@ def test_docs_build_with_warnings_as_errors(tmp_path: Path) -> None:
         [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-n", "-E", "-q", "-b", "html",
          str(src), str(out)], capture_output=True, text=True, timeout=240, cwd=ROOT)
     assert done.returncode == 0, done.stdout + done.stderr
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.process
+def test_docs_build_with_warnings_as_errors(built: Path) -> None:
+    out = built
     assert not (out / "incoming").exists()
     for node, names in NODE_TABLES.items():
-        html = (out / "nodes" / f"{node}.html").read_text(encoding="utf-8")
+        # A name may break after its underscores (<wbr>, param_tables.py).
+        html = (out / "nodes" / f"{node}.html").read_text(encoding="utf-8").replace("<wbr>", "")
         for name in names:
             for spec in table(name).own:
                 assert f">{spec.name}<" in html, (node, spec.name)
     assert (out / "_images" / "trajectory.png").is_file()
     assert "diffdrive_odom.core.geometry.integration" in (
         out / "api" / "geometry.html").read_text(encoding="utf-8")
+    # Program output is plain text, not coloured as Python.
+    demo = (out / "tools" / "demo.html").read_text(encoding="utf-8")
+    block = '<div class="highlight-text notranslate"><div class="highlight"><pre><span></span>'
+    assert f"{block}umbmark" in demo
+    assert "highlight-default" not in demo and "highlight-python" not in demo
+
+
+# Reports, for each table of a page as a browser lays it out, how far its right edge is
+# past the text column's (the theme's .wy-nav-content less its padding); a second after
+# load, as the theme's script wraps each table in its scrolling div after the page's own.
+_MEASURE = """<script>
+window.addEventListener('load', function () { setTimeout(function () {
+  var col = document.querySelector('.wy-nav-content');
+  var edge = col.getBoundingClientRect().right - parseFloat(getComputedStyle(col).paddingRight);
+  var out = [];
+  document.querySelectorAll('table.docutils').forEach(function (t) {
+    out.push(Math.round(t.getBoundingClientRect().right - edge));
+  });
+  var pre = document.createElement('pre');
+  pre.id = 'MEASURED';
+  pre.textContent = out.join(' ');
+  document.body.appendChild(pre);
+}, 1000); });
+</script>"""
+# Pages whose tables were wider than the column (cells kept on one line by the theme).
+WIDE_TABLE_PAGES = ("ddc.html", "robot.html", "nodes/odometry_node.html",
+                    "nodes/cmd_vel_node.html", "nodes/sim_node.html",
+                    "nodes/path_follower_node.html", "concepts/calibration.html",
+                    "benchmarks.html")
+
+
+@pytest.mark.slow
+@pytest.mark.process
+def test_every_table_fits_the_column_in_a_browser(built: Path) -> None:
+    """The pages in headless Chromium at 1280 x 900: no table reaches past the text column
+    (so none scrolls sideways); the sphinx_rtd_theme's nowrap cells did (ddc.md's
+    diffdrive_odom column off-screen, a parameter's meaning cut after a few words)."""
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    if browser is None:
+        pytest.skip("no chromium on PATH (Debian: apt-get install chromium)")
+    if "wy-nav-content" not in (built / "ddc.html").read_text(encoding="utf-8"):
+        pytest.skip("built without sphinx_rtd_theme (the layout measured is its own)")
+    for page in WIDE_TABLE_PAGES:
+        src = built / page
+        probe = src.with_name(f"_probe_{src.name}")
+        probe.write_text(src.read_text(encoding="utf-8").replace("</body>", _MEASURE + "</body>"),
+                         encoding="utf-8")
+        dom = subprocess.run(
+            [browser, "--headless", "--no-sandbox", "--disable-gpu", "--window-size=1280,900",
+             "--virtual-time-budget=5000", "--dump-dom", probe.as_uri()],
+            capture_output=True, text=True, timeout=120).stdout
+        found = re.search(r'<pre id="MEASURED">([^<]*)</pre>', dom)
+        assert found is not None, (page, dom[-500:])
+        past = [int(v) for v in found.group(1).split()]
+        assert past and max(past) <= 1, (page, past)

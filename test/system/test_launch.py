@@ -24,12 +24,13 @@ from typing import Any
 
 import pytest
 import yaml
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray
 
 from rosutil import (
@@ -417,6 +418,48 @@ def test_base_launch_with_sim_closes_the_loop(launch_env: Path, sim_time: bool) 
 
     run = run_launch(launch_env, "base.launch.py", {
         "namespace": NAMESPACE, "use_sim_time": str(sim_time).lower(), "use_sim": "true"}, check)
+    assert_clean(run, launch_env, {"odometry_node", "cmd_vel_node", "sim_node"})
+
+
+@pytest.mark.dds
+@pytest.mark.process
+@pytest.mark.launch
+def test_base_launch_with_sim_and_use_imu_gives_the_odometry_its_gyro(launch_env: Path) -> None:
+    """use_sim:=true use_imu:=true: sim_node publishes its gyro (imu_rate 100 Hz: two
+    samples per 50 Hz reading) and odometry_node runs gyro-aided on it, its /diagnostics
+    saying so (without the gyro it said "IMU silent: wheels only")."""
+
+    def check() -> None:
+        with ros_test_node("launch_peer") as (node, ex):
+            assert get_parameters(node, ex, f"/{NAMESPACE}/sim_node",
+                                  ["imu_rate", "joint_state_rate"]) == [100.0, 50.0]
+            assert get_parameters(node, ex, f"/{NAMESPACE}/odometry_node",
+                                  ["use_imu"]) == [True]
+            imu: list[Imu] = []
+            joints: list[JointState] = []
+            node.create_subscription(Imu, f"/{NAMESPACE}/imu", imu.append, 100)
+            node.create_subscription(
+                JointState, f"/{NAMESPACE}/joint_states", joints.append, 100)
+            aided: list[dict[str, str]] = []
+
+            def on_diagnostics(msg: DiagnosticArray) -> None:
+                for s in msg.status:
+                    values = {kv.key: kv.value for kv in s.values}
+                    if "odometry" in s.name and values.get("imu") == "gyro-aided" and int(
+                            values.get("imu samples", "0")) > 0:
+                        aided.append(values)
+
+            node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
+            assert spin_until(ex, lambda: bool(aided) and len(joints) >= 100, 30.0), (
+                len(joints), len(imu))
+            # Two samples per reading, counted over the stretch both streams were heard.
+            i_ns, j_ns = [_ns(m) for m in imu], [_ns(m) for m in joints]
+            lo, hi = max(i_ns[0], j_ns[0]), min(i_ns[-1], j_ns[-1])
+            both = sum(lo <= s <= hi for s in i_ns), sum(lo <= s <= hi for s in j_ns)
+            assert both[1] >= 50 and abs(both[0] - 2 * both[1]) <= 2, both
+
+    run = run_launch(launch_env, "base.launch.py", {
+        "namespace": NAMESPACE, "use_sim": "true", "use_imu": "true"}, check)
     assert_clean(run, launch_env, {"odometry_node", "cmd_vel_node", "sim_node"})
 
 

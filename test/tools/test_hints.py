@@ -11,12 +11,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from gyrostreams import TIMINGS, B, R, Route, stream, truth
 
 from diffdrive_odom.demo.report import TRUE, DemoResult, Row, Square
 from diffdrive_odom.tools.cli import PROGRAM, invocation
 from diffdrive_odom.tools.cli import main as cli
 
-from bagutil import OPTIODOM_PARAMS, write_params
+from bagutil import OPTIODOM_PARAMS, write_params, write_sensor_bag
 from rosutil import DATA
 
 RUN04 = DATA / "optiodom" / "square_231220200029_run-04"
@@ -59,3 +60,24 @@ def test_eval_of_a_replay_output_points_to_reference_bag(
     err = capsys.readouterr().err
     assert "give the bag it replayed as --reference-bag BAG" in err, err
     assert cli(["eval", str(out), "--reference-bag", str(RUN04)]) == 0
+
+
+def test_another_ground_truth_topic_is_named_with_each_commands_own_flag(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A bag whose only ground truth is /mocap/pose: replay --eval takes it and points to
+    ``--eval TOPIC`` (replay has no --ground-truth); eval points to its --ground-truth."""
+    route = Route(((5.0, 0.4, 0.0), (5.0, 0.3, 0.3)))
+    bag = tmp_path / "bag"
+    write_sensor_bag(bag, stream(route, TIMINGS[0], 0.0, 0.0, 1, truth(route, R, R, B)),
+                     TIMINGS[0].imu_hz, truth=truth(route, R, R, B), truth_topic="/mocap/pose")
+    params = write_params(tmp_path / "p.yaml", {"wheel_radius": R, "wheel_separation": B})
+    out = tmp_path / "replayed"
+    assert cli(["replay", str(bag), "--params-file", str(params), "--eval", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "using /mocap/pose, its only ground-truth topic (--eval TOPIC to choose another)" \
+        in err, err
+    assert "--ground-truth" not in err
+    assert cli(["eval", str(out), "--reference-bag", str(bag)]) == 0
+    err = capsys.readouterr().err
+    assert "using /mocap/pose, its only ground-truth topic (--ground-truth TOPIC to choose " \
+        "another)" in err, err

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import math
 import re
+from importlib.resources import files
 from pathlib import Path
 
+import numpy as np
 import pytest
 from gyrostreams import ISSUE_ROUTE, TIMINGS, B, R, Route, stream, truth
 
@@ -45,6 +47,7 @@ def test_replay_prints_the_estimate_and_a_block_to_paste(
     code, out, err = _replay(tmp_path, capsys, MIXED, "--plot", str(png), use_imu=True)
     assert code == 0, err
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the estimate over the run, drawn
+    _assert_whole_and_titled(png, f"online calibration of {Path(_last_bag(tmp_path)).name}")
     assert f"online calibration plot: {png}" in out
     assert "online calibration (gyro" in out and "final:" in out
     assert "outside the estimate's 3-sigma region" in out
@@ -60,6 +63,22 @@ def test_replay_prints_the_estimate_and_a_block_to_paste(
     assert "online calibration: the configured geometry is outside" in err  # the warning
 
 
+def _last_bag(tmp_path: Path) -> Path:
+    return max(tmp_path.glob("bag*"), key=lambda p: p.stat().st_mtime)
+
+
+def _assert_whole_and_titled(png: Path, title: str) -> None:
+    """Nothing drawn runs off the image (its four edges are background: the legend in
+    four columns ran past both sides), and the PNG's Title says what it shows."""
+    from PIL import Image
+
+    with Image.open(png) as im:
+        assert im.info.get("Title", "").startswith(title), im.info
+        rgb = np.asarray(im.convert("RGB"))
+    edges = np.concatenate([rgb[0], rgb[-1], rgb[:, 0], rgb[:, -1]])
+    assert (edges == 255).all(), "something drawn touches the image's edge (cut off)"
+
+
 def test_replay_says_when_not_determined_and_needs_the_gyro(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     straight = Route(((20.0, 0.5, 0.0), (20.0, 0.4, 0.0)))
@@ -67,8 +86,49 @@ def test_replay_says_when_not_determined_and_needs_the_gyro(
     assert code == 0
     assert "not yet determined" in out and "nothing to paste" in out
     assert "_multiplier:" not in out
-    code, _, err = _replay(tmp_path, capsys, straight)  # use_imu false
-    assert code != 0 and "--online-calibration needs the gyro" in err
+    # use_imu false: --online-calibration turns it on, the bag having its gyro, and says so.
+    code, out, err = _replay(tmp_path, capsys, straight)
+    assert code == 0, err
+    assert "--online-calibration: use_imu on" in err and "gyro is on /imu" in err
+    assert "not yet determined" in out
+    # A bag without the gyro where it is looked for: one line naming the topic.
+    code, out, err = _replay(tmp_path, capsys, straight, "--imu-topic", "/no_imu")
+    assert code == 2 and not out
+    assert "--online-calibration needs the gyro" in err and "sensor_msgs/Imu on /no_imu" in err
+    assert len(err.strip().splitlines()) == 1, err
+
+
+def test_the_demos_params_file_needs_no_third_file(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The trial's case: the demo's params file sets use_imu: false in its odometry_node
+    section, which beats any ``-p use_imu:=true`` (rclpy's order). ``--online-calibration``
+    alone gives what a file with use_imu: true in that section gives, line for line."""
+    bag = tmp_path / "bag"
+    write_sensor_bag(bag, stream(MIXED, JITTERED, math.radians(0.3), 3e-4, 1,
+                                 truth(MIXED, *TRUE)), JITTERED.imu_hz)
+    demo = files("diffdrive_odom") / "data" / "demo_params.yaml"
+    text = demo.read_text(encoding="utf-8")
+    assert "odometry_node:\n  ros__parameters:" in text and "    use_imu: false\n" in text
+    gyro = tmp_path / "demo_with_gyro.yaml"
+    gyro.write_text(text.replace("    use_imu: false\n", "    use_imu: true\n"), encoding="utf-8")
+    # The bag's positions are radians (the demo's encoders count ticks): in /**, after it.
+    radians = ["-p", "ticks_per_revolution:=0.0", "-p", "encoder_counter_bits:=0"]
+    said = {}
+    for name, params, extra in (("implied", str(demo), []),
+                                ("implied, -p too", str(demo), ["-p", "use_imu:=true"]),
+                                ("in the file", str(gyro), [])):
+        code = cli(["replay", str(bag), "--params-file", params, *radians, *extra,
+                    "--online-calibration"])
+        said[name] = capsys.readouterr()
+        assert code == 0, said[name].err
+    report = {name: s.out.splitlines()[1:] for name, s in said.items()}  # not the timing
+    assert "final:" in said["in the file"].out and "_multiplier:" in said["in the file"].out
+    assert report["implied"] == report["in the file"]
+    assert report["implied, -p too"] == report["in the file"]
+    for name in ("implied", "implied, -p too"):
+        assert "--online-calibration: use_imu on" in said[name].err
+        assert "does not get" not in said[name].err  # the -p is not lost: it is what runs
+    assert "use_imu on" not in said["in the file"].err
 
 
 def test_replay_of_the_turtlebot3_bag_excludes_its_slips_and_warns_throttled(
