@@ -23,7 +23,7 @@ import numpy as np
 
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
+from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.evaluation import calibration, leftout

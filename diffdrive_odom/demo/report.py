@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 from diffdrive_odom.core.estimation.gyro import GyroConfig
-from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
+from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
 from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.core.motion.paths import Point
 

@@ -1,7 +1,7 @@
 """``~/geometry_estimate``: the online geometry estimate as std_msgs/Float64MultiArray.
 
 One dimension, its label the comma-separated field names of
-:data:`diffdrive_odom.core.estimation.online_geometry.FIELDS` then
+:data:`diffdrive_odom.core.estimation.online_estimate.FIELDS` then
 :data:`diffdrive_odom.core.estimation.online_scale.SCALE_FIELDS` then
 :data:`diffdrive_odom.core.estimation.online_apply.APPLY_FIELDS` (so a reader finds each
 value by name, and a field added later does not shift silently), its size their count.
@@ -19,8 +19,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from diffdrive_odom.core.estimation.online_apply import APPLY_FIELDS
-from diffdrive_odom.core.estimation.online_geometry import FIELDS as GYRO_FIELDS
-from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
+from diffdrive_odom.core.estimation.online_estimate import FIELDS as GYRO_FIELDS
+from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
 from diffdrive_odom.core.estimation.online_scale import SCALE_FIELDS, scale_values
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 

@@ -24,8 +24,9 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, JointState
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.pipeline import IMU_SILENT, Outcome, ReadingPipeline
+from diffdrive_odom.core.estimation.pipeline import IMU_SILENT, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Publication, Refusal, pipeline_publication
+from diffdrive_odom.core.estimation.results import Outcome
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.health.diagnostics import (
     RateMeter,

@@ -86,6 +86,10 @@ GYRO_PARAMS: tuple[ParamSpec, ...] = (
               "A slip event is a run of slipping steps whose wheels got the heading wrong "
               "by at least this much [rad] (0.5 deg); smaller ones are fused, not named.",
               range=NON_NEGATIVE),
+    ParamSpec("imu_time_offset", "double", _G.time_offset,
+              "How much later [s] the IMU's stamps are than the wheels' for the same motion "
+              "(clocks only roughly aligned): subtracted from each IMU stamp. replay and "
+              "/diagnostics print the lag measured from the two turns."),
     ParamSpec("imu_stamp_source", "string", "header",
               "header: each Imu sample at its header stamp (the measurement time); "
               "receive_time: at the time it arrived on this node's clock (an IMU stamping "
@@ -381,5 +385,6 @@ def _gyro_config(v: Mapping[str, Any]) -> GyroConfig | None:
             zero_velocity_speed=v["zero_velocity_speed"],
             slip_distance_from_other_wheel=v["slip_distance_from_other_wheel"],
             slip_min_angle=v["slip_min_angle"],
-            stamp_source=_stamp_source(v["imu_stamp_source"], "imu_stamp_source"))
+            stamp_source=_stamp_source(v["imu_stamp_source"], "imu_stamp_source"),
+            time_offset=v["imu_time_offset"])
     return cfg if v["use_imu"] else None

@@ -21,10 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.online_geometry import (
-    CHI2_2DOF_3SIGMA,
-    OnlineEstimate,
-)
+from diffdrive_odom.core.estimation.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.params import ParamValue, resolve_parameters
 

@@ -25,10 +25,10 @@ from diffdrive_odom.core.estimation.open_loop import (
     publication_rate,
     publication_times,
 )
-from diffdrive_odom.core.estimation.pipeline import PipelineStats
 from diffdrive_odom.core.estimation.publication import Refusal, publication
+from diffdrive_odom.core.estimation.results import PipelineStats
 from diffdrive_odom.core.estimation.timeline import Status
-from diffdrive_odom.tools.replay import ReplayStats
+from diffdrive_odom.tools.replaystats import ReplayStats
 from diffdrive_odom.tools.sinks import PoseLog, Published
 
 if TYPE_CHECKING:  # the bag library only where a bag is read (``tools`` extra)

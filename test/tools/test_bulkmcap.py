@@ -21,6 +21,7 @@ from rosbags.rosbag2.storage_mcap import McapWriter
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools import bagio, bagreadings, bagwriter, bulkmcap, csvout, replay, sinks
+from diffdrive_odom.tools.replaystats import ReplayStats
 
 from paths import DATA
 
@@ -49,7 +50,7 @@ def _synthetic(path: Path, n: int) -> None:
 
 
 def _replay(bag: Path, settings: OdometrySettings, out: Path, *, bulk: bool,
-            storage: str = "mcap") -> replay.ReplayStats:
+            storage: str = "mcap") -> ReplayStats:
     with bagwriter.BagWriter(out, storage) as w, csvout.CsvWriter(out.with_suffix(".csv")) as t:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)

@@ -26,7 +26,8 @@ from diffdrive_odom.core.bulk import fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.encoders import Reason
-from diffdrive_odom.core.estimation.pipeline import Outcome, ReadingPipeline
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.results import Outcome
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D, integrate_batch
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment

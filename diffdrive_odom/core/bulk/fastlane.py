@@ -55,7 +55,8 @@ from diffdrive_odom.core.estimation.encoders import (
 )
 from diffdrive_odom.core.estimation.estimator import Step, plausible_steps
 from diffdrive_odom.core.estimation.gate import PublishGate
-from diffdrive_odom.core.estimation.pipeline import Handover, Outcome, ReadingPipeline
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.results import Handover, Outcome
 from diffdrive_odom.core.estimation.stamps import StampSource, in_sync
 from diffdrive_odom.core.geometry.integration import Pose2D, chord_array
 from diffdrive_odom.core.geometry.kinematics import body_from_arcs, wheel_arcs

@@ -37,6 +37,7 @@ from dataclasses import dataclass, replace
 
 from diffdrive_odom.core.errors import ConfigError
 from diffdrive_odom.core.estimation.gyrosamples import GyroSamples
+from diffdrive_odom.core.estimation.imulag import ImuLag
 from diffdrive_odom.core.estimation.slips import SlipEvents, SlipStats
 from diffdrive_odom.core.estimation.slipstep import SPIN_SIGMAS, slip_step
 from diffdrive_odom.core.estimation.stamps import StampSource
@@ -74,6 +75,7 @@ class GyroConfig:
     slip_distance_from_other_wheel: bool = True
     slip_min_angle: float = math.radians(0.5)  # rad: a smaller slip is no slip event
     stamp_source: StampSource = StampSource.HEADER  # imu_stamp_source
+    time_offset: float = 0.0  # s the IMU's stamps are later than the wheels': taken out
 
     def __post_init__(self) -> None:
         if len(self.orientation) != 3 or not all(math.isfinite(a) for a in self.orientation):
@@ -93,6 +95,7 @@ class GyroConfig:
             ("slip_threshold_sigmas", self.slip_sigmas, True),
             ("zero_velocity_speed", self.zero_velocity_speed, False),
             ("slip_min_angle", self.slip_min_angle, False),
+            ("imu_time_offset", abs(self.time_offset), False),
         ):
             if not (math.isfinite(value) and (value > 0.0 if positive else value >= 0.0)):
                 raise GyroConfigError(name, f"must be finite and {'>' if positive else '>='} 0, "
@@ -142,6 +145,7 @@ class GyroHeading:
         self.config = config
         self.quantization = quantization  # rad^2: a joint's variance per reading (ticks)
         self.jitter = StampJitter()  # the wheel stamps' timing error, measured turning
+        self.lag = ImuLag()  # how much later the IMU's stamps are than the wheels'
         self._moved_ns: int | None = None  # the last wheel stamp that moved
         self._held_from: int | None = None  # start of the readings held since then
         self._held_turn = 0.0  # the gyro's turn handed out over them (provisional)
@@ -228,6 +232,7 @@ class GyroHeading:
             return "future_stamp"
         if not self.samples.insert(stamp_ns, w):
             return "stale_stamp"  # a duplicate
+        self.lag.gyro(stamp_ns, w)
         if self._pending and stamp_ns >= self._pending[0].t1:
             self._settle(wheel if wheel is not None else stamp_ns)
         return ""
@@ -236,6 +241,7 @@ class GyroHeading:
         self._moved_ns = self._held_from = None
         self._held_turn = 0.0
         self.samples.clear()
+        self.lag.clear()
         self._pending.clear()
         self._judged_to = None
         self._debt = (0.0, 0.0)
@@ -374,24 +380,13 @@ class GyroHeading:
             self._judged(p, p.decided, None)
         self._debt = (0.0, 0.0)
 
-    def _ratios(self, geometry: Geometry) -> RatioModel:
-        """The ratios the wheels' turn is judged with: the geometry's, the noise model's sigmas.
-
-        Not the online estimate's: fed back, a bag whose wheels slip much (the TurtleBot3
-        sim) let slips into the estimate while its prior was wide, and it diverged.
-        """
-        sep = geometry.separation
-        u, v = geometry.right_radius / sep, geometry.left_radius / sep
-        rr, sr = self.noise.radius_stddev_ratio ** 2, self.noise.separation_stddev_ratio ** 2
-        return RatioModel(u, v, u * u * (rr + sr), u * v * sr, v * v * (rr + sr))
-
     def _judged(self, p: _Interval, judged: _Judged, raw: float | None) -> None:
         """A step judged for good: its slip counted, a standstill's bias update."""
         self._slips.step(judged.slip, p.t1, judged.error)
+        self.lag.wheels(p.t0, p.t1, (p.arcs[1] - p.arcs[0]) / p.geometry.separation)
         if raw is not None and not p.standing and not judged.slip and p.arcs != (0.0, 0.0):
             dt = (p.t1 - p.t0) * 1e-9
-            turn = raw - p.bias * dt
-            self.jitter.offer(-judged.error, turn / dt)
+            self.jitter.offer(-judged.error, (raw - p.bias * dt) / dt)
         self._judged_to = p.t1
         if self.observer is not None:
             self.observer(p.geometry, p.t0, p.t1, p.arcs, raw, judged.slip, p.standing)
@@ -417,7 +412,7 @@ class GyroHeading:
         cfg = self.config
         s_l, s_r = arcs
         phi_r, phi_l = s_r / geometry.right_radius, s_l / geometry.left_radius
-        model = self._ratios(geometry)
+        model = RatioModel.of(geometry, self.noise)
         dth_w = model.turn(phi_r, phi_l)
         var_white = cfg.noise_density ** 2 * dt
         g = raw - bias * dt

@@ -53,6 +53,7 @@ class ImuInput:
         self._stamps: list[int] = []  # the first samples' stamps (the period)
         self._variance: float | None = None  # the message's yaw-rate variance, if set
         self._covariance_judged = False
+        self._lag_said = False  # the IMU's lag named once, when it matters
 
     @property
     def dropped(self) -> Mapping[str, int]:
@@ -75,6 +76,8 @@ class ImuInput:
                 said = self._clock.check(stamp_ns, receive_ns)
                 if said:
                     self._warnings.append(said)
+        if stamp_ns > 0:  # the lag the user measured between the two clocks, taken out
+            stamp_ns -= round(self.gyro.config.time_offset * 1e9)
         code = self.gyro.add(stamp_ns, wx, wy, wz)
         if code:
             self._dropped[code] = self._dropped.get(code, 0) + 1
@@ -121,4 +124,8 @@ class ImuInput:
         if still.noise_warning:
             said, still.noise_warning = still.noise_warning, ""
             return said
+        lag = self.gyro.lag.estimate
+        if lag is not None and not self._lag_said and lag.matters(self.gyro.jitter.sigma):
+            self._lag_said = True
+            return lag.line(self.gyro.jitter.sigma)
         return still.warning()

@@ -73,7 +73,7 @@ EXCLUDED = {
                "(a reference jump)",
 }
 
-# Appended to ``online_geometry.FIELDS`` on ``~/geometry_estimate``, in this order.
+# Appended to ``online_estimate.FIELDS`` on ``~/geometry_estimate``, in this order.
 SCALE_FIELDS = (
     "reference",  # 1.0: a reference topic sets the scale; 0.0: the configured scale
     "scale_determined",  # 1.0 once MIN_DISTANCE m and min_turn rad of reference windows

@@ -9,7 +9,7 @@ the wheels' travel noise (:mod:`~diffdrive_odom.core.uncertainty.noise`), three 
 - **geometry**: the wheels' turn is ``u dphi_R - v dphi_L`` with the ratios ``u = r_R/b``,
   ``v = r_L/b``, known to the noise model's relative sigmas (a geometry a few percent off
   until calibrated is mostly covered by the timing term below, which grows with the turn
-  rate; the online estimate is not fed back: see ``GyroHeading._ratios``).
+  rate; the online estimate is not fed back: see :meth:`RatioModel.of`).
 - **quantization**: each reading's joint angle is a whole number of ticks; the turn
   between two readings is off by ``2 q (u^2 + v^2)``, ``q`` a joint's variance per reading.
 - **timing**: a driver stamps a reading when it publishes it, not when its counters were
@@ -33,6 +33,9 @@ from collections import deque
 from dataclasses import dataclass
 from statistics import median
 
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.uncertainty.noise import NoiseModel
+
 __all__ = ["HOLD_S", "MIN_RATE", "RatioModel", "StampJitter", "turn_variance"]
 
 # s: readings with no motion this soon after the wheels last moved are held by the driver
@@ -44,6 +47,7 @@ MIN_RATE = 0.1
 # measured it: a few ms is what a driver on USB or a serial bus gives.
 DEFAULT_JITTER_S = 0.005
 JITTER_WINDOW, JITTER_AFTER = 400, 25
+JITTER_EVERY = 25  # new shifts between two recomputations (two medians of the window)
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,6 +62,19 @@ class RatioModel:
     cuu: float
     cuv: float
     cvv: float
+
+    @classmethod
+    def of(cls, geometry: Geometry, noise: NoiseModel) -> RatioModel:
+        """A geometry's ratios, known to the noise model's relative sigmas.
+
+        Not the online estimate's: fed back into the slip test, a bag whose wheels slip
+        much (the TurtleBot3 sim) let slips into the estimate while its prior was wide,
+        and it diverged (1608 windows refused as outliers).
+        """
+        sep = geometry.separation
+        u, v = geometry.right_radius / sep, geometry.left_radius / sep
+        rr, sr = noise.radius_stddev_ratio ** 2, noise.separation_stddev_ratio ** 2
+        return cls(u, v, u * u * (rr + sr), u * v * sr, v * v * (rr + sr))
 
     def turn(self, phi_r: float, phi_l: float) -> float:
         """The wheels' turn [rad] for joint increments ``phi_r``, ``phi_l`` [rad]."""
@@ -75,12 +92,15 @@ class StampJitter:
     def __init__(self) -> None:
         self._shifts: deque[float] = deque(maxlen=JITTER_WINDOW)
         self._sigma: float | None = None
+        self._fresh = 0  # shifts offered since the sigma was computed
 
     def offer(self, disagreement: float, rate: float) -> None:
         """One interval: wheels' turn minus the gyro's [rad], the gyro's turn rate [rad/s]."""
         if abs(rate) >= MIN_RATE and math.isfinite(disagreement):
             self._shifts.append(disagreement / rate)
-            self._sigma = None
+            self._fresh += 1
+            if self._fresh >= JITTER_EVERY or len(self._shifts) <= JITTER_AFTER:
+                self._sigma = None
 
     @property
     def measured(self) -> bool:
@@ -93,6 +113,7 @@ class StampJitter:
         if not self.measured:
             return DEFAULT_JITTER_S
         if self._sigma is None:
+            self._fresh = 0
             shifts = list(self._shifts)
             mid = median(shifts)
             self._sigma = 1.4826 * median(abs(s - mid) for s in shifts) / math.sqrt(2.0)

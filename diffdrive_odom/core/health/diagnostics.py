@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Generic, TypeVar
 
-from diffdrive_odom.core.estimation.online_geometry import CHI2_2DOF_3SIGMA, OnlineEstimate
-from diffdrive_odom.core.estimation.pipeline import GyroStats
+from diffdrive_odom.core.estimation.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
+from diffdrive_odom.core.estimation.results import GyroStats
 from diffdrive_odom.core.estimation.standstill import STAND_WARN_S
 
 H = TypeVar("H")
@@ -262,6 +262,10 @@ def _gyro(now: GyroStats | None, before: GyroStats | None,
         ("gyro bias stddev [rad/s]", f"{finite(now.bias_stddev):.6g}"),
         ("zero-velocity updates", str(now.zero_velocity_updates)),
         ("standing still [s]", f"{finite(now.standing_s):.1f}"),
+        ("wheel stamp jitter [ms]", f"{finite(now.jitter * 1e3):.1f}"),
+        ("imu lag [ms]", "not measured" if now.lag is None
+         else f"{finite(now.lag.lag * 1e3):+.0f} +- {finite(now.lag.sigma * 1e3):.0f}"),
+        ("imu lag", "" if now.lag is None else now.lag.line(now.jitter)),
     ]
 
 

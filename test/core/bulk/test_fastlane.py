@@ -41,6 +41,7 @@ from diffdrive_odom.core.uncertainty.noise import NoiseModel
 from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty, pose_message_covariance
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools import bagreadings, replay
+from diffdrive_odom.tools.replaystats import ReplayStats
 from diffdrive_odom.tools.sinks import Published
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS
@@ -197,7 +198,7 @@ def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
     return b.readings - scalar
 
 
-def _agree(a: replay.ReplayStats, b: replay.ReplayStats, slow: list[Published],
+def _agree(a: ReplayStats, b: ReplayStats, slow: list[Published],
            fast: list[Published]) -> None:
     """Replay ``b`` (and what it published) is replay ``a``'s, to the issue's bounds."""
     for field in ("readings", "published", "statuses", "reasons", "examples", "refused",

@@ -30,7 +30,7 @@ from gyrostreams import (
 )
 
 from diffdrive_odom.core.estimation.config import ONLINE_NEEDS_IMU
-from diffdrive_odom.core.estimation.online_geometry import CHI2_2DOF_3SIGMA, OnlineEstimate
+from diffdrive_odom.core.estimation.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.ratios import multipliers

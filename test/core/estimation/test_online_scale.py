@@ -20,7 +20,7 @@ import pytest
 from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, Message, R, Truth, stream, truth
 from refstreams import Reference, RefMessage, merge, reference
 
-from diffdrive_odom.core.estimation.online_geometry import CHI2_2DOF_3SIGMA, OnlineEstimate
+from diffdrive_odom.core.estimation.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.core.estimation.online_scale import (
     SCALE_FIELDS,
     feed_reference,

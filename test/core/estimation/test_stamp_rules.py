@@ -21,7 +21,8 @@ from diffdrive_odom.core.bulk.readings import JointReading
 from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
 from diffdrive_odom.core.estimation.encoders import EncoderConfig, Reason
 from diffdrive_odom.core.estimation.estimator import OdometryEstimator
-from diffdrive_odom.core.estimation.pipeline import Outcome, ReadingPipeline
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.results import Outcome
 from diffdrive_odom.core.estimation.stamps import CLOCK_OFFSET_WARN_S, StampSource
 from diffdrive_odom.core.estimation.timeline import ADOPT_CLOCK_AFTER_S, Status
 from diffdrive_odom.core.geometry.integration import Pose2D

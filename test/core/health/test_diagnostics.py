@@ -93,7 +93,7 @@ def test_odometry_ok_while_readings_flow() -> None:
 
 
 def test_odometry_warns_when_the_robot_stood_and_no_zero_velocity_update_ran() -> None:
-    from diffdrive_odom.core.estimation.pipeline import GyroStats
+    from diffdrive_odom.core.estimation.results import GyroStats
 
     ran = GyroStats(samples=400, silent=False, zero_velocity_updates=100, standing_s=2.0)
     r = odometry_report(health(gyro=ran), None, TH)
@@ -110,8 +110,8 @@ def test_odometry_warns_when_the_robot_stood_and_no_zero_velocity_update_ran() -
 def test_odometry_reports_the_online_estimate_and_warns_when_outside() -> None:
     from types import MappingProxyType
 
-    from diffdrive_odom.core.estimation.online_geometry import OnlineEstimate
-    from diffdrive_odom.core.estimation.pipeline import GyroStats
+    from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
+    from diffdrive_odom.core.estimation.results import GyroStats
 
     def estimate(outside: bool, determined: bool = True) -> OnlineEstimate:
         return OnlineEstimate(
