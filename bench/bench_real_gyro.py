@@ -33,7 +33,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 
-from phildata import DATA, RUNS, anchor, load, package, turned, vicon_ratios
+from phildata import DATA, RUNS, Run, anchor, load, package, turned, vicon_ratios
 
 from diffdrive_odom.core.evaluation.metrics import evaluate
 
@@ -47,7 +47,7 @@ def main() -> int:
         return 1
     print(f"{'run':>4} {'readings':>8} {'turned':>7}  {'ATE wheels':>10} {'gyro-aided':>10} "
           f"{'anchor':>8} {'aided/anchor':>12} {'wheels/aided':>12}  {'slip steps':>12} "
-          f"{'events':>6}  {'bias [rad/s]':>12}")
+          f"{'events':>6}  {'bias [rad/s]':>12}  {'jitter':>6}  IMU lag after the wheels'")
     ok = True
     for n in RUNS:
         path = args.data / f"phil_trial_{n}"
@@ -70,7 +70,10 @@ def main() -> int:
         else:
             line += f"{'-':>10} {'-':>10} {'-':>8} {'-':>12} {'-':>12}  "
         ok &= share <= 0.05
-        line += f"{g.slips.steps:>5} ({100 * share:4.1f}%) {g.slips.events:>6}  {g.bias:>12.6f}"
+        lag = "not measured" if g.lag is None else (
+            f"{1e3 * g.lag.lag:+.0f} +- {1e3 * g.lag.sigma:.0f} ms")
+        line += (f"{g.slips.steps:>5} ({100 * share:4.1f}%) {g.slips.events:>6}  {g.bias:>12.6f}"
+                 f"  {1e3 * g.jitter:4.1f}ms  {lag}")
         print(line)
     print("goals (aided within 10 % of the anchor, 3x the wheels where turned > 1 rad, "
           f"slip steps <= 5 %): {'met' if ok else 'NOT met'}")
@@ -100,6 +103,20 @@ def online(data: Path) -> None:
         apart = abs(mb - ref[0]) / math.hypot(sb, ref[1])
         print(f"  run {n}: {mb:.4f} +- {sb:.4f} ({'determined' if est.determined else 'not yet'}"
               f", {apart:.1f} sigma from the Vicon fit); {est.line()}")
+        apply(data, n, est.multipliers, with_truth)
+
+
+def apply(data: Path, n: int, mult: tuple[float, float, float], runs: list[Run]) -> None:
+    """Wheels-only ATE of the runs with ground truth, nominal and with run n's estimate."""
+    params = dict(zip(("left_wheel_radius_multiplier", "right_wheel_radius_multiplier",
+                       "wheel_separation_multiplier"), mult, strict=True))
+    cells = []
+    for k, run in zip((0, 2), runs, strict=True):
+        assert run.truth is not None
+        before = evaluate(package(run, {})[0], run.truth).ate_rmse_best_fit_m
+        after = evaluate(package(run, params)[0], run.truth).ate_rmse_best_fit_m
+        cells.append(f"run {k} {before:.4f} -> {after:.4f} m")
+    print(f"    its geometry, wheels only (ATE nominal -> estimated): {'; '.join(cells)}")
 
 
 if __name__ == "__main__":

@@ -126,3 +126,32 @@ def vicon_ratios(runs: list[Run], window_s: float = 0.5) -> tuple[np.ndarray, np
     resid = y - a @ x
     cov = np.linalg.inv(a.T @ a) * float(resid @ resid) / (len(y) - 2)
     return x, cov
+
+
+def vicon_lag(run: Run, stream: str, span: float = 0.3) -> float:
+    """How much later [s] ``stream``'s stamps ("/imu" or "/joint_states") are than the Vicon's.
+
+    The shift that best fits the stream's turn over 0.25 s windows to the Vicon's
+    (least squares, a scale fitted per shift), searched within ``span`` in 2 ms steps.
+    """
+    assert run.truth is not None
+    if stream == "/imu":
+        imu = sorted((stamp(m), m.angular_velocity.z) for t, _, m in run.messages if t == stream)
+        t, w = (np.array(c, dtype=float) for c in zip(*imu, strict=True))
+        turn = np.concatenate(([0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t) * 1e-9)))
+    else:
+        js = [(stamp(m), *m.position) for k, _, m in run.messages if k == stream]
+        t, left, right = (np.array(c, dtype=float) for c in zip(*js, strict=True))
+        moved = np.concatenate(([True], (np.diff(left) != 0) | (np.diff(right) != 0)))
+        t, left, right = t[moved], left[moved], right[moved]  # held readings left out
+        ticks = [np.concatenate(([0.0], np.cumsum((np.diff(c) + 32768) % 65536 - 32768)))
+                 for c in (left, right)]
+        turn = RADIUS * 2 * math.pi / TICKS * (ticks[1] - ticks[0]) / TRACK
+    edges = np.arange(t[0] + 1e9, t[-1] - 1e9, 0.25e9)
+    dv = np.diff(np.interp(edges, run.truth.stamp_ns.astype(float), run.truth.yaw))
+    best = (math.inf, 0.0)
+    for shift in np.arange(-span, span + 1e-9, 0.002):
+        d = np.diff(np.interp(edges + shift * 1e9, t, turn))
+        k = float(d @ dv) / float(d @ d)
+        best = min(best, (float(np.sum((dv - k * d) ** 2)), float(shift)))
+    return best[1]

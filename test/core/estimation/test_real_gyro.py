@@ -13,7 +13,18 @@ import math
 from functools import cache
 
 import pytest
-from phildata import DATA, MISSING, RUNS, Run, anchor, load, package, turned, vicon_ratios
+from phildata import (
+    DATA,
+    MISSING,
+    RUNS,
+    Run,
+    anchor,
+    load,
+    package,
+    turned,
+    vicon_lag,
+    vicon_ratios,
+)
 
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.evaluation.metrics import Trajectory, evaluate
@@ -97,3 +108,53 @@ def test_the_noise_measured_standing_does_not_depend_on_the_declared_density() -
     assert measured == [measured[0]] * 3
     # The navX's datasheet-free figure the recordings show: near 1e-4 rad/s/sqrt(Hz).
     assert 5e-5 < measured[0] < 2e-4
+
+
+@pytest.mark.parametrize("n", (0, 2))
+def test_the_imu_lag_is_measured_as_the_vicon_sees_it(n: int) -> None:
+    """The lag between the IMU's stamps and the wheels' (measured by the node from the
+    two turns) is the difference of each one's lag behind the Vicon (fitted here
+    without the package), within 15 ms; imu_time_offset set to it leaves none."""
+    _, pipe = aided(n)
+    g = pipe.stats.gyro
+    assert g is not None and g.lag is not None
+    run = recording(n)
+    truth = vicon_lag(run, "/imu") - vicon_lag(run, "/joint_states")
+    assert abs(g.lag.lag - truth) <= 0.015, (g.lag.lag, truth)
+    assert g.lag.matters(g.jitter)  # 70-220 ms: beyond the stamps' jitter, so named
+    _, offset = package(run, {"use_imu": True, "imu_time_offset": g.lag.lag})
+    again = offset.stats.gyro
+    assert again is not None and again.lag is not None
+    assert abs(again.lag.lag) <= 0.01
+
+
+def test_the_runs_estimates_agree_with_each_other_within_two_sigma() -> None:
+    """Runs 4, 5 and 9, each alone: their separations and wheel ratios pairwise within
+    2 sigma (both estimates' sigmas, which carry the windows' variance factor)."""
+    ests = []
+    for n in (4, 5, 9):
+        online = aided(n)[1].online
+        assert online is not None
+        ests.append(online.estimate())
+    for i, a in enumerate(ests):
+        for b in ests[i + 1:]:
+            for k in (0, 2):  # the left radius (the ratio, mean radius held), the track
+                gap = abs(a.multipliers[k] - b.multipliers[k])
+                assert gap <= 2 * math.hypot(a.stddevs[k], b.stddevs[k]), (k, a.line(), b.line())
+
+
+def test_the_estimated_geometry_lowers_the_wheels_only_error() -> None:
+    """The geometry run 4 estimated (its multipliers, as apply integrates with), on the
+    runs with ground truth that turn: wheels-only ATE lower than the nominal's."""
+    online = aided(4)[1].online
+    assert online is not None
+    ml, mr, mb = online.estimate().multipliers
+    for n in (0, 2):
+        run = recording(n)
+        assert run.truth is not None
+        nominal = evaluate(package(run, {})[0], run.truth).ate_rmse_best_fit_m
+        fitted = evaluate(package(run, {"left_wheel_radius_multiplier": ml,
+                                        "right_wheel_radius_multiplier": mr,
+                                        "wheel_separation_multiplier": mb})[0],
+                          run.truth).ate_rmse_best_fit_m
+        assert fitted < 0.8 * nominal, (n, fitted, nominal)
