@@ -118,6 +118,7 @@ class _Judged:
     slip: bool
     error: float  # rad: the wheels' heading change minus the gyro's
     step: GyroStep
+    excess: float = 0.0  # m: what the spinning wheel read beyond what it rolled
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,6 +150,7 @@ class GyroHeading:
         self._moved_ns: int | None = None  # the last wheel stamp that moved
         self._held_from: int | None = None  # start of the readings held since then
         self._held_turn = 0.0  # the gyro's turn handed out over them (provisional)
+        self._spun = 0.0  # m: the excess a run of flagged steps read so far (slipstep)
         # The wheels' model the decision weighs them by (the default one when the
         # published covariance is static: the decision must not depend on that choice).
         self.noise = noise or NoiseModel()
@@ -383,6 +385,7 @@ class GyroHeading:
     def _judged(self, p: _Interval, judged: _Judged, raw: float | None) -> None:
         """A step judged for good: its slip counted, a standstill's bias update."""
         self._slips.step(judged.slip, p.t1, judged.error)
+        self._spun = self._spun + judged.excess if judged.slip else 0.0
         self.lag.wheels(p.t0, p.t1, (p.arcs[1] - p.arcs[0]) / p.geometry.separation)
         if raw is not None and not p.standing and not judged.slip and p.arcs != (0.0, 0.0):
             dt = (p.t1 - p.t0) * 1e-9
@@ -436,6 +439,7 @@ class GyroHeading:
                 ds=0.5 * (s_l + s_r), dtheta=w_w * dth_w + w_g * g,
                 b=(b[0], (-w_w * v, w_w * u)), c=(0.0, w_g), var_gyro=var_white,
                 dt=dt, geometry=(geo_ds, tuple(w_w * e for e in geo_th)), slip=False))
-        step = slip_step(geometry, (u, v), arcs, g, dt, b, var_white,
-                         SPIN_SIGMAS * self.jitter.sigma, cfg.slip_distance_from_other_wheel)
-        return _Judged(True, -diff, step)
+        step, excess = slip_step(geometry, (u, v), arcs, g, dt, b, var_white, self._spun,
+                                 SPIN_SIGMAS * self.jitter.sigma,
+                                 cfg.slip_distance_from_other_wheel)
+        return _Judged(True, -diff, step, excess)
