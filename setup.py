@@ -13,7 +13,11 @@ VERSION = ElementTree.parse(Path(__file__).resolve().parent / "package.xml").fin
 setup(
     name=PACKAGE,
     version=(VERSION or "").strip(),
-    packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
+    # diffdrive_odom/data holds files, no module: listed as a package of its own (setuptools
+    # deprecates installing a directory it did not list as a package as data, and colcon
+    # then ends with "1 package had stderr output").
+    packages=[*find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
+              f"{PACKAGE}.data"],
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -21,7 +25,7 @@ setup(
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
         (f"share/{PACKAGE}/rviz", glob("rviz/*.rviz")),
     ],
-    package_data={PACKAGE: ["data/*", "data/**/*"]},
+    package_data={f"{PACKAGE}.data": ["*"]},
     include_package_data=True,
     # rclpy and the messages come from ROS (apt, or the ros-jazzy-* wheels), tf2_msgs
     # too (scripts/build_tf2_msgs.sh where no apt): not PyPI requirements.

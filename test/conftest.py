@@ -124,11 +124,14 @@ def colcon_ws(tmp_path_factory: pytest.TempPathFactory) -> Path:
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / rel, dest)
     env = {**os.environ, "PATH": f"{BIN}:{os.environ.get('PATH', '')}"}
+    # console_direct (colcon's default) passes setup.py's stderr on to colcon's, where
+    # test_colcon reads it (kept beside the workspace's log/).
     build = subprocess.run(
-        [str(BIN / "colcon"), "build", "--event-handlers", "console_direct-"],
+        [str(BIN / "colcon"), "build"],
         cwd=ws, capture_output=True, text=True, env=env, timeout=300,
     )
     assert build.returncode == 0, build.stdout + build.stderr
+    (ws / "log" / "colcon_build.stderr").write_text(build.stderr, encoding="utf-8")
     return ws
 
 

@@ -229,15 +229,16 @@ def wait_for_subscriber(
     return spin_until(executor, lambda: publisher.get_subscription_count() > 0, timeout)
 
 
-def assert_refuses_to_start(executable_name: str, name: str, params: list[str]) -> None:
+def assert_refuses_to_start(executable_name: str, name: str, params: list[str]) -> str:
     """The node, started with ``params`` (``-p`` arguments), stops at once with exit code 2
-    and exactly one output line naming the parameter ``name``: what a user sees."""
+    and exactly one output line naming the parameter ``name``: what a user sees (returned)."""
     with node_process(executable_name, ["--ros-args", *params]) as proc:
         code = proc.wait(timeout=20)
         out = proc.stdout.read() if proc.stdout else ""
     assert code == 2, f"{name}: exit {code}, not 2 (a bad value)\n{out}"
     lines = [ln for ln in out.splitlines() if ln.strip()]
     assert len(lines) == 1 and f"'{name}'" in lines[0], out
+    return lines[0]
 
 
 def assert_refused_in_process(node_class: Callable[..., Node], name: str,

@@ -57,6 +57,7 @@ class Recorder:
         self.context = Context()
         self.writer: bagwriter.BagWriter | None = None
         self.now_ns: int | None = None
+        self._log_ns = 0  # the last log time written: each message's is later
         self.odom, self.truth = PoseSeries(), PoseSeries()
         self.joint_states: list[JointSample] = []
         self.imu: list[ImuReading] = []
@@ -116,7 +117,14 @@ class Recorder:
             self.done_false += 1
 
     def _on_raw(self, topic: str, raw: bytes) -> None:
-        log_ns = self.now_ns if self.now_ns is not None else time.time_ns()
+        # The log time is the simulated clock (wall time before its first /clock), one
+        # nanosecond after the last at least: a bag is read in log-time order, and
+        # messages heard before /clock got the wall time, later than the simulated time
+        # of those heard next (the sim starts its clock at the wall time and runs it
+        # faster), so its first JointState was read back after three later ones, 60 ms
+        # back in stamp. Arrival order is each publisher's order, so it is kept.
+        clock = self.now_ns if self.now_ns is not None else time.time_ns()
+        log_ns = self._log_ns = max(clock, self._log_ns + 1)
         self.counts[topic] += 1
         if self.writer is not None:
             self.writer.write_cdr(topic, log_ns, bytes(raw))

@@ -8,26 +8,36 @@ use, and no two nodes can disagree on the robot. ``sim_node`` has rows of its ow
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
 from diffdrive_odom.core.estimation.encoders import EncoderConfig
 from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.settings.errors import as_parameter_error
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
 from diffdrive_odom.settings.params import (
     COUNTER_BITS,
+    INF,
     NON_NEGATIVE,
     POSITIVE,
     SIGN,
     ParamSpec,
+    Range,
 )
+
+# A wheel or a track under 1 mm is no robot's but a value in the wrong unit (1e-9): every
+# step would be integrated into nonsense. The ROS range cannot say it (the default 0.0 is
+# "unset"), so the validation does, at start and at runtime alike (ParameterGuard).
+MIN_LENGTH = 1e-3  # [m]
+LENGTH = Range(0.0, INF, "at least 0.001 (1 mm), finite")  # as ros2 param describe says it
 
 GEOMETRY_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("wheel_radius", "double", 0.0,
-              "Nominal wheel radius [m]; must be set (> 0) for your robot.", range=POSITIVE),
+              "Nominal wheel radius [m]; must be set (at least 0.001) for your robot.",
+              range=LENGTH),
     ParamSpec("wheel_separation", "double", 0.0,
-              "Distance between the wheels' contact points [m]; must be set (> 0).",
-              range=POSITIVE),
+              "Distance between the wheels' contact points [m]; must be set (at least "
+              "0.001).", range=LENGTH),
     ParamSpec("left_wheel_radius_multiplier", "double", 1.0,
               "Correction factor on the left wheel radius (calibration).", range=POSITIVE),
     ParamSpec("right_wheel_radius_multiplier", "double", 1.0,
@@ -53,10 +63,19 @@ GEOMETRY_PARAMS: tuple[ParamSpec, ...] = (
 )
 
 
+def check_lengths(v: Mapping[str, Any], names: tuple[str, ...]) -> None:
+    """Refuse a length in ``names`` that is positive but under :data:`MIN_LENGTH`."""
+    for name in names:
+        value = v[name]
+        if math.isfinite(value) and 0.0 < value < MIN_LENGTH:
+            raise ParameterError(name, f"must be at least {MIN_LENGTH:g} m (1 mm), got "
+                                       f"{value!r}: a length in another unit?")
+
+
 def build_geometry(v: Mapping[str, Any]) -> Geometry:
     """Geometry from coerced values; errors name the ROS parameter."""
     with as_parameter_error():
-        return Geometry(
+        geometry = Geometry(
             wheel_radius=v["wheel_radius"],
             wheel_separation=v["wheel_separation"],
             left_wheel_radius_multiplier=v["left_wheel_radius_multiplier"],
@@ -65,6 +84,8 @@ def build_geometry(v: Mapping[str, Any]) -> Geometry:
             left_wheel_sign=v["left_wheel_sign"],
             right_wheel_sign=v["right_wheel_sign"],
         )
+    check_lengths(v, ("wheel_radius", "wheel_separation"))
+    return geometry
 
 
 def build_encoders(v: Mapping[str, Any]) -> EncoderConfig:

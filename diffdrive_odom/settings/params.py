@@ -194,7 +194,11 @@ def as_declared_type(spec: ParamSpec, value: ParamValue) -> ParamValue:
       ``yaml.safe_load(str(value))``, and YAML 1.1 takes ``str(1e-05)`` = ``'1e-05'``
       (no dot) and ``'nan'`` for strings, so a node's own dump would not load back. A
       list with such an item arrives as one string, ``'[0.001, 1e-06]'``.
+    * For a list, no value: an empty list (``-p left_wheel_names:=[]``, ``[]`` in a file)
+      has no element type, so rcl gives it none and rclpy hands it over as None.
     """
+    if value is None and spec.kind.endswith("_array"):
+        return []
     if spec.kind == "double":
         return _as_double(value)
     if spec.kind == "integer" and isinstance(value, float) and value.is_integer():

@@ -21,6 +21,7 @@ from diffdrive_odom.core.estimation.encoders import EncoderConfig
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import SimConfig, SlipEvent
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
+from diffdrive_odom.settings.geometry import LENGTH, check_lengths
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
     COUNTER_BITS,
@@ -43,9 +44,9 @@ JOINT_STATE_UNITS = (AUTO, RADIANS, TICKS)
 SIM_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("wheel_radius", "double", 0.033,
               "Nominal wheel radius [m] (the robot's drawing; shared with the other nodes).",
-              range=POSITIVE),
+              range=LENGTH),
     ParamSpec("wheel_separation", "double", 0.160,
-              "Nominal wheel separation [m] (shared with the other nodes).", range=POSITIVE),
+              "Nominal wheel separation [m] (shared with the other nodes).", range=LENGTH),
     ParamSpec("true_left_wheel_radius", "double", 0.0,
               "TRUE left wheel radius [m] the base moves with; 0 = wheel_radius.",
               range=NON_NEGATIVE),
@@ -164,6 +165,8 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
     for name in ("true_left_wheel_radius", "true_right_wheel_radius", "true_wheel_separation"):
         if not (math.isfinite(v[name]) and v[name] >= 0.0):
             raise ParameterError(name, f"must be 0 (= nominal) or > 0, got {v[name]!r}")
+    check_lengths(v, ("wheel_radius", "wheel_separation", "true_left_wheel_radius",
+                      "true_right_wheel_radius", "true_wheel_separation"))
     r = v["wheel_radius"]
     with as_parameter_error():
         geometry = Geometry(

@@ -24,6 +24,7 @@ from xml.etree import ElementTree
 
 from diffdrive_odom.ros.lifetime import stop_signals
 from diffdrive_odom.settings.dependencies import missing_text
+from diffdrive_odom.tools import once
 
 PROGRAM = "diffdrive-odom"
 PACKAGE = "diffdrive_odom"
@@ -157,6 +158,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROGRAM}: unknown command '{args[0]}' (commands: {', '.join(COMMANDS)})"
               f"{hint}", file=sys.stderr)
         return 2
+    once.new_command()
     try:
         with terminate_as_interrupt():
             module = importlib.import_module(COMMANDS[args[0]][0])

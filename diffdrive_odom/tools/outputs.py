@@ -7,7 +7,9 @@ the demo's output directory work on an install without the ``tools`` extra.
 from __future__ import annotations
 
 import os
+import re
 import shutil
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -40,9 +42,13 @@ def staged(path: str | Path) -> Iterator[Path]:
     run never leaves a half-written output under the name the user asked for. Same
     file system, so the move is a rename; same name, so a bag's storage file inside
     (``NAME_0.mcap``) is named as if written in place. A directory already at ``path``
-    is replaced only if empty (``os.replace``'s rule); the caller decides before.
+    is replaced only if empty (``os.replace``'s rule); the caller decides before. A run
+    killed outright (SIGKILL, power) cannot remove its staging directory: the next run
+    for the same output removes it (:func:`remove_stale_stages`) and says so.
     """
     final = Path(path)
+    for line in remove_stale_stages(final):
+        print(line, file=sys.stderr)
     stage = final.parent / f".{final.name}.partial-{os.getpid()}"
     stage.mkdir()
     try:
@@ -50,3 +56,39 @@ def staged(path: str | Path) -> Iterator[Path]:
         os.replace(stage / final.name, final)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    """Tell whether process ``pid`` exists (someone else's counts: it is left alone)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_stages(final: Path) -> list[str]:
+    """Remove the staging directories of ``final`` whose process is gone; one line each.
+
+    ``.NAME.partial-PID`` is hidden: a run killed before it could clean up left it there,
+    out of sight, holding what it had written. Only its own process writes into it, so
+    once that process is gone it is removed.
+    """
+    pattern = re.compile(rf"\.{re.escape(final.name)}\.partial-(\d+)")
+    parent = final.parent if str(final.parent) else Path(".")
+    said: list[str] = []
+    try:
+        entries = sorted(parent.iterdir())
+    except OSError:
+        return said
+    for entry in entries:
+        found = pattern.fullmatch(entry.name)
+        if not found or not entry.is_dir() or _alive(int(found.group(1))):
+            continue
+        shutil.rmtree(entry, ignore_errors=True)
+        said.append(f"removed {entry}: the partial output of an earlier run for {final} "
+                    f"that was stopped before it could clean up (process "
+                    f"{found.group(1)} is gone)")
+    return said

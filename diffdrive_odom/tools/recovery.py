@@ -44,7 +44,7 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.tools import mcapscan, sqlitescan
+from diffdrive_odom.tools import mcapscan, once, sqlitescan
 
 SUFFIXES = (".mcap", ".db3")
 _FORMATS = {"ros2msg": MessageDefinitionFormat.MSG, "ros2idl": MessageDefinitionFormat.IDL,
@@ -367,10 +367,10 @@ class RecoveredReader(AnyReader):
         self._report = report
 
     def open(self) -> None:
-        """Open every storage file; print the note."""
+        """Open every storage file; print the note (on stderr, once per command)."""
         super().open()
         self.note = note(self)
-        if self.note:
+        if self.note and (self._report is not None or once.first_time(self.note)):
             print(self.note, file=self._report or sys.stderr)
 
     @property

@@ -36,6 +36,7 @@ from diffdrive_odom.core.evaluation import metrics as core_metrics
 from diffdrive_odom.core.motion.paths import polyline
 from diffdrive_odom.demo.settings import BAG_TOPICS, DEFAULT_PARAMS
 from diffdrive_odom.tools import bagio, bagreadings, evaluate
+from diffdrive_odom.wire.conversions import stamp_to_ns
 
 import oracle
 from rosutil import executable, kill_left, still_running
@@ -232,6 +233,14 @@ def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(
     assert all(n > 0 for n in counts.values()), counts
     readings = list(bagreadings.read_joint_states(bag))
     assert len(readings) == counts["/joint_states"]
+    # Read in log-time order (as play sends them), the JointStates' stamps never go back
+    # (the sim's first one, heard before /clock, came after three later ones).
+    with bagio.open_bag(bag) as reader:
+        conns = [c for c in reader.connections if c.topic == "/joint_states"]
+        stamps = np.array([stamp_to_ns(reader.deserialize(raw, c.msgtype).header.stamp)
+                           for c, _, raw in reader.messages(connections=conns)])
+    assert len(stamps) == counts["/joint_states"] and (np.diff(stamps) > 0).all(), (
+        np.flatnonzero(np.diff(stamps) <= 0))
     odom = evaluate.read_trajectory(bag, "/odom")
     truth = evaluate.read_trajectory(bag, "/ground_truth/odom")
     tf = evaluate.read_trajectory(bag, "/tf", child_frame="base_link")

@@ -165,6 +165,16 @@ def test_a_bad_parameter_stops_the_process_with_exit_2_and_one_line() -> None:
     assert_refuses_to_start("odometry_node", "wheel_radius", BAD_PARAMETERS["wheel_radius"])
 
 
+@pytest.mark.parametrize("executable", ["odometry_node", "cmd_vel_node", "sim_node"])
+def test_an_empty_list_of_joints_is_refused_as_what_it_is(executable: str) -> None:
+    """``-p left_wheel_names:="[]"``: rcl gives an empty list no type and rclpy hands it
+    over as None, which the refusal used to quote (``got None``)."""
+    line = assert_refuses_to_start(executable, "left_wheel_names", [
+        "-p", "wheel_radius:=0.1", "-p", "wheel_separation:=0.4",
+        "-p", "left_wheel_names:=[]"])
+    assert "got an empty list" in line and "None" not in line, line
+
+
 def test_runtime_parameter_refused_with_reason_and_bad_messages_dropped(odom_rig: OdomRigs) -> None:
     r, b = 0.1, 0.4
     args = ["-p", f"wheel_radius:={r}", "-p", f"wheel_separation:={b}"]

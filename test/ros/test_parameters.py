@@ -217,6 +217,27 @@ def test_range_and_read_only_refuse_at_runtime_and_the_node_keeps_its_value() ->
 
 
 @pytest.mark.dds
+@pytest.mark.parametrize("node_class", [OdometryNode, CmdVelNode, SimNode, PathFollowerNode],
+                         ids=lambda c: c.__name__)
+def test_a_length_under_1_mm_is_refused_at_runtime_as_at_start(node_class: type[Node]) -> None:
+    """wheel_separation 1e-9 is inside ROS's range (> 0) but no robot's: a set is refused
+    with the line the start gives, and the node keeps its value."""
+    with built(node_class, "--params-file", str(CONFIG)) as node:
+        before = node.get_parameter("wheel_separation").value
+        for name in ("wheel_separation", "wheel_radius"):
+            out = _set(node, name, 1e-9)
+            assert not out.successful, name
+            assert out.reason.endswith(f"'{name}': must be at least 0.001 m (1 mm), got "
+                                       "1e-09: a length in another unit?"), out.reason
+        assert node.get_parameter("wheel_separation").value == before
+        assert _set(node, "wheel_separation", 0.001).successful  # the bound itself is fine
+    with pytest.raises(ParameterError) as err, built(
+            node_class, "--params-file", str(CONFIG), "-p", "wheel_separation:=1e-9"):
+        pass
+    assert err.value.name == "wheel_separation" and "at least 0.001 m" in str(err.value)
+
+
+@pytest.mark.dds
 def test_a_value_outside_the_range_at_start_is_one_line() -> None:
     with pytest.raises(ParameterError) as err, built(
             OdometryNode, "--params-file", str(CONFIG), "-p", "left_wheel_sign:=0"):

@@ -60,3 +60,16 @@ def test_colcon_build_and_installed_executables(colcon_ws: Path) -> None:
     ))
     assert "exit=0" in run.stdout, run.stdout + run.stderr
     assert "wheel odometry: r_left=0.042" in run.stdout + run.stderr
+
+
+def test_colcon_build_says_nothing_on_stderr(colcon_ws: Path) -> None:
+    """colcon ends with '1 package had stderr output' when setup.py writes to stderr: it
+    did, as setuptools deprecates installing diffdrive_odom/data (no module) as data
+    unless it is listed as a package (colcon_ws keeps the build's stderr). Byte-compiling's
+    own note is the environment's (PYTHONDONTWRITEBYTECODE), not the package's."""
+    log = colcon_ws / "log" / "colcon_build.stderr"
+    said = [ln for ln in log.read_text(encoding="utf-8").splitlines() if ln.strip()
+            and not (sys.dont_write_bytecode and "byte-compiling is disabled" in ln)]
+    assert said == [], "\n".join(said)
+    data = colcon_ws / "install" / "diffdrive_odom" / "lib"
+    assert list(data.glob("python3*/site-packages/diffdrive_odom/data/demo_params.yaml"))

@@ -225,7 +225,7 @@ def test_ros2_param_describe_set_get(cli: Cli) -> None:
     assert described.returncode == 0, out + described.stderr
     radius, sign = out.split("Parameter name: left_wheel_sign")
     for text in ("Type: double", "Nominal wheel radius [m]", "Min value: 0.0",
-                 "Max value: inf", "Additional constraints: > 0, finite"):
+                 "Max value: inf", "Additional constraints: at least 0.001 (1 mm), finite"):
         assert text in radius, (text, out)
     for text in ("Type: integer", "Min value: -1", "Max value: 1", "Step: 2"):
         assert text in sign, (text, out)
@@ -242,6 +242,13 @@ def test_ros2_param_describe_set_get(cli: Cli) -> None:
     outside = cli.ros2("param", "set", node, "wheel_radius", "-0.5")
     said = outside.stdout + outside.stderr
     assert "Setting parameter failed" in said and "wheel_radius" in said, said
+
+    # Inside ROS's range but no robot's: refused with the reason the start gives.
+    tiny = cli.ros2("param", "set", node, "wheel_separation", "1e-9")
+    said = tiny.stdout + tiny.stderr
+    assert "Setting parameter failed" in said and "must be at least 0.001 m" in said, said
+    got = cli.ros2("param", "get", node, "wheel_separation").stdout
+    assert got.strip() != "Double value is: 1e-09", got
 
 
 def test_ros2_param_dump_then_load(cli: Cli, tmp_path: Path) -> None:

@@ -408,3 +408,5 @@ def test_a_real_run_torn_at_60_percent_replays_and_evaluates_as_its_intact_readi
     assert figures["torn"] == figures["whole"]
     err = capsys.readouterr().err
     assert f"/joint_states {joints}" in err and "torn at byte" in err
+    # One line per command (replay --eval opens the bag three times, eval twice).
+    assert err.count("[recovery]") == 2, err

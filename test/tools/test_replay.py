@@ -12,6 +12,7 @@ import dataclasses
 import itertools
 import json
 import math
+import os
 import tracemalloc
 from pathlib import Path
 from typing import Any
@@ -471,3 +472,44 @@ def test_replay_eval_finds_a_ground_truth_topic_by_its_name(
     # run-04, nominal geometry: 0.1075 m from motion capture (the figure doc/tools/eval.md quotes)
     assert json.loads(figures.read_text())["final_position_error_m"] == pytest.approx(
         0.1075, abs=5e-4)
+
+
+@pytest.mark.process
+def test_a_killed_runs_hidden_partial_output_is_removed_by_the_next_and_named(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A run killed outright (SIGKILL) cannot remove its staging directory, which is
+    hidden (``.NAME.partial-PID``): the next run for the same output removes it and says
+    where it was; one whose process still runs is left alone."""
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "odom.csv"
+    writer = subprocess.Popen([sys.executable, "-c", (
+        "import sys, time\n"
+        "from diffdrive_odom.tools.outputs import staged\n"
+        f"with staged({str(out)!r}) as p:\n"
+        "    p.write_text('half written')\n"
+        "    print('staged', flush=True)\n"
+        "    time.sleep(120)\n")], stdout=subprocess.PIPE, text=True)
+    alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    try:
+        assert writer.stdout is not None and writer.stdout.readline() == "staged\n"
+        os.kill(writer.pid, signal.SIGKILL)
+        writer.wait(10)
+        stale = tmp_path / f".odom.csv.partial-{writer.pid}"
+        assert (stale / "odom.csv").read_text() == "half written"  # left behind, hidden
+        running = tmp_path / f".odom.csv.partial-{alive.pid}"
+        running.mkdir()
+        params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+        bag = DATA / "optiodom" / "square_231220200029_run-04"
+        assert cli(["replay", str(bag), "--params-file", str(params), "--csv", str(out)]) == 0
+        err = capsys.readouterr().err
+        assert not stale.exists() and running.is_dir() and out.is_file()
+        assert f"removed {stale}: the partial output of an earlier run for {out}" in err, err
+        assert str(running) not in err
+    finally:
+        for proc in (writer, alive):
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)

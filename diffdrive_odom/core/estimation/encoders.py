@@ -86,7 +86,8 @@ class EncoderConfig:
         for field in ("left_wheel_names", "right_wheel_names"):
             names = getattr(self, field)
             if len(names) == 0:
-                raise EncoderConfigError(field, "must name at least one joint")
+                raise EncoderConfigError(field, "must name at least one joint, got an empty "
+                                         "list")
             if any((not isinstance(n, str)) or n == "" for n in names):
                 raise EncoderConfigError(field, "joint names must be non-empty strings")
         if len(self.left_wheel_names) != len(self.right_wheel_names):

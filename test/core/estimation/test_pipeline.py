@@ -172,9 +172,11 @@ def test_the_publication_rule_refuses_anything_non_finite() -> None:
 
 def test_a_valid_but_absurd_geometry_makes_the_covariance_non_finite_and_it_is_refused(
         tmp_path: Path) -> None:
-    """Real input, no patching: a 1e-300 m axle (the parameter checks accept it) driven
-    straight keeps a finite pose, but heading variance ~ wheel variance / b**2 overflows."""
-    pipe = ReadingPipeline(settings(tmp_path, wheel_separation=1e-300))
+    """Real input, no patching: a 4e-301 m axle (0.4 m times a separation multiplier of
+    1e-300, which the parameter checks accept; a wheel_separation under 1 mm they refuse)
+    driven straight keeps a finite pose, but heading variance ~ wheel variance / b**2
+    overflows."""
+    pipe = ReadingPipeline(settings(tmp_path, wheel_separation_multiplier=1e-300))
     first = pipe.feed(T0, NAMES, [0.0, 0.0])
     assert first.publish and isinstance(pipeline_publication(pipe), Publication)
     out = pipe.feed(T0 + STEP, NAMES, [0.1, 0.1])
