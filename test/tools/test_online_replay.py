@@ -131,11 +131,14 @@ def test_the_demos_params_file_needs_no_third_file(
     assert "use_imu on" not in said["in the file"].err
 
 
-def test_replay_of_the_turtlebot3_bag_excludes_its_slips_and_warns_throttled(
+def test_replay_of_the_turtlebot3_bag_excludes_its_slips_and_warns_not(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Recorded (Gazebo) data whose wheels slip: the estimate is determined, the slipping
-    steps are left out, and the warning, whose d^2 crosses 11.83 back and forth early
-    on, is said once and then once a minute at most (the bag is 100 s long)."""
+    steps are left out, and no warning that the robot changed: Gazebo's geometry is the
+    configured one. (Its windows scatter beyond their noise model, the slips' doing:
+    before the covariance took their variance factor, the configured geometry crossed
+    the 3-sigma line early on and was warned of, falsely. The warning's throttling is
+    test_online_geometry's.)"""
     bag = DATA / "turtlebot3_sim" / "turtlebot3.bag"
     params = write_params(tmp_path / "p.yaml", {**TB3_PARAMS, "use_imu": True})
     code = cli(["replay", str(bag), "--params-file", str(params), "--online-calibration"])
@@ -145,4 +148,4 @@ def test_replay_of_the_turtlebot3_bag_excludes_its_slips_and_warns_throttled(
     assert final.endswith(": determined")
     slips = int(re.search(r"excluded: .*slip (\d+)", said.out).group(1))  # type: ignore[union-attr]
     assert slips > 100
-    assert 1 <= said.err.count("online calibration: the configured geometry") <= 2
+    assert said.err.count("online calibration: the configured geometry") == 0

@@ -232,9 +232,10 @@ def _write_run(path: Path, stamps: list[int], wheels: list[tuple[float, float]],
 def test_replay_refuses_what_the_node_refuses(
         tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """A pose whose covariance is not finite is not written, as the node does not publish
-    it (both ask core.estimation.publication): a 1e-300 m axle (accepted by the parameter checks)
-    driven straight. Only the reference reading's pose goes out; the rest are counted."""
-    values = {"wheel_radius": 0.05, "wheel_separation": 1e-300}
+    it (both ask core.estimation.publication): a 3e-301 m axle (0.3 m times a separation
+    multiplier of 1e-300, which the parameter checks accept) driven straight. Only the
+    reference reading's pose goes out; the rest are counted."""
+    values = {"wheel_radius": 0.05, "wheel_separation": 0.3, "wheel_separation_multiplier": 1e-300}
     settings = _settings(tmp_path, values)
     n = 20
     bag = tmp_path / "tiny_axle"
