@@ -33,7 +33,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 
-from phildata import DATA, RUNS, Run, anchor, load, package, turned, vicon_ratios
+from phildata import DATA, RUNS, Judged, Run, anchor, load, package, turned, verdicts, vicon_ratios
 
 from diffdrive_odom.core.evaluation.metrics import evaluate
 
@@ -77,6 +77,16 @@ def main() -> int:
         print(line)
     print("goals (aided within 10 % of the anchor, 3x the wheels where turned > 1 rad, "
           f"slip steps <= 5 %): {'met' if ok else 'NOT met'}")
+    print("\nVerdicts against the Vicon (its stamps aligned to the wheels' by the fit of "
+          "test/phildata.py):")
+    for n in (0, 2, 6):
+        path = args.data / f"phil_trial_{n}"
+        if path.is_dir():
+            run, judged = load(path), list[Judged]()
+            package(run, {"use_imu": True}, judged)
+            f, c, s, m = verdicts(run, judged)
+            print(f"  run {n}: {f} steps flagged as slip, the Vicon confirms {c} (the wheels' "
+                  f"turn off its own); {s} standing steps, the Vicon moved on {m}")
     online(args.data)
     return 0
 

@@ -61,9 +61,29 @@ def load(path: Path) -> Run:
     return Run(messages, truth)
 
 
-def package(run: Run, params: dict[str, Any]) -> tuple[Trajectory, ReadingPipeline]:
-    """The node's estimator over the run (nominal geometry + ``params``): poses, pipeline."""
+# A gyro step judged for good: (t0, t1, wheel arcs, slip, standing), from GyroHeading.observer.
+Judged = tuple[int, int, tuple[float, float], bool, bool]
+
+
+def package(run: Run, params: dict[str, Any], judged: list[Judged] | None = None
+            ) -> tuple[Trajectory, ReadingPipeline]:
+    """The node's estimator over the run (nominal geometry + ``params``): poses, pipeline.
+
+    ``judged``: filled with every gyro step judged for good, through the observer the
+    online calibration listens on (it is called in turn).
+    """
     pipe = ReadingPipeline(odometry_settings({**NOMINAL, **params}))
+    gyro = pipe.gyro
+    if judged is not None and gyro is not None:
+        listener = gyro.observer
+
+        def observe(g: Any, t0: int, t1: int, arcs: tuple[float, float], raw: float | None,
+                    slip: bool, standing: bool) -> None:
+            judged.append((t0, t1, arcs, slip, standing))
+            if listener is not None:
+                listener(g, t0, t1, arcs, raw, slip, standing)
+
+        gyro.observer = observe
     ts: list[int] = []
     poses: list[tuple[float, float, float]] = []
     for topic, log_ns, msg in run.messages:
@@ -155,3 +175,33 @@ def vicon_lag(run: Run, stream: str, span: float = 0.3) -> float:
         k = float(d @ dv) / float(d @ d)
         best = min(best, (float(np.sum((dv - k * d) ** 2)), float(shift)))
     return best[1]
+
+
+def verdicts(run: Run, judged: list[Judged]) -> tuple[int, int, int, int]:
+    """The slip and standstill verdicts against the Vicon (its stamps aligned to the wheels').
+
+    Returns (flagged, flagged where the wheels' turn is off the Vicon's by over 5 mrad + 3 %
+    of it: a slip the Vicon confirms; standing, standing where the Vicon moved over 2 mm or
+    3 mrad: a wrong standstill). The wheels' turn is taken over the nominal track / 1.02
+    (the Vicon says it is 1-4 % wider).
+    """
+    truth = run.truth
+    assert truth is not None
+    lag = vicon_lag(run, "/joint_states") * 1e9
+    tv = truth.stamp_ns.astype(float)
+
+    def at(t: int) -> tuple[float, float, float]:
+        return (float(np.interp(t + lag, tv, truth.x)), float(np.interp(t + lag, tv, truth.y)),
+                float(np.interp(t + lag, tv, truth.yaw)))
+
+    flagged = confirmed = standing = moved = 0
+    for t0, t1, (s_l, s_r), slip, still in judged:
+        (x0, y0, h0), (x1, y1, h1) = at(t0), at(t1)
+        turn = h1 - h0
+        if slip:
+            flagged += 1
+            confirmed += abs((s_r - s_l) / TRACK / 1.02 - turn) > 0.005 + 0.03 * abs(turn)
+        if still:
+            standing += 1
+            moved += math.hypot(x1 - x0, y1 - y0) > 0.002 or abs(turn) > 0.003
+    return flagged, confirmed, standing, moved
