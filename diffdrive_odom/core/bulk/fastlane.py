@@ -6,7 +6,7 @@ reading in Python. The pipeline stays the only definition of the rules: this mod
 decides nothing on its own, and where it needs a rule in array form it calls the form
 that lives beside the scalar one in the rule's own module (the counter unwrap and the
 increments: :func:`~diffdrive_odom.core.estimation.encoders.position_increments`; the
-plausibility limits: :func:`~diffdrive_odom.core.estimation.estimator.plausible_steps`;
+plausibility limits: :func:`~diffdrive_odom.core.estimation.plausibility.plausible_steps`;
 the publish gate: :meth:`~diffdrive_odom.core.estimation.gate.PublishGate.passed`;
 the chord: :func:`~diffdrive_odom.core.geometry.integration.chord_array`; whether bulk
 is allowed at all:
@@ -53,9 +53,10 @@ from diffdrive_odom.core.estimation.encoders import (
     counter_range,
     position_increments,
 )
-from diffdrive_odom.core.estimation.estimator import Step, plausible_steps
+from diffdrive_odom.core.estimation.estimator import Step
 from diffdrive_odom.core.estimation.gate import PublishGate
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.plausibility import plausible_steps
 from diffdrive_odom.core.estimation.results import Handover, Outcome
 from diffdrive_odom.core.estimation.stamps import StampSource, in_sync
 from diffdrive_odom.core.geometry.integration import Pose2D, chord_array

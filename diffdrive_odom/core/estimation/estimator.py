@@ -19,7 +19,7 @@ non-finite):
   of them, so it does not spike;
 - an implausible step is skipped and the reading becomes the new reference, so one
   glitch costs one step instead of freezing. Implausible is defined once
-  (:func:`implausible`; its array form :func:`plausible_steps` beside it): a wheel
+  (:mod:`~diffdrive_odom.core.estimation.plausibility`, with its array form): a wheel
   faster than ``max_wheel_speed`` over the step (whose interval the gap rule bounds),
   a wheel rolling more than :data:`MAX_STEP_ARC` whatever the settings, or a step
   that is not finite;
@@ -49,9 +49,6 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
-import numpy as np
-import numpy.typing as npt
-
 from diffdrive_odom.core.estimation import timeline
 from diffdrive_odom.core.estimation.config import EstimatorConfig
 from diffdrive_odom.core.estimation.encoders import (
@@ -64,53 +61,13 @@ from diffdrive_odom.core.estimation.encoders import (
     increment,
 )
 from diffdrive_odom.core.estimation.gyro import GyroHeading
+from diffdrive_odom.core.estimation.plausibility import implausible
 from diffdrive_odom.core.estimation.timeline import ON_TRIAL, UPDATED, Status, Trial, Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D, compose
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_from_arcs, wheel_arcs
+from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
-from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty
-
-# m a wheel can roll between two readings, whatever the settings: more is no robot's
-# motion (1 km is 36 km/h for 100 s), and it keeps the pose where a double still
-# resolves the next millimetre even with ``max_wheel_speed: .inf``.
-MAX_STEP_ARC = 1000.0
-Array = npt.NDArray[np.float64]
-
-
-def implausible(config: EstimatorConfig, inc: WheelIncrement, arcs: tuple[float, float]) -> str:
-    """Why a step cannot be real wheel motion ('' if it can): the one definition.
-
-    A joint faster than ``max_wheel_speed`` over the step's interval (which the gap
-    rule bounds by ``max_reading_gap``, so a bogus stamp never licenses more travel),
-    or, whatever the settings (``max_wheel_speed: .inf`` included), a wheel rolling
-    more than ``MAX_STEP_ARC`` metres, or a value that is not a finite number.
-    ``arcs`` are the step's :func:`kinematics.wheel_arcs`.
-    """
-    left, right, peak = abs(inc.d_left), abs(inc.d_right), abs(inc.peak)
-    limit = config.max_wheel_speed * inc.dt
-    if not (left <= limit and right <= limit and peak <= limit):  # NaN fails
-        return (f"wheel moved {_largest((left, right, peak)):.4g} rad in {inc.dt:.4g} s, "
-                f"over max_wheel_speed {config.max_wheel_speed:g} rad/s")
-    s_left, s_right = abs(arcs[0]), abs(arcs[1])
-    if not (s_left <= MAX_STEP_ARC and s_right <= MAX_STEP_ARC):
-        return (f"a wheel rolled {_largest((s_left, s_right)):.4g} m in one step, "
-                f"over {MAX_STEP_ARC:g} m")
-    return ""
-
-
-def plausible_steps(
-    config: EstimatorConfig, dt: Array, d_left: Array, d_right: Array, peak: Array,
-    arcs: tuple[Array, Array], margin: float = 1.0,
-) -> npt.NDArray[np.bool_]:
-    """The array form of :func:`implausible` (True: plausible), every limit times ``margin``.
-
-    The fast lane passes a ``margin`` just below 1, so a borderline step goes the
-    scalar way and gets its verdict (and text) from :func:`implausible`.
-    """
-    limit = config.max_wheel_speed * dt * margin
-    arc = MAX_STEP_ARC * margin
-    return ((np.abs(d_left) <= limit) & (np.abs(d_right) <= limit) & (np.abs(peak) <= limit)
-            & (np.abs(arcs[0]) <= arc) & (np.abs(arcs[1]) <= arc))
+from diffdrive_odom.core.uncertainty.propagation import ZERO3, ZERO_VEC, PoseUncertainty
 
 
 @dataclass
@@ -186,6 +143,16 @@ class OdometryEstimator:
     def on_trial(self) -> bool:
         """True while the timeline taken after the last gap may still be discarded."""
         return self._trial is not None
+
+    def place(self, pose: Pose2D, covariance: Matrix) -> None:
+        """``~/set_pose``'s overwrite (:mod:`~.setpose`): the pose where it stands.
+
+        The propagated covariance too (the geometry and bias terms start again from zero).
+        """
+        self.pose = pose
+        if self.uncertainty is not None:
+            self.uncertainty.covariance = covariance
+            self.uncertainty.sensitivity, self.uncertainty.bias_sensitivity = ZERO3, ZERO_VEC
 
     @property
     def from_velocity(self) -> bool:
@@ -438,8 +405,3 @@ class OdometryEstimator:
         self.linear = self._linear_mean.push(linear)
         self.angular = self._angular_mean.push(angular)
         return True
-
-
-def _largest(values: Sequence[float]) -> float:
-    """The largest of ``values``, NaN if any is (``max`` would depend on the order)."""
-    return math.nan if any(math.isnan(v) for v in values) else max(values)

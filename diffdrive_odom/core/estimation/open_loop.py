@@ -30,9 +30,14 @@ import math
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import TYPE_CHECKING
 
 from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.estimation.setpose import (
+    PoseRefusal,
+    PoseRequest,
+    SetPoseRule,
+    check_request,
+)
 from diffdrive_odom.core.geometry.integration import Pose2D, compose
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.mat3 import Matrix, wheel_noise2
@@ -45,9 +50,6 @@ from diffdrive_odom.core.uncertainty.propagation import (
     twist_message_covariance,
 )
 from diffdrive_odom.core.watchdog import Watchdog
-
-if TYPE_CHECKING:  # setpose imports the estimator, whose config imports this module
-    from diffdrive_odom.core.estimation.setpose import PoseRefusal, PoseRequest, PoseSet
 
 # Where the commands come from (``open_loop_source``): the velocity commands as the
 # cmd_vel node takes them, or the cmd_vel node's limited output (publish_limited_velocity).
@@ -162,7 +164,8 @@ class OpenLoopOdometry:
         self._last_ns: int | None = None
         self.config = config
         self.uncertainty = PoseUncertainty(_noise_model(config))
-        self._pending: PoseSet | None = None  # a set_pose stamped ahead, held
+        # A set_pose stamped ahead, held until the clock reaches it.
+        self._setpose = SetPoseRule("the time integrated to", "the clock")
 
     def configure(self, config: OpenLoopConfig, geometry: Geometry) -> None:
         """Install new settings; the pose, its covariance and the held command carry on."""
@@ -209,45 +212,38 @@ class OpenLoopOdometry:
         return code
 
     def set_pose(self, request: PoseRequest, odom_frame: str) -> str | PoseRefusal:
-        """``~/set_pose``, by the encoders' rule (:mod:`~.setpose`).
+        """``~/set_pose``, by the encoders' rule (:mod:`~.setpose`, the same code).
 
         Checked, then the pose now if stamped at or before the time integrated to (or
         zero), else held until the clock reaches its stamp. Returns the line naming it,
         or why it is refused.
         """
-        from diffdrive_odom.core.estimation.setpose import PoseRefusal, check_request
-
         accepted = check_request(request, odom_frame)
         if isinstance(accepted, PoseRefusal):
             return accepted
-        p = accepted.pose
-        what = (f"set_pose: x={p.x:.6g} m, y={p.y:.6g} m, yaw={p.theta:.6g} rad"
-                + (" (covariance_model static: the covariance stays the configured diagonal)"
-                   if self.config.static is not None else " with its covariance"))
-        last = self.stamp_ns
-        if last is not None and accepted.stamp_ns <= last:
-            self._pending = None
-            self._place(accepted)
-            return f"{what}, as the pose at {last * 1e-9:.9f} s (open loop)"
-        self._pending = accepted
-        return f"{what}, held until the clock reaches its stamp"
+        return self._setpose.offer(accepted, self, self.config.static is not None)
 
-    def _place(self, accepted: PoseSet) -> None:
-        self.pose = accepted.pose
-        self.uncertainty.covariance, self.uncertainty.sensitivity = accepted.covariance, ZERO3
+    @property
+    def on_trial(self) -> bool:
+        """Never: open loop takes every command (:class:`~.setpose.PoseHolder`)."""
+        return False
+
+    def place(self, pose: Pose2D, covariance: Matrix) -> None:
+        """``~/set_pose``'s overwrite: the pose where it stands, and its covariance."""
+        self.pose = pose
+        self.uncertainty.covariance, self.uncertainty.sensitivity = covariance, ZERO3
 
     def advance(self, now_ns: int) -> str:
         """Integrate the command in force up to ``now_ns`` (or its timeout); '' or ``time_reset``.
 
         A held ``set_pose`` whose stamp this passes is placed at its stamp on the way.
         """
-        held = self._pending
-        if held is not None and now_ns > 0 and held.stamp_ns <= now_ns:
+        held = self._setpose.due(now_ns, self) if now_ns > 0 else None
+        if held is not None:
             last = self.stamp_ns
             if (last is None or held.stamp_ns > last) and held.stamp_ns > 0:
                 self._integrate(held.stamp_ns)  # forward only: no reset can happen here
-            self._pending = None
-            self._place(held)
+            self.place(held.pose, held.covariance)
         return self._integrate(now_ns)
 
     def _integrate(self, now_ns: int) -> str:
@@ -296,7 +292,7 @@ class OpenLoopOdometry:
 
         A held set_pose is dropped.
         """
-        self._pending = None
+        self._setpose.pending = None
         self.pose = Pose2D()
         self.uncertainty.reset()
 

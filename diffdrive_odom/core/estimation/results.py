@@ -39,7 +39,7 @@ class PipelineStats:
       ahead is held (not published, not counted) until the next reading shows whether
       it was a pause (then a ``gap`` re-anchor) or a lone outlier (``future_stamp``).
     - ``reanchors``: implausible steps (faster than ``max_wheel_speed``, a wheel rolling
-      over ``estimator.MAX_STEP_ARC``, or not finite), skipped (code ``too_fast``).
+      over ``plausibility.MAX_STEP_ARC``, or not finite), skipped (code ``too_fast``).
     - ``gap_reanchors``: readings more than ``max_reading_gap`` after the last usable
       one, taken as the new reference (code ``gap``).
     - ``time_resets``: restarts at the origin after a stamp jumped back (``time_reset``).

@@ -1,7 +1,9 @@
 """``~/set_pose``: overwrite the odometry's pose and covariance, at a reading's stamp.
 
-The rule, in one place for the node (both kinds) and anything else that feeds the
-:class:`~diffdrive_odom.core.estimation.pipeline.ReadingPipeline` (replay could):
+The rule, in one place for the wheels' estimator (the node, both kinds, and anything else
+that feeds the :class:`~diffdrive_odom.core.estimation.pipeline.ReadingPipeline`) and for
+open loop (:mod:`~diffdrive_odom.core.estimation.open_loop`), typed against what it sets
+a pose on (:class:`PoseHolder`), not either of them:
 
 - a request is checked first (:func:`check_request`): its frame must be the odom frame
   (the pose is *in* odom: a pose in map is not one here until transformed), its
@@ -30,14 +32,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core.estimation.estimator import OdometryEstimator
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.mat3 import Matrix
-from diffdrive_odom.core.uncertainty.propagation import ZERO3, ZERO_VEC
 
 UNIT_TOLERANCE = 1e-2  # tf2's QUATERNION_NORMALIZATION_TOLERANCE, on |q|^2
 PLANAR = (0, 1, 5)  # x, y, yaw in a 6x6 pose covariance
@@ -116,44 +117,62 @@ def _covariance_problem(cov: npt.NDArray[np.float64]) -> str:
     return ""
 
 
-def place(estimator: OdometryEstimator, accepted: PoseSet) -> None:
-    """Overwrite the estimator's pose (and propagated covariance) where it stands."""
-    estimator.pose = accepted.pose
-    unc = estimator.uncertainty
-    if unc is not None:
-        unc.covariance, unc.sensitivity, unc.bias_sensitivity = (
-            accepted.covariance, ZERO3, ZERO_VEC)
+class PoseHolder(Protocol):
+    """What a pose is set on: the wheels' estimator, or open loop's integrator."""
+
+    @property
+    def stamp_ns(self) -> int | None:
+        """The time integrated to (None: nothing yet)."""
+
+    @property
+    def on_trial(self) -> bool:
+        """A reading is being tried (its pose not yet the odometry's): nothing is set now."""
+
+    def place(self, pose: Pose2D, covariance: Matrix) -> None:
+        """Overwrite the pose (and a propagated covariance) where it stands."""
 
 
 class SetPoseRule:
-    """The held request, and when a request takes effect (see the module text)."""
+    """The held request, and when a request takes effect (see the module text).
 
-    def __init__(self) -> None:
+    Named in the log: ``now``, where the odometry stands ("the last reading" for the
+    wheels, "the time integrated to" for open loop); ``ahead``, what reaches a held stamp
+    ("a reading", "the clock").
+    """
+
+    def __init__(self, now: str = "the last reading", ahead: str = "a reading") -> None:
         self.pending: PoseSet | None = None
+        self.now, self.ahead = now, ahead
 
-    def offer(self, accepted: PoseSet, estimator: OdometryEstimator, static: bool) -> str:
+    def offer(self, accepted: PoseSet, holder: PoseHolder, static: bool) -> str:
         """Set the pose now or hold it; returns the line that names it in the log."""
-        last = estimator.stamp_ns
+        last = holder.stamp_ns
         x, y, th = accepted.pose.x, accepted.pose.y, accepted.pose.theta
         what = (f"set_pose: x={x:.6g} m, y={y:.6g} m, yaw={th:.6g} rad"
                 + (" (covariance_model static: the covariance stays the configured diagonal)"
                    if static else " with its covariance"))
-        if last is not None and accepted.stamp_ns <= last and not estimator.on_trial:
+        if last is not None and accepted.stamp_ns <= last and not holder.on_trial:
             self.pending = None
-            place(estimator, accepted)
-            return f"{what}, as the pose at the last reading (stamped {_s(last)})"
+            holder.place(accepted.pose, accepted.covariance)
+            return f"{what}, as the pose at {self.now} (stamped {_s(last)})"
         self.pending = accepted
         when = (f"stamped {_s(accepted.stamp_ns)}" if accepted.stamp_ns else "the next reading")
-        return f"{what}, held until a reading reaches its stamp ({when})"
+        return f"{what}, held until {self.ahead} reaches its stamp ({when})"
 
-    def reached(self, stamp_ns: int, estimator: OdometryEstimator) -> bool:
-        """After a usable reading: set the held pose if this reading reached its stamp."""
+    def due(self, stamp_ns: int, holder: PoseHolder) -> PoseSet | None:
+        """The held request ``stamp_ns`` reaches (taken off hold), None if none is due."""
         held = self.pending
-        if held is None or stamp_ns < held.stamp_ns or estimator.on_trial:
-            return False
+        if held is None or stamp_ns < held.stamp_ns or holder.on_trial:
+            return None
         self.pending = None
-        place(estimator, held)
-        return True
+        return held
+
+    def reached(self, stamp_ns: int, holder: PoseHolder) -> bool:
+        """After a usable reading: set the held pose if this reading reached its stamp."""
+        held = self.due(stamp_ns, holder)
+        if held is not None:
+            holder.place(held.pose, held.covariance)
+        return held is not None
 
 
 def _s(ns: int) -> str:

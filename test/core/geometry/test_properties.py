@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 
 from diffdrive_odom.core.estimation.config import EstimatorConfig
 from diffdrive_odom.core.estimation.encoders import EncoderConfig
-from diffdrive_odom.core.estimation.estimator import MAX_STEP_ARC, OdometryEstimator
+from diffdrive_odom.core.estimation.estimator import OdometryEstimator
+from diffdrive_odom.core.estimation.plausibility import MAX_STEP_ARC
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
