@@ -12,11 +12,11 @@ step or two of the stamps' timing, and there the other wheel made the position w
 (phil_train run 0: ATE 0.0223 m against 0.0198 m). So the other wheel is taken once the
 run of flagged steps, this one included, disagrees in distance (what the wheel that
 spun read against what the other wheel and the gyro say it rolled, summed) by more than
-:data:`SPIN_SIGMAS` of the stamps' timing error at the faster wheel's speed: a spin's
+:data:`SPIN_SIGMAS` of the stamps' timing error at the speed it rolled: a spin's
 excess adds up, a late reading's does not; and a wheel that read nothing did not spin
 (the interval over which a stopped robot's gyro still turned, 0.2 s late). Else the
 distance is the wheels' mean, as the wheels alone have it. The heading is the gyro's
-either way. What is left on run 0 (ATE 0.0212 m as decided, 0.0198 m with the wheels'
+either way. What is left on run 0 (ATE 0.0211 m as decided, 0.0198 m with the wheels'
 mean on every flagged step) comes from its IMU stamps 0.2 s after the wheels' at starts
 and stops (``imu_time_offset``).
 """
@@ -56,7 +56,7 @@ def slip_step(geometry: Geometry, ratios: tuple[float, float], arcs: tuple[float
     half = 0.5 * (geometry.left_radius / v if left_rolled else geometry.right_radius / u)
     spun_arc, rolled = ((s_r, s_l + 2.0 * half * g) if left_rolled
                         else (s_l, s_r - 2.0 * half * g))
-    late = jitter_sigmas * math.sqrt(2.0) * max(abs(rolled), abs(spun_arc)) / dt
+    late = jitter_sigmas * math.sqrt(2.0) * abs(rolled) / dt
     excess = abs(abs(spun_arc) - abs(rolled))
     if not (other_wheel and spun_arc != 0.0 and spun + excess > late):
         return GyroStep(ds=0.5 * (s_l + s_r), dtheta=g, b=(b[0], (0.0, 0.0)), c=(0.0, 1.0),
