@@ -166,6 +166,11 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
         log.info(f"done: {sent} messages")
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # A stop signal's handler shuts the context down under a publish or a wait for
+        # acks (rclpy then raises from them): that is the stop, not a failure of play's.
+        if rclpy.ok():
+            raise
     finally:
         node.destroy_node()
         shutdown_after_stop()  # Ctrl-C: rclpy's handler may be shutting down as well

@@ -143,7 +143,8 @@ def test_looped_play_restarts_the_node_cleanly_and_ctrl_c_exits_0(tmp_path: Path
             assert spin_until(
                 ex, lambda: sum(_ns(o.header.stamp) == last_ns for o in odoms) >= 3, 20.0)
             player.send_signal(signal.SIGINT)
-            assert player.wait(timeout=10) == 0
+            code = player.wait(timeout=10)
+            assert code == 0, player.stdout.read() if player.stdout else ""  # its traceback
         assert node_proc.poll() is None
         node_proc.send_signal(signal.SIGINT)
         node_proc.wait(timeout=10)
