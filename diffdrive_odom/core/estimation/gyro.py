@@ -382,6 +382,11 @@ class GyroHeading:
             self._judged(p, p.decided, None)
         self._debt = (0.0, 0.0)
 
+    def _timing(self) -> float:
+        """How far [s] the two streams' stamps may be apart: the jitter at both ends, the lag."""
+        lag = self.lag.estimate
+        return math.hypot(math.sqrt(2.0) * self.jitter.sigma, 0.0 if lag is None else lag.lag)
+
     def _judged(self, p: _Interval, judged: _Judged, raw: float | None) -> None:
         """A step judged for good: its slip counted, a standstill's bias update."""
         self._slips.step(judged.slip, p.t1, judged.error)
@@ -440,6 +445,6 @@ class GyroHeading:
                 b=(b[0], (-w_w * v, w_w * u)), c=(0.0, w_g), var_gyro=var_white,
                 dt=dt, geometry=(geo_ds, tuple(w_w * e for e in geo_th)), slip=False))
         step, excess = slip_step(geometry, (u, v), arcs, g, dt, b, var_white, self._spun,
-                                 SPIN_SIGMAS * self.jitter.sigma,
+                                 SPIN_SIGMAS * self._timing(),
                                  cfg.slip_distance_from_other_wheel)
         return _Judged(True, -diff, step, excess)
