@@ -31,6 +31,8 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 
 from phildata import DATA, RUNS, Judged, Run, anchor, load, package, turned, verdicts, vicon_ratios
@@ -100,8 +102,11 @@ def online(data: Path) -> None:
     s, m = float(x[0] + x[1]), 0.035
     grad = 2 * m / s ** 2 / 0.23
     ref = (2 * m / s / 0.23, grad * math.sqrt(cov[0, 0] + 2 * cov[0, 1] + cov[1, 1]))
+    jl = np.array([-2 * x[1] / s ** 2, 2 / s - 2 * x[1] / s ** 2])  # left multiplier 2v/s
+    left = (float(2 * x[1] / s), math.sqrt(float(jl @ cov @ jl)))
     print(f"  Vicon fit, runs 0 + 2 (least squares of the Vicon's heading change over 0.5 s "
-          f"windows on the joint increments): {ref[0]:.4f} +- {ref[1]:.4f}")
+          f"windows on the joint increments, its lag behind the wheels taken out): "
+          f"{ref[0]:.4f} +- {ref[1]:.4f}; left radius multiplier {left[0]:.4f} +- {left[1]:.4f}")
     for n in (4, 5, 9):
         path = data / f"phil_trial_{n}"
         if not path.is_dir():
@@ -111,8 +116,10 @@ def online(data: Path) -> None:
         est = pipe.online.estimate()
         mb, sb = est.multipliers[2], est.stddevs[2]
         apart = abs(mb - ref[0]) / math.hypot(sb, ref[1])
+        ratio = abs(est.multipliers[0] - left[0]) / math.hypot(est.stddevs[0], left[1])
         print(f"  run {n}: {mb:.4f} +- {sb:.4f} ({'determined' if est.determined else 'not yet'}"
-              f", {apart:.1f} sigma from the Vicon fit); {est.line()}")
+              f", {apart:.1f} sigma from the Vicon fit; its left radius {ratio:.1f} sigma); "
+              f"{est.line()}")
         apply(data, n, est.multipliers, with_truth)
 
 

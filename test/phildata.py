@@ -125,8 +125,10 @@ def vicon_ratios(runs: list[Run], window_s: float = 0.5) -> tuple[np.ndarray, np
     """The ratios ``(u, v) = (r_R/b, r_L/b)`` fitted to the Vicon's heading, and their covariance.
 
     Least squares over windows of ``window_s``: the Vicon's heading change against the
-    wheels' joint increments ``(dphi_R, -dphi_L)``, windows pooled over ``runs``; the
-    covariance from the residuals' spread (each window's error independent).
+    wheels' joint increments ``(dphi_R, -dphi_L)``, windows pooled over ``runs``, the
+    readings the driver held (counters repeated) left out and the Vicon taken at the
+    wheels' stamps less their lag behind it (:func:`vicon_lag`; without it the residuals
+    are five times larger); the covariance from the residuals' spread.
     """
     rows, ys = [], []
     tick = 2 * math.pi / TICKS
@@ -134,11 +136,14 @@ def vicon_ratios(runs: list[Run], window_s: float = 0.5) -> tuple[np.ndarray, np
         assert run.truth is not None
         js = [(stamp(m), *m.position) for t, _, m in run.messages if t == "/joint_states"]
         tj, left, right = (np.array(c, dtype=float) for c in zip(*js, strict=True))
+        moved = np.concatenate(([True], (np.diff(left) != 0) | (np.diff(right) != 0)))
+        tj, left, right = tj[moved], left[moved], right[moved]
         phi = [np.concatenate(([0.0], np.cumsum(tick * ((np.diff(c) + 32768) % 65536 - 32768))))
                for c in (left, right)]
-        edges = np.arange(tj[0], tj[-1], window_s * 1e9)
+        lag = vicon_lag(run, "/joint_states") * 1e9
+        edges = np.arange(tj[0] + 1e9, tj[-1] - 1e9, window_s * 1e9)
         pl, pr = (np.interp(edges, tj, p) for p in phi)
-        yaw = np.interp(edges, run.truth.stamp_ns.astype(float), run.truth.yaw)
+        yaw = np.interp(edges - lag, run.truth.stamp_ns.astype(float), run.truth.yaw)
         rows += list(zip(np.diff(pr), -np.diff(pl), strict=True))
         ys += list(np.diff(yaw))
     a, y = np.array(rows), np.array(ys)
