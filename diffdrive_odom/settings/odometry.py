@@ -48,6 +48,7 @@ from diffdrive_odom.settings.params import (
 )
 
 _G = GyroConfig()
+_E = EstimatorConfig()  # the estimator's defaults, declared there once
 GYRO_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("use_imu", "bool", False,
               "Gyrodometry: subscribe sensor_msgs/Imu on 'imu'; the wheels give distance, "
@@ -195,17 +196,17 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               [0.001, 1.0e-6, 1.0e6, 1.0e6, 1.0e6, 0.01],
               "Diagonal of the twist covariance (vx, vy, vz, wx, wy, wz); "
               "covariance_model static only."),
-    ParamSpec("velocity_rolling_window_size", "integer", 1,
+    ParamSpec("velocity_rolling_window_size", "integer", _E.velocity_rolling_window_size,
               "Readings in the rolling mean of the twist (never applied to the pose).",
               range=AT_LEAST_ONE),
-    ParamSpec("max_wheel_speed", "double", 200.0,
+    ParamSpec("max_wheel_speed", "double", _E.max_wheel_speed,
               "Fastest plausible joint speed [rad/s]; faster steps are skipped "
               "(.inf = no speed check; a wheel rolling over 1 km in one step still is).",
               range=POSITIVE_OR_INF),
-    ParamSpec("time_jump_threshold", "double", 1.0,
+    ParamSpec("time_jump_threshold", "double", _E.time_jump_threshold,
               "A stamp this far [s] behind the last restarts odometry (bag loop).",
               range=NON_NEGATIVE),
-    ParamSpec("max_reading_gap", "double", 1.0,
+    ParamSpec("max_reading_gap", "double", _E.max_reading_gap,
               "A reading this long [s] after the last usable one is held; if the next "
               "continues from it, it is the new reference, no motion integrated (driver "
               "restart), else it is dropped (future_stamp); .inf = off.",
