@@ -10,6 +10,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import Enum
+from typing import Protocol
 
 from diffdrive_odom.core.health.diagnostics import (
     Level,
@@ -59,12 +60,38 @@ class CommandHealth:
 MIN_OUTPUT_FRACTION = 0.5
 
 
+class _Commanded(Protocol):
+    """What the cmd_vel node and the simulated base both say of the commands they follow."""
+
+    @property
+    def state(self) -> CommandState: ...
+    @property
+    def command_age_s(self) -> float | None: ...
+    @property
+    def last_command_moving(self) -> bool: ...
+    @property
+    def timeout_s(self) -> float: ...
+
+
+def _command_state(now: _Commanded, what: str, timeout_name: str,
+                   problems: list[tuple[Level, str]]) -> list[tuple[str, str]]:
+    """The command-state values both report, and the WARN when the watchdog stopped motion."""
+    if now.state is CommandState.TIMED_OUT and now.last_command_moving:
+        problems.append((Level.WARN, f"stopped by the watchdog: no {what} for "
+                                     f"{finite(now.command_age_s or 0.0):.1f} s while moving"))
+    return [
+        ("state", now.state.value),
+        ("command age [s]", seconds_text(None if now.command_age_s is None
+                                     else finite(now.command_age_s))),
+        (f"{timeout_name} [s]", f"{now.timeout_s:g}"),
+        ("last command moving", "true" if now.last_command_moving else "false"),
+    ]
+
+
 def cmd_vel_report(now: CommandHealth, before: CommandHealth | None = None) -> Report:
     """The cmd_vel node's health; ``before`` is the previous report's snapshot."""
     problems: list[tuple[Level, str]] = []
-    if now.state is CommandState.TIMED_OUT and now.last_command_moving:
-        problems.append((Level.WARN, f"stopped by the watchdog: no command for "
-                                     f"{finite(now.command_age_s or 0.0):.1f} s while moving"))
+    state = _command_state(now, "command", "cmd_vel_timeout", problems)
     dropped = increase_since(now.dropped, before.dropped if before else None)
     if any(dropped.values()):
         problems.append((Level.WARN, f"dropped {sum(dropped.values())} commands "
@@ -83,11 +110,7 @@ def cmd_vel_report(now: CommandHealth, before: CommandHealth | None = None) -> R
         ok = "never commanded: publishing zeros"
     level, message = worst_verdict(problems, ok)
     values = [
-        ("state", now.state.value),
-        ("command age [s]", seconds_text(None if now.command_age_s is None
-                                     else finite(now.command_age_s))),
-        ("cmd_vel_timeout [s]", f"{now.timeout_s:g}"),
-        ("last command moving", "true" if now.last_command_moving else "false"),
+        *state,
         ("command rate [Hz]", f"{finite(now.command_rate_hz):.1f}"),
         ("output rate [Hz]", f"{out_rate:.1f}"),
         ("expected output rate [Hz]", f"{now.expected_output_hz:g}"),
@@ -192,9 +215,7 @@ class SimHealth:
 def sim_report(now: SimHealth, before: SimHealth | None = None) -> Report:
     """The simulated base's health; ``before`` is the previous report's snapshot."""
     problems: list[tuple[Level, str]] = []
-    if now.state is CommandState.TIMED_OUT and now.last_command_moving:
-        problems.append((Level.WARN, "stopped by the watchdog: no wheel command for "
-                                     f"{finite(now.command_age_s or 0.0):.1f} s while moving"))
+    state = _command_state(now, "wheel command", "command_timeout", problems)
     dropped = increase_since(now.dropped, before.dropped if before else None)
     if any(dropped.values()):
         problems.append((Level.WARN, f"dropped {sum(dropped.values())} wheel commands "
@@ -208,11 +229,7 @@ def sim_report(now: SimHealth, before: SimHealth | None = None) -> Report:
           CommandState.TIMED_OUT: "idle: wheel commands timed out, wheels stopped"}[now.state]
     level, message = worst_verdict(problems, ok)
     values = [
-        ("state", now.state.value),
-        ("command age [s]", seconds_text(None if now.command_age_s is None
-                                     else finite(now.command_age_s))),
-        ("command_timeout [s]", f"{now.timeout_s:g}"),
-        ("last command moving", "true" if now.last_command_moving else "false"),
+        *state,
         ("command rate [Hz]", f"{finite(now.command_rate_hz):.1f}"),
         ("step rate [Hz]", f"{step_rate:.1f}"),
         ("expected step rate [Hz]", f"{now.expected_step_hz:g}"),
