@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
-from diffdrive_odom.core.motion.paths import Arc, Path, PathError, Point, require_finite
+from diffdrive_odom.core.motion.paths import Arc, Path, PathError, Point, Primitive, require_finite
 
 Matrix2 = npt.NDArray[np.float64]
 
@@ -103,6 +103,13 @@ def law_matrix(geometry: Geometry, look_ahead: float, theta: float, grad: Point)
     return np.vstack([row1, forward_matrix(geometry)[0]])
 
 
+# rad off the path's direction beyond which the robot turns in place (_turn_round), and
+# the step [m] P is moved to see which way the path's progress goes.
+REVERSED = math.radians(120.0)
+FORWARD = math.radians(45.0)  # and within which it stops turning round
+PROBE = 1e-3
+
+
 def control_point(pose: Pose2D, look_ahead: float) -> Point:
     """Kumar's eq. 20: ``X_P = (x + l cos theta, y + l sin theta)``."""
     return (pose.x + look_ahead * math.cos(pose.theta),
@@ -136,6 +143,7 @@ class PathFollower:
     laps: int = 0  # whole turns of a closed path, so its progress keeps growing
     _starts: list[float] = field(default_factory=list)
     _last_progress: float = 0.0
+    _turning: bool = False  # turning round in place (_turn_round), until facing forward
 
     def __post_init__(self) -> None:
         self._starts = self.path.starts()
@@ -148,6 +156,7 @@ class PathFollower:
         self.done = False
         self.laps = 0
         self._last_progress = 0.0
+        self._turning = False
 
     def _advance(self, p: Point) -> float:
         """Move to the primitive P is on (never back); returns P's progress along the path."""
@@ -167,6 +176,29 @@ class PathFollower:
             return total + self.laps * lap
         return min(max(total, 0.0), self.path.length)
 
+    def _turn_round(self, pose: Pose2D, p: Point, prim: Primitive) -> float:
+        """Turning in place [rad/s] while the robot faces back along the path, else 0.
+
+        Kumar's law holds P on the path at the asked forward speed, either way along it: a
+        robot that overshot a corner and came round facing back (the closed loop at 4x real
+        time on a stale pose) followed the path backwards for ever. Facing more than
+        :data:`REVERSED` off the path's direction (its progress falling as P moves ahead),
+        it turns in place, the shorter way, at ``max_angular_velocity``, until it faces
+        within :data:`FORWARD` of it (hysteresis: the law, taking over at the edge, would
+        turn it back out); then the law takes over.
+        """
+        def ahead(theta: float) -> float:
+            q = (p[0] + PROBE * math.cos(theta), p[1] + PROBE * math.sin(theta))
+            return (prim.progress(q) - prim.progress(p)) / PROBE
+
+        along = ahead(pose.theta)  # cos of the heading's angle off the path's direction
+        limit = math.cos(FORWARD if self._turning else REVERSED)
+        self._turning = -1.5 < along < limit  # else facing forward (or a closed path wrapped)
+        if not self._turning:
+            return 0.0
+        side = 1.0 if ahead(pose.theta + 0.1) > ahead(pose.theta - 0.1) else -1.0
+        return side * self.gains.max_angular_velocity
+
     def step(self, pose: Pose2D, speed: float, dt: float) -> Command:
         """Return the twist for ``pose``.
 
@@ -183,6 +215,9 @@ class PathFollower:
             self.done = True
         if self.done:
             return Command(0.0, 0.0, e1, progress, e2, True, False, False)
+        turn = self._turn_round(pose, p, prim)
+        if turn:
+            return Command(0.0, turn, e1, progress, e2, False, False, True)
         # Eq. 27 with the integral bounded (anti-windup): integrate only while the
         # correction is inside its bound, or when the error pulls it back in.
         bound = g.max_speed_correction * g.desired_speed

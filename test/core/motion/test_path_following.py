@@ -157,3 +157,29 @@ def test_open_path_ends_done_with_zero_command() -> None:
     f = PathFollower(line((0.0, 0.0), (1.0, 0.0)), gains, G)
     c = f.step(Pose2D(2.0, 0.0, 0.0), 0.5, 0.01)
     assert c.done and c.linear == 0.0 and c.angular == 0.0
+
+
+@pytest.mark.parametrize("heading", [math.pi, 0.75 * math.pi, -0.75 * math.pi])
+def test_a_robot_facing_back_along_the_path_turns_round_then_follows_it(heading: float) -> None:
+    """Kumar's law holds P on the path either way along it; a robot more than 120 deg off
+    the path's direction (it overshot a corner and came round) turns in place, the
+    shorter way, at max_angular_velocity, until it faces within 45 deg; then the law
+    takes it forward (in the demo it had followed the square's side backwards for ever)."""
+    gains = Gains(desired_speed=0.4, max_angular_velocity=2.0)
+    f = PathFollower(line((0.0, 0.0), (5.0, 0.0)), gains, G)
+    pose, dt = Pose2D(1.0, 0.0, heading), 0.005
+    c = f.step(pose, 0.0, dt)
+    assert c.linear == 0.0 and abs(c.angular) == 2.0
+    assert math.copysign(1.0, c.angular) == -math.copysign(1.0, heading)  # the shorter way
+    turned = 0
+    while c.linear == 0.0:
+        pose = compose(pose, 0.0, c.angular * dt)
+        c = f.step(pose, 0.0, dt)
+        turned += 1
+    # It stops turning in place once within 45 deg of the path's direction (+x), turning
+    # at 2 rad/s all the way (it does not move: P's direction off the path is the heading's).
+    assert abs(math.remainder(pose.theta, 2 * math.pi)) <= math.radians(45.0) + 2.0 * dt
+    assert turned * dt * 2.0 == pytest.approx(abs(heading) - math.radians(45.0), abs=0.02)
+    assert (pose.x, pose.y) == (1.0, 0.0)
+    log = drive(line((0.0, 0.0), (5.0, 0.0)), pose, gains, 12.0)
+    assert log[-1][2]  # reached the end: followed forwards
