@@ -99,14 +99,28 @@ def package(run: Run, params: dict[str, Any], judged: list[Judged] | None = None
     return Trajectory.from_arrays(ts, x, y, th), pipe
 
 
+def wheel_angles(run: Run, held: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The wheels' stamps [ns] and joint angles [rad] from 0, the 16-bit counters unwrapped.
+
+    ``held`` False: the readings the driver held (counters repeated) left out.
+    """
+    js = [(stamp(m), *m.position) for t, _, m in run.messages if t == "/joint_states"]
+    t, left, right = (np.array(c, dtype=float) for c in zip(*js, strict=True))
+    if not held:
+        moved = np.concatenate(([True], (np.diff(left) != 0) | (np.diff(right) != 0)))
+        t, left, right = t[moved], left[moved], right[moved]
+    tick = 2 * math.pi / TICKS
+    phi_l, phi_r = (np.concatenate(([0.0], np.cumsum(tick * ((np.diff(c) + 32768) % 65536
+                                                              - 32768)))) for c in (left, right))
+    return t, phi_l, phi_r
+
+
 def anchor(run: Run) -> Trajectory:
     """The ten-line gyrodometry: the gyro's heading (less its first 2 s), the wheels' distance."""
-    js = [(stamp(m), *m.position) for t, _, m in run.messages if t == "/joint_states"]
     imu = [(stamp(m), m.angular_velocity.z) for t, _, m in run.messages if t == "/imu"]
-    tj, left, right = (np.array(c, dtype=float) for c in zip(*js, strict=True))
+    tj, phi_l, phi_r = wheel_angles(run)
     ti, w = (np.array(c, dtype=float) for c in zip(*sorted(imu), strict=True))
-    arc = [RADIUS * 2 * math.pi / TICKS
-           * ((np.diff(c) + 32768) % 65536 - 32768) for c in (left, right)]
+    arc = [RADIUS * np.diff(phi) for phi in (phi_l, phi_r)]
     bias = w[ti < ti[0] + 2e9].mean()
     heading = np.concatenate(([0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(ti) * 1e-9)))
     th = np.interp(tj, ti, heading - bias * (ti - ti[0]) * 1e-9)
@@ -131,15 +145,9 @@ def vicon_ratios(runs: list[Run], window_s: float = 0.5) -> tuple[np.ndarray, np
     are five times larger); the covariance from the residuals' spread.
     """
     rows, ys = [], []
-    tick = 2 * math.pi / TICKS
     for run in runs:
         assert run.truth is not None
-        js = [(stamp(m), *m.position) for t, _, m in run.messages if t == "/joint_states"]
-        tj, left, right = (np.array(c, dtype=float) for c in zip(*js, strict=True))
-        moved = np.concatenate(([True], (np.diff(left) != 0) | (np.diff(right) != 0)))
-        tj, left, right = tj[moved], left[moved], right[moved]
-        phi = [np.concatenate(([0.0], np.cumsum(tick * ((np.diff(c) + 32768) % 65536 - 32768))))
-               for c in (left, right)]
+        tj, *phi = wheel_angles(run, held=False)
         lag = vicon_lag(run, "/joint_states") * 1e9
         edges = np.arange(tj[0] + 1e9, tj[-1] - 1e9, window_s * 1e9)
         pl, pr = (np.interp(edges, tj, p) for p in phi)
@@ -165,13 +173,8 @@ def vicon_lag(run: Run, stream: str, span: float = 0.3) -> float:
         t, w = (np.array(c, dtype=float) for c in zip(*imu, strict=True))
         turn = np.concatenate(([0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t) * 1e-9)))
     else:
-        js = [(stamp(m), *m.position) for k, _, m in run.messages if k == stream]
-        t, left, right = (np.array(c, dtype=float) for c in zip(*js, strict=True))
-        moved = np.concatenate(([True], (np.diff(left) != 0) | (np.diff(right) != 0)))
-        t, left, right = t[moved], left[moved], right[moved]  # held readings left out
-        ticks = [np.concatenate(([0.0], np.cumsum((np.diff(c) + 32768) % 65536 - 32768)))
-                 for c in (left, right)]
-        turn = RADIUS * 2 * math.pi / TICKS * (ticks[1] - ticks[0]) / TRACK
+        t, phi_l, phi_r = wheel_angles(run, held=False)
+        turn = RADIUS * (phi_r - phi_l) / TRACK
     edges = np.arange(t[0] + 1e9, t[-1] - 1e9, 0.25e9)
     dv = np.diff(np.interp(edges, run.truth.stamp_ns.astype(float), run.truth.yaw))
     best = (math.inf, 0.0)

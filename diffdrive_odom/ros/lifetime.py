@@ -90,7 +90,7 @@ def _wait_for_end(pid: int) -> None:
     except ProcessLookupError:
         return
     except (AttributeError, OSError):  # no pidfd here (an old kernel, not Linux)
-        while is_ancestor(pid) and _exists(pid):
+        while is_ancestor(pid) and pid_exists(pid):
             time.sleep(POLL_S)
         return
     try:
@@ -105,7 +105,8 @@ def _wait_for_end(pid: int) -> None:
         os.close(fd)
 
 
-def _exists(pid: int) -> bool:
+def pid_exists(pid: int) -> bool:
+    """Whether process ``pid`` exists (someone else's counts)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:

@@ -14,6 +14,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from diffdrive_odom.ros.lifetime import pid_exists
+
 STORAGES = ("mcap", "sqlite3")  # rosbag2 storages an output bag can be written in
 
 
@@ -58,17 +60,6 @@ def staged(path: str | Path) -> Iterator[Path]:
         shutil.rmtree(stage, ignore_errors=True)
 
 
-def _alive(pid: int) -> bool:
-    """Tell whether process ``pid`` exists (someone else's counts: it is left alone)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def remove_stale_stages(final: Path) -> list[str]:
     """Remove the staging directories of ``final`` whose process is gone; one line each.
 
@@ -85,7 +76,7 @@ def remove_stale_stages(final: Path) -> list[str]:
         return said
     for entry in entries:
         found = pattern.fullmatch(entry.name)
-        if not found or not entry.is_dir() or _alive(int(found.group(1))):
+        if not found or not entry.is_dir() or pid_exists(int(found.group(1))):
             continue
         shutil.rmtree(entry, ignore_errors=True)
         said.append(f"removed {entry}: the partial output of an earlier run for {final} "

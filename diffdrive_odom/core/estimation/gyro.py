@@ -167,8 +167,7 @@ class GyroHeading:
         self.wheel_stamp_ns: int | None = None  # newest wheel stamp (future check)
         self.silent = True  # no usable samples for the last step (or none yet)
         self.steps = 0  # wheel steps asked about
-        self._geometry: Geometry | None = None
-        self._b: Matrix = ()
+        self._per_geometry: tuple[Geometry, NoiseModel, Matrix, RatioModel] | None = None
         # Told of each step judged for good (online calibration), None: nobody listens.
         self.observer: Observer | None = None
 
@@ -420,14 +419,15 @@ class GyroHeading:
         cfg = self.config
         s_l, s_r = arcs
         phi_r, phi_l = s_r / geometry.right_radius, s_l / geometry.left_radius
-        model = RatioModel.of(geometry, self.noise)
-        dth_w = model.turn(phi_r, phi_l)
+        cached = self._per_geometry  # the Jacobian and ratios: per geometry, not per step
+        if cached is None or cached[0] is not geometry or cached[1] is not self.noise:
+            cached = self._per_geometry = (
+                geometry, self.noise, wheel_jacobian(geometry), RatioModel.of(geometry, self.noise))
+        _, _, b, model = cached
+        u, v, dth_w = model.u, model.v, model.turn(phi_r, phi_l)
         var_white = cfg.noise_density ** 2 * dt
         g = raw - bias * dt
         var_g = var_white + bias_variance * dt * dt + self.samples.rounding_variance(dt)
-        if geometry is not self._geometry:
-            self._geometry, self._b = geometry, wheel_jacobian(geometry)
-        b, (u, v) = self._b, (model.u, model.v)
         var_l, var_r = joint_variances(self.noise, geometry, d_left, d_right)
         rates = ((0.0, 0.0) if standing
                  else (self.samples.rate(t0) - bias, self.samples.rate(t1) - bias))
