@@ -31,11 +31,22 @@ import math
 import sys
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 
-from phildata import DATA, RUNS, Judged, Run, anchor, load, package, turned, verdicts, vicon_ratios
+from phildata import (
+    DATA,
+    RUNS,
+    Judged,
+    Ratios,
+    Run,
+    anchor,
+    gyro_ratios,
+    load,
+    package,
+    turned,
+    verdicts,
+    vicon_ratios,
+)
 
 from diffdrive_odom.core.evaluation.metrics import evaluate
 
@@ -94,33 +105,50 @@ def main() -> int:
 
 
 def online(data: Path) -> None:
-    """Online calibration (monitor) on the runs turning both ways, against a Vicon fit."""
-    print("\nSeparation multiplier (mean radius held), 1 sigma:")
-    with_truth = [load(data / f"phil_trial_{n}") for n in (0, 2)
-                  if (data / f"phil_trial_{n}").is_dir()]
-    x, cov = vicon_ratios(with_truth)
-    s, m = float(x[0] + x[1]), 0.035
-    grad = 2 * m / s ** 2 / 0.23
-    ref = (2 * m / s / 0.23, grad * math.sqrt(cov[0, 0] + 2 * cov[0, 1] + cov[1, 1]))
-    jl = np.array([-2 * x[1] / s ** 2, 2 / s - 2 * x[1] / s ** 2])  # left multiplier 2v/s
-    left = (float(2 * x[1] / s), math.sqrt(float(jl @ cov @ jl)))
-    print(f"  Vicon fit, runs 0 + 2 (least squares of the Vicon's heading change over 0.5 s "
-          f"windows on the joint increments, its lag behind the wheels taken out): "
-          f"{ref[0]:.4f} +- {ref[1]:.4f}; left radius multiplier {left[0]:.4f} +- {left[1]:.4f}")
-    for n in (4, 5, 9):
-        path = data / f"phil_trial_{n}"
-        if not path.is_dir():
-            continue
-        _, pipe = package(load(path), {"use_imu": True})
+    """Online calibration (monitor) on the runs turning both ways, against batch fits.
+
+    The references (test/phildata.py, without the package): the Vicon's heading fitted
+    per run and pooled over runs 0 + 2 (least squares over 0.5 s windows of the heading
+    change on the joint increments, the wheels' lag behind the Vicon taken out), and on
+    every run the gyro's heading fitted the same way in one batch (a constant bias beside
+    the ratios, the IMU's shift that fits best). Where both exist they agree; that is
+    what makes the gyro's batch fit the reference of the runs without motion capture.
+    """
+    runs = {n: load(data / f"phil_trial_{n}") for n in (0, 2, 4, 5, 9)
+            if (data / f"phil_trial_{n}").is_dir()}
+    print("\nGeometry multipliers (mean radius held), 1 sigma: the track's; the left "
+          "radius's (the wheel ratio)")
+    refs = {f"Vicon, run {n}": vicon_ratios([runs[n]]) for n in (0, 2) if n in runs}
+    if 0 in runs and 2 in runs:
+        refs["Vicon, runs 0 + 2 pooled"] = vicon_ratios([runs[0], runs[2]])
+    for name, ref in refs.items():
+        print(f"  {name:26s} {_pm(ref.separation())}; {_pm(ref.left())}")
+    pooled = refs.get("Vicon, runs 0 + 2 pooled")
+    for n, run in runs.items():
+        batch = gyro_ratios(run)
+        _, pipe = package(run, {"use_imu": True})
         assert pipe.online is not None
         est = pipe.online.estimate()
-        mb, sb = est.multipliers[2], est.stddevs[2]
-        apart = abs(mb - ref[0]) / math.hypot(sb, ref[1])
-        ratio = abs(est.multipliers[0] - left[0]) / math.hypot(est.stddevs[0], left[1])
-        print(f"  run {n}: {mb:.4f} +- {sb:.4f} ({'determined' if est.determined else 'not yet'}"
-              f", {apart:.1f} sigma from the Vicon fit; its left radius {ratio:.1f} sigma); "
-              f"{est.line()}")
-        apply(data, n, est.multipliers, with_truth)
+        mine = ((est.multipliers[2], est.stddevs[2]), (est.multipliers[0], est.stddevs[0]))
+        line = (f"  run {n}: gyro batch fit {_pm(batch.separation())}; {_pm(batch.left())}"
+                f"\n         online ({'determined' if est.determined else 'not yet determined'}"
+                f") {_pm(mine[0])}; {_pm(mine[1])}: {_apart(mine, batch)} from the batch fit")
+        if pooled is not None:
+            line += f", {_apart(mine, pooled)} from the pooled Vicon fit"
+        print(line)
+        if n in (4, 5, 9) and 0 in runs and 2 in runs:
+            apply(data, n, est.multipliers, [runs[0], runs[2]])
+
+
+def _pm(value: tuple[float, float]) -> str:
+    return f"{value[0]:.4f} +- {value[1]:.4f}"
+
+
+def _apart(est: tuple[tuple[float, float], tuple[float, float]], ref: Ratios) -> str:
+    """How many (combined) sigmas the estimate's track and ratio are from the reference's."""
+    gaps = [abs(e[0] - r[0]) / math.hypot(e[1], r[1])
+            for e, r in zip(est, (ref.separation(), ref.left()), strict=True)]
+    return f"{gaps[0]:.1f} / {gaps[1]:.1f} sigma"
 
 
 def apply(data: Path, n: int, mult: tuple[float, float, float], runs: list[Run]) -> None:

@@ -135,30 +135,81 @@ def turned(traj: Trajectory) -> float:
     return float(np.sum(np.abs(np.diff(traj.yaw))))
 
 
-def vicon_ratios(runs: list[Run], window_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-    """The ratios ``(u, v) = (r_R/b, r_L/b)`` fitted to the Vicon's heading, and their covariance.
+@dataclass(frozen=True)
+class Ratios:
+    """The ratios ``(u, v) = (r_R/b, r_L/b)`` fitted to a heading, and their covariance."""
+
+    x: np.ndarray
+    cov: np.ndarray
+
+    def separation(self) -> tuple[float, float]:
+        """The track's multiplier (mean radius held at the nominal) and its 1 sigma."""
+        s = float(self.x[0] + self.x[1])
+        return (2 * RADIUS / s / TRACK, 2 * RADIUS / s ** 2 / TRACK
+                * math.sqrt(float(np.sum(self.cov))))
+
+    def left(self) -> tuple[float, float]:
+        """The left radius multiplier ``2v/(u+v)`` (the wheel ratio) and its 1 sigma."""
+        u, v = (float(c) for c in self.x)
+        s = u + v
+        jac = np.array([-2 * v / s ** 2, 2 / s - 2 * v / s ** 2])
+        return 2 * v / s, math.sqrt(float(jac @ self.cov @ jac))
+
+
+def _ratios(rows: np.ndarray, turns: np.ndarray) -> tuple[Ratios, float]:
+    """Least squares of the heading changes on the joint increments (and any further
+    columns, e.g. a bias's time); the covariance of (u, v) from the residuals' spread."""
+    x, *_ = np.linalg.lstsq(rows, turns, rcond=None)
+    resid = turns - rows @ x
+    ss = float(resid @ resid)
+    cov = np.linalg.inv(rows.T @ rows) * ss / (len(turns) - rows.shape[1])
+    return Ratios(x[:2], cov[:2, :2]), ss
+
+
+def _increments(run: Run, window_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Window edges [ns] over the run and the joint increments ``(dphi_R, -dphi_L)`` over
+    each window, the readings the driver held (counters repeated) left out."""
+    tj, phi_l, phi_r = wheel_angles(run, held=False)
+    edges = np.arange(tj[0] + 1e9, tj[-1] - 1e9, window_s * 1e9)
+    left, right = (np.interp(edges, tj, p) for p in (phi_l, phi_r))
+    return edges, np.column_stack([np.diff(right), -np.diff(left)])
+
+
+def vicon_ratios(runs: list[Run], window_s: float = 0.5) -> Ratios:
+    """The ratios fitted to the Vicon's heading, windows pooled over ``runs``.
 
     Least squares over windows of ``window_s``: the Vicon's heading change against the
-    wheels' joint increments ``(dphi_R, -dphi_L)``, windows pooled over ``runs``, the
-    readings the driver held (counters repeated) left out and the Vicon taken at the
-    wheels' stamps less their lag behind it (:func:`vicon_lag`; without it the residuals
-    are five times larger); the covariance from the residuals' spread.
+    wheels' joint increments, the Vicon taken at the wheels' stamps less their lag
+    behind it (:func:`vicon_lag`; without it the residuals are five times larger).
     """
     rows, ys = [], []
     for run in runs:
         assert run.truth is not None
-        tj, *phi = wheel_angles(run, held=False)
+        edges, inc = _increments(run, window_s)
         lag = vicon_lag(run, "/joint_states") * 1e9
-        edges = np.arange(tj[0] + 1e9, tj[-1] - 1e9, window_s * 1e9)
-        pl, pr = (np.interp(edges, tj, p) for p in phi)
-        yaw = np.interp(edges - lag, run.truth.stamp_ns.astype(float), run.truth.yaw)
-        rows += list(zip(np.diff(pr), -np.diff(pl), strict=True))
-        ys += list(np.diff(yaw))
-    a, y = np.array(rows), np.array(ys)
-    x, *_ = np.linalg.lstsq(a, y, rcond=None)
-    resid = y - a @ x
-    cov = np.linalg.inv(a.T @ a) * float(resid @ resid) / (len(y) - 2)
-    return x, cov
+        yaw = np.interp(edges - lag, run.truth.stamp_ns.astype(float), np.unwrap(run.truth.yaw))
+        rows.append(inc)
+        ys.append(np.diff(yaw))
+    return _ratios(np.concatenate(rows), np.concatenate(ys))[0]
+
+
+def gyro_ratios(run: Run, window_s: float = 0.5, span: float = 0.3) -> Ratios:
+    """The ratios fitted to the gyro's heading in one batch, over one whole run.
+
+    As :func:`vicon_ratios` with the gyro's trapezoid integral in place of the Vicon, a
+    constant bias fitted beside the ratios, and the IMU's shift from the wheels' stamps
+    the one of least residual within ``span`` (5 ms steps). The reference for runs
+    without motion capture: written here without the package, and where the Vicon is
+    there it agrees with the Vicon's fit on the same run.
+    """
+    imu = sorted((stamp(m), m.angular_velocity.z) for t, _, m in run.messages if t == "/imu")
+    ti, w = (np.array(c, dtype=float) for c in zip(*imu, strict=True))
+    heading = np.concatenate(([0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(ti) * 1e-9)))
+    edges, inc = _increments(run, window_s)
+    rows = np.column_stack([inc, np.diff(edges) * 1e-9])
+    fits = [_ratios(rows, np.diff(np.interp(edges + shift * 1e9, ti, heading)))
+            for shift in np.arange(-span, span + 1e-9, 0.005)]
+    return min(fits, key=lambda fit: fit[1])[0]
 
 
 def vicon_lag(run: Run, stream: str, span: float = 0.3) -> float:
