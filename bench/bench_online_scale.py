@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
-from diffdrive_odom.core.estimation.online_scale import feed_reference
+from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
+from diffdrive_odom.core.estimation.online.online_scale import feed_reference
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import DiffDriveSim, SimConfig, SlipEvent

@@ -5,7 +5,7 @@ capture or AMCL, as ``nav_msgs/Odometry`` or ``geometry_msgs/PoseStamped``
 (``online_calibration_reference_type``). Thin: each message becomes a stamp and a
 planar pose (:func:`~diffdrive_odom.wire.conversions.reference_pose`, as replay reads a
 bag's) for the pipeline, which matches it to the wheels and the gyro
-(:mod:`~diffdrive_odom.core.estimation.online_scale`). A refused pose is named,
+(:mod:`~diffdrive_odom.core.estimation.online.online_scale`). A refused pose is named,
 throttled per reason. Low rate (a few to a hundred Hz): rclpy's own deserialisation.
 """
 
@@ -17,7 +17,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
-from diffdrive_odom.core.estimation.online_scale import (
+from diffdrive_odom.core.estimation.online.online_scale import (
     POSE_STAMPED,
     ReferenceConfig,
     feed_reference,

@@ -20,8 +20,8 @@ import pytest
 from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, Message, R, Truth, stream, truth
 from refstreams import Reference, RefMessage, merge, reference
 
-from diffdrive_odom.core.estimation.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
-from diffdrive_odom.core.estimation.online_scale import (
+from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
+from diffdrive_odom.core.estimation.online.online_scale import (
     SCALE_FIELDS,
     feed_reference,
     scale_values,
@@ -172,7 +172,7 @@ def test_settings_are_checked_at_start() -> None:
 
 def test_scale_core_exact_data_and_a_time_reset() -> None:
     """OnlineScale alone on exact data: k and s in closed form; a bag loop starts over."""
-    from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig
+    from diffdrive_odom.core.estimation.online.online_scale import OnlineScale, ReferenceConfig
     from diffdrive_odom.core.geometry.kinematics import Geometry
     from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
@@ -256,7 +256,7 @@ def test_a_long_silent_reference_starts_anew_and_keeps_ten_seconds() -> None:
     10 s all along (they grew without bound while a window was open), the first pose
     after the silence starts a new window (counted ``uncovered``), and the estimate
     still covers the truth."""
-    from diffdrive_odom.core.estimation.online_scale import MAX_LAG_S
+    from diffdrive_odom.core.estimation.online.online_scale import MAX_LAG_S
 
     rl, rr, b = TRUE
     tru = _truth(TRUE)

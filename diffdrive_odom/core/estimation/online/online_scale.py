@@ -42,10 +42,10 @@ from types import MappingProxyType
 from typing import Protocol
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimation.kalman import kalman_update, quadratic
+from diffdrive_odom.core.estimation.online.kalman import kalman_update, quadratic
+from diffdrive_odom.core.estimation.online.ratios import ratio_geometry
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
-from diffdrive_odom.core.uncertainty.ratios import ratio_geometry
 
 __all__ = ["REFERENCE_TYPES", "SCALE_FIELDS", "OnlineScale", "ReferenceConfig", "ScaleEstimate",
            "feed_reference", "scale_values"]
