@@ -37,7 +37,6 @@ from diffdrive_odom.core.bulk import fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.core.bulk.readings import count as reading_count
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.online import online_scale
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
 from diffdrive_odom.core.estimation.results import Outcome
@@ -108,7 +107,7 @@ def replay_readings(
                                   covariance=r.covariance)
                     continue
                 if isinstance(r, bagreadings.ReferenceSample):  # the online estimate's scale
-                    online_scale.feed_reference(pipe.online, r.stamp_ns, r.x, r.y, r.yaw)
+                    pipe.feed_reference(r.stamp_ns, r.x, r.y, r.yaw)
                     continue
                 yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 

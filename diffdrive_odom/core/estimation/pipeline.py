@@ -154,6 +154,16 @@ class ReadingPipeline:
             return ""
         return imu.feed(stamp_ns, wx, wy, wz, receive_ns, check_clock, covariance)
 
+    def feed_reference(self, stamp_ns: int, x: float, y: float, yaw: float) -> str:
+        """Offer one reference pose (a lidar odometry, AMCL) to the online estimate's scale.
+
+        The node and replay both give it here; '' if kept or not used (no online
+        estimate, no reference topic), else the code it was refused with
+        (:mod:`~diffdrive_odom.core.estimation.online.online_scale`).
+        """
+        scale = None if self._online is None else self._online.scale
+        return "" if scale is None else scale.feed(stamp_ns, x, y, yaw)
+
     @property
     def estimator(self) -> OdometryEstimator:
         """The estimator (pose, twist, last step); feed readings through :meth:`feed` only."""
