@@ -22,8 +22,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from diffdrive_odom.core.estimation.encoders import EncoderConfig
-from diffdrive_odom.core.estimation.estimator import OdometryEstimator
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.wheels.estimator import OdometryEstimator
 from diffdrive_odom.core.geometry.integration import Pose2D, compose, integrate_batch
 from diffdrive_odom.core.geometry.kinematics import Geometry
 

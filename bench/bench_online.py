@@ -49,7 +49,7 @@ from simstreams import (  # noqa: E402
     true_ratios,
 )
 
-from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate  # noqa: E402
+from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate  # noqa: E402
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline  # noqa: E402
 from diffdrive_odom.settings.odometry import odometry_settings  # noqa: E402
 

@@ -35,8 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
-from diffdrive_odom.core.estimation.online_scale import feed_reference
+from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import DiffDriveSim, SimConfig, SlipEvent
@@ -139,8 +138,7 @@ def feed(pipe: ReadingPipeline, msg: Message) -> bool:
     if kind == "i":
         pipe.feed_imu(stamp, 0.0, 0.0, v[0], receive_ns=rx)
     elif kind == "r":
-        if pipe.online is not None:
-            feed_reference(pipe.online, stamp, *v)
+        pipe.feed_reference(stamp, *v)
     else:
         return pipe.feed(stamp, NAMES, v, receive_ns=rx).warning.startswith(
             "online calibration")

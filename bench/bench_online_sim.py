@@ -22,7 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
+from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.sim.model import DiffDriveSim
 from diffdrive_odom.demo.evaluation import true_multipliers

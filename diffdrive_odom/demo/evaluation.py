@@ -23,9 +23,10 @@ import numpy as np
 
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
+from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
+from diffdrive_odom.core.estimation.online.ratios import multipliers
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
-from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.evaluation import calibration, leftout
 from diffdrive_odom.core.evaluation.metrics import Trajectory, evaluate
 from diffdrive_odom.core.evaluation.recorded_run import (
@@ -37,7 +38,6 @@ from diffdrive_odom.core.evaluation.recorded_run import (
 from diffdrive_odom.core.evaluation.umbmark import reference_end, umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.motion.paths import Point
-from diffdrive_odom.core.uncertainty.ratios import multipliers
 
 from .report import (
     FIT,
@@ -194,7 +194,7 @@ def replay(readings: Sequence[JointSample], odo: OdometrySettings,
     same or a later stamp (as replay's merge by stamp feeds them). Returns the pose
     after every reading the estimator used, each slip event the gyrodometry found
     (the stamp of its first step, the heading the wheels got wrong over it [rad]), by
-    the one rule the node and ``replay`` count with (:mod:`diffdrive_odom.core.estimation.slips`),
+    the one rule the node and ``replay`` count with (:mod:`~.gyro.slips`),
     and the online geometry estimate's trace (``online_calibration: monitor``; [] if off).
     """
     pipe = ReadingPipeline(odo, trace=True)
@@ -239,7 +239,7 @@ def true_multipliers(nominal: Geometry, true: Geometry) -> tuple[float, float, f
     """The true geometry as the online estimate gives it: multipliers, mean radius held.
 
     The gyro sees the two ratios ``r/b`` only: the true ones, through the estimate's own
-    mapping (:func:`~diffdrive_odom.core.uncertainty.ratios.multipliers`).
+    mapping (:func:`~diffdrive_odom.core.estimation.online.ratios.multipliers`).
     """
     b = true.separation
     values, _ = multipliers(nominal, (true.right_radius / b, true.left_radius / b),

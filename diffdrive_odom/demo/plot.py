@@ -36,7 +36,7 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
     """Where the robot was told to go, believed it went, really went; the gap growing.
 
     ``slips``: the slip events, (stamp, size), by the one rule
-    (:mod:`~diffdrive_odom.core.estimation.slips`), marked on the truth and on the
+    (:mod:`~diffdrive_odom.core.estimation.gyro.slips`), marked on the truth and on the
     distance axis; the calibrated lines are then drawn with those steps bridged by the
     truth (as the calibration left them out). ``online``: the online estimate's trace,
     drawn below (``true_multipliers`` dashed).

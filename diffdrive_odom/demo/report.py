@@ -14,15 +14,15 @@ import textwrap
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-from diffdrive_odom.core.estimation.gyro import GyroConfig
-from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
+from diffdrive_odom.core.estimation.gyro.config import GyroConfig
+from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
 from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.core.motion.paths import Point
 
 # Table rows, in the order printed; the keys of ``results.json``'s "rows".
 NOMINAL, FIT, UMBMARK, TRUE = "nominal", "fit", "umbmark", "true"
 WHEELS, GYRO = "wheels", "gyro"  # the replays: nominal geometry, without and with the gyro
-# Smaller slips are no slip events (the one rule: core.estimation.slips, slip_min_angle).
+# Smaller slips are no slip events (the one rule: core.estimation.gyro.slips, slip_min_angle).
 MIN_SLIP_RAD = GyroConfig().slip_min_angle
 LABELS = {
     NOMINAL: "nominal (odometry_node as run)",

@@ -1,9 +1,9 @@
 """``~/geometry_estimate``: the online geometry estimate as std_msgs/Float64MultiArray.
 
 One dimension, its label the comma-separated field names of
-:data:`diffdrive_odom.core.estimation.online_estimate.FIELDS` then
-:data:`diffdrive_odom.core.estimation.online_scale.SCALE_FIELDS` then
-:data:`diffdrive_odom.core.estimation.online_apply.APPLY_FIELDS` (so a reader finds each
+:data:`diffdrive_odom.core.estimation.online.online_estimate.FIELDS` then
+:data:`diffdrive_odom.core.estimation.online.online_scale.SCALE_FIELDS` then
+:data:`diffdrive_odom.core.estimation.online.online_apply.APPLY_FIELDS` (so a reader finds each
 value by name, and a field added later does not shift silently), its size their count.
 Published once a second when the estimate changed (a filter update), reliable and
 transient local, so a late subscriber gets the last one.
@@ -18,10 +18,10 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from diffdrive_odom.core.estimation.online_apply import APPLY_FIELDS
-from diffdrive_odom.core.estimation.online_estimate import FIELDS as GYRO_FIELDS
-from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
-from diffdrive_odom.core.estimation.online_scale import SCALE_FIELDS, scale_values
+from diffdrive_odom.core.estimation.online.online_apply import APPLY_FIELDS
+from diffdrive_odom.core.estimation.online.online_estimate import FIELDS as GYRO_FIELDS
+from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
+from diffdrive_odom.core.estimation.online.online_scale import SCALE_FIELDS, scale_values
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
 
 TOPIC = "~/geometry_estimate"

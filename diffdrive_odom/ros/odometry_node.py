@@ -27,7 +27,7 @@ from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.pipeline import IMU_SILENT, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Publication, Refusal, pipeline_publication
 from diffdrive_odom.core.estimation.results import Outcome
-from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.health.diagnostics import (
     RateMeter,
     ReadingHealth,

@@ -5,7 +5,7 @@ capture or AMCL, as ``nav_msgs/Odometry`` or ``geometry_msgs/PoseStamped``
 (``online_calibration_reference_type``). Thin: each message becomes a stamp and a
 planar pose (:func:`~diffdrive_odom.wire.conversions.reference_pose`, as replay reads a
 bag's) for the pipeline, which matches it to the wheels and the gyro
-(:mod:`~diffdrive_odom.core.estimation.online_scale`). A refused pose is named,
+(:mod:`~diffdrive_odom.core.estimation.online.online_scale`). A refused pose is named,
 throttled per reason. Low rate (a few to a hundred Hz): rclpy's own deserialisation.
 """
 
@@ -17,11 +17,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
-from diffdrive_odom.core.estimation.online_scale import (
-    POSE_STAMPED,
-    ReferenceConfig,
-    feed_reference,
-)
+from diffdrive_odom.core.estimation.online.online_scale import POSE_STAMPED, ReferenceConfig
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.ros.qos import SENSOR_IN_QOS
 from diffdrive_odom.ros.throttle import KeyedThrottle
@@ -43,7 +39,7 @@ class ReferenceSubscription:
 
     def _on_pose(self, msg: Any) -> None:
         stamp, x, y, yaw = reference_pose(msg)
-        code = feed_reference(self._pipeline.online, stamp, x, y, yaw)
+        code = self._pipeline.feed_reference(stamp, x, y, yaw)
         if code:
             self._throttle.warning(f"reference_{code}", f"reference pose dropped [{code}]: "
                                    f"stamp {stamp * 1e-9:.3f} s on {self._sub.topic_name}")

@@ -36,7 +36,7 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray
 
 from diffdrive_odom.core.commands.cmd_vel_pipeline import JOINT_STATE, TICKS_PER_SECOND
-from diffdrive_odom.core.estimation.encoders import EncoderConfig, JointLookup
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig, JointLookup
 from diffdrive_odom.core.health.base_diagnostics import CommandState, SimHealth, sim_report
 from diffdrive_odom.core.health.diagnostics import RateMeter, Report, Reporter
 from diffdrive_odom.core.sim.model import TWO_PI, DiffDriveSim

@@ -27,7 +27,7 @@ from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     CmdVelSettings as CmdVelSettings,
 )
 from diffdrive_odom.core.commands.limits import AxisLimits, CommandLimits, ddc_axis_limits
-from diffdrive_odom.core.estimation.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
 from diffdrive_odom.settings.geometry import (
     CMD_VEL_TIMEOUT_PARAM,

@@ -10,16 +10,17 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
-from diffdrive_odom.core.estimation.gyro import GyroConfig
-from diffdrive_odom.core.estimation.online_geometry import OnlineConfig
-from diffdrive_odom.core.estimation.online_scale import ReferenceConfig
+from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.estimation.gyro.config import GyroConfig
+from diffdrive_odom.core.estimation.online.online_geometry import OnlineConfig
+from diffdrive_odom.core.estimation.online.online_scale import ReferenceConfig
 from diffdrive_odom.core.estimation.open_loop import (
     DEFAULT_OPEN_LOOP_NOISE,
     OPEN_LOOP_SOURCES,
     OpenLoopConfig,
 )
 from diffdrive_odom.core.estimation.stamps import StampSource
+from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
 from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_K,
     DEFAULT_RADIUS_STDDEV_RATIO,

@@ -17,7 +17,7 @@ from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     TICKS_PER_SECOND,
     WHEEL_COMMAND_FORMATS,
 )
-from diffdrive_odom.core.estimation.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import SimConfig, SlipEvent
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
+from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
 
 Trace = Sequence[tuple[int, OnlineEstimate]]
 NAMES = ("left wheel radius", "right wheel radius", "wheel separation")

@@ -1,6 +1,6 @@
 """``replay --online-calibration``: the gyro's online geometry estimate over a bag.
 
-The estimate is the node's own (:mod:`diffdrive_odom.core.estimation.online_geometry`,
+The estimate is the node's own (:mod:`diffdrive_odom.core.estimation.online.online_geometry`,
 through the one pipeline); this module only turns its trace into a few lines: the
 estimate at a few points of the run, by distance, then the final one as a block of
 ddc's multipliers to paste into the parameter file, as ``calibrate`` prints its own;
@@ -21,7 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
+from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.params import ParamValue, resolve_parameters
 

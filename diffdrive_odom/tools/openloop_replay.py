@@ -27,7 +27,7 @@ from diffdrive_odom.core.estimation.open_loop import (
 )
 from diffdrive_odom.core.estimation.publication import Refusal, publication
 from diffdrive_odom.core.estimation.results import PipelineStats
-from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.tools.replaystats import ReplayStats
 from diffdrive_odom.tools.sinks import PoseLog, Published
 

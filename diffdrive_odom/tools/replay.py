@@ -36,14 +36,13 @@ from typing import TYPE_CHECKING
 from diffdrive_odom.core.bulk import fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.core.bulk.readings import count as reading_count
-from diffdrive_odom.core.estimation import online_scale
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.encoders import Reason
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
 from diffdrive_odom.core.estimation.results import Outcome
 from diffdrive_odom.core.estimation.stamps import StampSource
-from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.estimation.wheels.encoders import Reason
+from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.tools import evaluate, fleet, online_report, progress, sinks
 from diffdrive_odom.tools.args import (
@@ -108,7 +107,7 @@ def replay_readings(
                                   covariance=r.covariance)
                     continue
                 if isinstance(r, bagreadings.ReferenceSample):  # the online estimate's scale
-                    online_scale.feed_reference(pipe.online, r.stamp_ns, r.x, r.y, r.yaw)
+                    pipe.feed_reference(r.stamp_ns, r.x, r.y, r.yaw)
                     continue
                 yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
 

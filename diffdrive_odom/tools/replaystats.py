@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
-from diffdrive_odom.core.estimation import online_estimate
+from diffdrive_odom.core.estimation.online import online_estimate
 from diffdrive_odom.core.estimation.results import PipelineStats
 from diffdrive_odom.core.geometry.integration import Pose2D
 

@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from diffdrive_odom.core.bulk.fastlane import Stretch
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.uncertainty.propagation import (

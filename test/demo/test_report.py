@@ -97,7 +97,7 @@ def _result(plot: str | None = None) -> DemoResult:
             UMBMARK: row(0.04995, 0.05005, 0.3027, 0.002), TRUE: row(0.05, 0.0501, 0.303, 0.0),
             WHEELS: row(0.05, 0.05, 0.30, 0.5), GYRO: row(0.05, 0.05, 0.30, 0.02)}
     sq = (Square(True, ((0.1, 0.0), (1.0, 0.0)), 0, 10), Square(False, ((0.1, 0.0),), 10, 20))
-    # The slip events as the one rule gave them (core.estimation.slips): one of 0.1 rad.
+    # The slip events as the one rule gave them (core.estimation.gyro.slips): one of 0.1 rad.
     slips = ((2_000_000_000, 0.1),)
     return DemoResult("umbmark", 4.0, 32.0, 100.0, 25.0, (0.0, 0.0, 0.0), rows, 0.05, 0.2,
                       sq, {"/odom": 3}, None, plot, slips)

@@ -79,7 +79,7 @@ def test_gyro_aided_node_names_the_slip_keeps_the_heading_and_falls_back() -> No
         # The left wheel's 1 mm a reading, but for the first spinning one: its 5 mm of excess
         # is within SPIN_SIGMAS (3) of the timing (the default jitter, 5 ms, at both ends,
         # no lag measured: sqrt(2) * 5 ms) at the wheels' 0.25 m/s apart (5.3 mm), so it
-        # keeps the wheels' mean, half its excess too much (core.estimation.slipstep).
+        # keeps the wheels' mean, half its excess too much (core.estimation.gyro.slipstep).
         assert end.pose.pose.position.x == pytest.approx(last * 0.001 + 0.0025, abs=1e-9)
         # A report may come in the middle of the slip: wait for the one after it.
         slipped = peer.wait_for(lambda s: s.values.get("slip steps") == str(len(SLIP)), 10.0)

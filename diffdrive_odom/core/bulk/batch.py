@@ -25,10 +25,10 @@ import numpy.typing as npt
 from diffdrive_odom.core.bulk import fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.encoders import Reason
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.estimation.results import Outcome
-from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.estimation.wheels.encoders import Reason
+from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D, integrate_batch
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
 from diffdrive_odom.core.geometry.se2 import wrap_angle
@@ -65,7 +65,7 @@ class WheelSteps:
     over at the origin); ``segments`` counts them, so a restart with no step after it
     is still known. ``slip_spans``: with the gyro (``use_imu`` and IMU samples), each
     slip event's (stamp of its first step, stamp of its last step) by the node's rule
-    (:mod:`~diffdrive_odom.core.estimation.slips`), ``slip_events`` how many there were
+    (:mod:`~diffdrive_odom.core.estimation.gyro.slips`), ``slip_events`` how many there were
     (more than the spans kept when over ``slips.MAX_EVENTS``); None: no gyro judged.
     """
 

@@ -5,8 +5,8 @@ Offline work (``replay``) feeds millions of readings, and the one
 reading in Python. The pipeline stays the only definition of the rules: this module
 decides nothing on its own, and where it needs a rule in array form it calls the form
 that lives beside the scalar one in the rule's own module (the counter unwrap and the
-increments: :func:`~diffdrive_odom.core.estimation.encoders.position_increments`; the
-plausibility limits: :func:`~diffdrive_odom.core.estimation.plausibility.plausible_steps`;
+increments: :func:`~diffdrive_odom.core.estimation.wheels.encoders.position_increments`; the
+plausibility limits: :func:`~diffdrive_odom.core.estimation.wheels.plausibility.plausible_steps`;
 the publish gate: :meth:`~diffdrive_odom.core.estimation.gate.PublishGate.passed`;
 the chord: :func:`~diffdrive_odom.core.geometry.integration.chord_array`; whether bulk
 is allowed at all:
@@ -46,19 +46,19 @@ import numpy as np
 import numpy.typing as npt
 
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
-from diffdrive_odom.core.estimation.encoders import (
+from diffdrive_odom.core.estimation.gate import PublishGate
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.results import Handover, Outcome
+from diffdrive_odom.core.estimation.stamps import StampSource, in_sync
+from diffdrive_odom.core.estimation.wheels.encoders import (
     JointLookup,
     WheelIncrement,
     WheelReading,
     counter_range,
     position_increments,
 )
-from diffdrive_odom.core.estimation.estimator import Step
-from diffdrive_odom.core.estimation.gate import PublishGate
-from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
-from diffdrive_odom.core.estimation.plausibility import plausible_steps
-from diffdrive_odom.core.estimation.results import Handover, Outcome
-from diffdrive_odom.core.estimation.stamps import StampSource, in_sync
+from diffdrive_odom.core.estimation.wheels.estimator import Step
+from diffdrive_odom.core.estimation.wheels.plausibility import plausible_steps
 from diffdrive_odom.core.geometry.integration import Pose2D, chord_array
 from diffdrive_odom.core.geometry.kinematics import body_from_arcs, wheel_arcs
 from diffdrive_odom.core.geometry.se2 import wrap_angle

@@ -1,65 +1,27 @@
-"""The settings of one reading's path: the estimator's rules and the whole pipeline's.
+"""The settings of one reading's path: the whole pipeline's, each concern's among them.
 
 Pure Python, defined in the core so the core imports nothing above it
-(``settings.odometry`` builds them from ROS parameters). :class:`EstimatorConfig`: what
-the estimator's rules (:mod:`~diffdrive_odom.core.estimation.estimator`) need besides
-geometry and encoders; :class:`OdometrySettings`: everything the odometry node and
-``replay`` are configured with, including whether bulk integration may be used
-(:attr:`OdometrySettings.takes_bulk`).
+(``settings.odometry`` builds them from ROS parameters). :class:`OdometrySettings`:
+everything the odometry node and ``replay`` are configured with (the wheels' rules:
+:class:`~.wheels.config.EstimatorConfig`), including whether bulk integration may be
+used (:attr:`OdometrySettings.takes_bulk`).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
-from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimation.encoders import EncoderConfig
-from diffdrive_odom.core.estimation.gyro import GyroConfig
-from diffdrive_odom.core.estimation.online_geometry import OnlineConfig
+from diffdrive_odom.core.estimation.gyro.config import GyroConfig
+from diffdrive_odom.core.estimation.online.online_geometry import OnlineConfig
 from diffdrive_odom.core.estimation.open_loop import OpenLoopConfig
 from diffdrive_odom.core.estimation.stamps import StampSource
+from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
 ONLINE_NEEDS_IMU = ("online_calibration is monitor or apply but use_imu is false: online "
                     "calibration disabled (it needs the gyro)")
-
-
-class EstimatorConfigError(ConfigError):
-    """An estimator setting that cannot work (names the parameter)."""
-
-
-@dataclass(frozen=True)
-class EstimatorConfig:
-    """Everything the estimator needs besides geometry and encoders."""
-
-    max_wheel_speed: float = 200.0  # rad/s of a joint; faster steps are implausible
-    velocity_rolling_window_size: int = 1
-    time_jump_threshold: float = 1.0  # s; a stamp further back than this restarts
-    # s; a reading this long after the last usable one is held, then a new reference
-    # or an outlier (inf = off). 1 s: a 5 Hz driver (0.2 s) keeps integrating, a
-    # restart pause does not.
-    max_reading_gap: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not (self.max_wheel_speed > 0.0):
-            raise EstimatorConfigError(
-                "max_wheel_speed", f"must be > 0 (inf = no check), got {self.max_wheel_speed!r}"
-            )
-        w = self.velocity_rolling_window_size
-        if not isinstance(w, int) or w < 1:
-            raise EstimatorConfigError(
-                "velocity_rolling_window_size", f"must be an integer >= 1, got {w!r}"
-            )
-        if not (math.isfinite(self.time_jump_threshold) and self.time_jump_threshold >= 0.0):
-            raise EstimatorConfigError(
-                "time_jump_threshold", f"must be finite and >= 0, got {self.time_jump_threshold!r}"
-            )
-        if not (self.max_reading_gap > 0.0):
-            raise EstimatorConfigError(
-                "max_reading_gap", f"must be > 0 (inf = no check), got {self.max_reading_gap!r}"
-            )
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ time reset, gap, speed check, integration); the ``publish_rate`` gate decides wh
 the pose goes out. The outcome and a set of counters come back, so the node logs,
 replay summarises and diagnostics report from the same numbers. With ``use_imu`` the
 IMU's samples come in through :meth:`ReadingPipeline.feed_imu` and the estimator takes
-each step's heading from :mod:`diffdrive_odom.core.estimation.gyro` (gyrodometry) and its
+each step's heading from :mod:`~diffdrive_odom.core.estimation.gyro.gyrodometry` and its
 geometry from :func:`~.online_apply.geometry_in_use` (``apply``). Pure Python.
 """
 
@@ -20,16 +20,11 @@ from collections.abc import Sequence
 from types import MappingProxyType
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.encoders import (
-    Reason,
-    WheelIncrement,
-)
-from diffdrive_odom.core.estimation.estimator import OdometryEstimator, Step
 from diffdrive_odom.core.estimation.gate import PublishGate
-from diffdrive_odom.core.estimation.gyro import GyroHeading
-from diffdrive_odom.core.estimation.imuinput import ImuInput
-from diffdrive_odom.core.estimation.online_apply import geometry_in_use
-from diffdrive_odom.core.estimation.online_geometry import OnlineGeometry
+from diffdrive_odom.core.estimation.gyro.gyrodometry import GyroHeading
+from diffdrive_odom.core.estimation.gyro.imuinput import ImuInput
+from diffdrive_odom.core.estimation.online.online_apply import geometry_in_use
+from diffdrive_odom.core.estimation.online.online_geometry import OnlineGeometry
 from diffdrive_odom.core.estimation.results import GyroStats, Handover, Outcome, PipelineStats
 from diffdrive_odom.core.estimation.setpose import (
     PoseRefusal,
@@ -38,7 +33,12 @@ from diffdrive_odom.core.estimation.setpose import (
     check_request,
 )
 from diffdrive_odom.core.estimation.stamps import ClockOffsetCheck, StampSource
-from diffdrive_odom.core.estimation.timeline import Status, Verdict
+from diffdrive_odom.core.estimation.wheels.encoders import (
+    Reason,
+    WheelIncrement,
+)
+from diffdrive_odom.core.estimation.wheels.estimator import OdometryEstimator, Step
+from diffdrive_odom.core.estimation.wheels.timeline import Status, Verdict
 from diffdrive_odom.core.uncertainty.noise import quantization_variance
 from diffdrive_odom.core.uncertainty.propagation import (
     covariance_matrix,
@@ -147,12 +147,22 @@ class ReadingPipeline:
         Returns '' when kept, else the drop code (counted in ``stats.gyro.dropped``).
         With ``use_imu`` false nothing happens (''). ``receive_ns``, ``check_clock``: as
         :meth:`feed`'s, for ``imu_stamp_source``; ``covariance``: the message's
-        angular_velocity_covariance (:mod:`~diffdrive_odom.core.estimation.imuinput`).
+        angular_velocity_covariance (:mod:`~diffdrive_odom.core.estimation.gyro.imuinput`).
         """
         imu = self._imu
         if imu is None or self._gyro is None:
             return ""
         return imu.feed(stamp_ns, wx, wy, wz, receive_ns, check_clock, covariance)
+
+    def feed_reference(self, stamp_ns: int, x: float, y: float, yaw: float) -> str:
+        """Offer one reference pose (a lidar odometry, AMCL) to the online estimate's scale.
+
+        The node and replay both give it here; '' if kept or not used (no online
+        estimate, no reference topic), else the code it was refused with
+        (:mod:`~diffdrive_odom.core.estimation.online.online_scale`).
+        """
+        scale = None if self._online is None else self._online.scale
+        return "" if scale is None else scale.feed(stamp_ns, x, y, yaw)
 
     @property
     def estimator(self) -> OdometryEstimator:

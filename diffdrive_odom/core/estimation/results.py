@@ -12,12 +12,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
-from diffdrive_odom.core.estimation.encoders import WheelReading
 from diffdrive_odom.core.estimation.gate import GateState
-from diffdrive_odom.core.estimation.imulag import LagEstimate
-from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
-from diffdrive_odom.core.estimation.slips import SlipStats
-from diffdrive_odom.core.estimation.timeline import Verdict
+from diffdrive_odom.core.estimation.gyro.imulag import LagEstimate
+from diffdrive_odom.core.estimation.gyro.slips import SlipStats
+from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
+from diffdrive_odom.core.estimation.wheels.encoders import WheelReading
+from diffdrive_odom.core.estimation.wheels.timeline import Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.mat3 import Matrix
 

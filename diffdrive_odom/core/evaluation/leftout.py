@@ -2,7 +2,7 @@
 
 Pure Python + numpy. Where a run was decoded with the gyro (``use_imu`` and IMU
 samples, :func:`diffdrive_odom.core.bulk.batch.wheel_steps`), each slip event the node's
-own rule found (:mod:`~diffdrive_odom.core.estimation.slips`, ``slip_min_angle``) spans a
+own rule found (:mod:`~diffdrive_odom.core.estimation.gyro.slips`, ``slip_min_angle``) spans a
 few wheel steps whose wheels turned more than the robot did: no geometry explains them,
 and a fit that keeps them takes a spinning wheel for geometry.
 

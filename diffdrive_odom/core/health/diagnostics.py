@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Generic, TypeVar
 
-from diffdrive_odom.core.estimation.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
+from diffdrive_odom.core.estimation.gyro.standstill import STAND_WARN_S
+from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.core.estimation.results import GyroStats
-from diffdrive_odom.core.estimation.standstill import STAND_WARN_S
 
 H = TypeVar("H")
 

@@ -66,7 +66,7 @@ definite ones). For the same reason the observed block gets :data:`COVARIANCE_FL
 diagonal: the propagated 3x3 is zero at the start and of rank 2 after the first step.
 The twist covariance has no geometry
 term (not modelled: at the default ratios it is a few tenths of a percent of the speed).
-With a gyro (``use_imu``, :mod:`diffdrive_odom.core.estimation.gyro`) a step goes through
+With a gyro (``use_imu``, :mod:`~.estimation.gyro.gyrodometry`) a step goes through
 propagate_gyro, which has no rotation term: there the heading is the gyro's (fused with
 the wheels' by their white variances), not the wheels' alone.
 """
@@ -113,7 +113,7 @@ ZERO_VEC = (0.0, 0.0, 0.0)
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class GyroStep:
-    """One gyrodometry step (:mod:`diffdrive_odom.core.estimation.gyro`) and how its errors enter.
+    """One gyrodometry step (:mod:`~.estimation.gyro.gyrodometry`) and how its errors enter.
 
     ``(ds, dtheta) = B d + c g``: ``d`` the joint increments (the wheel model's
     variance), ``g`` the gyro's angle (white variance ``var_gyro``, plus ``dt`` times

@@ -15,7 +15,6 @@ import pytest
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.bulk.readings import JointReading
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.encoders import Reason
 from diffdrive_odom.core.estimation.pipeline import VELOCITY_ON, ReadingPipeline
 from diffdrive_odom.core.estimation.publication import (
     COVARIANCE_REFUSED,
@@ -25,7 +24,8 @@ from diffdrive_odom.core.estimation.publication import (
     pipeline_publication,
     publication,
 )
-from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.estimation.wheels.encoders import Reason
+from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.tools.args import load_settings

@@ -18,13 +18,14 @@ import pytest
 
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.bulk.readings import JointReading
-from diffdrive_odom.core.estimation.config import EstimatorConfig, OdometrySettings
-from diffdrive_odom.core.estimation.encoders import EncoderConfig, Reason
-from diffdrive_odom.core.estimation.estimator import OdometryEstimator
+from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.estimation.results import Outcome
 from diffdrive_odom.core.estimation.stamps import CLOCK_OFFSET_WARN_S, StampSource
-from diffdrive_odom.core.estimation.timeline import ADOPT_CLOCK_AFTER_S, Status
+from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig, Reason
+from diffdrive_odom.core.estimation.wheels.estimator import OdometryEstimator
+from diffdrive_odom.core.estimation.wheels.timeline import ADOPT_CLOCK_AFTER_S, Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle

@@ -14,11 +14,11 @@ from collections.abc import Sequence
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core.estimation.config import EstimatorConfig
-from diffdrive_odom.core.estimation.encoders import EncoderConfig
-from diffdrive_odom.core.estimation.estimator import OdometryEstimator
-from diffdrive_odom.core.estimation.plausibility import MAX_STEP_ARC
-from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.wheels.estimator import OdometryEstimator
+from diffdrive_odom.core.estimation.wheels.plausibility import MAX_STEP_ARC
+from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle

@@ -110,7 +110,7 @@ def test_odometry_warns_when_the_robot_stood_and_no_zero_velocity_update_ran() -
 def test_odometry_reports_the_online_estimate_and_warns_when_outside() -> None:
     from types import MappingProxyType
 
-    from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
+    from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
     from diffdrive_odom.core.estimation.results import GyroStats
 
     def estimate(outside: bool, determined: bool = True) -> OnlineEstimate:
@@ -137,7 +137,7 @@ def test_odometry_reports_the_online_estimate_and_warns_when_outside() -> None:
     assert dict(r.values)["online scale"].startswith("configured (no reference topic)")
     from dataclasses import replace
 
-    from diffdrive_odom.core.estimation.online_scale import ScaleEstimate
+    from diffdrive_odom.core.estimation.online.online_scale import ScaleEstimate
     scale = ScaleEstimate(determined=True, mean_radius=(1.0025, 0.0015),
                           gyro_scale=(1.01, 0.0013), multipliers=(1.0, 1.005, 1.01),
                           stddevs=(0.0015, 0.0015, 0.0021), poses=3000, windows=116,

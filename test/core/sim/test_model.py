@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from diffdrive_odom.core.estimation.encoders import unwrap_difference
+from diffdrive_odom.core.estimation.wheels.encoders import unwrap_difference
 from diffdrive_odom.core.geometry.kinematics import Geometry, wheel_rates
 from diffdrive_odom.core.motion.routes import square
 from diffdrive_odom.core.sim.model import DiffDriveSim, SimConfig, SimConfigError

@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from diffdrive_odom.core.estimation.encoders import EncoderConfig
-from diffdrive_odom.core.estimation.estimator import OdometryEstimator
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.wheels.estimator import OdometryEstimator
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel, UncertaintyConfigError
 from diffdrive_odom.settings.errors import ParameterError

@@ -18,9 +18,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core.estimation.encoders import EncoderConfig
-from diffdrive_odom.core.estimation.estimator import OdometryEstimator
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
+from diffdrive_odom.core.estimation.wheels.estimator import OdometryEstimator
 from diffdrive_odom.core.geometry.kinematics import Geometry, wheel_rates
 from diffdrive_odom.core.uncertainty.noise import DEFAULT_K, NoiseModel
 from diffdrive_odom.core.uncertainty.propagation import (

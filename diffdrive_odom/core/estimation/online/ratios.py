@@ -1,7 +1,7 @@
 """The geometry's uncertainty when the gyro's estimate of the ratios is in use.
 
 Pure Python. ``online_calibration: apply``
-(:mod:`~diffdrive_odom.core.estimation.online_geometry`) integrates with radii and a
+(:mod:`~diffdrive_odom.core.estimation.online.online_geometry`) integrates with radii and a
 separation made from the estimated ratios ``u = r_R / b``, ``v = r_L / b`` with the
 configured mean radius ``m`` held: ``r_R = 2 m u / s``, ``r_L = 2 m v / s``, ``b = 2 m /
 s``, ``s = u + v``. The published covariance then takes that geometry's uncertainty in

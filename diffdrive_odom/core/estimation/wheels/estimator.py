@@ -4,7 +4,7 @@ Pure Python, shared by the odometry node, offline replay and the benchmarks. A
 reading flows one way: decode (encoders) -> increment -> kinematics -> CIR step
 (integration). Every reading gets a verdict (:class:`Status`) so the caller can log
 or count without the estimator knowing about ROS logging (the verdicts and their
-texts: :mod:`diffdrive_odom.core.estimation.timeline`).
+texts: :mod:`diffdrive_odom.core.estimation.wheels.timeline`).
 
 Rules that make it safe to feed anything (no exception escapes, no state is ever
 non-finite):
@@ -19,7 +19,7 @@ non-finite):
   of them, so it does not spike;
 - an implausible step is skipped and the reading becomes the new reference, so one
   glitch costs one step instead of freezing. Implausible is defined once
-  (:mod:`~diffdrive_odom.core.estimation.plausibility`, with its array form): a wheel
+  (:mod:`~diffdrive_odom.core.estimation.wheels.plausibility`, with its array form): a wheel
   faster than ``max_wheel_speed`` over the step (whose interval the gap rule bounds),
   a wheel rolling more than :data:`MAX_STEP_ARC` whatever the settings, or a step
   that is not finite;
@@ -30,7 +30,7 @@ non-finite):
   is back near the old timeline, it was a lone outlier and is dropped
   (``future_stamp``), so a bogus stamp neither licenses travel nor fakes a bag loop;
 - a timeline taken after a gap is on trial until it has lasted
-  :data:`~diffdrive_odom.core.estimation.timeline.ADOPT_CLOCK_AFTER_S` of its own stamps: a
+  :data:`~diffdrive_odom.core.estimation.wheels.timeline.ADOPT_CLOCK_AFTER_S` of its own stamps: a
   reading back on the old timeline (after its last reading, by no more than the new
   one has run) shows the new one was a burst of outlier stamps, which is discarded
   (``future_stamp``, every reading of it counted) and the pose integrated from the
@@ -48,10 +48,11 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
-from diffdrive_odom.core.estimation import timeline
-from diffdrive_odom.core.estimation.config import EstimatorConfig
-from diffdrive_odom.core.estimation.encoders import (
+from diffdrive_odom.core.estimation.wheels import timeline
+from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
+from diffdrive_odom.core.estimation.wheels.encoders import (
     EncoderConfig,
     JointLookup,
     Reason,
@@ -60,14 +61,32 @@ from diffdrive_odom.core.estimation.encoders import (
     decode,
     increment,
 )
-from diffdrive_odom.core.estimation.gyro import GyroHeading
-from diffdrive_odom.core.estimation.plausibility import implausible
-from diffdrive_odom.core.estimation.timeline import ON_TRIAL, UPDATED, Status, Trial, Verdict
+from diffdrive_odom.core.estimation.wheels.plausibility import implausible
+from diffdrive_odom.core.estimation.wheels.timeline import ON_TRIAL, UPDATED, Status, Trial, Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D, compose
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_from_arcs, wheel_arcs
 from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
-from diffdrive_odom.core.uncertainty.propagation import ZERO3, ZERO_VEC, PoseUncertainty
+from diffdrive_odom.core.uncertainty.propagation import (
+    ZERO3,
+    ZERO_VEC,
+    GyroStep,
+    PoseUncertainty,
+)
+
+
+class HeadingSource(Protocol):
+    """Each step's heading from elsewhere (the gyro's, which the pipeline wires in)."""
+
+    @property
+    def bias_variance(self) -> float:
+        """The heading rate's bias variance [(rad/s)^2], for the step's covariance."""
+        ...
+
+    def step(self, geometry: Geometry, t0: int, t1: int, d_left: float, d_right: float,
+             arcs: tuple[float, float]) -> GyroStep | None:
+        """The step ``t0 -> t1`` (its joint increments, arcs); None: the wheels' own."""
+        ...
 
 
 @dataclass
@@ -132,7 +151,7 @@ class OdometryEstimator:
         self.uncertainty: PoseUncertainty | None = None
         self.set_noise(noise)
         # Gyrodometry (``use_imu``): the heading of each step, None = wheels only.
-        self.heading: GyroHeading | None = None
+        self.heading: HeadingSource | None = None
 
     @property
     def stamp_ns(self) -> int | None:
@@ -307,9 +326,9 @@ class OdometryEstimator:
 
         Nothing is known of the motion over the pause: keep the pose, forget the twist,
         then integrate this reading from the held one. The new timeline is on
-        :class:`~diffdrive_odom.core.estimation.timeline.Trial`, not published while on it when
+        :class:`~.wheels.timeline.Trial`, not published while on it when
         the jump is the driver's clock
-        (:func:`~diffdrive_odom.core.estimation.timeline.suspect_jump`).
+        (:func:`~diffdrive_odom.core.estimation.wheels.timeline.suspect_jump`).
         """
         unc = self.uncertainty
         self._trial = trial = Trial(

@@ -20,12 +20,8 @@ import pytest
 from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, Message, R, Truth, stream, truth
 from refstreams import Reference, RefMessage, merge, reference
 
-from diffdrive_odom.core.estimation.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
-from diffdrive_odom.core.estimation.online_scale import (
-    SCALE_FIELDS,
-    feed_reference,
-    scale_values,
-)
+from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
+from diffdrive_odom.core.estimation.online.online_scale import SCALE_FIELDS, scale_values
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
@@ -81,7 +77,7 @@ def feed(pipe: ReadingPipeline, messages: list[Message | RefMessage],
             pipe.feed_imu(m[2], 0.0, 0.0, m[3], receive_ns=m[1])
         elif m[0] == "r":
             x, y, yaw = (np.float64(v) for v in m[3:6]) if as_numpy else m[3:6]  # type: ignore[misc]
-            assert feed_reference(pipe.online, m[2], x, y, yaw) == ""
+            assert pipe.feed_reference(m[2], x, y, yaw) == ""
         else:
             if (w := pipe.feed(m[2], NAMES, (m[3], m[4]), receive_ns=m[1]).warning):
                 warnings.append(w)
@@ -166,13 +162,12 @@ def test_settings_are_checked_at_start() -> None:
     off = odometry_settings(base).online
     assert off is not None and off.reference is None
     # Without a reference topic (or without the online estimate) a pose is ignored.
-    assert feed_reference(ReadingPipeline(odometry_settings(base)).online, 1, 0.0, 0.0,
-                          0.0) == ""
+    assert ReadingPipeline(odometry_settings(base)).feed_reference(1, 0.0, 0.0, 0.0) == ""
 
 
 def test_scale_core_exact_data_and_a_time_reset() -> None:
     """OnlineScale alone on exact data: k and s in closed form; a bag loop starts over."""
-    from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig
+    from diffdrive_odom.core.estimation.online.online_scale import OnlineScale, ReferenceConfig
     from diffdrive_odom.core.geometry.kinematics import Geometry
     from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
@@ -256,7 +251,7 @@ def test_a_long_silent_reference_starts_anew_and_keeps_ten_seconds() -> None:
     10 s all along (they grew without bound while a window was open), the first pose
     after the silence starts a new window (counted ``uncovered``), and the estimate
     still covers the truth."""
-    from diffdrive_odom.core.estimation.online_scale import MAX_LAG_S
+    from diffdrive_odom.core.estimation.online.online_scale import MAX_LAG_S
 
     rl, rr, b = TRUE
     tru = _truth(TRUE)

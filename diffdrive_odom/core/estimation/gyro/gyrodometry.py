@@ -5,18 +5,18 @@ and Odometry in Mobile Robots" (ICRA 1996): per wheel step, compare the heading 
 the wheels report with the gyro's. While they agree the two are fused, each weighted by
 the inverse of its variance; where they disagree beyond ``slip_sigmas`` combined sigmas
 a wheel slipped: the gyro's heading is used and a slip counted
-(:mod:`~diffdrive_odom.core.estimation.slips`; the distance:
-:mod:`~diffdrive_odom.core.estimation.slipstep`). The wheels' turn and its variance are
-a real robot's (:mod:`~diffdrive_odom.core.estimation.wheelturn`): with the online
+(:mod:`~diffdrive_odom.core.estimation.gyro.slips`; the distance:
+:mod:`~diffdrive_odom.core.estimation.gyro.slipstep`). The wheels' turn and its variance are
+a real robot's (:mod:`~diffdrive_odom.core.estimation.gyro.wheelturn`): with the online
 configured ratios and the noise model's sigmas, the encoders' and the gyro's
 quantization, and the stamps' timing error measured while turning.
 Readings a driver holds (no motion within ``HOLD_S`` of the last that moved) take the
 gyro's turn for now and the next step is judged over the interval since the last
 reading that moved. The bias is estimated whenever the wheels stand still for longer
-(:mod:`~diffdrive_odom.core.estimation.standstill`).
+(:mod:`~diffdrive_odom.core.estimation.gyro.standstill`).
 
 Time: the yaw rate is integrated over exactly each step's interval by header stamps
-(:mod:`~diffdrive_odom.core.estimation.gyrosamples`). An IMU on its own clock gives no
+(:mod:`~diffdrive_odom.core.estimation.gyro.gyrosamples`). An IMU on its own clock gives no
 order, so each step is decided at once on the samples that came (the part past the
 newest filled with the wheels' turn), kept pending, and judged again when the samples
 covering it have come; what the final judgement changes is added to the next step, so
@@ -35,80 +35,27 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimation.gyrosamples import GyroSamples
-from diffdrive_odom.core.estimation.imulag import ImuLag
-from diffdrive_odom.core.estimation.slips import SlipEvents, SlipStats
-from diffdrive_odom.core.estimation.slipstep import SPIN_SIGMAS, slip_step
-from diffdrive_odom.core.estimation.stamps import StampSource
-from diffdrive_odom.core.estimation.standstill import Standstill
-from diffdrive_odom.core.estimation.wheelturn import HOLD_S, RatioModel, StampJitter, turn_variance
+from diffdrive_odom.core.estimation.gyro.config import GyroConfig
+from diffdrive_odom.core.estimation.gyro.gyrosamples import GyroSamples
+from diffdrive_odom.core.estimation.gyro.imulag import ImuLag
+from diffdrive_odom.core.estimation.gyro.slips import SlipEvents, SlipStats
+from diffdrive_odom.core.estimation.gyro.slipstep import SPIN_SIGMAS, slip_step
+from diffdrive_odom.core.estimation.gyro.standstill import Standstill
+from diffdrive_odom.core.estimation.gyro.wheelturn import (
+    HOLD_S,
+    RatioModel,
+    StampJitter,
+    turn_variance,
+)
 from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mat3 import Matrix
 from diffdrive_odom.core.uncertainty.noise import NoiseModel, joint_variances
 from diffdrive_odom.core.uncertainty.propagation import GyroStep, wheel_jacobian
 
-Matrix = tuple[tuple[float, ...], ...]
 # A step judged for good: (geometry, t0, t1, arcs, gyro angle or None, slip, standing).
 Observer = Callable[[Geometry, int, int, tuple[float, float], "float | None", bool, bool],
                     None]
-__all__ = ["GyroConfig", "GyroConfigError", "GyroHeading", "SlipStats"]
-
-
-class GyroConfigError(ConfigError):
-    """A gyro setting that cannot work (names the parameter)."""
-
-
-@dataclass(frozen=True)
-class GyroConfig:
-    """The gyro's mounting, noise and the fusion's thresholds (``use_imu`` true)."""
-
-    # Roll, pitch, yaw [rad] of the IMU frame in the base frame (upside down: roll pi).
-    orientation: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    noise_density: float = 3.0e-4  # rad/s/sqrt(Hz): white rate noise (angle random walk)
-    bias: float = 0.0  # rad/s: the bias estimate's start value
-    bias_stddev: float = 0.005  # rad/s: its 1-sigma uncertainty at the start
-    bias_random_walk: float = 2.0e-5  # rad/s/sqrt(s): how fast the bias wanders
-    max_rate: float = 34.9  # rad/s: |yaw rate| at or above this is saturated (2000 deg/s)
-    timeout: float = 0.5  # s without samples: wheels only
-    slip_sigmas: float = 5.0  # disagreement (in combined sigmas) that is a slip
-    zero_velocity_speed: float = 0.001  # m/s: both wheels slower = standing still
-    slip_distance_from_other_wheel: bool = True
-    slip_min_angle: float = math.radians(0.5)  # rad: a smaller slip is no slip event
-    stamp_source: StampSource = StampSource.HEADER  # imu_stamp_source
-    time_offset: float = 0.0  # s the IMU's stamps are later than the wheels': taken out
-
-    def __post_init__(self) -> None:
-        if len(self.orientation) != 3 or not all(math.isfinite(a) for a in self.orientation):
-            raise GyroConfigError("imu_orientation",
-                                  f"needs 3 finite angles (roll, pitch, yaw), got "
-                                  f"{list(self.orientation)!r}")
-        if abs(self.yaw_axis[2]) < 0.5:
-            raise GyroConfigError("imu_orientation",
-                                  "puts the gyro's z axis over 60 deg from the base's z "
-                                  "(its yaw rate would be mostly another axis)")
-        for name, value, positive in (
-            ("gyro_noise_density", self.noise_density, True),
-            ("gyro_bias_stddev", self.bias_stddev, False),
-            ("gyro_bias_random_walk", self.bias_random_walk, False),
-            ("gyro_max_rate", self.max_rate, True),
-            ("imu_timeout", self.timeout, True),
-            ("slip_threshold_sigmas", self.slip_sigmas, True),
-            ("zero_velocity_speed", self.zero_velocity_speed, False),
-            ("slip_min_angle", self.slip_min_angle, False),
-            ("imu_time_offset", abs(self.time_offset), False),
-        ):
-            if not (math.isfinite(value) and (value > 0.0 if positive else value >= 0.0)):
-                raise GyroConfigError(name, f"must be finite and {'>' if positive else '>='} 0, "
-                                            f"got {value!r}")
-        if not math.isfinite(self.bias):
-            raise GyroConfigError("gyro_bias", f"must be finite, got {self.bias!r}")
-
-    @property
-    def yaw_axis(self) -> tuple[float, float, float]:
-        """Row z of the mounting rotation ``Rz(yaw) Ry(pitch) Rx(roll)``: base wz from IMU w."""
-        roll, pitch, _ = self.orientation
-        return (-math.sin(pitch), math.cos(pitch) * math.sin(roll),
-                math.cos(pitch) * math.cos(roll))
+__all__ = ["GyroHeading"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -198,7 +145,7 @@ class GyroHeading:
 
     @property
     def slips(self) -> SlipStats:
-        """Slip events so far (:mod:`~diffdrive_odom.core.estimation.slips`)."""
+        """Slip events so far (:mod:`~diffdrive_odom.core.estimation.gyro.slips`)."""
         return self._slips.stats
 
     @property
@@ -412,7 +359,7 @@ class GyroHeading:
         """The step's decision on the gyro angle ``raw`` [rad] (no state changes).
 
         The wheels' turn and its variance as a real robot's
-        (:mod:`~diffdrive_odom.core.estimation.wheelturn`): a slip is what remains beyond
+        (:mod:`~diffdrive_odom.core.estimation.gyro.wheelturn`): a slip is what remains beyond
         the geometry's uncertainty, the encoders' and the gyro's quantization and the
         stamps' jitter (which moves nothing while the wheels stand).
         """

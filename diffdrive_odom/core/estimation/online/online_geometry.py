@@ -8,11 +8,11 @@ for mobile robots", IEEE T-RO 2013, first step, with a gyro in place of the scan
 matcher). A small Kalman filter on ``(u, v, bias)`` with a random walk on each
 estimates them recursively. The absolute scale (the mean radius, so ``b`` itself) is
 not observable from rotation: it is held at the configured one, unless a reference pose
-measures it (:mod:`~diffdrive_odom.core.estimation.online_scale`, which also divides the
+measures it (:mod:`~diffdrive_odom.core.estimation.online.online_scale`, which also divides the
 ratios by the gyro's scale factor it measures).
 
 Which steps count: only those the gyro judged for good (after the deferred judgement
-of :mod:`~diffdrive_odom.core.estimation.gyro`, so on any IMU timing) whose slip test
+of :mod:`~diffdrive_odom.core.estimation.gyro.gyrodometry`, so on any IMU timing) whose slip test
 passed. A slipping step, one the IMU never covered, or one the wheels stood through
 (no information on the ratios; it still measures the bias) is counted by reason.
 Contiguous counted steps are summed into windows of ``WINDOW_S`` before an update: the
@@ -39,8 +39,8 @@ is a 3x3 filter step, a few microseconds, at most a few per second.
 :attr:`OnlineGeometry.applied` is the geometry to integrate with (the estimate's
 multipliers, the configured mean radius held), refreshed at every window update while
 that holds and kept when it no longer does; the pipeline swaps it in between two
-steps (:mod:`~diffdrive_odom.core.estimation.online_apply`), so the pose never jumps,
-and the covariance takes its uncertainty (:mod:`~diffdrive_odom.core.uncertainty.ratios`).
+steps (:mod:`~diffdrive_odom.core.estimation.online.online_apply`), so the pose never jumps,
+and the covariance takes its uncertainty (:mod:`~diffdrive_odom.core.estimation.online.ratios`).
 The configured geometry stays the reference of the test above and the scale.
 """
 
@@ -53,17 +53,17 @@ from dataclasses import dataclass, replace
 from types import MappingProxyType
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimation.kalman import kalman_update, quadratic
-from diffdrive_odom.core.estimation.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
-from diffdrive_odom.core.estimation.online_scale import OnlineScale, ReferenceConfig
-from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.core.geometry.mat3 import Matrix
-from diffdrive_odom.core.uncertainty.noise import NoiseModel
-from diffdrive_odom.core.uncertainty.ratios import (
+from diffdrive_odom.core.estimation.online.kalman import kalman_update, quadratic
+from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
+from diffdrive_odom.core.estimation.online.online_scale import OnlineScale, ReferenceConfig
+from diffdrive_odom.core.estimation.online.ratios import (
     mean_radius_stddev_ratio,
     multipliers,
     ratio_geometry_covariance,
 )
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mat3 import Matrix
+from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
 __all__ = ["OnlineConfig", "OnlineGeometry"]
 
@@ -148,7 +148,7 @@ class OnlineGeometry:
         self.trace: list[tuple[int, OnlineEstimate]] = []
         self._trace_every = 1
         # apply: the geometry the odometry integrates with (None: the configured one) and
-        # its S over (ln r_l, ln r_r, ln b) (core.uncertainty.ratios).
+        # its S over (ln r_l, ln r_r, ln b) (core.estimation.online.ratios).
         self.applied: Geometry | None = None
         self.applied_covariance: Matrix | None = None
         self.in_use: Geometry | None = None  # what online_apply.geometry_in_use handed out

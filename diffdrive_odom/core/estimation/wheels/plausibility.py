@@ -13,8 +13,8 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core.estimation.config import EstimatorConfig
-from diffdrive_odom.core.estimation.encoders import WheelIncrement
+from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
+from diffdrive_odom.core.estimation.wheels.encoders import WheelIncrement
 
 __all__ = ["MAX_STEP_ARC", "implausible", "plausible_steps"]
 

@@ -1,6 +1,6 @@
 """What counts as a slip event: the one rule for the node, ``replay`` and the demo.
 
-The gyrodometry decision (:mod:`~diffdrive_odom.core.estimation.gyro`) flags each
+The gyrodometry decision (:mod:`~diffdrive_odom.core.estimation.gyro.gyrodometry`) flags each
 wheel step whose heading disagrees with the gyro's beyond the noise. A user calls a
 slip something else: a wheel spinning for half a second is one slip, though the
 per-step decision may find a few runs of slipping steps in it (steps whose spin is

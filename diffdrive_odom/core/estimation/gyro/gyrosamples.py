@@ -1,6 +1,6 @@
 """The gyro's sample buffer: yaw rates by stamp, integrated over any interval.
 
-Why apart from the gyrodometry decision (:mod:`~diffdrive_odom.core.estimation.gyro`):
+Why apart from the gyrodometry decision (:mod:`~diffdrive_odom.core.estimation.gyro.gyrodometry`):
 the buffer's rules (which sample is kept, where a hole makes the IMU silent, how a
 rate is integrated between samples) are the same whatever is decided with them, and
 the decision is easier to read without them. Time is the header stamp in ns; the

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from diffdrive_odom.core.estimation.encoders import (
+from diffdrive_odom.core.estimation.wheels.encoders import (
     EncoderConfig,
     EncoderConfigError,
     JointLookup,

@@ -14,15 +14,15 @@ import math
 
 import pytest
 
-from diffdrive_odom.core.geometry.integration import Pose2D
-from diffdrive_odom.core.geometry.kinematics import Geometry
-from diffdrive_odom.core.uncertainty.noise import NoiseModel
-from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty
-from diffdrive_odom.core.uncertainty.ratios import (
+from diffdrive_odom.core.estimation.online.ratios import (
     mean_radius_stddev_ratio,
     ratio_geometry,
     ratio_geometry_covariance,
 )
+from diffdrive_odom.core.geometry.integration import Pose2D
+from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.uncertainty.noise import NoiseModel
+from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty
 
 U, V = 0.0505 / 0.303, 0.0498 / 0.303
 COV = (4e-8, 1.5e-8, 1.5e-8, 3e-8)

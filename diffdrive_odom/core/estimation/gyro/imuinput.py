@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from statistics import median
 from types import MappingProxyType
 
-from diffdrive_odom.core.estimation.gyro import GyroHeading
+from diffdrive_odom.core.estimation.gyro.gyrodometry import GyroHeading
 from diffdrive_odom.core.estimation.stamps import (
     CLOCK_OFFSET_WARN_S,
     ClockOffsetCheck,

@@ -1,6 +1,6 @@
 """The online geometry estimate as it is published: a snapshot, its layout, its test.
 
-Apart from the filter (:mod:`~diffdrive_odom.core.estimation.online_geometry`) because
+Apart from the filter (:mod:`~diffdrive_odom.core.estimation.online.online_geometry`) because
 the node's ``~/geometry_estimate`` and ``/diagnostics``, ``replay``'s report, the demo
 and the benchmarks read it without running a filter: :class:`OnlineEstimate` (in the
 ratios and in diff_drive_controller's multipliers), :data:`FIELDS` (the message's
@@ -13,7 +13,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from diffdrive_odom.core.estimation.online_scale import ScaleEstimate
+from diffdrive_odom.core.estimation.online.online_scale import ScaleEstimate
 
 __all__ = ["CHI2_2DOF_3SIGMA", "FIELDS", "OnlineEstimate"]
 

@@ -1,7 +1,7 @@
 """What the estimator says about a reading, and the verdicts of its stamp rules.
 
 Pure Python. :class:`Status` and :class:`Verdict` are the outcome of
-:meth:`~diffdrive_odom.core.estimation.estimator.OdometryEstimator.update` (the rules'
+:meth:`~diffdrive_odom.core.estimation.wheels.estimator.OdometryEstimator.update` (the rules'
 settings: :mod:`~diffdrive_odom.core.estimation.config`). The rest is the vocabulary
 of the rules on header stamps: a stamp far back (a bag loop), a reading held after a
 gap, a lone outlier, a pause taken as a new reference, and the :class:`Trial` of a
@@ -15,7 +15,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from diffdrive_odom.core.estimation.encoders import Reason, WheelReading
+from diffdrive_odom.core.estimation.wheels.encoders import Reason, WheelReading
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.mat3 import Matrix
 

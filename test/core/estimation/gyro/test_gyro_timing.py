@@ -30,8 +30,8 @@ from gyrostreams import (
     truth,
 )
 
+from diffdrive_odom.core.estimation.gyro.wheelturn import HOLD_S
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
-from diffdrive_odom.core.estimation.wheelturn import HOLD_S
 from diffdrive_odom.settings.odometry import odometry_settings
 
 BIAS = math.radians(0.3)  # rad/s: the constant gyro bias

@@ -2,7 +2,7 @@
 
 The pipeline (:mod:`~diffdrive_odom.core.estimation.pipeline`, so the node, replay and
 the demo alike) asks :func:`geometry_in_use` before each reading: the applied estimate
-(:attr:`~diffdrive_odom.core.estimation.online_geometry.OnlineGeometry.applied`) once
+(:attr:`~diffdrive_odom.core.estimation.online.online_geometry.OnlineGeometry.applied`) once
 there is one, else the configured geometry. A switch falls between two steps: the pose
 is never re-integrated, only the steps after it use the new geometry. The parameters
 never change by themselves, and the cmd_vel node keeps its configured geometry (it
@@ -12,7 +12,7 @@ takes up the difference).
 
 from __future__ import annotations
 
-from diffdrive_odom.core.estimation.online_geometry import OnlineGeometry
+from diffdrive_odom.core.estimation.online.online_geometry import OnlineGeometry
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty
 

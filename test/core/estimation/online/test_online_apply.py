@@ -17,7 +17,7 @@ from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, R, Route, stream, truth
 from simstreams import SIM_TIMING, sim_stream, true_ratios
 
 from diffdrive_odom.core.estimation.config import ONLINE_NEEDS_IMU
-from diffdrive_odom.core.estimation.online_apply import APPLIED_NOTE, CONFIGURED_NOTE
+from diffdrive_odom.core.estimation.online.online_apply import APPLIED_NOTE, CONFIGURED_NOTE
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.ros.geometry_estimate import estimate_message

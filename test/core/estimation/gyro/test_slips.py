@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from diffdrive_odom.core.estimation.slips import MAX_RUN_S, MERGE_S, SlipEvents
+from diffdrive_odom.core.estimation.gyro.slips import MAX_RUN_S, MERGE_S, SlipEvents
 
 MS = 1_000_000
 LEAST = math.radians(0.5)

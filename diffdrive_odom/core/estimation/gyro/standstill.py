@@ -5,7 +5,7 @@ walk between updates; each wheel step over which both wheels stood still, and wh
 interval the IMU's samples cover, measures the bias by the gyro's mean rate over it.
 Standstill is judged from the wheels over the step's interval; the gyro must agree
 (a robot turned by hand while its wheels stand is no bias). The decision waits for
-the samples covering the interval (:mod:`~diffdrive_odom.core.estimation.gyro` keeps
+the samples covering the interval (:mod:`~diffdrive_odom.core.estimation.gyro.gyrodometry` keeps
 the step pending), so it works whatever the IMU's timing; an interval the samples
 never cover (a dropout) is given up after ``imu_timeout``. Why none ran, when the
 robot stood long enough for one, is counted and said once

@@ -13,10 +13,10 @@ from dataclasses import replace
 import pytest
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimation.config import EstimatorConfig
-from diffdrive_odom.core.estimation.encoders import EncoderConfig, Reason
-from diffdrive_odom.core.estimation.estimator import OdometryEstimator
-from diffdrive_odom.core.estimation.timeline import Status
+from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig, Reason
+from diffdrive_odom.core.estimation.wheels.estimator import OdometryEstimator
+from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle

@@ -39,16 +39,15 @@ from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Protocol
 
 from diffdrive_odom.core.errors import ConfigError
-from diffdrive_odom.core.estimation.kalman import kalman_update, quadratic
+from diffdrive_odom.core.estimation.online.kalman import kalman_update, quadratic
+from diffdrive_odom.core.estimation.online.ratios import ratio_geometry
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
-from diffdrive_odom.core.uncertainty.ratios import ratio_geometry
 
 __all__ = ["REFERENCE_TYPES", "SCALE_FIELDS", "OnlineScale", "ReferenceConfig", "ScaleEstimate",
-           "feed_reference", "scale_values"]
+           "scale_values"]
 
 ODOMETRY, POSE_STAMPED = "odometry", "pose_stamped"
 REFERENCE_TYPES = (ODOMETRY, POSE_STAMPED)
@@ -145,26 +144,6 @@ class ScaleEstimate:
                 f"separation {mb:.5f} +- {sb:.5f}; mean radius x {k:.5f} +- {sk:.5f}, gyro "
                 f"scale {s:.5f} +- {ss:.5f}; {self.windows} windows over "
                 f"{self.distance:.1f} m, {self.turned:.1f} rad: {state}")
-
-
-class HasScale(Protocol):
-    """What holds the scale: the pipeline's online estimate (``ReadingPipeline.online``)."""
-
-    @property
-    def scale(self) -> OnlineScale | None:
-        """The reference's part, None without a reference topic."""
-        ...
-
-
-def feed_reference(online: HasScale | None, stamp_ns: int, x: float, y: float,
-                   yaw: float) -> str:
-    """One reference pose to the pipeline's online estimate (``pipe.online``).
-
-    The node and replay both give it here; '' if kept or not used (no estimate, no
-    reference topic), else the code it was refused with.
-    """
-    scale = None if online is None else online.scale
-    return "" if scale is None else scale.feed(stamp_ns, x, y, yaw)
 
 
 def scale_values(scale: ScaleEstimate | None, multipliers: tuple[float, float, float],

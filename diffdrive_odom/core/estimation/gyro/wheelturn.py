@@ -1,8 +1,8 @@
 """How far the wheels' turn over an interval may be from the gyro's when nothing slipped.
 
-Why apart from the decision (:mod:`~diffdrive_odom.core.estimation.gyro`): the slip test,
+Why apart from the decision (:mod:`~.gyro.gyrodometry`): the slip test,
 the fusion's weights and the online filter's windows
-(:mod:`~diffdrive_odom.core.estimation.online_geometry`) need the same account of what a
+(:mod:`~diffdrive_odom.core.estimation.online.online_geometry`) need the same account of what a
 real robot's wheels get wrong without slipping, and it is measured while driving. Beyond
 the wheels' travel noise (:mod:`~diffdrive_odom.core.uncertainty.noise`), three terms:
 

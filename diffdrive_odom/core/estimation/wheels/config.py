@@ -1,0 +1,51 @@
+"""The settings of the wheels' rules: what the estimator and plausibility read.
+
+Besides geometry and encoders: the speed check, the twist's rolling window, the stamp
+rules' thresholds. Apart from :mod:`~.wheels.estimator` because
+:mod:`~.wheels.plausibility`, which the estimator imports, reads them too.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from diffdrive_odom.core.errors import ConfigError
+
+__all__ = ["EstimatorConfig", "EstimatorConfigError"]
+
+
+class EstimatorConfigError(ConfigError):
+    """An estimator setting that cannot work (names the parameter)."""
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Everything the estimator needs besides geometry and encoders."""
+
+    max_wheel_speed: float = 200.0  # rad/s of a joint; faster steps are implausible
+    velocity_rolling_window_size: int = 1
+    time_jump_threshold: float = 1.0  # s; a stamp further back than this restarts
+    # s; a reading this long after the last usable one is held, then a new reference
+    # or an outlier (inf = off). 1 s: a 5 Hz driver (0.2 s) keeps integrating, a
+    # restart pause does not.
+    max_reading_gap: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (self.max_wheel_speed > 0.0):
+            raise EstimatorConfigError(
+                "max_wheel_speed", f"must be > 0 (inf = no check), got {self.max_wheel_speed!r}"
+            )
+        w = self.velocity_rolling_window_size
+        if not isinstance(w, int) or w < 1:
+            raise EstimatorConfigError(
+                "velocity_rolling_window_size", f"must be an integer >= 1, got {w!r}"
+            )
+        if not (math.isfinite(self.time_jump_threshold) and self.time_jump_threshold >= 0.0):
+            raise EstimatorConfigError(
+                "time_jump_threshold", f"must be finite and >= 0, got {self.time_jump_threshold!r}"
+            )
+        if not (self.max_reading_gap > 0.0):
+            raise EstimatorConfigError(
+                "max_reading_gap", f"must be > 0 (inf = no check), got {self.max_reading_gap!r}"
+            )
