@@ -31,7 +31,7 @@ from phildata import (
     vicon_ratios,
 )
 
-from diffdrive_odom.core.estimation.online_estimate import OnlineEstimate
+from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.evaluation.metrics import Trajectory, evaluate
 
