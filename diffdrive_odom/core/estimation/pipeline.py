@@ -122,7 +122,7 @@ class ReadingPipeline:
                 math.sqrt(gyro.bias_variance), cfg.bias_random_walk, gyro.noise,
                 quantization_variance(enc.ticks_per_revolution, len(enc.left_wheel_names)),
                 gyro.standstill.measured_density, trace=self._trace,
-                jitter=lambda: gyro.jitter.sigma)
+                jitter=lambda: gyro.jitter.sigma, lag=lambda: gyro.lag.seconds)
         else:
             self._online.set_config(settings.online)
             self._online.set_geometry(settings.geometry)

@@ -330,8 +330,7 @@ class GyroHeading:
 
     def _timing(self) -> float:
         """How far [s] the two streams' stamps may be apart: the jitter at both ends, the lag."""
-        lag = self.lag.estimate
-        return math.hypot(math.sqrt(2.0) * self.jitter.sigma, 0.0 if lag is None else lag.lag)
+        return math.hypot(math.sqrt(2.0) * self.jitter.sigma, self.lag.seconds)
 
     def _judged(self, p: _Interval, judged: _Judged, raw: float | None) -> None:
         """A step judged for good: its slip counted, a standstill's bias update."""

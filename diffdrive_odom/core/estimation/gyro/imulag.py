@@ -72,6 +72,11 @@ class ImuLag:
         self._fitted_at: int | None = None
         self.estimate: LagEstimate | None = None
 
+    @property
+    def seconds(self) -> float:
+        """The lag last measured [s], 0 until there is one."""
+        return 0.0 if self.estimate is None else self.estimate.lag
+
     def clear(self) -> None:
         """Forget both streams (a clock went back); the last estimate stays."""
         self._wheels.clear()

@@ -22,10 +22,11 @@ step (per-step differences of it are not independent). The noise of one window: 
 gyro's noise density squared times its length, each wheel's quantization (two
 readings) and the wheels' travel noise (``k |d|`` of the noise model) scaled by the
 ratio squared (the gyro's noise density: the declared one or the one it shows standing
-still, whichever is larger), and the turn rate's change over the window times ``TIMING_STDDEV`` (an
-IMU stamping a few ms off the wheels gets the turn of a slightly shifted interval:
-while the turn rate changes, that is a systematic error the filter must not take for
-geometry).
+still, whichever is larger), and the turn rate's change over the window times
+``TIMING_STDDEV`` and the IMU's lag behind the wheels the gyro measured (an IMU
+stamping off the wheels gets the turn of a shifted interval: while the turn rate
+changes, that is a systematic error the filter must not take for geometry;
+``imu_time_offset`` takes a known lag out).
 
 The estimate is "determined" once the robot turned ``min_turn`` rad each way (a run
 turning one way only cannot tell the ratios from the bias and a gyro scale error).
@@ -116,10 +117,14 @@ class OnlineGeometry:
                  bias: float, bias_stddev: float, bias_random_walk: float,
                  noise: NoiseModel, quantization: float = 0.0,
                  measured_density: Callable[[], float] = lambda: 0.0,
-                 trace: bool = False, jitter: Callable[[], float] = lambda: 0.0) -> None:
+                 trace: bool = False, jitter: Callable[[], float] = lambda: 0.0,
+                 lag: Callable[[], float] = lambda: 0.0) -> None:
         self.config = config
         # The wheel stamps' timing error [s] (the gyro's measure of it): a window's ends.
         self.jitter = jitter
+        # The IMU's stamps later than the wheels' [s] (measured, imu_time_offset taken out):
+        # a shift common to both ends, so a window is off by it times the rate's change.
+        self.lag = lag
         # The gyro's noise seen standing still (0: not yet): the larger one is used, so a
         # gyro noisier than declared does not make the estimate overconfident.
         self.measured_density = measured_density
@@ -248,7 +253,7 @@ class OnlineGeometry:
         turn = x[0] * phi_r - x[1] * phi_l
         density = max(self.noise_density, self.measured_density())
         r = (density ** 2 * dt + 2.0 * q * (u2 + v2) + u2 * var_r + v2 * var_l
-             + self.noise.k_rotation * abs(turn) + (change * TIMING_STDDEV) ** 2
+             + self.noise.k_rotation * abs(turn) + change * change * (TIMING_STDDEV ** 2 + self.lag() ** 2)
              + self.jitter() ** 2 * (r0 * r0 + r1 * r1))
         innovation = angle - (turn + x[2] * dt)
         if innovation * innovation > GATE_SIGMAS ** 2 * (quadratic(p, h) + r):

@@ -116,7 +116,7 @@ def test_with_the_imu_lag_taken_out_a_runs_estimate_is_its_vicon_fit(n: int) -> 
     """Runs 0 and 2 turn one way (never determined), yet with ``imu_time_offset`` set
     to the lag the Vicon sees between the IMU and the wheels (225 and 75 ms) their
     estimates are within 2 sigma of the Vicon's fit on the same run. Run 0 without it
-    is 5 sigma off: a lag that large must be taken out, which the node says."""
+    is 2.8-3 sigma off: a lag that large must be taken out, which the node says."""
     run = recording(n)
     lag = vicon_lag(run, "/imu") - vicon_lag(run, "/joint_states")
     _, pipe = package(run, {"use_imu": True, "imu_time_offset": lag})
