@@ -253,7 +253,8 @@ class OnlineGeometry:
         turn = x[0] * phi_r - x[1] * phi_l
         density = max(self.noise_density, self.measured_density())
         r = (density ** 2 * dt + 2.0 * q * (u2 + v2) + u2 * var_r + v2 * var_l
-             + self.noise.k_rotation * abs(turn) + change * change * (TIMING_STDDEV ** 2 + self.lag() ** 2)
+             + self.noise.k_rotation * abs(turn)
+             + change * change * (TIMING_STDDEV ** 2 + self.lag() ** 2)
              + self.jitter() ** 2 * (r0 * r0 + r1 * r1))
         innovation = angle - (turn + x[2] * dt)
         if innovation * innovation > GATE_SIGMAS ** 2 * (quadratic(p, h) + r):
