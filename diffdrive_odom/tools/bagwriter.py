@@ -23,7 +23,7 @@ from rosbags.typesys.store import Typestore
 
 from diffdrive_odom.tools import bulkmcap
 from diffdrive_odom.tools.bagio import BagError, typestore
-from diffdrive_odom.tools.outputs import STORAGES
+from diffdrive_odom.tools.cmdline.outputs import STORAGES
 
 
 class BagWriter:

@@ -40,13 +40,6 @@ from diffdrive_odom.core.uncertainty.noise import (
     SESSION_DRIFT_RATIO,
 )
 from diffdrive_odom.tools import calibration_runs, fleet
-from diffdrive_odom.tools.args import (
-    add_param_arguments,
-    add_reference_arguments,
-    fail,
-    outputs_problem,
-    settings_from_args,
-)
 from diffdrive_odom.tools.calibration_report import (
     check_lines,
     fit_report,
@@ -58,6 +51,13 @@ from diffdrive_odom.tools.calibration_report import (
 )
 from diffdrive_odom.tools.calibration_runs import PREFIX, Settings
 from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cmdline.args import (
+    add_param_arguments,
+    add_reference_arguments,
+    fail,
+    outputs_problem,
+    settings_from_args,
+)
 
 if TYPE_CHECKING:  # scipy and rosbags (the ``tools`` extra) only where they are used
     from diffdrive_odom.core.evaluation import consistency

@@ -24,7 +24,7 @@ from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run
 from diffdrive_odom.tools import evaluate, fleet
-from diffdrive_odom.tools.args import settings_from_args
+from diffdrive_odom.tools.cmdline.args import settings_from_args
 
 PREFIX = "[calibrate]"  # its lines on stderr
 # The node's settings as given, and with the gyro on (for the bags with an IMU).

@@ -26,13 +26,13 @@ from diffdrive_odom.core.evaluation.metrics import (
     match,
 )
 from diffdrive_odom.tools import fleet
-from diffdrive_odom.tools.args import (
+from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cmdline.args import (
     DEFAULT_REFERENCE,
     add_reference_arguments,
     fail,
     outputs_problem,
 )
-from diffdrive_odom.tools.cli import HelpFormatter
 from diffdrive_odom.wire.conversions import quaternion_to_yaw, stamp_to_ns
 
 __all__ = ["POSE_TYPES", "main", "output_problem", "plot", "read_trajectory",

@@ -44,7 +44,8 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.tools import mcapscan, once, sqlitescan
+from diffdrive_odom.tools import mcapscan, sqlitescan
+from diffdrive_odom.tools.cmdline import once
 
 SUFFIXES = (".mcap", ".db3")
 _FORMATS = {"ros2msg": MessageDefinitionFormat.MSG, "ros2idl": MessageDefinitionFormat.IDL,

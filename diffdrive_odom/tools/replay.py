@@ -8,7 +8,7 @@ output is what the node would have published (the one rule,
 :func:`diffdrive_odom.core.estimation.publication.publication`: nothing non-finite goes out),
 written as a rosbag2 (``odom`` and ``/tf``) and/or a CSV (columns in
 :mod:`diffdrive_odom.tools.csvout`) by :mod:`diffdrive_odom.tools.sinks`. The flags it
-shares with calibrate are :mod:`diffdrive_odom.tools.args`.
+shares with calibrate are :mod:`diffdrive_odom.tools.cmdline.args`.
 
 Two ways through a bag:
 
@@ -45,16 +45,17 @@ from diffdrive_odom.core.estimation.results import Outcome
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.estimation.timeline import Status
 from diffdrive_odom.core.evaluation import metrics
-from diffdrive_odom.tools import evaluate, fleet, online_report, progress, sinks
-from diffdrive_odom.tools.args import (
+from diffdrive_odom.tools import evaluate, fleet, online_report, sinks
+from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cmdline import progress
+from diffdrive_odom.tools.cmdline.args import (
     DEFAULT_REFERENCE,
     add_param_arguments,
     fail,
     outputs_problem,
     settings_from_args,
 )
-from diffdrive_odom.tools.cli import HelpFormatter
-from diffdrive_odom.tools.outputs import STORAGES, staged
+from diffdrive_odom.tools.cmdline.outputs import STORAGES, staged
 from diffdrive_odom.tools.replaystats import ReplayStats
 from diffdrive_odom.tools.sinks import Published
 

@@ -41,12 +41,12 @@ from diffdrive_odom.tools import (
     bagwriter,
     bulkmcap,
     csvout,
-    progress,
     reorder,
     replay,
     sinks,
 )
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.cmdline import progress
 from diffdrive_odom.wire.jointstate import JointBlockDecoder
 
 from bagutil import OPTIODOM_PARAMS, write_params

@@ -17,8 +17,8 @@ from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 
 from diffdrive_odom.tools import bagio, bagreadings, replay
-from diffdrive_odom.tools.args import load_settings
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.cmdline.args import load_settings
 from diffdrive_odom.tools.sinks import Published
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, write_params

@@ -25,8 +25,8 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from diffdrive_odom.tools import bagio, bagreadings, recovery, replay
-from diffdrive_odom.tools.args import load_settings
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.cmdline.args import load_settings
 
 from bagutil import write_params
 

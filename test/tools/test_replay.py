@@ -26,8 +26,8 @@ from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.propagation import COVARIANCE_FLOOR
 from diffdrive_odom.tools import bagio, bagreadings, bagwriter, replay, sinks
-from diffdrive_odom.tools.args import load_settings
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.cmdline.args import load_settings
 from diffdrive_odom.tools.sinks import Published
 from diffdrive_odom.wire.conversions import quaternion_to_yaw
 
@@ -488,7 +488,7 @@ def test_a_killed_runs_hidden_partial_output_is_removed_by_the_next_and_named(
     out = tmp_path / "odom.csv"
     writer = subprocess.Popen([sys.executable, "-c", (
         "import sys, time\n"
-        "from diffdrive_odom.tools.outputs import staged\n"
+        "from diffdrive_odom.tools.cmdline.outputs import staged\n"
         f"with staged({str(out)!r}) as p:\n"
         "    p.write_text('half written')\n"
         "    print('staged', flush=True)\n"
