@@ -189,7 +189,8 @@ def turtlebot3(plot: str | None) -> None:
 
     from rosbags.highlevel import AnyReader
 
-    from diffdrive_odom.tools import bagio, bagreadings, replay
+    from diffdrive_odom.tools import replay
+    from diffdrive_odom.tools.bags import bagio, bagreadings
     from diffdrive_odom.tools.sinks import Published
 
     bag = Path(__file__).resolve().parent.parent / "test" / "data" / "turtlebot3_sim" / \

@@ -46,7 +46,8 @@ from diffdrive_odom.core.bulk import batch  # noqa: E402
 from diffdrive_odom.core.bulk.readings import count  # noqa: E402
 from diffdrive_odom.core.estimation.config import OdometrySettings  # noqa: E402
 from diffdrive_odom.settings.odometry import odometry_settings  # noqa: E402
-from diffdrive_odom.tools import bagblocks, bagio, bagreadings, bagwriter, csvout, replay, sinks  # noqa: E402
+from diffdrive_odom.tools import csvout, replay, sinks  # noqa: E402
+from diffdrive_odom.tools.bags import bagblocks, bagio, bagreadings, bagwriter  # noqa: E402
 
 DATA = ROOT / "test" / "data"
 

@@ -54,7 +54,8 @@ from diffdrive_odom.core.evaluation import calibration, crossval, determinacy
 from diffdrive_odom.core.evaluation.recorded_run import Run
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagreadings, evaluate
+from diffdrive_odom.tools import evaluate
+from diffdrive_odom.tools.bags import bagreadings
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "bench"))

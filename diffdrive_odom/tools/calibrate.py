@@ -204,7 +204,7 @@ def main(argv: Sequence[str]) -> int:
                       "readings (joint_states), which open loop does not read; set "
                       "open_loop:=false for the calibration")
     gyro = calibration_runs.gyro_settings(args, settings)
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools.bags import bagio
 
     try:
         if args.umbmark is not None:

@@ -37,7 +37,7 @@ def decode(bag: str, settings: Settings, args: argparse.Namespace, reference: bo
     With an IMU topic (:func:`imu_topic`) the readings go through the pipeline with the
     gyro, which judges each step for slip (``WheelSteps.slip_spans``).
     """
-    from diffdrive_odom.tools import bagblocks, bagio, bagreadings
+    from diffdrive_odom.tools.bags import bagblocks, bagio, bagreadings
 
     def notify(text: str) -> None:
         print(f"{PREFIX} {text}", file=sys.stderr)
@@ -75,7 +75,7 @@ def imu_topic(bag: str, requested: str | None, notify: Callable[[str], None]) ->
     """
     if requested is not None:
         return None if requested.lower() == "none" else requested
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools.bags import bagio
 
     with bagio.open_bag(bag) as reader:
         found = sorted({str(c.topic) for c in reader.connections if c.msgtype == bagio.IMU})

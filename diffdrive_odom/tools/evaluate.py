@@ -81,7 +81,7 @@ def reference_topic(
     """
     if requested is not None:
         return requested
-    from diffdrive_odom.tools import bagio  # the bag library only now: --help needs none
+    from diffdrive_odom.tools.bags import bagio  # the bag library only now: --help needs none
 
     with bagio.open_bag(bag) as reader:
         posed: list[str] = sorted(
@@ -111,7 +111,7 @@ def read_trajectory(
     ``notify`` told); with several, BagError names them and ``frame_flag``, the
     option that chooses one.
     """
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools.bags import bagio
 
     by_child: dict[str, tuple[list[int], list[float], list[float], list[float]]] = {}
     seen: set[str] = set()
@@ -294,7 +294,7 @@ def run_bag(args: argparse.Namespace) -> int:
     def notify(text: str) -> None:
         print(f"{PREFIX} {text}", file=sys.stderr)
 
-    from diffdrive_odom.tools import bagio  # past the parsing: --help needs no bag library
+    from diffdrive_odom.tools.bags import bagio  # past the parsing: --help needs no bag library
 
     ref_bag = args.reference_bag or args.bag
     try:
@@ -325,7 +325,7 @@ def run_bag(args: argparse.Namespace) -> int:
 
 def _commands_only_hint(bag: str | Path) -> str:
     """For a bag without odometry but with velocity commands: how to judge them (open loop)."""
-    from diffdrive_odom.tools import bagcommands, bagio
+    from diffdrive_odom.tools.bags import bagcommands, bagio
 
     with bagio.open_bag(bag) as reader:
         topics = bagcommands.command_topics(reader)

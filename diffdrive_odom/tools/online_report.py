@@ -91,7 +91,7 @@ def _online_settled(args: argparse.Namespace,
 
 def _no_gyro(bag: str, topic: str) -> str:
     """Why ``bag`` gives no gyro on ``topic`` ('' when it has sensor_msgs/Imu there)."""
-    from diffdrive_odom.tools import bagio  # the bag library only now: --help needs none
+    from diffdrive_odom.tools.bags import bagio  # the bag library only now: --help needs none
 
     try:
         with bagio.open_bag(bag) as reader:

@@ -34,9 +34,10 @@ from diffdrive_odom.tools.sinks import PoseLog, Published
 if TYPE_CHECKING:  # the bag library only where a bag is read (``tools`` extra)
     from rosbags.highlevel import AnyReader
 
-    from diffdrive_odom.tools import bagwriter, csvout
-    from diffdrive_odom.tools.bagcommands import CommandSample
-    from diffdrive_odom.tools.bagreadings import Passthrough
+    from diffdrive_odom.tools import csvout
+    from diffdrive_odom.tools.bags import bagwriter
+    from diffdrive_odom.tools.bags.bagcommands import CommandSample
+    from diffdrive_odom.tools.bags.bagreadings import Passthrough
 
 OPEN_LOOP_NOTE = "open loop: odometry from the commanded velocity on {topic}, not measured"
 TIME_RESET_TEXT = "the log time went back over time_jump_threshold: restarted at the origin"
@@ -119,7 +120,8 @@ def replay_bag(reader: AnyReader, settings: OdometrySettings, args: argparse.Nam
                csv_out: csvout.CsvWriter | None,
                passthrough: Passthrough | None) -> ReplayStats:
     """One open reader's commands into replay's outputs (the bag's topics registered here)."""
-    from diffdrive_odom.tools import bagcommands, sinks
+    from diffdrive_odom.tools import sinks
+    from diffdrive_odom.tools.bags import bagcommands
 
     topic = command_topic(args, settings)
     args.cmd_topic = topic  # what the summary names

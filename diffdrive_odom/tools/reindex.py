@@ -124,7 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if bag.is_dir() and (bag / "metadata.yaml").exists():
         print(f"[reindex] {bag}: has its metadata.yaml already; nothing to do")
         return 0
-    from diffdrive_odom.tools import bagio, recovery
+    from diffdrive_odom.tools.bags import bagio, recovery
 
     try:
         reader = recovery.RecoveredReader(bag, default_typestore=bagio.typestore(),

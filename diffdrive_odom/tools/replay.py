@@ -60,7 +60,7 @@ from diffdrive_odom.tools.replaystats import ReplayStats
 from diffdrive_odom.tools.sinks import Published
 
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
-    from diffdrive_odom.tools import bagreadings
+    from diffdrive_odom.tools.bags import bagreadings
 
 __all__ = ["main", "replay_readings"]
 
@@ -92,7 +92,7 @@ def replay_readings(
     it refuses is counted in ``refused``, not written. Without a sink nothing is written,
     so nothing is built or checked (the estimator alone, as the benchmarks time it).
     """
-    from diffdrive_odom.tools import bagreadings  # rosbags: only where bags are read
+    from diffdrive_odom.tools.bags import bagreadings  # rosbags: only where bags are read
 
     pipe = ReadingPipeline(settings, trace=True)
     est = pipe.estimator
@@ -260,7 +260,7 @@ def run_bag(args: argparse.Namespace) -> int:
     problem = _output_problem(args)
     if problem:
         return _error(problem)
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools.bags import bagio
 
     ref: metrics.Trajectory | None = None
     gt_topic = ""
@@ -343,7 +343,8 @@ def _remove_outputs(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, sinks.PoseLog]:
     """Replay into staged outputs; they get their names only if the whole replay worked."""
-    from diffdrive_odom.tools import bagblocks, bagio, bagreadings, bagwriter, csvout
+    from diffdrive_odom.tools import csvout
+    from diffdrive_odom.tools.bags import bagblocks, bagio, bagreadings, bagwriter
 
     traj = sinks.PoseLog()
     with ExitStack() as stack:

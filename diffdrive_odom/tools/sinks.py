@@ -31,7 +31,8 @@ if TYPE_CHECKING:  # the bag library only where a bag is read or written (``tool
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
 
-    from diffdrive_odom.tools import bagreadings, bagwriter, csvout
+    from diffdrive_odom.tools import csvout
+    from diffdrive_odom.tools.bags import bagreadings, bagwriter
 
 
 @dataclass
@@ -72,7 +73,7 @@ def keep_input(
     reader: AnyReader, writer: bagwriter.BagWriter, odom_topic: str
 ) -> bagreadings.Passthrough:
     """Copy every input message (converted to CDR) into the output bag as it streams by."""
-    from diffdrive_odom.tools import bagio, cdrconvert
+    from diffdrive_odom.tools.bags import bagio, cdrconvert
 
     convert = cdrconvert.CdrConverter(reader)
     for conn in reader.connections:

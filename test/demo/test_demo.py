@@ -35,7 +35,8 @@ import yaml
 from diffdrive_odom.core.evaluation import metrics as core_metrics
 from diffdrive_odom.core.motion.paths import polyline
 from diffdrive_odom.demo.settings import BAG_TOPICS, DEFAULT_PARAMS
-from diffdrive_odom.tools import bagio, bagreadings, evaluate
+from diffdrive_odom.tools import evaluate
+from diffdrive_odom.tools.bags import bagio, bagreadings
 from diffdrive_odom.wire.conversions import stamp_to_ns
 
 import oracle

@@ -25,7 +25,8 @@ from diffdrive_odom.core.uncertainty.propagation import (
     UNOBSERVED_VARIANCE,
 )
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagreadings, replay, sinks
+from diffdrive_odom.tools import replay, sinks
+from diffdrive_odom.tools.bags import bagreadings
 
 from bagutil import TB3_PARAMS
 from rosutil import DATA

@@ -13,7 +13,8 @@ import pytest
 
 from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.core.evaluation.metrics import Trajectory
-from diffdrive_odom.tools import bagio, bagwriter, evaluate
+from diffdrive_odom.tools import evaluate
+from diffdrive_odom.tools.bags import bagio, bagwriter
 from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import OPTIODOM_PARAMS, OdomMessages, mcap_messages, write_params

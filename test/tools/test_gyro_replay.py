@@ -17,7 +17,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from diffdrive_odom.core.bulk.readings import JointReading
-from diffdrive_odom.tools import bagio, bagreadings
+from diffdrive_odom.tools.bags import bagio, bagreadings
 from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import TB3_PARAMS, write_params

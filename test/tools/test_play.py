@@ -16,7 +16,8 @@ import pytest
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 
-from diffdrive_odom.tools import bagio, bagreadings, replay
+from diffdrive_odom.tools import replay
+from diffdrive_odom.tools.bags import bagio, bagreadings
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.tools.cmdline.args import load_settings
 from diffdrive_odom.tools.sinks import Published

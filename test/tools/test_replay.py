@@ -25,7 +25,8 @@ from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.propagation import COVARIANCE_FLOOR
-from diffdrive_odom.tools import bagio, bagreadings, bagwriter, replay, sinks
+from diffdrive_odom.tools import replay, sinks
+from diffdrive_odom.tools.bags import bagio, bagreadings, bagwriter
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.tools.cmdline.args import load_settings
 from diffdrive_odom.tools.sinks import Published

@@ -40,7 +40,8 @@ from diffdrive_odom.core.uncertainty.fastcov import (
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
 from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty, pose_message_covariance
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagreadings, replay
+from diffdrive_odom.tools import replay
+from diffdrive_odom.tools.bags import bagreadings
 from diffdrive_odom.tools.replaystats import ReplayStats
 from diffdrive_odom.tools.sinks import Published
 

@@ -29,7 +29,8 @@ from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.tools import bagio, bagwriter, replay
+from diffdrive_odom.tools import replay
+from diffdrive_odom.tools.bags import bagio, bagwriter
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.tools.cmdline.args import load_settings
 from diffdrive_odom.tools.sinks import Published

@@ -390,7 +390,8 @@ def test_final_pose_nees_of_the_optiodom_squares_with_the_defaults(run: str) -> 
     """
     from diffdrive_odom.core.evaluation.metrics import interpolate
     from diffdrive_odom.core.geometry.se2 import between
-    from diffdrive_odom.tools import bagreadings, evaluate
+    from diffdrive_odom.tools import evaluate
+    from diffdrive_odom.tools.bags import bagreadings
 
     from rosutil import DATA
 

@@ -24,7 +24,8 @@ from mcap.writer import Writer as McapLibWriter
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from diffdrive_odom.tools import bagio, bagreadings, recovery, replay
+from diffdrive_odom.tools import replay
+from diffdrive_odom.tools.bags import bagio, bagreadings, recovery
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.tools.cmdline.args import load_settings
 

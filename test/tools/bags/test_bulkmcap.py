@@ -1,4 +1,4 @@
-"""Replay's outputs written in bulk (tools.bulkmcap, BagWriter.write_rows, CsvWriter.rows,
+"""Replay's outputs written in bulk (tools.bags.bulkmcap, BagWriter.write_rows, CsvWriter.rows,
 sinks.OutputSink.stretch) equal the one-message-at-a-time writer's, byte for byte.
 
 The oracle is the previous path, still in the code: a plain function wrapping the sink
@@ -20,7 +20,8 @@ from rosbags.rosbag2.storage_mcap import McapWriter
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagio, bagreadings, bagwriter, bulkmcap, csvout, replay, sinks
+from diffdrive_odom.tools import csvout, replay, sinks
+from diffdrive_odom.tools.bags import bagio, bagreadings, bagwriter, bulkmcap
 from diffdrive_odom.tools.replaystats import ReplayStats
 
 from paths import DATA

@@ -34,17 +34,8 @@ from rosbags.typesys import Stores, get_typestore
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.ros.lifetime import stop_signals
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import (
-    bagblocks,
-    bagio,
-    bagreadings,
-    bagwriter,
-    bulkmcap,
-    csvout,
-    reorder,
-    replay,
-    sinks,
-)
+from diffdrive_odom.tools import csvout, replay, sinks
+from diffdrive_odom.tools.bags import bagblocks, bagio, bagreadings, bagwriter, bulkmcap, reorder
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.tools.cmdline import progress
 from diffdrive_odom.wire.jointstate import JointBlockDecoder

@@ -3,8 +3,8 @@
 Why: replay, calibrate and evaluate take wheel readings, not messages. rosbag2 data is
 decoded by the node's own CDR decoder (rosbags' full deserialisation is several times
 slower), ROS 1 bags and whatever that decoder leaves by rosbags. Readings come out in
-*header stamp* order (:class:`~diffdrive_odom.tools.reorder.Reorder`), one at a time;
-:mod:`diffdrive_odom.tools.bagblocks` reads the same readings in blocks.
+*header stamp* order (:class:`~diffdrive_odom.tools.bags.reorder.Reorder`), one at a time;
+:mod:`diffdrive_odom.tools.bags.bagblocks` reads the same readings in blocks.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 
 from diffdrive_odom.core.bulk.readings import JointReading
-from diffdrive_odom.tools.bagio import IMU, JOINT_STATE, ODOMETRY, connections_for, open_bag
-from diffdrive_odom.tools.reorder import REORDER_WINDOW, Reorder
+from diffdrive_odom.tools.bags.bagio import IMU, JOINT_STATE, ODOMETRY, connections_for, open_bag
+from diffdrive_odom.tools.bags.reorder import REORDER_WINDOW, Reorder
 from diffdrive_odom.wire.conversions import reference_pose, stamp_to_ns
 from diffdrive_odom.wire.jointstate import JointStateDecoder
 
