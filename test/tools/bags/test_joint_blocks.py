@@ -34,10 +34,11 @@ from rosbags.typesys import Stores, get_typestore
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.ros.lifetime import stop_signals
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import csvout, replay, sinks
 from diffdrive_odom.tools.bags import bagblocks, bagio, bagreadings, bagwriter, bulkmcap, reorder
 from diffdrive_odom.tools.cli import main as cli
 from diffdrive_odom.tools.cmdline import progress
+from diffdrive_odom.tools.replaying import csvout, sinks
+from diffdrive_odom.tools.replaying.readings import replay_readings
 from diffdrive_odom.wire.jointstate import JointBlockDecoder
 
 from bagutil import OPTIODOM_PARAMS, write_params
@@ -312,7 +313,7 @@ def test_replay_writes_the_same_from_blocks(tmp_path: Path, messy: Path) -> None
         with bagwriter.BagWriter(out) as w, csvout.CsvWriter(out.with_suffix(".csv")) as t:
             w.add_topic("/odom", bagio.ODOMETRY)
             w.add_topic("/tf", bagio.TF_MESSAGE)
-            stats = replay.replay_readings(source, cfg, sinks.output_sink(cfg, w, t))
+            stats = replay_readings(source, cfg, sinks.OutputSink(cfg, w, t))
         assert stats.reasons["stale_stamp"] > 0 and stats.published > 5000  # the clock's jump
         tables.append([line.split(",") for line in
                        out.with_suffix(".csv").read_text().splitlines()])

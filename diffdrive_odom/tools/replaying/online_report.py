@@ -174,7 +174,7 @@ def plot(path: str | None, trace: list[tuple[int, OnlineEstimate]], name: str) -
         return ""
     if not trace:
         return "online calibration plot: not written (no estimate: no step counted)\n"
-    from diffdrive_odom.tools import online_plot
+    from diffdrive_odom.tools.replaying import online_plot
 
     online_plot.write(path, trace, f"online calibration of {name}: the wheel geometry "
                       "estimated from the gyro over the run")
