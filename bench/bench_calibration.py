@@ -59,8 +59,7 @@ from diffdrive_odom.core.uncertainty.noise import (
 )
 from diffdrive_odom.core.uncertainty.propagation import geometry_term
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import evaluate
-from diffdrive_odom.tools.bags import bagreadings
+from diffdrive_odom.tools.bags import bagreadings, poses
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared" / "data"
@@ -97,7 +96,7 @@ def load(bag: Path, kind: str, exp: str) -> Data:
     settings = odometry_settings(PARAMS)
     readings = list(bagreadings.read_joint_states(bag))
     steps = batch.wheel_steps(readings, settings)
-    ref = evaluate.read_trajectory(bag, "/ground_truth/pose")
+    ref = poses.read_trajectory(bag, "/ground_truth/pose")
     return Data(Run(bag.name, steps, ref), kind, exp, readings)
 
 

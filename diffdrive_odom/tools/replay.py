@@ -92,7 +92,7 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-AUTO_REFERENCE = "<auto>"  # --eval without a topic: evaluate.reference_topic decides
+AUTO_REFERENCE = "<auto>"  # --eval without a topic: poses.reference_topic decides
 
 
 def _error(text: str) -> int:
@@ -149,7 +149,7 @@ def run_bag(args: argparse.Namespace) -> int:
     problem = _output_problem(args)
     if problem:
         return _error(problem)
-    from diffdrive_odom.tools.bags import bagio  # past the parsing: --help needs no rosbags
+    from diffdrive_odom.tools.bags import bagio, poses  # past the parsing: --help needs no rosbags
     from diffdrive_odom.tools.replaying import bag
 
     ref: metrics.Trajectory | None = None
@@ -160,10 +160,10 @@ def run_bag(args: argparse.Namespace) -> int:
             print(f"{PREFIX} --eval: {text}", file=sys.stderr)
 
         try:
-            gt_topic = evaluate.reference_topic(
+            gt_topic = poses.reference_topic(
                 args.bag, None if args.eval == AUTO_REFERENCE else args.eval, notify=notify,
                 flag="--eval TOPIC")
-            ref = evaluate.read_trajectory(args.bag, gt_topic, args.child_frame,
+            ref = poses.read_trajectory(args.bag, gt_topic, args.child_frame,
                                            "--child-frame", notify)
         except bagio.BagError as err:
             return _error(f"--eval: {err}")

@@ -8,7 +8,8 @@ needs no rosbags; callers import the module that defines what they use.
 - reading: :mod:`.bagio` (opening a bag, its topics, :class:`~.bagio.BagError`),
   :mod:`.reorder` (the one stamp-order rule), :mod:`.bagreadings` (JointState, Imu and
   reference poses as readings, one by one), :mod:`.bagblocks` (the same readings in
-  blocks), :mod:`.bagcommands` (velocity commands, for open loop)
+  blocks), :mod:`.bagcommands` (velocity commands, for open loop), :mod:`.poses` (any
+  pose topic as a trajectory; which one is the ground truth)
 - writing: :mod:`.bagwriter` (rosbag2 by topic name), :mod:`.bulkmcap` (many rows into
   MCAP at once)
 - conversion: :mod:`.cdrconvert` (any bag's messages to ROS 2 CDR)
@@ -17,4 +18,4 @@ needs no rosbags; callers import the module that defines what they use.
 """
 
 __all__ = ["bagblocks", "bagcommands", "bagio", "bagreadings", "bagwriter", "bulkmcap",
-           "cdrconvert", "mcapscan", "recovery", "reorder", "sqlitescan"]
+           "cdrconvert", "mcapscan", "poses", "recovery", "reorder", "sqlitescan"]

@@ -375,12 +375,11 @@ def test_umbmark_with_noise_stays_near_the_truth() -> None:
 
 
 def _optiodom_runs() -> list[Run]:
-    from diffdrive_odom.tools import evaluate
-    from diffdrive_odom.tools.bags import bagreadings
+    from diffdrive_odom.tools.bags import bagreadings, poses
 
     settings = odometry_settings.odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
     return [Run(name, batch.wheel_steps(bagreadings.read_joint_states(OPTIODOM / name), settings),
-                evaluate.read_trajectory(OPTIODOM / name, "/ground_truth/pose"))
+                poses.read_trajectory(OPTIODOM / name, "/ground_truth/pose"))
             for name in (CW_RUN, CCW_RUN)]
 
 

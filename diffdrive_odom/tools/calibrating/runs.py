@@ -6,9 +6,8 @@ readers, so a bag that replays or evaluates also calibrates. Where a bag has an 
 (``--imu-topic``, default: its only ``sensor_msgs/Imu`` topic), its readings go through
 the pipeline with the gyro (``use_imu``, the params' gyro settings), which judges each
 step for slip; those steps are left out of the fit
-(:mod:`diffdrive_odom.core.evaluation.leftout`). Bags are decoded on ``--jobs``
-processes or a ``--dask`` cluster (:mod:`~diffdrive_odom.tools.fleet`); rosbags is
-imported past the parsing.
+(:mod:`diffdrive_odom.core.evaluation.leftout`). rosbags is imported past the parsing
+(the command imports this module for its ``--help``).
 """
 
 from __future__ import annotations
@@ -23,7 +22,6 @@ from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run
-from diffdrive_odom.tools import evaluate, fleet
 from diffdrive_odom.tools.cmdline.args import settings_from_args
 
 PREFIX = "[calibrate]"  # its lines on stderr
@@ -37,15 +35,15 @@ def decode(bag: str, settings: Settings, args: argparse.Namespace, reference: bo
     With an IMU topic (:func:`imu_topic`) the readings go through the pipeline with the
     gyro, which judges each step for slip (``WheelSteps.slip_spans``).
     """
-    from diffdrive_odom.tools.bags import bagblocks, bagio, bagreadings
+    from diffdrive_odom.tools.bags import bagblocks, bagio, bagreadings, poses
 
     def notify(text: str) -> None:
         print(f"{PREFIX} {text}", file=sys.stderr)
 
     ref = None
     if reference:
-        topic = evaluate.reference_topic(bag, args.ground_truth, (args.topic,), notify)
-        ref = evaluate.read_trajectory(bag, topic, args.child_frame)
+        topic = poses.reference_topic(bag, args.ground_truth, (args.topic,), notify)
+        ref = poses.read_trajectory(bag, topic, args.child_frame)
     plain, gyro = settings
     imu = imu_topic(bag, args.imu_topic, notify)
     if imu is not None and isinstance(gyro, str):
@@ -101,26 +99,3 @@ def gyro_settings(args: argparse.Namespace, settings: OdometrySettings) -> Odome
             return got
         settings = got
     return dataclasses.replace(settings, online=None)
-
-
-def decode_all(args: argparse.Namespace, plain: OdometrySettings,
-                gyro: OdometrySettings | str) -> list[Run] | str:
-    """Every bag decoded, on ``--jobs`` processes or a ``--dask`` cluster, in the order given.
-
-    The fit is joint, so it is not made on what is left: every bag that failed is named
-    (the one line returned), not only the first.
-    """
-    if args.jobs is not None and args.jobs < 1:
-        return f"--jobs must be >= 1, got {args.jobs}"
-    calls = [(bag, (plain, gyro), args, True) for bag in args.bags]
-    try:
-        done = fleet.map_calls(decode, calls, args.jobs, args.dask)
-    except fleet.FleetError as err:
-        return str(err)
-    bad = [(bag, r) for bag, r in zip(args.bags, done, strict=True) if isinstance(r, Exception)]
-    if len(bad) == 1:
-        return str(bad[0][1])  # the error names its bag
-    if bad:
-        return (f"{len(bad)} of {len(done)} bags failed, so no fit: "
-                + "; ".join(f"{bag}: {err}" for bag, err in bad))
-    return done
