@@ -218,7 +218,7 @@ def turtlebot3(plot: str | None) -> None:
                   "right_wheel_names": ["wheel_right_joint"], **MODES[mode]}
         out: list[Published] = []
         with bagio.open_bag(bag) as reader:
-            items = list(bagreadings.iter_sensor_readings(
+            items = list(bagreadings.iter_readings(
                 reader, "/joint_states", "/imu" if values["use_imu"] else None))
         replay_readings(items, odometry_settings(values), out.append)
         end = out[-1].pose

@@ -60,8 +60,9 @@ def decode(bag: str, settings: Settings, args: argparse.Namespace, reference: bo
         assert used.gyro is not None
         by_log = used.gyro.stamp_source is StampSource.RECEIVE_TIME
         with bagio.open_bag(bag) as reader:
-            steps = batch.wheel_steps(bagreadings.iter_sensor_readings(
-                reader, args.topic, imu, jump_back_ns=jump, imu_by_log_time=by_log), used)
+            steps = batch.wheel_steps(bagreadings.iter_readings(
+                reader, args.topic, imu, stream=bagreadings.Stream(
+                    jump_back_ns=jump, imu_by_log_time=by_log)), used)
     return Run(Path(bag).name, steps, ref)
 
 

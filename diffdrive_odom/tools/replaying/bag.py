@@ -74,9 +74,9 @@ def replay_bag(args: argparse.Namespace, settings: OdometrySettings
             gyro = settings.gyro
             readings = bagreadings.iter_readings(
                 reader, args.topic, None if gyro is None else args.imu_topic,
-                passthrough, jump_back_ns=jump, imu_by_log_time=gyro is not None
-                and gyro.stamp_source is StampSource.RECEIVE_TIME,
-                reference_topic=online_report.reference_topic(settings))
+                online_report.reference_topic(settings), bagreadings.Stream(
+                    passthrough, jump_back_ns=jump, imu_by_log_time=gyro is not None
+                    and gyro.stamp_source is StampSource.RECEIVE_TIME))
         if progress.wanted(args.progress, total):
             readings = progress.progress(readings, total, PREFIX, weight=reading_count)
         stats = replay_readings(readings, settings, sink)

@@ -6,7 +6,7 @@
 - reorder.Reorder with blocks against the plain heap rule written out here: any mix of
   blocks and single readings, out-of-order stamps and jumps back, comes out in the
   order the heap gives one reading at a time.
-- Real bag files: iter_joint_blocks opened equals iter_joint_states, and replay writes
+- Real bag files: iter_joint_blocks opened equals iter_readings, and replay writes
   the same bytes either way; the progress line counts a block's readings.
 - The CSV's float text reads back to the same double with repr's number of digits; the
   output file's background writer raises a failed write (a real /dev/full); a real
