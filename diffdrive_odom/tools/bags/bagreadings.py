@@ -108,21 +108,18 @@ REPLAY = Stream()  # the defaults: replay's own
 # a reference too (the type checker then knows, e.g., what a batch decode may take).
 @overload
 def iter_readings(reader: AnyReader, topic: str = ..., imu_topic: None = None,
-                  reference_topic: None = None, stream: Stream = ...) -> Iterator[JointReading]:
-    ...
+                  reference_topic: None = None, stream: Stream = ...) -> Iterator[JointReading]: ...
 
 
 @overload
 def iter_readings(reader: AnyReader, topic: str, imu_topic: str | None,
                   reference_topic: None = None, stream: Stream = ...
-                  ) -> Iterator[JointReading | ImuSample]:
-    ...
+                  ) -> Iterator[JointReading | ImuSample]: ...
 
 
 @overload
 def iter_readings(reader: AnyReader, topic: str, imu_topic: str | None,
-                  reference_topic: str | None, stream: Stream = ...) -> Iterator[Reading]:
-    ...
+                  reference_topic: str | None, stream: Stream = ...) -> Iterator[Reading]: ...
 
 
 def iter_readings(
