@@ -14,8 +14,10 @@ needs no rosbags; callers import the module that defines what they use.
   MCAP at once)
 - conversion: :mod:`.cdrconvert` (any bag's messages to ROS 2 CDR)
 - recovery: :mod:`.recovery` (recordings cut short, read as they are), :mod:`.mcapscan`
-  (a torn MCAP walked record by record), :mod:`.sqlitescan` (a malformed db3)
+  (a torn MCAP walked record by record), :mod:`.sqlitescan` (a malformed db3),
+  :mod:`.reindexing` (what such a recording lacks, written: its metadata, a whole copy)
 """
 
 __all__ = ["bagblocks", "bagcommands", "bagio", "bagreadings", "bagwriter", "bulkmcap",
-           "cdrconvert", "mcapscan", "poses", "recovery", "reorder", "sqlitescan"]
+           "cdrconvert", "mcapscan", "poses", "recovery", "reindexing",
+           "reorder", "sqlitescan"]
