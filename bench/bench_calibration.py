@@ -8,7 +8,7 @@ Odometry Calibration of Wheeled Mobile Robots", J Intell Robot Syst 105:39, 2022
 converted once with its own ``to_rosbag2.py`` into a cache folder
 (``$XDG_CACHE_HOME/diffdrive_odom`` or ``/tmp/diffdrive_odom``, never the repository),
 plus the two squares of ``../shared/data/optiodom``. Skips, saying so, where the data
-are missing. Everything goes through the product: bags read by ``tools.bagreadings``, steps
+are missing. Everything goes through the product: bags read by ``tools.bags.bagreadings``, steps
 by the node's pipeline, fits by ``core.evaluation.calibration``, held-out fits and bootstrap by
 ``core.evaluation.crossval``, covariance by the node's own ``ReadingPipeline``.
 
@@ -59,7 +59,7 @@ from diffdrive_odom.core.uncertainty.noise import (
 )
 from diffdrive_odom.core.uncertainty.propagation import geometry_term
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagreadings, evaluate
+from diffdrive_odom.tools.bags import bagreadings, poses
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared" / "data"
@@ -96,7 +96,7 @@ def load(bag: Path, kind: str, exp: str) -> Data:
     settings = odometry_settings(PARAMS)
     readings = list(bagreadings.read_joint_states(bag))
     steps = batch.wheel_steps(readings, settings)
-    ref = evaluate.read_trajectory(bag, "/ground_truth/pose")
+    ref = poses.read_trajectory(bag, "/ground_truth/pose")
     return Data(Run(bag.name, steps, ref), kind, exp, readings)
 
 

@@ -189,8 +189,9 @@ def turtlebot3(plot: str | None) -> None:
 
     from rosbags.highlevel import AnyReader
 
-    from diffdrive_odom.tools import bagio, bagreadings, replay
-    from diffdrive_odom.tools.sinks import Published
+    from diffdrive_odom.tools.bags import bagio, bagreadings
+    from diffdrive_odom.tools.replaying.readings import replay_readings
+    from diffdrive_odom.tools.replaying.sinks import Published
 
     bag = Path(__file__).resolve().parent.parent / "test" / "data" / "turtlebot3_sim" / \
         "turtlebot3.bag"
@@ -217,9 +218,9 @@ def turtlebot3(plot: str | None) -> None:
                   "right_wheel_names": ["wheel_right_joint"], **MODES[mode]}
         out: list[Published] = []
         with bagio.open_bag(bag) as reader:
-            items = list(bagreadings.iter_sensor_readings(
+            items = list(bagreadings.iter_readings(
                 reader, "/joint_states", "/imu" if values["use_imu"] else None))
-        replay.replay_readings(items, odometry_settings(values), out.append)
+        replay_readings(items, odometry_settings(values), out.append)
         end = out[-1].pose
         x, y, th = truth[-1]
         print(f"  {mode:28s} {math.hypot(end.x - x, end.y - y):.3f} m, "

@@ -47,7 +47,7 @@ from sensor_msgs.msg import JointState
 
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS
 from diffdrive_odom.ros.runtime import EXECUTOR_ENV, EXECUTOR_KINDS, make_executor
-from diffdrive_odom.tools import process
+from diffdrive_odom.tools.cmdline import process
 from diffdrive_odom.wire.conversions import ns_to_stamp, stamp_to_ns
 
 BIN = Path(sys.executable).parent

@@ -6,7 +6,7 @@ One MCAP recording of JointStates at 100 Hz (rosbag2 as rosbags writes it, about
 ``--mb`` MB), and the same file torn mid-record in its last chunk (that chunk's tail,
 the summary and the footer gone) in a folder without ``metadata.yaml``: what a
 recorder killed near the end leaves. Each is opened with ``bagio.open_bag`` (rosbags for the intact
-one, :mod:`diffdrive_odom.tools.recovery` for the torn one) and read:
+one, :mod:`diffdrive_odom.tools.bags.recovery` for the torn one) and read:
 
 - ``messages``: every message's raw bytes (open, scan, yield), nothing decoded;
 - ``joint blocks``: the JointState readings replay works on (``read_joint_blocks``).
@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from diffdrive_odom.core.bulk.readings import JointBlock  # noqa: E402
-from diffdrive_odom.tools import bagblocks, bagio, bagwriter  # noqa: E402
+from diffdrive_odom.tools.bags import bagblocks, bagio, bagwriter  # noqa: E402
 
 
 def _write(path: Path, n: int) -> bytes:

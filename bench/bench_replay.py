@@ -46,15 +46,9 @@ from diffdrive_odom.core.bulk import batch  # noqa: E402
 from diffdrive_odom.core.bulk.readings import count  # noqa: E402
 from diffdrive_odom.core.estimation.config import OdometrySettings  # noqa: E402
 from diffdrive_odom.settings.odometry import odometry_settings  # noqa: E402
-from diffdrive_odom.tools import (  # noqa: E402
-    bagblocks,
-    bagio,
-    bagreadings,
-    bagwriter,
-    csvout,
-    replay,
-    sinks,
-)
+from diffdrive_odom.tools.bags import bagblocks, bagio, bagreadings, bagwriter  # noqa: E402
+from diffdrive_odom.tools.replaying import csvout, sinks  # noqa: E402
+from diffdrive_odom.tools.replaying.readings import replay_readings  # noqa: E402
 
 DATA = ROOT / "test" / "data"
 
@@ -117,8 +111,8 @@ def _replay_to_bag(bag: Path, settings: OdometrySettings, out: Path) -> None:
     with bagwriter.BagWriter(out) as w, csvout.CsvWriter(out.with_suffix(".csv")) as table:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
-        replay.replay_readings(bagblocks.read_joint_blocks(bag), settings,
-                               sinks.output_sink(settings, w, table))
+        replay_readings(bagblocks.read_joint_blocks(bag), settings,
+                               sinks.OutputSink(settings, w, table))
 
 
 def _replay_to(bag: Path, settings: OdometrySettings, out: Path, *, to_bag: bool,
@@ -129,12 +123,12 @@ def _replay_to(bag: Path, settings: OdometrySettings, out: Path, *, to_bag: bool
         with bagwriter.BagWriter(out) as w:
             w.add_topic("/odom", bagio.ODOMETRY)
             w.add_topic("/tf", bagio.TF_MESSAGE)
-            replay.replay_readings(bagblocks.read_joint_blocks(bag), settings,
-                                   sinks.output_sink(settings, w, None), fast=fast)
+            replay_readings(bagblocks.read_joint_blocks(bag), settings,
+                                   sinks.OutputSink(settings, w, None), fast=fast)
     else:
         with csvout.CsvWriter(out.with_suffix(".csv")) as table:
-            replay.replay_readings(bagblocks.read_joint_blocks(bag), settings,
-                                   sinks.output_sink(settings, None, table), fast=fast)
+            replay_readings(bagblocks.read_joint_blocks(bag), settings,
+                                   sinks.OutputSink(settings, None, table), fast=fast)
 
 
 def bench_sizes(tmp: Path, sizes: list[int], slow_max: int, settings: OdometrySettings) -> None:
@@ -181,20 +175,20 @@ def bench_bag(name: str, bag: Path, settings: OdometrySettings, tmp: Path) -> No
     rows.append(("rosbags decode", decode))
     rows.append(("decode only", _best(lambda: sum(map(count, bagblocks.read_joint_blocks(bag))))))
     rows.append(("replay", _best(
-        lambda: replay.replay_readings(bagblocks.read_joint_blocks(bag), settings))))
+        lambda: replay_readings(bagblocks.read_joint_blocks(bag), settings))))
     rows.append(("replay -> bag + csv", _best(
         lambda: _replay_to_bag(bag, settings, tmp / f"{name}_out"), repeat=2)))
-    step = _best(lambda: replay.replay_readings(readings, settings, fast=False))
+    step = _best(lambda: replay_readings(readings, settings, fast=False))
     rows.append(("step-by-step (in memory)", step))
     rows.append(("fast lane (in memory)", _best(
-        lambda: replay.replay_readings(readings, settings))))
+        lambda: replay_readings(readings, settings))))
     rows.append(("vectorised (in memory)", _best(lambda: batch.integrate_steps(
         batch.wheel_steps(readings, settings), settings.geometry))))
     steps = batch.wheel_steps(readings, settings)
     integrate = _best(lambda: batch.integrate_steps(steps, settings.geometry), repeat=20)
     rows.append(("integrate only (numpy)", integrate))
     # Agreement of the two paths (the test asserts < 1e-9 m).
-    end_step = replay.replay_readings(readings, settings, fast=False).final_pose
+    end_step = replay_readings(readings, settings, fast=False).final_pose
     end_vec = batch.final_pose(steps, settings.geometry)
     gap = float(np.hypot(end_step.x - end_vec.x, end_step.y - end_vec.y))
     print(f"\n{name}: {n} readings ({bag.name})")

@@ -54,7 +54,7 @@ from diffdrive_odom.core.evaluation import calibration, crossval, determinacy
 from diffdrive_odom.core.evaluation.recorded_run import Run
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagreadings, evaluate
+from diffdrive_odom.tools.bags import bagreadings, poses
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "bench"))
@@ -70,7 +70,7 @@ RULES = ("old", "folds", "margin", "new")
 def load(bag: Path) -> Run:
     """One bag decoded once into wheel steps, with its ground truth."""
     steps = batch.wheel_steps(bagreadings.read_joint_states(bag), odometry_settings(PARAMS))
-    return Run(bag.name, steps, evaluate.read_trajectory(bag, "/ground_truth/pose"))
+    return Run(bag.name, steps, poses.read_trajectory(bag, "/ground_truth/pose"))
 
 
 def experiments() -> dict[str, list[Path]]:

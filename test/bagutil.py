@@ -14,7 +14,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.tools.bagio import ODOMETRY, TF_MESSAGE
+from diffdrive_odom.tools.bags.bagio import ODOMETRY, TF_MESSAGE
 from diffdrive_odom.wire.conversions import yaw_to_quaternion
 
 STORE = get_typestore(Stores.ROS2_JAZZY)

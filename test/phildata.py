@@ -20,7 +20,7 @@ import numpy as np
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools.bagio import open_bag
+from diffdrive_odom.tools.bags.bagio import open_bag
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "phil_train"
 MISSING = f"{DATA} is not here (a user's clone): phil_train is read from ../shared/data"

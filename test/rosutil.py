@@ -39,7 +39,7 @@ from tf2_msgs.msg import TFMessage
 
 from diffdrive_odom.ros.qos import qos
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.tools import process
+from diffdrive_odom.tools.cmdline import process
 from diffdrive_odom.wire.conversions import ns_to_stamp
 
 from paths import DATA as DATA  # re-exported: the DDS tests take both from here

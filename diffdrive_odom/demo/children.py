@@ -16,7 +16,7 @@ from pathlib import Path
 from types import TracebackType
 
 from diffdrive_odom.ros import lifetime
-from diffdrive_odom.tools import process
+from diffdrive_odom.tools.cmdline import process
 
 from .settings import DemoError
 
@@ -50,7 +50,7 @@ class Children:
     """The nodes as child processes; leaving the ``with`` block stops every one started.
 
     SIGINT first (the nodes exit cleanly on it), then SIGKILL whatever is left after
-    ``grace`` seconds (:func:`diffdrive_odom.tools.process.stop_all`).
+    ``grace`` seconds (:func:`diffdrive_odom.tools.cmdline.process.stop_all`).
     """
 
     def __init__(self, env: Mapping[str, str], logs: Path, grace: float = 5.0) -> None:

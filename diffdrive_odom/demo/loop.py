@@ -17,7 +17,7 @@ check (:mod:`.interrupts`), never inside the code that polls or stops the childr
 children end by themselves if this process is killed (:mod:`.children`).
 
 Everything is written into a hidden directory beside ``--output`` and moved into place only
-when the run has finished (:func:`diffdrive_odom.tools.outputs.staged`), so a failed or
+when the run has finished (:func:`diffdrive_odom.tools.cmdline.outputs.staged`), so a failed or
 interrupted demo leaves no partial output, and a previous one stays until a new one replaces
 it.
 """
@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from diffdrive_odom.settings.params import ParamValue
-from diffdrive_odom.tools.outputs import staged
+from diffdrive_odom.tools.cmdline.outputs import staged
 
 from . import evaluation, interrupts
 from .children import Children

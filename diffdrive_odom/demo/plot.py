@@ -2,7 +2,7 @@
 
 Left the paths (the slip events the gyro found marked on the truth), right the drift
 over distance; below, on a panel of its own, the gyro-aided replay's online geometry
-estimate with its 1-sigma bands (:mod:`diffdrive_odom.tools.online_plot`).
+estimate with its 1-sigma bands (:mod:`diffdrive_odom.tools.replaying.online_plot`).
 
 Pure matplotlib (Agg), imported only when a plot is written.
 """
@@ -15,7 +15,7 @@ from pathlib import Path
 
 from diffdrive_odom.core.evaluation.metrics import Trajectory, match, path_length
 from diffdrive_odom.core.motion.paths import Point
-from diffdrive_odom.tools import online_plot
+from diffdrive_odom.tools.replaying import online_plot
 
 from .report import FIT, GYRO, NOMINAL, UMBMARK
 

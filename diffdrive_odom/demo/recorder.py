@@ -25,7 +25,7 @@ from std_msgs.msg import Bool, Float64
 from diffdrive_odom.core.motion.paths import Point
 from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
-from diffdrive_odom.tools import bagwriter
+from diffdrive_odom.tools.bags import bagwriter
 from diffdrive_odom.wire.conversions import quaternion_to_yaw, stamp_to_ns
 
 from . import interrupts

@@ -12,9 +12,10 @@ held-out final poses (:mod:`diffdrive_odom.core.evaluation.consistency`) and pri
 saying when the runs want none. The objective fitted (the whole trajectory, with end
 positions weighted in, or the end poses only) is chosen by leave-one-run-out
 (:mod:`diffdrive_odom.core.evaluation.objective`) unless ``--objective``/``--end-weight``
-name one. The printed text: :mod:`~.calibration_report`.
-Bags become runs in :mod:`~.calibration_runs` (the node's own pipeline; where a bag has
-an IMU, the slips its gyro finds are left out of the fit, a line per run says how many).
+name one. The printed text: :mod:`~.calibrating.report`.
+Bags become runs in :mod:`~.calibrating.runs` (the node's own pipeline; where a bag has
+an IMU, the slips its gyro finds are left out of the fit, a line per run says how many),
+on ``--jobs`` processes or a ``--dask`` cluster (:mod:`~.fleet`).
 The result is printed as a
 ``/**: ros__parameters:`` block with the node's own parameter names, to paste into
 its params file (``--yaml FILE`` also writes it). The fit (scipy) and the bag reader
@@ -39,15 +40,8 @@ from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_K,
     SESSION_DRIFT_RATIO,
 )
-from diffdrive_odom.tools import calibration_runs, fleet
-from diffdrive_odom.tools.args import (
-    add_param_arguments,
-    add_reference_arguments,
-    fail,
-    outputs_problem,
-    settings_from_args,
-)
-from diffdrive_odom.tools.calibration_report import (
+from diffdrive_odom.tools import fleet
+from diffdrive_odom.tools.calibrating.report import (
     check_lines,
     fit_report,
     left_out_lines,
@@ -56,8 +50,15 @@ from diffdrive_odom.tools.calibration_report import (
     rotation_line,
     umbmark_report,
 )
-from diffdrive_odom.tools.calibration_runs import PREFIX, Settings
+from diffdrive_odom.tools.calibrating.runs import PREFIX, Settings, decode, gyro_settings
 from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cmdline.args import (
+    add_param_arguments,
+    add_reference_arguments,
+    fail,
+    outputs_problem,
+    settings_from_args,
+)
 
 if TYPE_CHECKING:  # scipy and rosbags (the ``tools`` extra) only where they are used
     from diffdrive_odom.core.evaluation import consistency
@@ -203,13 +204,13 @@ def main(argv: Sequence[str]) -> int:
         return _error("open_loop is true: calibrate fits the wheel geometry to encoder "
                       "readings (joint_states), which open loop does not read; set "
                       "open_loop:=false for the calibration")
-    gyro = calibration_runs.gyro_settings(args, settings)
-    from diffdrive_odom.tools import bagio
+    gyro = gyro_settings(args, settings)
+    from diffdrive_odom.tools.bags import bagio
 
     try:
         if args.umbmark is not None:
             return _umbmark(args, (settings, gyro))
-        runs = calibration_runs.decode_all(args, settings, gyro)
+        runs = decode_all(args, settings, gyro)
         if isinstance(runs, str):
             return _error(runs)
         return _least_squares(args, settings, runs)
@@ -218,6 +219,29 @@ def main(argv: Sequence[str]) -> int:
     except OSError as err:
         return _error(f"cannot write: {err}")
     return 0
+
+
+def decode_all(args: argparse.Namespace, plain: OdometrySettings,
+                gyro: OdometrySettings | str) -> list[Run] | str:
+    """Every bag decoded, on ``--jobs`` processes or a ``--dask`` cluster, in the order given.
+
+    The fit is joint, so it is not made on what is left: every bag that failed is named
+    (the one line returned), not only the first.
+    """
+    if args.jobs is not None and args.jobs < 1:
+        return f"--jobs must be >= 1, got {args.jobs}"
+    calls = [(bag, (plain, gyro), args, True) for bag in args.bags]
+    try:
+        done = fleet.map_calls(decode, calls, args.jobs, args.dask)
+    except fleet.FleetError as err:
+        return str(err)
+    bad = [(bag, r) for bag, r in zip(args.bags, done, strict=True) if isinstance(r, Exception)]
+    if len(bad) == 1:
+        return str(bad[0][1])  # the error names its bag
+    if bad:
+        return (f"{len(bad)} of {len(done)} bags failed, so no fit: "
+                + "; ".join(f"{bag}: {err}" for bag, err in bad))
+    return done
 
 
 def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
@@ -289,8 +313,8 @@ def rotation_fit(runs: Sequence[Run], geometries: Sequence[Geometry | None],
 
 def _umbmark(args: argparse.Namespace, settings: Settings) -> int:
     typed = args.cw_end is not None
-    cw = calibration_runs.decode(args.umbmark[0], settings, args, not typed)
-    ccw = calibration_runs.decode(args.umbmark[1], settings, args, not typed)
+    cw = decode(args.umbmark[0], settings, args, not typed)
+    ccw = decode(args.umbmark[1], settings, args, not typed)
     for line in left_out_lines((cw, ccw), settings[0].geometry):
         print(line)
     if typed:

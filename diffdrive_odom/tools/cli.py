@@ -24,7 +24,7 @@ from xml.etree import ElementTree
 
 from diffdrive_odom.ros.lifetime import stop_signals
 from diffdrive_odom.settings.dependencies import missing_text
-from diffdrive_odom.tools import once
+from diffdrive_odom.tools.cmdline import once
 
 PROGRAM = "diffdrive-odom"
 PACKAGE = "diffdrive_odom"

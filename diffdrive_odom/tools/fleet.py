@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from diffdrive_odom.ros import lifetime
-from diffdrive_odom.tools.outputs import output_problem
+from diffdrive_odom.tools.cmdline.outputs import output_problem
 
 Work = Callable[[argparse.Namespace], int]
 Figure = float | int | None

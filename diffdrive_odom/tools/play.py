@@ -26,7 +26,7 @@ from diffdrive_odom.wire.conversions import split_ns
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
     from rosbags.interfaces import Connection
 
-    from diffdrive_odom.tools import cdrconvert
+    from diffdrive_odom.tools.bags import cdrconvert
 
 CLOCK_QOS_DEPTH = 1
 
@@ -89,7 +89,7 @@ def main(argv: Sequence[str]) -> int:
             print(f"[play] --remap expects FROM:=TO, got {item!r}", file=sys.stderr)
             return 2
         remap[src] = dst
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools.bags import bagio
 
     try:
         reader = bagio.open_bag(args.bag)
@@ -111,7 +111,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
 
     from diffdrive_odom.ros import qos as ros_qos
     from diffdrive_odom.ros.runtime import shutdown_after_stop
-    from diffdrive_odom.tools import cdrconvert
+    from diffdrive_odom.tools.bags import cdrconvert
 
     conns: list[Connection] = [
         c for c in reader.connections if args.topics is None or c.topic in args.topics

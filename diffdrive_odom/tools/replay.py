@@ -1,150 +1,41 @@
 """``diffdrive-odom replay``: run the node's estimator over a bag offline, as fast as the disk.
 
-One code path with the node: the same parameter file (``params.resolve_parameters`` +
-``odometry_settings``, so a bad value is refused with the same one line), the
-same :class:`~diffdrive_odom.core.estimation.pipeline.ReadingPipeline` (estimator, zero stamps
-dropped, gap rule, ``publish_rate``), frames with the tf prefix. The
-output is what the node would have published (the one rule,
-:func:`diffdrive_odom.core.estimation.publication.publication`: nothing non-finite goes out),
-written as a rosbag2 (``odom`` and ``/tf``) and/or a CSV (columns in
-:mod:`diffdrive_odom.tools.csvout`) by :mod:`diffdrive_odom.tools.sinks`. The flags it
-shares with calibrate are :mod:`diffdrive_odom.tools.args`.
-
-Two ways through a bag:
-
-- streaming (:func:`replay_readings`): one reading at a time, constant memory, used
-  by the CLI;
-- vectorised (:func:`~diffdrive_odom.core.bulk.batch.wheel_steps` then
-  :func:`~diffdrive_odom.core.bulk.batch.integrate_steps`, in the pure
-  :mod:`diffdrive_odom.core.bulk.batch`):
-  the bag decoded once into geometry-free wheel increments, then integrated for any
-  geometry with numpy. The estimator itself decides which readings become steps, so
-  both ways agree on what is dropped; calibration re-runs only the cheap second half
-  in its fitting loop.
+The command line: its flags, the checks made before any work, and what it prints. One
+code path with the node: the same parameter file (``params.resolve_parameters`` +
+``odometry_settings``, so a bad value is refused with the same one line; the flags it
+shares with calibrate are :mod:`diffdrive_odom.tools.cmdline.args`), the same pipeline
+and publication rule (the engines in :mod:`diffdrive_odom.tools.replaying`: readings,
+open-loop commands), frames with the tf prefix. The output is what the node would have
+published, written as a rosbag2 (``odom`` and ``/tf``) and/or a CSV (columns in
+:mod:`diffdrive_odom.tools.replaying.csvout`); ``--eval`` judges it against the bag's
+ground truth (:mod:`diffdrive_odom.tools.evaluate`), several bags are a fleet
+(:mod:`diffdrive_odom.tools.fleet`).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from contextlib import ExitStack
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from diffdrive_odom.core.bulk import fastlane
-from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
-from diffdrive_odom.core.bulk.readings import count as reading_count
-from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
-from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
-from diffdrive_odom.core.estimation.results import Outcome
-from diffdrive_odom.core.estimation.stamps import StampSource
-from diffdrive_odom.core.estimation.wheels.encoders import Reason
-from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.evaluation import metrics
-from diffdrive_odom.tools import evaluate, fleet, online_report, progress, sinks
-from diffdrive_odom.tools.args import (
+from diffdrive_odom.tools import evaluate, fleet
+from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cmdline.args import (
     DEFAULT_REFERENCE,
     add_param_arguments,
     fail,
     outputs_problem,
     settings_from_args,
 )
-from diffdrive_odom.tools.cli import HelpFormatter
-from diffdrive_odom.tools.outputs import STORAGES, staged
-from diffdrive_odom.tools.replaystats import ReplayStats
-from diffdrive_odom.tools.sinks import Published
+from diffdrive_odom.tools.cmdline.outputs import STORAGES
+from diffdrive_odom.tools.replaying import online_report
+from diffdrive_odom.tools.replaying.stats import ReplayStats
 
-if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
-    from diffdrive_odom.tools import bagreadings
-
-__all__ = ["main", "replay_readings"]
+__all__ = ["main", "run_bag"]
 
 PREFIX = "[replay]"
-
-
-def _stretch_out(stretch: fastlane.Stretch, sink: Callable[[Published], None]) -> None:
-    """The poses of a stretch the fast lane integrated, as the node would publish them."""
-    if isinstance(sink, sinks.OutputSink):  # in bulk: the same bytes and text
-        sink.stretch(stretch)
-        return
-    for stamp, log, pose, lin, ang, pcov, tcov in stretch.poses():
-        sink(Published(stamp, log, pose, lin, ang, Status.UPDATED, pcov, tcov))
-
-
-def replay_readings(
-    readings: Iterable[bagreadings.Reading | JointBlock],
-    settings: OdometrySettings,
-    sink: Callable[[Published], None] | None = None,
-    fast: bool = True,
-) -> ReplayStats:
-    """Feed readings through a fresh pipeline; the poses the node would publish go to ``sink``.
-
-    ``fast``: stretches where no rule can fire go through :mod:`diffdrive_odom.core.bulk.fastlane`
-    (the same result, proven by test/core/bulk/test_fastlane.py); False: every reading one by one.
-    A :class:`~diffdrive_odom.core.bulk.readings.JointBlock` stands for its readings in order.
-
-    What is published is decided as in the node (:func:`pipeline_publication`): a pose
-    it refuses is counted in ``refused``, not written. Without a sink nothing is written,
-    so nothing is built or checked (the estimator alone, as the benchmarks time it).
-    """
-    from diffdrive_odom.tools import bagreadings  # rosbags: only where bags are read
-
-    pipe = ReadingPipeline(settings, trace=True)
-    est = pipe.estimator
-    stats = ReplayStats()
-    start = time.perf_counter()
-    # The bag's log time is the receive time: the node's rules on stamps apply alike.
-    def one_by_one(
-        rs: Iterable[bagreadings.Reading | JointBlock],
-    ) -> Iterator[tuple[JointReading, Outcome]]:
-        for item in rs:
-            for r in item if isinstance(item, JointBlock) else (item,):
-                if isinstance(r, bagreadings.ImuSample):  # use_imu: gyro samples, as the node's
-                    pipe.feed_imu(r.stamp_ns, r.wx, r.wy, r.wz, r.log_ns,
-                                  covariance=r.covariance)
-                    continue
-                if isinstance(r, bagreadings.ReferenceSample):  # the online estimate's scale
-                    pipe.feed_reference(r.stamp_ns, r.x, r.y, r.yaw)
-                    continue
-                yield r, pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns)
-
-    items: Iterable[tuple[JointReading, Outcome] | fastlane.Stretch] = (
-        fastlane.lanes(pipe, readings, chunk=fastlane.CHUNK)  # type: ignore[arg-type]
-        if fast and settings.takes_bulk else one_by_one(readings))
-    for item in items:
-        if isinstance(item, fastlane.Stretch):
-            stats.statuses[Status.UPDATED.value] += item.count
-            if sink is not None:
-                _stretch_out(item, sink)
-            continue
-        r, outcome = item
-        if outcome.warning:
-            stats.warnings.append(outcome.warning)
-        if outcome.note:
-            stats.notes[outcome.note] += 1
-        verdict = outcome.verdict
-        stats.statuses[verdict.status.value] += 1
-        if verdict.code not in (Reason.UPDATED, Reason.FIRST):
-            stats.reasons[verdict.code] += verdict.count  # a discarded burst: all
-            stats.examples.setdefault(verdict.code, verdict.reason)
-        if outcome.publish and sink is not None:
-            out = pipeline_publication(pipe)
-            if isinstance(out, Refusal):
-                stats.refused[out.reason] += 1
-            else:
-                sink(Published(outcome.stamp_ns, r.log_ns, out.pose, out.linear, out.angular,
-                               verdict.status, out.pose_covariance, out.twist_covariance))
-    stats.seconds = time.perf_counter() - start
-    stats.pipeline = pipe.stats
-    stats.online_trace = [] if pipe.online is None else pipe.online.trace
-    stats.readings = stats.pipeline.readings
-    stats.published = stats.pipeline.published - sum(stats.refused.values())
-    stats.final_pose = est.pose
-    stats.final_stamp_ns = est.stamp_ns
-    return stats
 
 
 # --- CLI -------------------------------------------------------------------------------
@@ -201,7 +92,7 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-AUTO_REFERENCE = "<auto>"  # --eval without a topic: evaluate.reference_topic decides
+AUTO_REFERENCE = "<auto>"  # --eval without a topic: poses.reference_topic decides
 
 
 def _error(text: str) -> int:
@@ -258,7 +149,8 @@ def run_bag(args: argparse.Namespace) -> int:
     problem = _output_problem(args)
     if problem:
         return _error(problem)
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools.bags import bagio, poses  # past the parsing: --help needs no rosbags
+    from diffdrive_odom.tools.replaying import bag
 
     ref: metrics.Trajectory | None = None
     gt_topic = ""
@@ -268,15 +160,15 @@ def run_bag(args: argparse.Namespace) -> int:
             print(f"{PREFIX} --eval: {text}", file=sys.stderr)
 
         try:
-            gt_topic = evaluate.reference_topic(
+            gt_topic = poses.reference_topic(
                 args.bag, None if args.eval == AUTO_REFERENCE else args.eval, notify=notify,
                 flag="--eval TOPIC")
-            ref = evaluate.read_trajectory(args.bag, gt_topic, args.child_frame,
+            ref = poses.read_trajectory(args.bag, gt_topic, args.child_frame,
                                            "--child-frame", notify)
         except bagio.BagError as err:
             return _error(f"--eval: {err}")
     try:
-        stats, traj = _run(args, settings)
+        stats, traj = bag.replay_bag(args, settings)
     except bagio.BagError as err:
         return _error(str(err))
     except OSError as err:
@@ -337,55 +229,6 @@ def _remove_outputs(args: argparse.Namespace) -> None:
         shutil.rmtree(args.output, ignore_errors=True)
     if args.csv:
         Path(args.csv).unlink(missing_ok=True)
-
-
-def _run(args: argparse.Namespace, settings: OdometrySettings) -> tuple[ReplayStats, sinks.PoseLog]:
-    """Replay into staged outputs; they get their names only if the whole replay worked."""
-    from diffdrive_odom.tools import bagblocks, bagio, bagreadings, bagwriter, csvout
-
-    traj = sinks.PoseLog()
-    with ExitStack() as stack:
-        reader = stack.enter_context(bagio.open_bag(args.bag))
-        total = bagio.count_messages(reader, args.topic)
-        if settings.gyro is not None:  # the IMU's samples pass through the progress too
-            total += bagio.count_messages(reader, args.imu_topic)
-        writer = None
-        if args.output:
-            path = stack.enter_context(staged(args.output))
-            writer = stack.enter_context(bagwriter.BagWriter(path, args.storage))
-        csv_out = None
-        if args.csv:
-            csv_out = stack.enter_context(csvout.CsvWriter(stack.enter_context(
-                staged(args.csv))))
-        passthrough = None
-        if writer is not None:
-            writer.add_topic(args.odom_topic, bagio.ODOMETRY)
-            if settings.enable_odom_tf:
-                writer.add_topic(args.tf_topic, bagio.TF_MESSAGE)
-            if args.keep_input:
-                passthrough = sinks.keep_input(reader, writer, args.odom_topic)
-        if settings.open_loop is not None:  # commands, not wheel readings
-            from diffdrive_odom.tools import openloop_replay
-
-            return openloop_replay.replay_bag(reader, settings, args, traj, writer, csv_out,
-                                              passthrough), traj
-        jump = int(settings.estimator.time_jump_threshold * 1e9)
-        readings: Iterable[bagreadings.Reading | JointBlock]
-        if settings.takes_bulk and passthrough is None:  # runs of alike messages at once
-            readings = bagblocks.iter_joint_blocks(reader, args.topic, jump_back_ns=jump)
-        else:
-            gyro = settings.gyro
-            readings = bagreadings.iter_readings(
-                reader, args.topic, None if gyro is None else args.imu_topic,
-                passthrough, jump_back_ns=jump, imu_by_log_time=gyro is not None
-                and gyro.stamp_source is StampSource.RECEIVE_TIME,
-                reference_topic=online_report.reference_topic(settings))
-        if progress.wanted(args.progress, total):
-            readings = progress.progress(readings, total, PREFIX, weight=reading_count)
-        sink = sinks.output_sink(settings, writer, csv_out, traj if args.eval else None,
-                                 odom_topic=args.odom_topic, tf_topic=args.tf_topic)
-        stats = replay_readings(readings, settings, sink)
-    return stats, traj
 
 
 if __name__ == "__main__":

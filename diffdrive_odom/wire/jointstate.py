@@ -7,7 +7,7 @@ reads the few fields the estimator needs, and :class:`JointBlockDecoder` reads a
 messages of one byte layout with numpy views. Both read the layout through one walker
 (:meth:`JointStateDecoder.walk`), so they cannot disagree on where a field sits: the
 block decoder's output is exactly what the one-by-one decoder gives each message
-(test/tools/test_joint_blocks.py, with rosbags' deserialisation as the oracle).
+(test/tools/bags/test_joint_blocks.py, with rosbags' deserialisation as the oracle).
 
 Bytes that are not little-endian plain CDR are left to the caller's fallback (the
 decoders return None for them); cut-off or inconsistent bytes raise ValueError.

@@ -35,7 +35,7 @@ import yaml
 from diffdrive_odom.core.evaluation import metrics as core_metrics
 from diffdrive_odom.core.motion.paths import polyline
 from diffdrive_odom.demo.settings import BAG_TOPICS, DEFAULT_PARAMS
-from diffdrive_odom.tools import bagio, bagreadings, evaluate
+from diffdrive_odom.tools.bags import bagio, bagreadings, poses
 from diffdrive_odom.wire.conversions import stamp_to_ns
 
 import oracle
@@ -241,9 +241,9 @@ def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(
                            for c, _, raw in reader.messages(connections=conns)])
     assert len(stamps) == counts["/joint_states"] and (np.diff(stamps) > 0).all(), (
         np.flatnonzero(np.diff(stamps) <= 0))
-    odom = evaluate.read_trajectory(bag, "/odom")
-    truth = evaluate.read_trajectory(bag, "/ground_truth/odom")
-    tf = evaluate.read_trajectory(bag, "/tf", child_frame="base_link")
+    odom = poses.read_trajectory(bag, "/odom")
+    truth = poses.read_trajectory(bag, "/ground_truth/odom")
+    tf = poses.read_trajectory(bag, "/tf", child_frame="base_link")
     assert len(odom) > 100 and len(truth) > 100 and abs(len(tf) - len(odom)) <= 5
     # What the bag says is what the demo reported.
     assert [odom.x[-1], odom.y[-1]] == rows["nominal"]["final_pose"][:2]

@@ -50,7 +50,7 @@ def test_the_recorder_records_the_gyro_into_the_bag_and_the_recording(tmp_path: 
     from rclpy.node import Node
     from sensor_msgs.msg import Imu
 
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools.bags import bagio
 
     bag = tmp_path / "bag"
     with Recorder(DOMAIN, bag) as rec:
@@ -82,7 +82,7 @@ def test_joint_states_read_back_in_stamp_order_when_the_sim_clock_starts_behind(
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
 
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools.bags import bagio
     from diffdrive_odom.wire.conversions import ns_to_stamp, stamp_to_ns
 
     step, start = 20_000_000, time.time_ns() - 2_000_000_000

@@ -277,7 +277,7 @@ def test_publish_rate_throttles_by_stamp_and_tf_can_be_disabled(odom_rig: OdomRi
 
 def _joint_bag(path: Path, stamps_ns: list[int], positions: list[list[float]]) -> None:
     """The readings sent to the node, as a JointState MCAP (rosbags' own message classes)."""
-    from diffdrive_odom.tools import bagio, bagwriter
+    from diffdrive_odom.tools.bags import bagio, bagwriter
 
     with bagwriter.BagWriter(path) as writer:
         writer.add_topic("/joint_states", bagio.JOINT_STATE)

@@ -18,7 +18,7 @@ import pytest
 
 from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE, parse_override
 from diffdrive_odom.tools import replay
-from diffdrive_odom.tools.args import load_settings
+from diffdrive_odom.tools.cmdline.args import load_settings
 
 from rosutil import node_parameters, node_process, ros_test_node
 

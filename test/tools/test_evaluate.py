@@ -13,7 +13,7 @@ import pytest
 
 from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.core.evaluation.metrics import Trajectory
-from diffdrive_odom.tools import bagio, bagwriter, evaluate
+from diffdrive_odom.tools.bags import bagio, bagwriter, poses
 from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import OPTIODOM_PARAMS, OdomMessages, mcap_messages, write_params
@@ -211,12 +211,12 @@ def test_reference_types_and_the_cli(tmp_path: Path, capsys: pytest.CaptureFixtu
     bag = tmp_path / "ref"
     _write_reference_bag(bag, ref)
     for topic, child in (("/pose", None), ("/odometry", None), ("/tf", "robot")):
-        got = evaluate.read_trajectory(bag, topic, child)
+        got = poses.read_trajectory(bag, topic, child)
         assert np.array_equal(got.stamp_ns, ref.stamp_ns)
         assert np.allclose(got.x, ref.x, atol=1e-15) and np.allclose(got.y, ref.y, atol=1e-15)
         assert np.allclose(got.yaw, ref.yaw, atol=1e-12), topic
     with pytest.raises(bagio.BagError, match="other"):  # /tf needs a child frame
-        evaluate.read_trajectory(bag, "/tf")
+        poses.read_trajectory(bag, "/tf")
     out = tmp_path / "m.json"
     assert cli(["eval", str(bag), "--odom", "/odometry", "--ground-truth", "/tf",
                 "--child-frame", "robot", "--json", str(out)]) == 0

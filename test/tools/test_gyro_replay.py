@@ -17,7 +17,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from diffdrive_odom.core.bulk.readings import JointReading
-from diffdrive_odom.tools import bagio, bagreadings
+from diffdrive_odom.tools.bags import bagio, bagreadings
 from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import TB3_PARAMS, write_params
@@ -100,7 +100,7 @@ def test_use_imu_without_the_imu_topic_names_it(
 
 def test_streamed_merge_gives_each_wheel_reading_after_the_imu_samples_before_it() -> None:
     with bagio.open_bag(TB3) as reader:
-        items = list(bagreadings.iter_sensor_readings(reader, "/joint_states", "/imu"))
+        items = list(bagreadings.iter_readings(reader, "/joint_states", "/imu"))
     kinds = {type(i) for i in items}
     assert kinds == {JointReading, bagreadings.ImuSample}
     stamps = [i.stamp_ns for i in items]

@@ -19,7 +19,7 @@ import pytest
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS
 from diffdrive_odom.settings.params import resolve_parameters
 from diffdrive_odom.tools import replay
-from diffdrive_odom.tools.args import load_settings
+from diffdrive_odom.tools.cmdline.args import load_settings
 
 from rosutil import ROOT, node_parameters, node_process, ros_test_node
 

@@ -16,10 +16,11 @@ import pytest
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 
-from diffdrive_odom.tools import bagio, bagreadings, replay
-from diffdrive_odom.tools.args import load_settings
+from diffdrive_odom.tools.bags import bagio, bagreadings
 from diffdrive_odom.tools.cli import main as cli
-from diffdrive_odom.tools.sinks import Published
+from diffdrive_odom.tools.cmdline.args import load_settings
+from diffdrive_odom.tools.replaying.readings import replay_readings
+from diffdrive_odom.tools.replaying.sinks import Published
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS, write_params
 from rosutil import DATA, node_process, ros_test_node, spin_for, spin_until
@@ -47,7 +48,7 @@ def _offline(bag: Path, params: Path, until_ns: int | None = None,
     if only is not None:
         readings = (r for r in readings if r.stamp_ns in only)
     out: list[Published] = []
-    replay.replay_readings(readings, settings, out.append)
+    replay_readings(readings, settings, out.append)
     return {p.stamp_ns: p for p in out}
 
 

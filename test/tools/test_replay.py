@@ -25,10 +25,12 @@ from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.propagation import COVARIANCE_FLOOR
-from diffdrive_odom.tools import bagio, bagreadings, bagwriter, replay, sinks
-from diffdrive_odom.tools.args import load_settings
+from diffdrive_odom.tools.bags import bagio, bagreadings, bagwriter
 from diffdrive_odom.tools.cli import main as cli
-from diffdrive_odom.tools.sinks import Published
+from diffdrive_odom.tools.cmdline.args import load_settings
+from diffdrive_odom.tools.replaying import sinks
+from diffdrive_odom.tools.replaying.readings import replay_readings
+from diffdrive_odom.tools.replaying.sinks import Published
 from diffdrive_odom.wire.conversions import quaternion_to_yaw
 
 import oracle
@@ -49,7 +51,7 @@ def _settings(tmp_path: Path, values: dict[str, Any]) -> OdometrySettings:
 
 def _published(bag: Path, settings: OdometrySettings) -> list[Published]:
     out: list[Published] = []
-    replay.replay_readings(bagreadings.read_joint_states(bag), settings, out.append)
+    replay_readings(bagreadings.read_joint_states(bag), settings, out.append)
     return out
 
 
@@ -124,7 +126,7 @@ def test_vectorised_path_equals_the_step_by_step_estimator(tmp_path: Path, run: 
     g2 = Geometry(0.042, 0.2, left_wheel_radius_multiplier=1.01,
                          wheel_separation_multiplier=0.99)
     s2 = dataclasses.replace(settings, geometry=g2)
-    final2 = replay.replay_readings(bagreadings.read_joint_states(bag), s2).final_pose
+    final2 = replay_readings(bagreadings.read_joint_states(bag), s2).final_pose
     end2 = batch.final_pose(steps, g2)
     assert math.hypot(end2.x - final2.x, end2.y - final2.y) < 1e-9
 
@@ -242,7 +244,7 @@ def test_replay_refuses_what_the_node_refuses(
     _write_run(bag, [10**9 + k * 20_000_000 for k in range(n)], [(0.1 * k, 0.1 * k)
                                                                  for k in range(n)])
     poses: list[Published] = []
-    stats = replay.replay_readings(bagreadings.read_joint_states(bag), settings, poses.append)
+    stats = replay_readings(bagreadings.read_joint_states(bag), settings, poses.append)
     assert stats.pipeline.published == n
     assert stats.refused == {"non-finite covariance suppressed": n - 1}
     assert stats.published == len(poses) == 1
@@ -278,7 +280,7 @@ def test_a_looped_bag_restarts_both_paths_at_the_origin(tmp_path: Path) -> None:
     readings = list(bagreadings.read_joint_states(bag))
     assert [r.stamp_ns for r in readings] == stamps
     poses: list[Published] = []
-    stats = replay.replay_readings(readings, settings, poses.append)
+    stats = replay_readings(readings, settings, poses.append)
     assert stats.statuses["time_reset"] == 1
     steps = batch.wheel_steps(readings, settings)
     assert steps.segments == 2 and len(steps) == 2 * (n - 1)
@@ -312,8 +314,8 @@ def test_streaming_memory_does_not_grow_with_the_bag(tmp_path: Path) -> None:
         with bagwriter.BagWriter(out, "sqlite3") as w:
             w.add_topic("/odom", bagio.ODOMETRY)
             w.add_topic("/tf", bagio.TF_MESSAGE)
-            stats = replay.replay_readings(bagreadings.read_joint_states(bag), settings,
-                                           sinks.output_sink(settings, w, None))
+            stats = replay_readings(bagreadings.read_joint_states(bag), settings,
+                                           sinks.OutputSink(settings, w, None))
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
         assert stats.published == n
@@ -383,7 +385,7 @@ def test_a_driver_restart_after_a_pause_keeps_the_pose_in_replay(tmp_path: Path)
     run += [(restart + k * step, names, [0.2 * k, 0.2 * k]) for k in range(26)]
     bag = tmp_path / "restart"
     _write_joint_bag(bag, run)
-    stats = replay.replay_readings(bagreadings.read_joint_states(bag), settings)
+    stats = replay_readings(bagreadings.read_joint_states(bag), settings)
     assert stats.pipeline.gap_reanchors == 1 and stats.reasons["gap"] == 1
     assert math.isclose(stats.final_pose.x, r * 25.0, abs_tol=1e-12)
     assert stats.final_pose.y == 0.0
@@ -488,7 +490,7 @@ def test_a_killed_runs_hidden_partial_output_is_removed_by_the_next_and_named(
     out = tmp_path / "odom.csv"
     writer = subprocess.Popen([sys.executable, "-c", (
         "import sys, time\n"
-        "from diffdrive_odom.tools.outputs import staged\n"
+        "from diffdrive_odom.tools.cmdline.outputs import staged\n"
         f"with staged({str(out)!r}) as p:\n"
         "    p.write_text('half written')\n"
         "    print('staged', flush=True)\n"

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from diffdrive_odom.tools import bagio, bagwriter
+from diffdrive_odom.tools.bags import bagio, bagwriter
 from diffdrive_odom.tools.cli import main as cli
 
 from bagutil import mcap_messages, write_params

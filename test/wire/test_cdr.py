@@ -18,7 +18,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
-from diffdrive_odom.tools import bagio, cdrconvert
+from diffdrive_odom.tools.bags import bagio, cdrconvert
 from diffdrive_odom.wire.jointstate import JointStateDecoder
 from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 

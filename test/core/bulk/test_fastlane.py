@@ -40,9 +40,10 @@ from diffdrive_odom.core.uncertainty.fastcov import (
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
 from diffdrive_odom.core.uncertainty.propagation import PoseUncertainty, pose_message_covariance
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagreadings, replay
-from diffdrive_odom.tools.replaystats import ReplayStats
-from diffdrive_odom.tools.sinks import Published
+from diffdrive_odom.tools.bags import bagreadings
+from diffdrive_odom.tools.replaying.readings import replay_readings
+from diffdrive_odom.tools.replaying.sinks import Published
+from diffdrive_odom.tools.replaying.stats import ReplayStats
 
 from bagutil import OPTIODOM_PARAMS, TB3_PARAMS
 from rosutil import DATA
@@ -179,16 +180,16 @@ def _both(readings: Sequence[Any], cfg: OdometrySettings, chunk: int,
     monkeypatch.setattr(fastlane, "CHUNK", chunk)
     slow: list[Published] = []
     fast: list[Published] = []
-    a = replay.replay_readings(readings, cfg, slow.append, fast=False)  # type: ignore[arg-type]
-    b = replay.replay_readings(readings, cfg, fast.append, fast=True)  # type: ignore[arg-type]
+    a = replay_readings(readings, cfg, slow.append, fast=False)  # type: ignore[arg-type]
+    b = replay_readings(readings, cfg, fast.append, fast=True)  # type: ignore[arg-type]
     _agree(a, b, slow, fast)
     # The same stream with its alike runs as JointBlocks (as bagblocks.iter_joint_blocks
     # gives them): the same again, though stretches now start elsewhere.
     blocks = _blocks(readings, chunk)
     blocked: list[Published] = []
-    _agree(a, replay.replay_readings(blocks, cfg, blocked.append, fast=True), slow, blocked)
+    _agree(a, replay_readings(blocks, cfg, blocked.append, fast=True), slow, blocked)
     opened: list[Published] = []  # and one by one, blocks opened: the very same
-    replay.replay_readings(blocks, cfg, opened.append, fast=False)
+    replay_readings(blocks, cfg, opened.append, fast=False)
     assert opened == slow
     scalar, warned = _scalar_lane(readings, cfg, chunk)
     pipe = ReadingPipeline(cfg)

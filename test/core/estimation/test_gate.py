@@ -17,7 +17,7 @@ import pytest
 from diffdrive_odom.core.estimation import gate as gate_module
 from diffdrive_odom.core.estimation.gate import GateState, PublishGate
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
-from diffdrive_odom.tools.args import load_settings
+from diffdrive_odom.tools.cmdline.args import load_settings
 
 from bagutil import write_params
 from oracle import mean_rate, sensor_clock

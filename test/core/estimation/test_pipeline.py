@@ -28,7 +28,7 @@ from diffdrive_odom.core.estimation.wheels.encoders import Reason
 from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.ros.throttle import KeyedThrottle
-from diffdrive_odom.tools.args import load_settings
+from diffdrive_odom.tools.cmdline.args import load_settings
 
 from bagutil import write_params
 

@@ -18,7 +18,7 @@ from diffdrive_odom.core.estimation.pipeline import SET_POSE_DROPPED, ReadingPip
 from diffdrive_odom.core.estimation.setpose import PoseRefusal, PoseRequest
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.uncertainty.propagation import COVARIANCE_FLOOR
-from diffdrive_odom.tools.args import load_settings
+from diffdrive_odom.tools.cmdline.args import load_settings
 
 import oracle
 from bagutil import write_params

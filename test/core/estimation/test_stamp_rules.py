@@ -30,10 +30,11 @@ from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.tools import bagio, bagwriter, replay
-from diffdrive_odom.tools.args import load_settings
+from diffdrive_odom.tools.bags import bagio, bagwriter
 from diffdrive_odom.tools.cli import main as cli
-from diffdrive_odom.tools.sinks import Published
+from diffdrive_odom.tools.cmdline.args import load_settings
+from diffdrive_odom.tools.replaying.readings import replay_readings
+from diffdrive_odom.tools.replaying.sinks import Published
 
 import oracle
 from bagutil import mcap_messages, write_params
@@ -308,11 +309,11 @@ def test_replay_stamps_with_the_log_time_and_names_the_clock(tmp_path: Path) -> 
     readings = [JointReading(10**12 + round(PERIOD * k * 1e9), ns(PERIOD * k), NAMES,
                                    positions(PERIOD * k), ()) for k in range(51)]
     out: list[Published] = []
-    stats = replay.replay_readings(readings, settings(tmp_path), out.append)
+    stats = replay_readings(readings, settings(tmp_path), out.append)
     assert len(stats.warnings) == 1 and "behind the time they were received" in stats.warnings[0]
     assert out[-1].stamp_ns == 10**12 + 10**9
     out.clear()
-    stats = replay.replay_readings(readings, settings(tmp_path, stamp_source="receive_time"),
+    stats = replay_readings(readings, settings(tmp_path, stamp_source="receive_time"),
                                    out.append)
     assert stats.warnings == [] and out[-1].stamp_ns == ns(1.0)
 

@@ -375,11 +375,11 @@ def test_umbmark_with_noise_stays_near_the_truth() -> None:
 
 
 def _optiodom_runs() -> list[Run]:
-    from diffdrive_odom.tools import bagreadings, evaluate
+    from diffdrive_odom.tools.bags import bagreadings, poses
 
     settings = odometry_settings.odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
     return [Run(name, batch.wheel_steps(bagreadings.read_joint_states(OPTIODOM / name), settings),
-                evaluate.read_trajectory(OPTIODOM / name, "/ground_truth/pose"))
+                poses.read_trajectory(OPTIODOM / name, "/ground_truth/pose"))
             for name in (CW_RUN, CCW_RUN)]
 
 
@@ -511,7 +511,7 @@ def _arcs_with_the_reference_clock_off(lag: float) -> list[Run]:
 def _write_bag(path: Path, run: Run) -> None:
     """``run`` as a recording: /joint_states (wheel angles from 0 at the start, stamped
     and logged at each reading) and /ground_truth/odom (the reference, at its stamps)."""
-    from diffdrive_odom.tools import bagio, bagwriter
+    from diffdrive_odom.tools.bags import bagio, bagwriter
 
     from bagutil import OdomMessages, joint_state_msg
 

@@ -22,7 +22,7 @@ from diffdrive_odom.core.evaluation import calibration, leftout, umbmark
 from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.core.evaluation.recorded_run import Run, with_values
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools.reorder import REORDER_WINDOW, Reorder
+from diffdrive_odom.tools.bags.reorder import REORDER_WINDOW, Reorder
 
 TRUE = np.array([R, R * 1.005, B * 1.01])
 JITTERED = {t.name: t for t in TIMINGS}["173 Hz jittered"]

@@ -390,7 +390,7 @@ def test_final_pose_nees_of_the_optiodom_squares_with_the_defaults(run: str) -> 
     """
     from diffdrive_odom.core.evaluation.metrics import interpolate
     from diffdrive_odom.core.geometry.se2 import between
-    from diffdrive_odom.tools import bagreadings, evaluate
+    from diffdrive_odom.tools.bags import bagreadings, poses
 
     from rosutil import DATA
 
@@ -401,7 +401,7 @@ def test_final_pose_nees_of_the_optiodom_squares_with_the_defaults(run: str) -> 
         pipe.feed(r.stamp_ns, r.names, r.position, r.velocity)
     est = pipe.estimator
     assert est.stamp_ns is not None
-    ends = interpolate(evaluate.read_trajectory(bag, "/ground_truth/pose"),
+    ends = interpolate(poses.read_trajectory(bag, "/ground_truth/pose"),
                        np.array([readings[0].stamp_ns, est.stamp_ns]))
     truth = between(ends[:1], ends[1:])[0]
     e = np.array([est.pose.x - truth[0], est.pose.y - truth[1],

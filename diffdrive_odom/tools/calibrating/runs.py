@@ -6,9 +6,8 @@ readers, so a bag that replays or evaluates also calibrates. Where a bag has an 
 (``--imu-topic``, default: its only ``sensor_msgs/Imu`` topic), its readings go through
 the pipeline with the gyro (``use_imu``, the params' gyro settings), which judges each
 step for slip; those steps are left out of the fit
-(:mod:`diffdrive_odom.core.evaluation.leftout`). Bags are decoded on ``--jobs``
-processes or a ``--dask`` cluster (:mod:`~diffdrive_odom.tools.fleet`); rosbags is
-imported past the parsing.
+(:mod:`diffdrive_odom.core.evaluation.leftout`). rosbags is imported past the parsing
+(the command imports this module for its ``--help``).
 """
 
 from __future__ import annotations
@@ -23,8 +22,7 @@ from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run
-from diffdrive_odom.tools import evaluate, fleet
-from diffdrive_odom.tools.args import settings_from_args
+from diffdrive_odom.tools.cmdline.args import settings_from_args
 
 PREFIX = "[calibrate]"  # its lines on stderr
 # The node's settings as given, and with the gyro on (for the bags with an IMU).
@@ -37,15 +35,15 @@ def decode(bag: str, settings: Settings, args: argparse.Namespace, reference: bo
     With an IMU topic (:func:`imu_topic`) the readings go through the pipeline with the
     gyro, which judges each step for slip (``WheelSteps.slip_spans``).
     """
-    from diffdrive_odom.tools import bagblocks, bagio, bagreadings
+    from diffdrive_odom.tools.bags import bagblocks, bagio, bagreadings, poses
 
     def notify(text: str) -> None:
         print(f"{PREFIX} {text}", file=sys.stderr)
 
     ref = None
     if reference:
-        topic = evaluate.reference_topic(bag, args.ground_truth, (args.topic,), notify)
-        ref = evaluate.read_trajectory(bag, topic, args.child_frame)
+        topic = poses.reference_topic(bag, args.ground_truth, (args.topic,), notify)
+        ref = poses.read_trajectory(bag, topic, args.child_frame)
     plain, gyro = settings
     imu = imu_topic(bag, args.imu_topic, notify)
     if imu is not None and isinstance(gyro, str):
@@ -62,8 +60,9 @@ def decode(bag: str, settings: Settings, args: argparse.Namespace, reference: bo
         assert used.gyro is not None
         by_log = used.gyro.stamp_source is StampSource.RECEIVE_TIME
         with bagio.open_bag(bag) as reader:
-            steps = batch.wheel_steps(bagreadings.iter_sensor_readings(
-                reader, args.topic, imu, jump_back_ns=jump, imu_by_log_time=by_log), used)
+            steps = batch.wheel_steps(bagreadings.iter_readings(
+                reader, args.topic, imu, stream=bagreadings.Stream(
+                    jump_back_ns=jump, imu_by_log_time=by_log)), used)
     return Run(Path(bag).name, steps, ref)
 
 
@@ -75,7 +74,7 @@ def imu_topic(bag: str, requested: str | None, notify: Callable[[str], None]) ->
     """
     if requested is not None:
         return None if requested.lower() == "none" else requested
-    from diffdrive_odom.tools import bagio
+    from diffdrive_odom.tools.bags import bagio
 
     with bagio.open_bag(bag) as reader:
         found = sorted({str(c.topic) for c in reader.connections if c.msgtype == bagio.IMU})
@@ -101,26 +100,3 @@ def gyro_settings(args: argparse.Namespace, settings: OdometrySettings) -> Odome
             return got
         settings = got
     return dataclasses.replace(settings, online=None)
-
-
-def decode_all(args: argparse.Namespace, plain: OdometrySettings,
-                gyro: OdometrySettings | str) -> list[Run] | str:
-    """Every bag decoded, on ``--jobs`` processes or a ``--dask`` cluster, in the order given.
-
-    The fit is joint, so it is not made on what is left: every bag that failed is named
-    (the one line returned), not only the first.
-    """
-    if args.jobs is not None and args.jobs < 1:
-        return f"--jobs must be >= 1, got {args.jobs}"
-    calls = [(bag, (plain, gyro), args, True) for bag in args.bags]
-    try:
-        done = fleet.map_calls(decode, calls, args.jobs, args.dask)
-    except fleet.FleetError as err:
-        return str(err)
-    bad = [(bag, r) for bag, r in zip(args.bags, done, strict=True) if isinstance(r, Exception)]
-    if len(bad) == 1:
-        return str(bad[0][1])  # the error names its bag
-    if bad:
-        return (f"{len(bad)} of {len(done)} bags failed, so no fit: "
-                + "; ".join(f"{bag}: {err}" for bag, err in bad))
-    return done

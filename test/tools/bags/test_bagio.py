@@ -20,8 +20,9 @@ from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 
-from diffdrive_odom.tools import bagio, bagreadings, bagwriter, cdrconvert, csvout
-from diffdrive_odom.tools.outputs import STORAGES
+from diffdrive_odom.tools.bags import bagio, bagreadings, bagwriter, cdrconvert
+from diffdrive_odom.tools.cmdline.outputs import STORAGES
+from diffdrive_odom.tools.replaying import csvout
 from diffdrive_odom.wire.conversions import quaternion_to_yaw
 from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 

@@ -31,7 +31,8 @@ if TYPE_CHECKING:  # the bag library only where a bag is read or written (``tool
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
 
-    from diffdrive_odom.tools import bagreadings, bagwriter, csvout
+    from diffdrive_odom.tools.bags import bagreadings, bagwriter
+    from diffdrive_odom.tools.replaying import csvout
 
 
 @dataclass
@@ -72,7 +73,7 @@ def keep_input(
     reader: AnyReader, writer: bagwriter.BagWriter, odom_topic: str
 ) -> bagreadings.Passthrough:
     """Copy every input message (converted to CDR) into the output bag as it streams by."""
-    from diffdrive_odom.tools import bagio, cdrconvert
+    from diffdrive_odom.tools.bags import bagio, cdrconvert
 
     convert = cdrconvert.CdrConverter(reader)
     for conn in reader.connections:
@@ -171,16 +172,3 @@ def _covariances(st: Stretch, n: int) -> tuple[npt.NDArray[np.float64], npt.NDAr
     for at, src in _TWIST_AT:
         twist[:, at] += st.twist_covariance[:, src]
     return pose, twist
-
-
-def output_sink(
-    settings: OdometrySettings,
-    writer: bagwriter.BagWriter | None,
-    csv_out: csvout.CsvWriter | None,
-    traj: PoseLog | None = None,
-    *,
-    odom_topic: str = "/odom",
-    tf_topic: str = "/tf",
-) -> OutputSink:
-    """Where each published pose goes (:class:`OutputSink`); topics registered by the caller."""
-    return OutputSink(settings, writer, csv_out, traj, odom_topic=odom_topic, tf_topic=tf_topic)

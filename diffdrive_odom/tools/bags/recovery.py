@@ -8,8 +8,8 @@ reads such a recording with rosbags' ``AnyReader`` interface, so every tool that
 a bag (replay, eval, calibrate, play, fleet runs) reads it as it would the intact one:
 
 - the storage files of a folder, ``_2`` before ``_10`` (rosbag2's split suffix);
-- MCAP by walking its records (:mod:`~diffdrive_odom.tools.mcapscan`), sqlite3
-  read-only and immutable (:mod:`~diffdrive_odom.tools.sqlitescan`);
+- MCAP by walking its records (:mod:`~diffdrive_odom.tools.bags.mcapscan`), sqlite3
+  read-only and immutable (:mod:`~diffdrive_odom.tools.bags.sqlitescan`);
 - messages in log time order, ties by position in the file (by file, then within it),
   the order rosbags gives for the same messages in an intact bag.
 
@@ -44,7 +44,8 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.tools import mcapscan, once, sqlitescan
+from diffdrive_odom.tools.bags import mcapscan, sqlitescan
+from diffdrive_odom.tools.cmdline import once
 
 SUFFIXES = (".mcap", ".db3")
 _FORMATS = {"ros2msg": MessageDefinitionFormat.MSG, "ros2idl": MessageDefinitionFormat.IDL,

@@ -20,7 +20,7 @@ from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.settings.params import ParamSource, ParamValue, resolve_parameters
 from diffdrive_odom.settings.registry import unknown_parameters_report
 from diffdrive_odom.settings.shadowed import shadowed_overrides_line
-from diffdrive_odom.tools.outputs import output_problem
+from diffdrive_odom.tools.cmdline.outputs import output_problem
 
 NODE_NAME = "odometry_node"
 DEFAULT_REFERENCE = "/ground_truth/pose"  # the ground-truth topic looked for first

@@ -9,7 +9,7 @@ uint64 log and publish time, the CDR bytes) are one numpy structured array, writ
 with one call. The chunk is closed where the one-by-one writer closes it (after the
 first record that takes it past 1 MiB), and the message index of a closed chunk is
 packed by numpy too; the file is byte for byte the one rosbags writes
-(test/tools/test_bulkmcap.py compares them).
+(test/tools/bags/test_bulkmcap.py compares them).
 
 This leans on rosbags 0.11's writer internals (``storage.chunk``, ``channel_stats``,
 ``counts``): :func:`supported` checks they are there, and the caller falls back to

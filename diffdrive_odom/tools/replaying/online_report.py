@@ -24,6 +24,7 @@ from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.params import ParamValue, resolve_parameters
+from diffdrive_odom.tools.replaying import online_plot  # matplotlib only where it draws
 
 ROWS = 6  # estimates printed over the run besides the final one
 NEEDS_IMU = ("--online-calibration needs the gyro: {bag} has no sensor_msgs/Imu on {topic} "
@@ -91,7 +92,7 @@ def _online_settled(args: argparse.Namespace,
 
 def _no_gyro(bag: str, topic: str) -> str:
     """Why ``bag`` gives no gyro on ``topic`` ('' when it has sensor_msgs/Imu there)."""
-    from diffdrive_odom.tools import bagio  # the bag library only now: --help needs none
+    from diffdrive_odom.tools.bags import bagio  # the bag library only now: --help needs none
 
     try:
         with bagio.open_bag(bag) as reader:
@@ -166,7 +167,7 @@ def plot_path(plot: str | None, online: bool, evaluated: object) -> str | None:
 
 
 def plot(path: str | None, trace: list[tuple[int, OnlineEstimate]], name: str) -> str:
-    """Draw the estimate over the run into ``path`` (matplotlib, imported only here).
+    """Draw the estimate over the run into ``path`` (matplotlib, imported only there).
 
     Returns the line that says where ('' when nothing was asked or there is no estimate).
     """
@@ -174,8 +175,6 @@ def plot(path: str | None, trace: list[tuple[int, OnlineEstimate]], name: str) -
         return ""
     if not trace:
         return "online calibration plot: not written (no estimate: no step counted)\n"
-    from diffdrive_odom.tools import online_plot
-
     online_plot.write(path, trace, f"online calibration of {name}: the wheel geometry "
                       "estimated from the gyro over the run")
     return f"online calibration plot: {path}\n"

@@ -5,7 +5,7 @@ play`` and independent readers (mcap-ros2-support) must read. rclpy's serializer
 some messages in a way strict readers reject, so messages are serialised by rosbags (or
 handed over as CDR bytes the wire layer wrote), as rosbag2 with mcap storage by default
 or sqlite3 on request; many rows at once go to MCAP in bulk
-(:mod:`diffdrive_odom.tools.bulkmcap`).
+(:mod:`diffdrive_odom.tools.bags.bulkmcap`).
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from rosbags.interfaces import Connection
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.tools import bulkmcap
-from diffdrive_odom.tools.bagio import BagError, typestore
-from diffdrive_odom.tools.outputs import STORAGES
+from diffdrive_odom.tools.bags import bulkmcap
+from diffdrive_odom.tools.bags.bagio import BagError, typestore
+from diffdrive_odom.tools.cmdline.outputs import STORAGES
 
 
 class BagWriter:
@@ -86,7 +86,7 @@ class BagWriter:
         """Per row ``k``: ``payloads[j][k]`` (CDR bytes) onto ``topics[j]`` at ``log_ns[k]``.
 
         The same bag as :meth:`write_cdr` once per message, in that order; MCAP in bulk
-        (:mod:`diffdrive_odom.tools.bulkmcap`), sqlite3 one by one.
+        (:mod:`diffdrive_odom.tools.bags.bulkmcap`), sqlite3 one by one.
         """
         conns = [self._conns[t][0] for t in topics]
         if bulkmcap.supported(self._writer):

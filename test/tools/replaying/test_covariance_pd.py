@@ -25,7 +25,9 @@ from diffdrive_odom.core.uncertainty.propagation import (
     UNOBSERVED_VARIANCE,
 )
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagreadings, replay, sinks
+from diffdrive_odom.tools.bags import bagreadings
+from diffdrive_odom.tools.replaying import sinks
+from diffdrive_odom.tools.replaying.readings import replay_readings
 
 from bagutil import TB3_PARAMS
 from rosutil import DATA
@@ -49,7 +51,7 @@ def rest_straight_turn() -> list[JointReading]:
 
 def published(readings: Sequence[JointReading], fast: bool) -> list[sinks.Published]:
     out: list[sinks.Published] = []
-    replay.replay_readings(readings, odometry_settings(TB3_PARAMS), out.append, fast=fast)
+    replay_readings(readings, odometry_settings(TB3_PARAMS), out.append, fast=fast)
     return out
 
 

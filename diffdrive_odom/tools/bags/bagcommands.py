@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 from rosbags.highlevel import AnyReader
 
-from diffdrive_odom.tools.bagio import connections_for
-from diffdrive_odom.tools.bagreadings import Passthrough
+from diffdrive_odom.tools.bags.bagio import connections_for
+from diffdrive_odom.tools.bags.bagreadings import Passthrough
 from diffdrive_odom.wire.conversions import stamp_to_ns
 
 TWIST = "geometry_msgs/msg/Twist"

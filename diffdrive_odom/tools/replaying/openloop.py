@@ -1,4 +1,4 @@
-"""``replay -p open_loop:=true``: open-loop odometry over a bag of velocity commands.
+"""replay's commands engine (``-p open_loop:=true``): open-loop odometry over velocity commands.
 
 The node's own core (:class:`~diffdrive_odom.core.estimation.open_loop.OpenLoopOdometry`),
 fed the same calls in the same order: each command at its log time, and the node's timer
@@ -12,7 +12,6 @@ bag's ground truth.
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Callable, Iterable
 from types import MappingProxyType
@@ -28,15 +27,11 @@ from diffdrive_odom.core.estimation.open_loop import (
 from diffdrive_odom.core.estimation.publication import Refusal, publication
 from diffdrive_odom.core.estimation.results import PipelineStats
 from diffdrive_odom.core.estimation.wheels.timeline import Status
-from diffdrive_odom.tools.replaystats import ReplayStats
-from diffdrive_odom.tools.sinks import PoseLog, Published
+from diffdrive_odom.tools.replaying.sinks import Published
+from diffdrive_odom.tools.replaying.stats import ReplayStats
 
 if TYPE_CHECKING:  # the bag library only where a bag is read (``tools`` extra)
-    from rosbags.highlevel import AnyReader
-
-    from diffdrive_odom.tools import bagwriter, csvout
-    from diffdrive_odom.tools.bagcommands import CommandSample
-    from diffdrive_odom.tools.bagreadings import Passthrough
+    from diffdrive_odom.tools.bags.bagcommands import CommandSample
 
 OPEN_LOOP_NOTE = "open loop: odometry from the commanded velocity on {topic}, not measured"
 TIME_RESET_TEXT = "the log time went back over time_jump_threshold: restarted at the origin"
@@ -106,24 +101,3 @@ def replay_commands(
 def _count(stats: ReplayStats, code: str, text: str) -> None:
     stats.reasons[code] += 1
     stats.examples.setdefault(code, text)
-
-
-def command_topic(args: argparse.Namespace, settings: OdometrySettings) -> str:
-    """``--cmd-topic``, else the source's topic at the root (``/cmd_vel``, ``/cmd_vel_out``)."""
-    assert settings.open_loop is not None
-    return str(args.cmd_topic or "/" + settings.open_loop.topic)
-
-
-def replay_bag(reader: AnyReader, settings: OdometrySettings, args: argparse.Namespace,
-               traj: PoseLog, writer: bagwriter.BagWriter | None,
-               csv_out: csvout.CsvWriter | None,
-               passthrough: Passthrough | None) -> ReplayStats:
-    """One open reader's commands into replay's outputs (the bag's topics registered here)."""
-    from diffdrive_odom.tools import bagcommands, sinks
-
-    topic = command_topic(args, settings)
-    args.cmd_topic = topic  # what the summary names
-    sink = sinks.output_sink(settings, writer, csv_out, traj if args.eval else None,
-                             odom_topic=args.odom_topic, tf_topic=args.tf_topic)
-    commands = bagcommands.iter_commands(reader, topic, passthrough)
-    return replay_commands(commands, settings, sink, int(reader.end_time), topic)

@@ -4,7 +4,7 @@ Why: the estimator works on measurement time, and a recorder logs in arrival ord
 so a bag's readings are put back in stamp order while they stream (memory stays
 constant whatever the bag's length). The one-by-one readers and the block reader go
 through this one rule, so a block never changes the order a reading comes out in
-(test/tools/test_joint_blocks.py checks it against the heap written out).
+(test/tools/bags/test_joint_blocks.py checks it against the heap written out).
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@
 - reorder.Reorder with blocks against the plain heap rule written out here: any mix of
   blocks and single readings, out-of-order stamps and jumps back, comes out in the
   order the heap gives one reading at a time.
-- Real bag files: iter_joint_blocks opened equals iter_joint_states, and replay writes
+- Real bag files: iter_joint_blocks opened equals iter_readings, and replay writes
   the same bytes either way; the progress line counts a block's readings.
 - The CSV's float text reads back to the same double with repr's number of digits; the
   output file's background writer raises a failed write (a real /dev/full); a real
@@ -34,19 +34,11 @@ from rosbags.typesys import Stores, get_typestore
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.ros.lifetime import stop_signals
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import (
-    bagblocks,
-    bagio,
-    bagreadings,
-    bagwriter,
-    bulkmcap,
-    csvout,
-    progress,
-    reorder,
-    replay,
-    sinks,
-)
+from diffdrive_odom.tools.bags import bagblocks, bagio, bagreadings, bagwriter, bulkmcap, reorder
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.cmdline import progress
+from diffdrive_odom.tools.replaying import csvout, sinks
+from diffdrive_odom.tools.replaying.readings import replay_readings
 from diffdrive_odom.wire.jointstate import JointBlockDecoder
 
 from bagutil import OPTIODOM_PARAMS, write_params
@@ -321,7 +313,7 @@ def test_replay_writes_the_same_from_blocks(tmp_path: Path, messy: Path) -> None
         with bagwriter.BagWriter(out) as w, csvout.CsvWriter(out.with_suffix(".csv")) as t:
             w.add_topic("/odom", bagio.ODOMETRY)
             w.add_topic("/tf", bagio.TF_MESSAGE)
-            stats = replay.replay_readings(source, cfg, sinks.output_sink(cfg, w, t))
+            stats = replay_readings(source, cfg, sinks.OutputSink(cfg, w, t))
         assert stats.reasons["stale_stamp"] > 0 and stats.published > 5000  # the clock's jump
         tables.append([line.split(",") for line in
                        out.with_suffix(".csv").read_text().splitlines()])

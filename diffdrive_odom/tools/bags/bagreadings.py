@@ -3,8 +3,9 @@
 Why: replay, calibrate and evaluate take wheel readings, not messages. rosbag2 data is
 decoded by the node's own CDR decoder (rosbags' full deserialisation is several times
 slower), ROS 1 bags and whatever that decoder leaves by rosbags. Readings come out in
-*header stamp* order (:class:`~diffdrive_odom.tools.reorder.Reorder`), one at a time;
-:mod:`diffdrive_odom.tools.bagblocks` reads the same readings in blocks.
+*header stamp* order (:class:`~diffdrive_odom.tools.bags.reorder.Reorder`), one at a time
+(:func:`iter_readings`);
+:mod:`diffdrive_odom.tools.bags.bagblocks` reads the same readings in blocks.
 """
 
 from __future__ import annotations
@@ -12,14 +13,14 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 
 from diffdrive_odom.core.bulk.readings import JointReading
-from diffdrive_odom.tools.bagio import IMU, JOINT_STATE, ODOMETRY, connections_for, open_bag
-from diffdrive_odom.tools.reorder import REORDER_WINDOW, Reorder
+from diffdrive_odom.tools.bags.bagio import IMU, JOINT_STATE, ODOMETRY, connections_for, open_bag
+from diffdrive_odom.tools.bags.reorder import REORDER_WINDOW, Reorder
 from diffdrive_odom.wire.conversions import reference_pose, stamp_to_ns
 from diffdrive_odom.wire.jointstate import JointStateDecoder
 
@@ -84,66 +85,67 @@ class JointStateReader:
 Passthrough = Callable[[Connection, int, bytes], None]
 
 
-def iter_joint_states(
-    reader: AnyReader,
-    topic: str = "/joint_states",
-    passthrough: Passthrough | None = None,
-    window: int = REORDER_WINDOW,
-    jump_back_ns: int = 1_000_000_000,
-) -> Iterator[JointReading]:
-    """JointState readings of an open reader, in header stamp order, streaming."""
-    for item in iter_sensor_readings(reader, topic, None, passthrough, window, jump_back_ns):
-        assert isinstance(item, JointReading)  # no IMU topic asked for
-        yield item
+@dataclass(frozen=True)
+class Stream:
+    """How a bag's messages become readings, besides which topics are read.
 
-
-def iter_sensor_readings(
-    reader: AnyReader,
-    topic: str = "/joint_states",
-    imu_topic: str | None = None,
-    passthrough: Passthrough | None = None,
-    window: int = REORDER_WINDOW,
-    jump_back_ns: int = 1_000_000_000,
-    imu_by_log_time: bool = False,
-) -> Iterator[JointReading | ImuSample]:
-    """JointState readings (and Imu samples of ``imu_topic``) by header stamp, streaming.
-
-    Both go through one reordering by stamp (:class:`Reorder`), so a wheel reading
-    comes after the gyro samples up to its stamp. With ``passthrough``, every message
-    of the bag is also handed to it raw, in log time order (``replay --keep-input``).
-    ``imu_by_log_time`` (``imu_stamp_source: receive_time``): an Imu sample's stamp is
-    its log time (the IMU's own stamps are on another clock).
+    ``passthrough``: every message of the bag is also handed to it raw, in log time order
+    (``replay --keep-input``). ``window`` and ``jump_back_ns``: the stamp-order rule's
+    (:class:`Reorder`). ``imu_by_log_time`` (``imu_stamp_source: receive_time``): an Imu
+    sample's stamp is its log time (the IMU's own stamps are on another clock).
     """
-    for item in iter_readings(reader, topic, imu_topic, passthrough, window, jump_back_ns,
-                              imu_by_log_time):
-        assert not isinstance(item, ReferenceSample)  # no reference topic asked for
-        yield item
+
+    passthrough: Passthrough | None = None
+    window: int = REORDER_WINDOW
+    jump_back_ns: int = 1_000_000_000
+    imu_by_log_time: bool = False
+
+
+REPLAY = Stream()  # the defaults: replay's own
+
+
+# What is yielded narrows with the topics asked for: the wheels alone, with the gyro, with
+# a reference too (the type checker then knows, e.g., what a batch decode may take).
+@overload
+def iter_readings(reader: AnyReader, topic: str = ..., imu_topic: None = None,
+                  reference_topic: None = None, stream: Stream = ...) -> Iterator[JointReading]: ...
+
+
+@overload
+def iter_readings(reader: AnyReader, topic: str, imu_topic: str | None,
+                  reference_topic: None = None, stream: Stream = ...
+                  ) -> Iterator[JointReading | ImuSample]: ...
+
+
+@overload
+def iter_readings(reader: AnyReader, topic: str, imu_topic: str | None,
+                  reference_topic: str | None, stream: Stream = ...) -> Iterator[Reading]: ...
 
 
 def iter_readings(
     reader: AnyReader,
     topic: str = "/joint_states",
     imu_topic: str | None = None,
-    passthrough: Passthrough | None = None,
-    window: int = REORDER_WINDOW,
-    jump_back_ns: int = 1_000_000_000,
-    imu_by_log_time: bool = False,
     reference_topic: str | None = None,
+    stream: Stream = REPLAY,
 ) -> Iterator[Reading]:
-    """:func:`iter_sensor_readings`, and a reference pose topic's messages too.
+    """An open reader's JointState readings by header stamp, streaming; more topics on request.
 
-    ``reference_topic``: its Odometry or PoseStamped messages as :class:`ReferenceSample`
-    (``replay --reference-topic``), in the same reordering by stamp.
+    ``imu_topic``: its Imu samples too (:class:`ImuSample`); ``reference_topic``: its
+    Odometry or PoseStamped messages as :class:`ReferenceSample` (``replay
+    --reference-topic``). All go through one reordering by stamp (:class:`Reorder`), so
+    a wheel reading comes after the gyro samples up to its stamp.
     """
     joints = connections_for(reader, topic, (JOINT_STATE,))
     imus = [] if imu_topic is None else connections_for(reader, imu_topic, (IMU,))
     refs = [] if reference_topic is None else connections_for(reader, reference_topic,
                                                               REFERENCE_TYPES)
+    passthrough = stream.passthrough
     conns = reader.connections if passthrough is not None else joints + imus + refs
     joint_ids, imu_ids = {id(c) for c in joints}, {id(c) for c in imus}
     ref_ids = {id(c) for c in refs}
     decode = JointStateReader(reader)
-    order = Reorder(window, jump_back_ns)
+    order = Reorder(stream.window, stream.jump_back_ns)
     for conn, log_ns, raw in reader.messages(connections=conns):
         item: Reading
         if passthrough is not None:
@@ -154,7 +156,7 @@ def iter_readings(
             w = (msg := reader.deserialize(raw, conn.msgtype)).angular_velocity
             cov = tuple(float(c) for c in msg.angular_velocity_covariance)
             # imu_stamp_source receive_time: ordered (and fed) by the log time.
-            stamp = log_ns if imu_by_log_time else stamp_to_ns(msg.header.stamp)
+            stamp = log_ns if stream.imu_by_log_time else stamp_to_ns(msg.header.stamp)
             item = ImuSample(stamp, log_ns, w.x, w.y, w.z, cov)
         elif id(conn) in ref_ids:
             stamp, x, y, yaw = reference_pose(reader.deserialize(raw, conn.msgtype))
@@ -170,4 +172,4 @@ def read_joint_states(
 ) -> Iterator[JointReading]:
     """Open ``path`` and stream its JointState readings in stamp order."""
     with open_bag(path) as reader:
-        yield from iter_joint_states(reader, topic, jump_back_ns=jump_back_ns)
+        yield from iter_readings(reader, topic, stream=Stream(jump_back_ns=jump_back_ns))

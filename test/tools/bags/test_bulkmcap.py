@@ -1,4 +1,4 @@
-"""Replay's outputs written in bulk (tools.bulkmcap, BagWriter.write_rows, CsvWriter.rows,
+"""Replay's outputs written in bulk (tools.bags.bulkmcap, BagWriter.write_rows, CsvWriter.rows,
 sinks.OutputSink.stretch) equal the one-message-at-a-time writer's, byte for byte.
 
 The oracle is the previous path, still in the code: a plain function wrapping the sink
@@ -20,8 +20,10 @@ from rosbags.rosbag2.storage_mcap import McapWriter
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools import bagio, bagreadings, bagwriter, bulkmcap, csvout, replay, sinks
-from diffdrive_odom.tools.replaystats import ReplayStats
+from diffdrive_odom.tools.bags import bagio, bagreadings, bagwriter, bulkmcap
+from diffdrive_odom.tools.replaying import csvout, sinks
+from diffdrive_odom.tools.replaying.readings import replay_readings
+from diffdrive_odom.tools.replaying.stats import ReplayStats
 
 from paths import DATA
 
@@ -54,14 +56,14 @@ def _replay(bag: Path, settings: OdometrySettings, out: Path, *, bulk: bool,
     with bagwriter.BagWriter(out, storage) as w, csvout.CsvWriter(out.with_suffix(".csv")) as t:
         w.add_topic("/odom", bagio.ODOMETRY)
         w.add_topic("/tf", bagio.TF_MESSAGE)
-        sink = sinks.output_sink(settings, w, t)
+        sink = sinks.OutputSink(settings, w, t)
         if not bulk:
             if isinstance(w._writer.storage, bulkmcap.FastMcapWriter):  # rosbags' own index
                 w._writer.storage.close_chunk = (  # type: ignore[method-assign]
                     McapWriter.close_chunk.__get__(w._writer.storage))
-            return replay.replay_readings(bagreadings.read_joint_states(bag), settings,
+            return replay_readings(bagreadings.read_joint_states(bag), settings,
                                           lambda p: sink(p))
-        return replay.replay_readings(bagreadings.read_joint_states(bag), settings, sink)
+        return replay_readings(bagreadings.read_joint_states(bag), settings, sink)
 
 
 def _mcap(out: Path) -> bytes:

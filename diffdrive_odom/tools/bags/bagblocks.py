@@ -3,9 +3,9 @@
 Why: a driver's messages share one byte layout, so a run of them is a few numpy views
 (:class:`~diffdrive_odom.wire.jointstate.JointBlockDecoder`) instead of a Python call
 each; replay's fast lane and calibration take the blocks as arrays. The readings and
-their order are exactly those of :func:`~diffdrive_odom.tools.bagreadings.iter_joint_states`:
+their order are exactly those of :func:`~diffdrive_odom.tools.bags.bagreadings.iter_readings`:
 what is not alike goes through its one-by-one decoder, and everything through the one
-stamp-order rule (:class:`~diffdrive_odom.tools.reorder.Reorder`).
+stamp-order rule (:class:`~diffdrive_odom.tools.bags.reorder.Reorder`).
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
-from diffdrive_odom.tools.bagio import JOINT_STATE, connections_for, open_bag
-from diffdrive_odom.tools.bagreadings import JointStateReader, iter_joint_states
-from diffdrive_odom.tools.reorder import REORDER_WINDOW, Reorder
+from diffdrive_odom.tools.bags.bagio import JOINT_STATE, connections_for, open_bag
+from diffdrive_odom.tools.bags.bagreadings import JointStateReader, Stream, iter_readings
+from diffdrive_odom.tools.bags.reorder import REORDER_WINDOW, Reorder
 from diffdrive_odom.wire.jointstate import JointBlockDecoder
 
 GROUP = 1024  # messages decoded into blocks at a time (memory stays flat)
@@ -31,15 +31,16 @@ def iter_joint_blocks(
     window: int = REORDER_WINDOW,
     jump_back_ns: int = 1_000_000_000,
 ) -> Iterator[JointReading | JointBlock]:
-    """:func:`iter_joint_states`, with runs of alike messages as :class:`JointBlock`s.
+    """:func:`iter_readings`, with runs of alike messages as :class:`JointBlock`s.
 
     The same readings in the same order (opening the blocks gives exactly what
-    :func:`iter_joint_states` yields); a run of messages of one byte layout in stamp
+    :func:`iter_readings` yields); a run of messages of one byte layout in stamp
     order is decoded at once. ROS 1 bags, whose bytes that decoder does not read, come
     one by one.
     """
     if not reader.is2:
-        yield from iter_joint_states(reader, topic, None, window, jump_back_ns)
+        yield from iter_readings(reader, topic, stream=Stream(window=window,
+                                                              jump_back_ns=jump_back_ns))
         return
     joints = connections_for(reader, topic, (JOINT_STATE,))
     decode, blocks = JointStateReader(reader), JointBlockDecoder()

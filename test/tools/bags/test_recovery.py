@@ -24,9 +24,10 @@ from mcap.writer import Writer as McapLibWriter
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from diffdrive_odom.tools import bagio, bagreadings, recovery, replay
-from diffdrive_odom.tools.args import load_settings
+from diffdrive_odom.tools.bags import bagio, bagreadings, recovery
 from diffdrive_odom.tools.cli import main as cli
+from diffdrive_odom.tools.cmdline.args import load_settings
+from diffdrive_odom.tools.replaying.readings import replay_readings
 
 from bagutil import write_params
 
@@ -156,7 +157,7 @@ def test_a_torn_mcap_replays_to_the_bit_as_the_intact_bag_of_its_readings(
 
     def poses(bag: Path) -> list[Any]:
         out: list[Any] = []
-        replay.replay_readings(bagreadings.read_joint_states(bag), settings, out.append)
+        replay_readings(bagreadings.read_joint_states(bag), settings, out.append)
         return out
 
     before = sorted(p.name for p in torn.iterdir())

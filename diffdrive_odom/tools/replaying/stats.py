@@ -1,7 +1,7 @@
 """What a replay did: its counters, the summary line it prints, and what the tests read.
 
 Apart from :mod:`~diffdrive_odom.tools.replay` (the command and its readings engine)
-because the open-loop engine (:mod:`~diffdrive_odom.tools.openloop_replay`) fills the
+because the open-loop engine (:mod:`~diffdrive_odom.tools.replaying.openloop`) fills the
 same record and the fleet's table reads it.
 """
 
