@@ -59,6 +59,18 @@ def test_a_geometry_a_few_percent_off_is_not_read_as_slip(n: int) -> None:
 
 
 @pytest.mark.parametrize("n", (0, 2, 6))
+def test_a_flagged_step_never_makes_the_position_worse_than_the_wheels_mean(n: int) -> None:
+    """Whatever the slip rule decides for a flagged step's distance, the run's ATE is no
+    worse (0.5 mm slack) than with every flagged step's distance the wheels' mean, as the
+    wheels alone have it (slip_distance_from_other_wheel false)."""
+    run = recording(n)
+    assert run.truth is not None
+    mean, _ = package(run, {"use_imu": True, "slip_distance_from_other_wheel": False})
+    ate = [evaluate(t, run.truth).ate_rmse_best_fit_m for t in (aided(n)[0], mean)]
+    assert ate[0] <= ate[1] + 5e-4, ate
+
+
+@pytest.mark.parametrize("n", (0, 2, 6))
 def test_the_gyro_helps_on_every_run_with_ground_truth(n: int) -> None:
     """ATE after the best SE(2) fit: within 10 % of the ten-line gyrodometry, and at
     least 3x better than the wheels where the run turns more than a radian."""
