@@ -28,7 +28,7 @@ from diffdrive_odom.core.commands.cmd_vel_pipeline import (
 )
 from diffdrive_odom.core.commands.limits import AxisLimits, CommandLimits, ddc_axis_limits
 from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
-from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
 from diffdrive_odom.settings.geometry import (
     CMD_VEL_TIMEOUT_PARAM,
     GEOMETRY_PARAMS,
@@ -144,10 +144,7 @@ def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
             right_wheel_names=v["right_wheel_names"],
             ticks_per_revolution=v["ticks_per_revolution"],
         )
-    fmt = v["wheel_command_format"]
-    if fmt not in WHEEL_COMMAND_FORMATS:
-        raise ParameterError("wheel_command_format",
-                             f"must be one of {', '.join(WHEEL_COMMAND_FORMATS)}, got {fmt!r}")
+    fmt = one_of("wheel_command_format", v["wheel_command_format"], WHEEL_COMMAND_FORMATS)
     if fmt == TICKS_PER_SECOND and wheels.ticks_per_revolution <= 0.0:
         raise ParameterError("ticks_per_revolution",
                              f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")

@@ -20,7 +20,7 @@ from diffdrive_odom.core.motion.path_following import Gains
 from diffdrive_odom.core.motion.paths import Path, Point, circle, polyline, route_points
 from diffdrive_odom.core.motion.routes import make_route
 from diffdrive_odom.core.motion.routes import names as route_names
-from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, STAMPED_CMD_VEL_PARAM, build_geometry
 from diffdrive_odom.settings.params import (
     NON_NEGATIVE,
@@ -131,7 +131,7 @@ def read_waypoints(path: str) -> list[Point]:
 
 
 def _path(v: Mapping[str, Any]) -> Path | None:
-    kind = v[_p("path_type")]
+    kind = one_of(_p("path_type"), v[_p("path_type")], PATH_TYPES)
     corner = v[_p("corner_radius")]
     if kind == NONE:
         return None
@@ -153,15 +153,12 @@ def _path(v: Mapping[str, Any]) -> Path | None:
                                               f"umbmark_cw, umbmark_ccw, umbmark), got {name!r}")
         with as_parameter_error(rename={"side": _p("route_size")}):
             points = route_points(make_route(name, size or None))
-    elif kind in (LINE, POLYLINE):
+    else:  # LINE, POLYLINE
         file = v[_p("waypoints_file")]
         points = (read_waypoints(file) if kind == POLYLINE and file
                   else _pairs(_p("points"), v[_p("points")]))
         if kind == LINE and len(points) != 2:
             raise ParameterError(_p("points"), f"a line takes 2 points, got {len(points)}")
-    else:
-        raise ParameterError(_p("path_type"),
-                             f"must be one of {', '.join(PATH_TYPES)}, got {kind!r}")
     with as_parameter_error(PREFIX):
         return polyline(points, corner)
 

@@ -28,7 +28,7 @@ from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_SEPARATION_STDDEV_RATIO,
     NoiseModel,
 )
-from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
 from diffdrive_odom.settings.geometry import (
     CMD_VEL_TIMEOUT_PARAM,
     GEOMETRY_PARAMS,
@@ -240,19 +240,12 @@ COVARIANCE_MODELS = ("propagated", "static")
 
 def _stamp_source(value: str, name: str = "stamp_source") -> StampSource:
     """The ``stamp_source`` (or ``name``) value, or ParameterError naming the choices."""
-    try:
-        return StampSource(value)
-    except ValueError:
-        choices = ", ".join(StampSource)
-        raise ParameterError(name, f"must be one of {choices}, got {value!r}") from None
+    return StampSource(one_of(name, value, StampSource))
 
 
 def _noise_model(v: Mapping[str, Any]) -> NoiseModel | None:
     """The wheel noise model, or None for ``covariance_model: static``."""
-    model = v["covariance_model"]
-    if model not in COVARIANCE_MODELS:
-        raise ParameterError(
-            "covariance_model", f"must be one of {', '.join(COVARIANCE_MODELS)}, got {model!r}")
+    model = one_of("covariance_model", v["covariance_model"], COVARIANCE_MODELS)
     with as_parameter_error():
         noise = NoiseModel(v["wheel_noise_k_left"], v["wheel_noise_k_right"],
                            v["wheel_radius_stddev_ratio"], v["wheel_separation_stddev_ratio"],
@@ -332,10 +325,7 @@ def _open_loop_config(v: Mapping[str, Any], pose_diag: tuple[float, ...],
 
 def _online_config(v: Mapping[str, Any]) -> OnlineConfig | None:
     """``online_calibration``'s settings with ``monitor`` or ``apply``, None with ``disabled``."""
-    mode = v["online_calibration"]
-    if mode not in ONLINE_MODES:
-        raise ParameterError("online_calibration",
-                             f"must be one of {', '.join(ONLINE_MODES)}, got {mode!r}")
+    mode = one_of("online_calibration", v["online_calibration"], ONLINE_MODES)
     with as_parameter_error():
         cfg = OnlineConfig(min_turn=v["online_calibration_min_turn"],
                            random_walk=v["online_calibration_random_walk"],

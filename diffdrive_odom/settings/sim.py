@@ -20,7 +20,7 @@ from diffdrive_odom.core.commands.cmd_vel_pipeline import (
 from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import SimConfig, SlipEvent
-from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
 from diffdrive_odom.settings.geometry import LENGTH, check_lengths
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
@@ -179,10 +179,7 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
         )
         encoders = EncoderConfig(v["left_wheel_names"], v["right_wheel_names"],
                                  v["ticks_per_revolution"], v["encoder_counter_bits"])
-    units = v["joint_state_units"]
-    if units not in JOINT_STATE_UNITS:
-        raise ParameterError("joint_state_units",
-                             f"must be one of {', '.join(JOINT_STATE_UNITS)}, got {units!r}")
+    units = one_of("joint_state_units", v["joint_state_units"], JOINT_STATE_UNITS)
     tpr = encoders.ticks_per_revolution
     if units == AUTO:
         units = TICKS if tpr > 0.0 else RADIANS
@@ -191,10 +188,7 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
     if units == RADIANS and encoders.counter_bits > 0:
         raise ParameterError("encoder_counter_bits",
                              "a wrapping counter needs joint_state_units ticks")
-    fmt = v["wheel_command_format"]
-    if fmt not in WHEEL_COMMAND_FORMATS:
-        raise ParameterError("wheel_command_format",
-                             f"must be one of {', '.join(WHEEL_COMMAND_FORMATS)}, got {fmt!r}")
+    fmt = one_of("wheel_command_format", v["wheel_command_format"], WHEEL_COMMAND_FORMATS)
     if fmt == TICKS_PER_SECOND and tpr <= 0.0:
         raise ParameterError("ticks_per_revolution",
                              f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")
