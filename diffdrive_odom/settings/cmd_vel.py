@@ -12,19 +12,10 @@ from collections.abc import Mapping
 from typing import Any
 
 from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    FLOAT64_ARRAY as FLOAT64_ARRAY,
-)
-from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    JOINT_STATE as JOINT_STATE,
-)
-from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    TICKS_PER_SECOND as TICKS_PER_SECOND,
-)
-from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    WHEEL_COMMAND_FORMATS as WHEEL_COMMAND_FORMATS,
-)
-from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    CmdVelSettings as CmdVelSettings,
+    FLOAT64_ARRAY,
+    TICKS_PER_SECOND,
+    WHEEL_COMMAND_FORMATS,
+    CmdVelSettings,
 )
 from diffdrive_odom.core.commands.limits import AxisLimits, CommandLimits, ddc_axis_limits
 from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
