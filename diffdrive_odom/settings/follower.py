@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path as FilePath
 from typing import Any
 
+from diffdrive_odom.core.errors import require_finite_min
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.motion.path_following import Gains
 from diffdrive_odom.core.motion.paths import Path, Point, circle, polyline, route_points
@@ -178,8 +179,7 @@ def follower_settings(values: Mapping[str, ParamValue]) -> FollowerSettings:
             max_speed_correction=v[_p("max_speed_correction")],
         )
     corner = v[_p("corner_radius")]
-    if not (math.isfinite(corner) and corner > 0.0):
-        raise ParameterError(_p("corner_radius"), f"must be finite and > 0, got {corner!r}")
+    require_finite_min(ParameterError, _p("corner_radius"), corner, exclusive=True)
     return FollowerSettings(
         geometry=geometry,
         gains=gains,

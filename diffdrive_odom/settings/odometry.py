@@ -10,6 +10,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from diffdrive_odom.core.errors import require_finite_min
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.gyro.config import GyroConfig
 from diffdrive_odom.core.estimation.online.online_geometry import OnlineConfig
@@ -276,8 +277,7 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
     """Validate every odometry parameter; the first bad one raises ParameterError."""
     v = coerce_all(ODOMETRY_PARAMS, values)
     rate = v["publish_rate"]
-    if not (math.isfinite(rate) and rate >= 0.0):
-        raise ParameterError("publish_rate", f"must be finite and >= 0, got {rate!r}")
+    require_finite_min(ParameterError, "publish_rate", rate)
     prefix = frame_prefix(v["tf_frame_prefix_enable"], v["tf_frame_prefix"], namespace)
     for name in ("odom_frame_id", "base_frame_id"):
         if not v[name].strip("/"):

@@ -17,6 +17,7 @@ from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     TICKS_PER_SECOND,
     WHEEL_COMMAND_FORMATS,
 )
+from diffdrive_odom.core.errors import require_finite_min
 from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import SimConfig, SlipEvent
@@ -200,8 +201,7 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
         raise ParameterError("real_time_factor", f"must be > 0 and <= 100, got {rtf!r}")
     if v["random_seed"] < 0:  # numpy's generator takes no negative seed
         raise ParameterError("random_seed", f"must be >= 0, got {v['random_seed']!r}")
-    if not math.isfinite(v["imu_rate"]) or v["imu_rate"] < 0.0:
-        raise ParameterError("imu_rate", f"must be finite and >= 0, got {v['imu_rate']!r}")
+    require_finite_min(ParameterError, "imu_rate", v["imu_rate"])
     for name in ("world_frame_id", "base_frame_id", "imu_frame_id"):
         if not v[name].strip("/"):
             raise ParameterError(name, "must not be empty")
