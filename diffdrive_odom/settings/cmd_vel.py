@@ -18,12 +18,12 @@ from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     CmdVelSettings,
 )
 from diffdrive_odom.core.commands.limits import AxisLimits, CommandLimits, ddc_axis_limits
-from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
 from diffdrive_odom.settings.geometry import (
     CMD_VEL_TIMEOUT_PARAM,
     GEOMETRY_PARAMS,
     STAMPED_CMD_VEL_PARAM,
+    build_encoders,
     build_geometry,
 )
 from diffdrive_odom.settings.params import (
@@ -128,13 +128,7 @@ def _axis_limits(axis: str, v: Mapping[str, Any]) -> AxisLimits:
 def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
     """Validate every cmd_vel parameter; the first bad one raises ParameterError."""
     v = coerce_all(CMD_VEL_PARAMS, values)
-    geometry = build_geometry(v)
-    with as_parameter_error():
-        wheels = EncoderConfig(
-            left_wheel_names=v["left_wheel_names"],
-            right_wheel_names=v["right_wheel_names"],
-            ticks_per_revolution=v["ticks_per_revolution"],
-        )
+    geometry, wheels = build_geometry(v), build_encoders(v)
     fmt = one_of("wheel_command_format", v["wheel_command_format"], WHEEL_COMMAND_FORMATS)
     if fmt == TICKS_PER_SECOND and wheels.ticks_per_revolution <= 0.0:
         raise ParameterError("ticks_per_revolution",

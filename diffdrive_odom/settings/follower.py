@@ -30,6 +30,7 @@ from diffdrive_odom.settings.params import (
     ParamValue,
     Range,
     coerce_all,
+    defaults,
 )
 
 PREFIX = "follower."
@@ -167,7 +168,7 @@ def _path(v: Mapping[str, Any]) -> Path | None:
 def follower_settings(values: Mapping[str, ParamValue]) -> FollowerSettings:
     """Validate every follower parameter; the first bad one raises ParameterError."""
     v = coerce_all(FOLLOWER_PARAMS, values)
-    geometry = build_geometry({**{s.name: s.default for s in GEOMETRY_PARAMS}, **v})
+    geometry = build_geometry({**defaults(GEOMETRY_PARAMS), **v})
     with as_parameter_error(PREFIX):
         gains = Gains(
             k_p=v[_p("k_p")],

@@ -89,13 +89,16 @@ def build_geometry(v: Mapping[str, Any]) -> Geometry:
 
 
 def build_encoders(v: Mapping[str, Any]) -> EncoderConfig:
-    """Encoder config from coerced values; errors name the ROS parameter."""
+    """Encoder config from coerced values; errors name the ROS parameter.
+
+    Without ``encoder_counter_bits`` (the cmd_vel node reads no counter): no wrap.
+    """
     with as_parameter_error():
         return EncoderConfig(
             left_wheel_names=v["left_wheel_names"],
             right_wheel_names=v["right_wheel_names"],
             ticks_per_revolution=v["ticks_per_revolution"],
-            counter_bits=v["encoder_counter_bits"],
+            counter_bits=v.get("encoder_counter_bits", 0),
         )
 
 

@@ -18,11 +18,10 @@ from diffdrive_odom.core.commands.cmd_vel_pipeline import (
     WHEEL_COMMAND_FORMATS,
 )
 from diffdrive_odom.core.errors import require_finite_min
-from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import SimConfig, SlipEvent
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
-from diffdrive_odom.settings.geometry import LENGTH, check_lengths
+from diffdrive_odom.settings.geometry import LENGTH, build_encoders, check_lengths
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
     COUNTER_BITS,
@@ -178,8 +177,7 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
             left_wheel_sign=v["left_wheel_sign"],
             right_wheel_sign=v["right_wheel_sign"],
         )
-        encoders = EncoderConfig(v["left_wheel_names"], v["right_wheel_names"],
-                                 v["ticks_per_revolution"], v["encoder_counter_bits"])
+    encoders = build_encoders(v)
     units = one_of("joint_state_units", v["joint_state_units"], JOINT_STATE_UNITS)
     tpr = encoders.ticks_per_revolution
     if units == AUTO:
