@@ -125,14 +125,20 @@ def _axis_limits(axis: str, v: Mapping[str, Any]) -> AxisLimits:
         })
 
 
+def wheel_command_format(value: str, ticks_per_revolution: float) -> str:
+    """``wheel_command_format`` (the cmd_vel node's output, the sim's input), checked."""
+    fmt = one_of("wheel_command_format", value, WHEEL_COMMAND_FORMATS)
+    if fmt == TICKS_PER_SECOND and ticks_per_revolution <= 0.0:
+        raise ParameterError("ticks_per_revolution",
+                             f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")
+    return fmt
+
+
 def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
     """Validate every cmd_vel parameter; the first bad one raises ParameterError."""
     v = coerce_all(CMD_VEL_PARAMS, values)
     geometry, wheels = build_geometry(v), build_encoders(v)
-    fmt = one_of("wheel_command_format", v["wheel_command_format"], WHEEL_COMMAND_FORMATS)
-    if fmt == TICKS_PER_SECOND and wheels.ticks_per_revolution <= 0.0:
-        raise ParameterError("ticks_per_revolution",
-                             f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")
+    fmt = wheel_command_format(v["wheel_command_format"], wheels.ticks_per_revolution)
     timeout = v["cmd_vel_timeout"]
     if not (math.isfinite(timeout) and timeout >= 0.0):
         raise ParameterError("cmd_vel_timeout",

@@ -3,7 +3,7 @@
 The simulated robot has rows of its own: nominal geometry with defaults (the demo's
 robot) and the TRUE geometry the base moves with, which may differ from the nominal
 one, as a real robot's does. ``wheel_command_format`` takes the cmd_vel node's
-output formats, defined once in ``cmd_vel_settings``.
+output formats, checked once in ``settings.cmd_vel.wheel_command_format``.
 """
 
 from __future__ import annotations
@@ -12,14 +12,11 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    FLOAT64_ARRAY,
-    TICKS_PER_SECOND,
-    WHEEL_COMMAND_FORMATS,
-)
+from diffdrive_odom.core.commands.cmd_vel_pipeline import FLOAT64_ARRAY
 from diffdrive_odom.core.errors import require_finite_min
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import SimConfig, SlipEvent
+from diffdrive_odom.settings.cmd_vel import wheel_command_format
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
 from diffdrive_odom.settings.geometry import LENGTH, build_encoders, check_lengths
 from diffdrive_odom.settings.params import (
@@ -187,10 +184,7 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
     if units == RADIANS and encoders.counter_bits > 0:
         raise ParameterError("encoder_counter_bits",
                              "a wrapping counter needs joint_state_units ticks")
-    fmt = one_of("wheel_command_format", v["wheel_command_format"], WHEEL_COMMAND_FORMATS)
-    if fmt == TICKS_PER_SECOND and tpr <= 0.0:
-        raise ParameterError("ticks_per_revolution",
-                             f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")
+    fmt = wheel_command_format(v["wheel_command_format"], tpr)
     rate = v["joint_state_rate"]
     if not (math.isfinite(rate) and 0.0 < rate <= 2000.0):
         raise ParameterError("joint_state_rate", f"must be > 0 and <= 2000 [Hz], got {rate!r}")
