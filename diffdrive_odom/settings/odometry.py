@@ -173,12 +173,10 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("covariance_model", "string", "propagated",
               "propagated: covariance from wheel noise through each step (grows with "
               "distance); static: the two diagonals below, as diff_drive_controller."),
-    ParamSpec("wheel_noise_k_left", "double", DEFAULT_K,
-              "Left wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated).",
-              range=NON_NEGATIVE),
-    ParamSpec("wheel_noise_k_right", "double", DEFAULT_K,
-              "Right wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated).",
-              range=NON_NEGATIVE),
+    *(ParamSpec(f"wheel_noise_k_{side}", "double", DEFAULT_K,
+                f"{side.capitalize()} wheel-travel noise [m]: a step's arc d has variance "
+                "k * abs(d) (propagated).", range=NON_NEGATIVE)
+      for side in ("left", "right")),
     ParamSpec("rotation_noise_k", "double", DEFAULT_ROTATION_K,
               "Rotation noise [rad]: a step's heading change dtheta has its own variance "
               "k * abs(dtheta), slip while turning (propagated, wheels only); calibrate "
