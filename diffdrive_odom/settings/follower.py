@@ -31,6 +31,7 @@ from diffdrive_odom.settings.params import (
     Range,
     coerce_all,
     defaults,
+    from_fields,
 )
 
 PREFIX = "follower."
@@ -169,16 +170,7 @@ def follower_settings(values: Mapping[str, ParamValue]) -> FollowerSettings:
     """Validate every follower parameter; the first bad one raises ParameterError."""
     v = coerce_all(FOLLOWER_PARAMS, values)
     geometry = build_geometry({**defaults(GEOMETRY_PARAMS), **v})
-    with as_parameter_error(PREFIX):
-        gains = Gains(
-            k_p=v[_p("k_p")],
-            k_i=v[_p("k_i")],
-            look_ahead=v[_p("look_ahead")],
-            desired_speed=v[_p("desired_speed")],
-            max_angular_velocity=v[_p("max_angular_velocity")],
-            min_alignment=v[_p("min_alignment")],
-            max_speed_correction=v[_p("max_speed_correction")],
-        )
+    gains = from_fields(Gains, v, PREFIX)
     corner = v[_p("corner_radius")]
     require_finite_min(ParameterError, _p("corner_radius"), corner, exclusive=True)
     return FollowerSettings(

@@ -23,6 +23,7 @@ from diffdrive_odom.settings.params import (
     SIGN,
     ParamSpec,
     Range,
+    from_fields,
 )
 
 # A wheel or a track under 1 mm is no robot's but a value in the wrong unit (1e-9): every
@@ -71,16 +72,7 @@ def check_lengths(v: Mapping[str, Any], names: tuple[str, ...]) -> None:
 
 def build_geometry(v: Mapping[str, Any]) -> Geometry:
     """Geometry from coerced values; errors name the ROS parameter."""
-    with as_parameter_error():
-        geometry = Geometry(
-            wheel_radius=v["wheel_radius"],
-            wheel_separation=v["wheel_separation"],
-            left_wheel_radius_multiplier=v["left_wheel_radius_multiplier"],
-            right_wheel_radius_multiplier=v["right_wheel_radius_multiplier"],
-            wheel_separation_multiplier=v["wheel_separation_multiplier"],
-            left_wheel_sign=v["left_wheel_sign"],
-            right_wheel_sign=v["right_wheel_sign"],
-        )
+    geometry = from_fields(Geometry, v)
     check_lengths(v, ("wheel_radius", "wheel_separation"))
     return geometry
 

@@ -47,6 +47,7 @@ from diffdrive_odom.settings.params import (
     ParamValue,
     Range,
     coerce_all,
+    from_fields,
 )
 
 _G = GyroConfig()
@@ -223,17 +224,6 @@ ODOMETRY_PARAMS: tuple[ParamSpec, ...] = (
     GEOMETRY_PARAMS + ODOMETRY_OWN_PARAMS + (STAMPED_CMD_VEL_PARAM, CMD_VEL_TIMEOUT_PARAM))
 
 
-def _estimator_config(v: Mapping[str, Any]) -> EstimatorConfig:
-    """Estimator config from coerced values; errors name the ROS parameter."""
-    with as_parameter_error():
-        return EstimatorConfig(
-            max_wheel_speed=v["max_wheel_speed"],
-            velocity_rolling_window_size=v["velocity_rolling_window_size"],
-            time_jump_threshold=v["time_jump_threshold"],
-            max_reading_gap=v["max_reading_gap"],
-        )
-
-
 COVARIANCE_MODELS = ("propagated", "static")
 
 
@@ -284,7 +274,8 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
     base_frame = prefix + v["base_frame_id"].lstrip("/")
     if odom_frame == base_frame:
         raise ParameterError("base_frame_id", "must differ from odom_frame_id")
-    geometry, encoders, estimator = build_geometry(v), build_encoders(v), _estimator_config(v)
+    geometry, encoders = build_geometry(v), build_encoders(v)
+    estimator = from_fields(EstimatorConfig, v)
     pose_diag = _covariance("pose_covariance_diagonal", v["pose_covariance_diagonal"])
     twist_diag = _covariance("twist_covariance_diagonal", v["twist_covariance_diagonal"])
     noise = _noise_model(v)
