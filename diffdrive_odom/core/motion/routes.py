@@ -129,6 +129,12 @@ def waypoints(route: Route, start: Pose2D = ORIGIN) -> list[Pose2D]:
     return poses
 
 
+def _positive(**values: float) -> None:
+    """Refuse (RouteError) any of ``values`` that is not finite and > 0, in order."""
+    for field, value in values.items():
+        require_finite_min(RouteError, field, value, exclusive=True)
+
+
 def _pause(pause: float) -> tuple[Segment, ...]:
     return (Segment(pause),) if pause > 0.0 else ()
 
@@ -142,8 +148,7 @@ def from_waypoints(
     name: str = "waypoints",
 ) -> Route:
     """Turn in place towards each point, then drive straight to it (the UMBmark way)."""
-    require_finite_min(RouteError, "linear", linear, exclusive=True)
-    require_finite_min(RouteError, "angular", angular, exclusive=True)
+    _positive(linear=linear, angular=angular)
     segments: list[Segment] = []
     x, y, theta = start.x, start.y, start.theta
     for px, py in points:
@@ -170,9 +175,7 @@ def square(
     name: str | None = None,
 ) -> Route:
     """Drive ``side`` metres, turn 90 degrees in place, four times: back at the start."""
-    require_finite_min(RouteError, "side", side, exclusive=True)
-    require_finite_min(RouteError, "linear", linear, exclusive=True)
-    require_finite_min(RouteError, "angular", angular, exclusive=True)
+    _positive(side=side, linear=linear, angular=angular)
     turn_rate = -angular if clockwise else angular
     segments: list[Segment] = []
     for _ in range(4):
@@ -217,9 +220,7 @@ def circle(
     pause: float = 0.5,
 ) -> Route:
     """``laps`` turns around a circle of ``radius`` (left of the start for CCW)."""
-    require_finite_min(RouteError, "radius", radius, exclusive=True)
-    require_finite_min(RouteError, "linear", linear, exclusive=True)
-    require_finite_min(RouteError, "laps", laps, exclusive=True)
+    _positive(radius=radius, linear=linear, laps=laps)
     angular = (-linear if clockwise else linear) / radius
     duration = 2.0 * math.pi * radius * laps / linear
     return Route(f"circle_{radius:g}m", (Segment(duration, linear, angular), *_pause(pause)))
