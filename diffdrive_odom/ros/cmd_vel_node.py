@@ -20,7 +20,12 @@ from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from diffdrive_odom.core.commands.cmd_vel_pipeline import CommandPipeline, Tick
+from diffdrive_odom.core.commands.cmd_vel_pipeline import (
+    JOINT_STATE,
+    CmdVelSettings,
+    CommandPipeline,
+    Tick,
+)
 from diffdrive_odom.core.health.base_diagnostics import CommandHealth, CommandState, cmd_vel_report
 from diffdrive_odom.core.health.diagnostics import RateMeter, Report, Reporter
 from diffdrive_odom.ros.cmd_vel_input import CommandInput, Vector
@@ -29,12 +34,7 @@ from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS
 from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.ros.throttle import WARN_THROTTLE_S, KeyedThrottle
-from diffdrive_odom.settings.cmd_vel import (
-    CMD_VEL_PARAMS,
-    JOINT_STATE,
-    CmdVelSettings,
-    cmd_vel_settings,
-)
+from diffdrive_odom.settings.cmd_vel import CMD_VEL_PARAMS, cmd_vel_settings
 
 NODE_NAME = "cmd_vel_node"
 DIAGNOSTIC_TASK = "cmd_vel"  # status "cmd_vel_node: cmd_vel" on /diagnostics

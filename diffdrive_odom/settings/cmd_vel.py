@@ -12,27 +12,18 @@ from collections.abc import Mapping
 from typing import Any
 
 from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    FLOAT64_ARRAY as FLOAT64_ARRAY,
-)
-from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    JOINT_STATE as JOINT_STATE,
-)
-from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    TICKS_PER_SECOND as TICKS_PER_SECOND,
-)
-from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    WHEEL_COMMAND_FORMATS as WHEEL_COMMAND_FORMATS,
-)
-from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    CmdVelSettings as CmdVelSettings,
+    FLOAT64_ARRAY,
+    TICKS_PER_SECOND,
+    WHEEL_COMMAND_FORMATS,
+    CmdVelSettings,
 )
 from diffdrive_odom.core.commands.limits import AxisLimits, CommandLimits, ddc_axis_limits
-from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
-from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
 from diffdrive_odom.settings.geometry import (
     CMD_VEL_TIMEOUT_PARAM,
     GEOMETRY_PARAMS,
     STAMPED_CMD_VEL_PARAM,
+    build_encoders,
     build_geometry,
 )
 from diffdrive_odom.settings.params import (
@@ -134,23 +125,20 @@ def _axis_limits(axis: str, v: Mapping[str, Any]) -> AxisLimits:
         })
 
 
+def wheel_command_format(value: str, ticks_per_revolution: float) -> str:
+    """``wheel_command_format`` (the cmd_vel node's output, the sim's input), checked."""
+    fmt = one_of("wheel_command_format", value, WHEEL_COMMAND_FORMATS)
+    if fmt == TICKS_PER_SECOND and ticks_per_revolution <= 0.0:
+        raise ParameterError("ticks_per_revolution",
+                             f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")
+    return fmt
+
+
 def cmd_vel_settings(values: Mapping[str, ParamValue]) -> CmdVelSettings:
     """Validate every cmd_vel parameter; the first bad one raises ParameterError."""
     v = coerce_all(CMD_VEL_PARAMS, values)
-    geometry = build_geometry(v)
-    with as_parameter_error():
-        wheels = EncoderConfig(
-            left_wheel_names=v["left_wheel_names"],
-            right_wheel_names=v["right_wheel_names"],
-            ticks_per_revolution=v["ticks_per_revolution"],
-        )
-    fmt = v["wheel_command_format"]
-    if fmt not in WHEEL_COMMAND_FORMATS:
-        raise ParameterError("wheel_command_format",
-                             f"must be one of {', '.join(WHEEL_COMMAND_FORMATS)}, got {fmt!r}")
-    if fmt == TICKS_PER_SECOND and wheels.ticks_per_revolution <= 0.0:
-        raise ParameterError("ticks_per_revolution",
-                             f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")
+    geometry, wheels = build_geometry(v), build_encoders(v)
+    fmt = wheel_command_format(v["wheel_command_format"], wheels.ticks_per_revolution)
     timeout = v["cmd_vel_timeout"]
     if not (math.isfinite(timeout) and timeout >= 0.0):
         raise ParameterError("cmd_vel_timeout",

@@ -7,7 +7,7 @@ parameter (one line at start, or the reason of a refused ``ros2 param set``).
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 
 from diffdrive_odom.core.errors import ConfigError
@@ -20,6 +20,13 @@ class ParameterError(ValueError):
         super().__init__(f"invalid parameter '{name}': {reason}")
         self.name = name
         self.reason = reason
+
+
+def one_of(name: str, value: str, choices: Iterable[str]) -> str:
+    """``value`` if it is one of ``choices``, else the ParameterError that lists them."""
+    if value not in tuple(choices):
+        raise ParameterError(name, f"must be one of {', '.join(choices)}, got {value!r}")
+    return value
 
 
 @contextmanager

@@ -15,12 +15,13 @@ from dataclasses import dataclass
 from pathlib import Path as FilePath
 from typing import Any
 
+from diffdrive_odom.core.errors import require_finite_min
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.motion.path_following import Gains
 from diffdrive_odom.core.motion.paths import Path, Point, circle, polyline, route_points
 from diffdrive_odom.core.motion.routes import make_route
 from diffdrive_odom.core.motion.routes import names as route_names
-from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
 from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, STAMPED_CMD_VEL_PARAM, build_geometry
 from diffdrive_odom.settings.params import (
     NON_NEGATIVE,
@@ -29,6 +30,8 @@ from diffdrive_odom.settings.params import (
     ParamValue,
     Range,
     coerce_all,
+    defaults,
+    from_fields,
 )
 
 PREFIX = "follower."
@@ -131,7 +134,7 @@ def read_waypoints(path: str) -> list[Point]:
 
 
 def _path(v: Mapping[str, Any]) -> Path | None:
-    kind = v[_p("path_type")]
+    kind = one_of(_p("path_type"), v[_p("path_type")], PATH_TYPES)
     corner = v[_p("corner_radius")]
     if kind == NONE:
         return None
@@ -153,15 +156,12 @@ def _path(v: Mapping[str, Any]) -> Path | None:
                                               f"umbmark_cw, umbmark_ccw, umbmark), got {name!r}")
         with as_parameter_error(rename={"side": _p("route_size")}):
             points = route_points(make_route(name, size or None))
-    elif kind in (LINE, POLYLINE):
+    else:  # LINE, POLYLINE
         file = v[_p("waypoints_file")]
         points = (read_waypoints(file) if kind == POLYLINE and file
                   else _pairs(_p("points"), v[_p("points")]))
         if kind == LINE and len(points) != 2:
             raise ParameterError(_p("points"), f"a line takes 2 points, got {len(points)}")
-    else:
-        raise ParameterError(_p("path_type"),
-                             f"must be one of {', '.join(PATH_TYPES)}, got {kind!r}")
     with as_parameter_error(PREFIX):
         return polyline(points, corner)
 
@@ -169,20 +169,10 @@ def _path(v: Mapping[str, Any]) -> Path | None:
 def follower_settings(values: Mapping[str, ParamValue]) -> FollowerSettings:
     """Validate every follower parameter; the first bad one raises ParameterError."""
     v = coerce_all(FOLLOWER_PARAMS, values)
-    geometry = build_geometry({**{s.name: s.default for s in GEOMETRY_PARAMS}, **v})
-    with as_parameter_error(PREFIX):
-        gains = Gains(
-            k_p=v[_p("k_p")],
-            k_i=v[_p("k_i")],
-            look_ahead=v[_p("look_ahead")],
-            desired_speed=v[_p("desired_speed")],
-            max_angular_velocity=v[_p("max_angular_velocity")],
-            min_alignment=v[_p("min_alignment")],
-            max_speed_correction=v[_p("max_speed_correction")],
-        )
+    geometry = build_geometry({**defaults(GEOMETRY_PARAMS), **v})
+    gains = from_fields(Gains, v, PREFIX)
     corner = v[_p("corner_radius")]
-    if not (math.isfinite(corner) and corner > 0.0):
-        raise ParameterError(_p("corner_radius"), f"must be finite and > 0, got {corner!r}")
+    require_finite_min(ParameterError, _p("corner_radius"), corner, exclusive=True)
     return FollowerSettings(
         geometry=geometry,
         gains=gains,

@@ -23,6 +23,7 @@ from diffdrive_odom.settings.params import (
     SIGN,
     ParamSpec,
     Range,
+    from_fields,
 )
 
 # A wheel or a track under 1 mm is no robot's but a value in the wrong unit (1e-9): every
@@ -38,18 +39,15 @@ GEOMETRY_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("wheel_separation", "double", 0.0,
               "Distance between the wheels' contact points [m]; must be set (at least "
               "0.001).", range=LENGTH),
-    ParamSpec("left_wheel_radius_multiplier", "double", 1.0,
-              "Correction factor on the left wheel radius (calibration).", range=POSITIVE),
-    ParamSpec("right_wheel_radius_multiplier", "double", 1.0,
-              "Correction factor on the right wheel radius (calibration).", range=POSITIVE),
+    *(ParamSpec(f"{side}_wheel_radius_multiplier", "double", 1.0,
+                f"Correction factor on the {side} wheel radius (calibration).", range=POSITIVE)
+      for side in ("left", "right")),
     ParamSpec("wheel_separation_multiplier", "double", 1.0,
               "Correction factor on the wheel separation (calibration).", range=POSITIVE),
-    ParamSpec("left_wheel_sign", "integer", 1,
-              "1 if the left joint angle grows when the robot drives forward, else -1.",
-              range=SIGN),
-    ParamSpec("right_wheel_sign", "integer", 1,
-              "1 if the right joint angle grows when the robot drives forward, else -1.",
-              range=SIGN),
+    *(ParamSpec(f"{side}_wheel_sign", "integer", 1,
+                f"1 if the {side} joint angle grows when the robot drives forward, else -1.",
+                range=SIGN)
+      for side in ("left", "right")),
     ParamSpec("left_wheel_names", "string_array", ["left_wheel_joint"],
               "Joint names of the left wheels (several are averaged).", read_only=True),
     ParamSpec("right_wheel_names", "string_array", ["right_wheel_joint"],
@@ -74,28 +72,22 @@ def check_lengths(v: Mapping[str, Any], names: tuple[str, ...]) -> None:
 
 def build_geometry(v: Mapping[str, Any]) -> Geometry:
     """Geometry from coerced values; errors name the ROS parameter."""
-    with as_parameter_error():
-        geometry = Geometry(
-            wheel_radius=v["wheel_radius"],
-            wheel_separation=v["wheel_separation"],
-            left_wheel_radius_multiplier=v["left_wheel_radius_multiplier"],
-            right_wheel_radius_multiplier=v["right_wheel_radius_multiplier"],
-            wheel_separation_multiplier=v["wheel_separation_multiplier"],
-            left_wheel_sign=v["left_wheel_sign"],
-            right_wheel_sign=v["right_wheel_sign"],
-        )
+    geometry = from_fields(Geometry, v)
     check_lengths(v, ("wheel_radius", "wheel_separation"))
     return geometry
 
 
 def build_encoders(v: Mapping[str, Any]) -> EncoderConfig:
-    """Encoder config from coerced values; errors name the ROS parameter."""
+    """Encoder config from coerced values; errors name the ROS parameter.
+
+    Without ``encoder_counter_bits`` (the cmd_vel node reads no counter): no wrap.
+    """
     with as_parameter_error():
         return EncoderConfig(
             left_wheel_names=v["left_wheel_names"],
             right_wheel_names=v["right_wheel_names"],
             ticks_per_revolution=v["ticks_per_revolution"],
-            counter_bits=v["encoder_counter_bits"],
+            counter_bits=v.get("encoder_counter_bits", 0),
         )
 
 

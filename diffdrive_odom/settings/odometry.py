@@ -10,6 +10,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from diffdrive_odom.core.errors import require_finite_min
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.gyro.config import GyroConfig
 from diffdrive_odom.core.estimation.online.online_geometry import OnlineConfig
@@ -28,7 +29,7 @@ from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_SEPARATION_STDDEV_RATIO,
     NoiseModel,
 )
-from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
 from diffdrive_odom.settings.geometry import (
     CMD_VEL_TIMEOUT_PARAM,
     GEOMETRY_PARAMS,
@@ -46,6 +47,7 @@ from diffdrive_odom.settings.params import (
     ParamValue,
     Range,
     coerce_all,
+    from_fields,
 )
 
 _G = GyroConfig()
@@ -172,12 +174,10 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("covariance_model", "string", "propagated",
               "propagated: covariance from wheel noise through each step (grows with "
               "distance); static: the two diagonals below, as diff_drive_controller."),
-    ParamSpec("wheel_noise_k_left", "double", DEFAULT_K,
-              "Left wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated).",
-              range=NON_NEGATIVE),
-    ParamSpec("wheel_noise_k_right", "double", DEFAULT_K,
-              "Right wheel-travel noise [m]: a step's arc d has variance k * abs(d) (propagated).",
-              range=NON_NEGATIVE),
+    *(ParamSpec(f"wheel_noise_k_{side}", "double", DEFAULT_K,
+                f"{side.capitalize()} wheel-travel noise [m]: a step's arc d has variance "
+                "k * abs(d) (propagated).", range=NON_NEGATIVE)
+      for side in ("left", "right")),
     ParamSpec("rotation_noise_k", "double", DEFAULT_ROTATION_K,
               "Rotation noise [rad]: a step's heading change dtheta has its own variance "
               "k * abs(dtheta), slip while turning (propagated, wheels only); calibrate "
@@ -224,35 +224,17 @@ ODOMETRY_PARAMS: tuple[ParamSpec, ...] = (
     GEOMETRY_PARAMS + ODOMETRY_OWN_PARAMS + (STAMPED_CMD_VEL_PARAM, CMD_VEL_TIMEOUT_PARAM))
 
 
-def _estimator_config(v: Mapping[str, Any]) -> EstimatorConfig:
-    """Estimator config from coerced values; errors name the ROS parameter."""
-    with as_parameter_error():
-        return EstimatorConfig(
-            max_wheel_speed=v["max_wheel_speed"],
-            velocity_rolling_window_size=v["velocity_rolling_window_size"],
-            time_jump_threshold=v["time_jump_threshold"],
-            max_reading_gap=v["max_reading_gap"],
-        )
-
-
 COVARIANCE_MODELS = ("propagated", "static")
 
 
 def _stamp_source(value: str, name: str = "stamp_source") -> StampSource:
     """The ``stamp_source`` (or ``name``) value, or ParameterError naming the choices."""
-    try:
-        return StampSource(value)
-    except ValueError:
-        choices = ", ".join(StampSource)
-        raise ParameterError(name, f"must be one of {choices}, got {value!r}") from None
+    return StampSource(one_of(name, value, StampSource))
 
 
 def _noise_model(v: Mapping[str, Any]) -> NoiseModel | None:
     """The wheel noise model, or None for ``covariance_model: static``."""
-    model = v["covariance_model"]
-    if model not in COVARIANCE_MODELS:
-        raise ParameterError(
-            "covariance_model", f"must be one of {', '.join(COVARIANCE_MODELS)}, got {model!r}")
+    model = one_of("covariance_model", v["covariance_model"], COVARIANCE_MODELS)
     with as_parameter_error():
         noise = NoiseModel(v["wheel_noise_k_left"], v["wheel_noise_k_right"],
                            v["wheel_radius_stddev_ratio"], v["wheel_separation_stddev_ratio"],
@@ -283,8 +265,7 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
     """Validate every odometry parameter; the first bad one raises ParameterError."""
     v = coerce_all(ODOMETRY_PARAMS, values)
     rate = v["publish_rate"]
-    if not (math.isfinite(rate) and rate >= 0.0):
-        raise ParameterError("publish_rate", f"must be finite and >= 0, got {rate!r}")
+    require_finite_min(ParameterError, "publish_rate", rate)
     prefix = frame_prefix(v["tf_frame_prefix_enable"], v["tf_frame_prefix"], namespace)
     for name in ("odom_frame_id", "base_frame_id"):
         if not v[name].strip("/"):
@@ -293,7 +274,8 @@ def odometry_settings(values: Mapping[str, ParamValue], namespace: str = "/") ->
     base_frame = prefix + v["base_frame_id"].lstrip("/")
     if odom_frame == base_frame:
         raise ParameterError("base_frame_id", "must differ from odom_frame_id")
-    geometry, encoders, estimator = build_geometry(v), build_encoders(v), _estimator_config(v)
+    geometry, encoders = build_geometry(v), build_encoders(v)
+    estimator = from_fields(EstimatorConfig, v)
     pose_diag = _covariance("pose_covariance_diagonal", v["pose_covariance_diagonal"])
     twist_diag = _covariance("twist_covariance_diagonal", v["twist_covariance_diagonal"])
     noise = _noise_model(v)
@@ -332,10 +314,7 @@ def _open_loop_config(v: Mapping[str, Any], pose_diag: tuple[float, ...],
 
 def _online_config(v: Mapping[str, Any]) -> OnlineConfig | None:
     """``online_calibration``'s settings with ``monitor`` or ``apply``, None with ``disabled``."""
-    mode = v["online_calibration"]
-    if mode not in ONLINE_MODES:
-        raise ParameterError("online_calibration",
-                             f"must be one of {', '.join(ONLINE_MODES)}, got {mode!r}")
+    mode = one_of("online_calibration", v["online_calibration"], ONLINE_MODES)
     with as_parameter_error():
         cfg = OnlineConfig(min_turn=v["online_calibration_min_turn"],
                            random_walk=v["online_calibration_random_walk"],

@@ -16,15 +16,19 @@ meaning (``-p wheel_radius:=1`` is an integer) into the declared type first.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
-from diffdrive_odom.settings.errors import ParameterError
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 ParamValue = Any
 
@@ -226,6 +230,19 @@ def defaults(specs: Iterable[ParamSpec]) -> dict[str, ParamValue]:
 def coerce_all(specs: Iterable[ParamSpec], values: Mapping[str, ParamValue]) -> dict[str, Any]:
     """Every spec's value from ``values`` (default where absent), typed; ParameterError if not."""
     return {s.name: s.coerce(values.get(s.name, s.default)) for s in specs}
+
+
+C = TypeVar("C", bound="DataclassInstance")
+
+
+def from_fields(cls: type[C], v: Mapping[str, Any], prefix: str = "") -> C:
+    """A core config whose every field is the parameter ``prefix + field``, from coerced values.
+
+    For the configs named as their parameters (Geometry, the estimator's, the follower's
+    gains); a ConfigError becomes the ParameterError naming that parameter.
+    """
+    with as_parameter_error(prefix):
+        return cls(**{f.name: v[prefix + f.name] for f in dataclasses.fields(cls)})
 
 
 # ------------------------------------------------------------------ rcl's rules

@@ -3,7 +3,7 @@
 The simulated robot has rows of its own: nominal geometry with defaults (the demo's
 robot) and the TRUE geometry the base moves with, which may differ from the nominal
 one, as a real robot's does. ``wheel_command_format`` takes the cmd_vel node's
-output formats, defined once in ``cmd_vel_settings``.
+output formats, checked once in ``settings.cmd_vel.wheel_command_format``.
 """
 
 from __future__ import annotations
@@ -12,16 +12,13 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from diffdrive_odom.core.commands.cmd_vel_pipeline import (
-    FLOAT64_ARRAY,
-    TICKS_PER_SECOND,
-    WHEEL_COMMAND_FORMATS,
-)
-from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
+from diffdrive_odom.core.commands.cmd_vel_pipeline import FLOAT64_ARRAY
+from diffdrive_odom.core.errors import require_finite_min
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import SimConfig, SlipEvent
-from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
-from diffdrive_odom.settings.geometry import LENGTH, check_lengths
+from diffdrive_odom.settings.cmd_vel import wheel_command_format
+from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
+from diffdrive_odom.settings.geometry import LENGTH, build_encoders, check_lengths
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
     COUNTER_BITS,
@@ -177,12 +174,8 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
             left_wheel_sign=v["left_wheel_sign"],
             right_wheel_sign=v["right_wheel_sign"],
         )
-        encoders = EncoderConfig(v["left_wheel_names"], v["right_wheel_names"],
-                                 v["ticks_per_revolution"], v["encoder_counter_bits"])
-    units = v["joint_state_units"]
-    if units not in JOINT_STATE_UNITS:
-        raise ParameterError("joint_state_units",
-                             f"must be one of {', '.join(JOINT_STATE_UNITS)}, got {units!r}")
+    encoders = build_encoders(v)
+    units = one_of("joint_state_units", v["joint_state_units"], JOINT_STATE_UNITS)
     tpr = encoders.ticks_per_revolution
     if units == AUTO:
         units = TICKS if tpr > 0.0 else RADIANS
@@ -191,13 +184,7 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
     if units == RADIANS and encoders.counter_bits > 0:
         raise ParameterError("encoder_counter_bits",
                              "a wrapping counter needs joint_state_units ticks")
-    fmt = v["wheel_command_format"]
-    if fmt not in WHEEL_COMMAND_FORMATS:
-        raise ParameterError("wheel_command_format",
-                             f"must be one of {', '.join(WHEEL_COMMAND_FORMATS)}, got {fmt!r}")
-    if fmt == TICKS_PER_SECOND and tpr <= 0.0:
-        raise ParameterError("ticks_per_revolution",
-                             f"must be > 0 when wheel_command_format is {TICKS_PER_SECOND}")
+    fmt = wheel_command_format(v["wheel_command_format"], tpr)
     rate = v["joint_state_rate"]
     if not (math.isfinite(rate) and 0.0 < rate <= 2000.0):
         raise ParameterError("joint_state_rate", f"must be > 0 and <= 2000 [Hz], got {rate!r}")
@@ -206,8 +193,7 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
         raise ParameterError("real_time_factor", f"must be > 0 and <= 100, got {rtf!r}")
     if v["random_seed"] < 0:  # numpy's generator takes no negative seed
         raise ParameterError("random_seed", f"must be >= 0, got {v['random_seed']!r}")
-    if not math.isfinite(v["imu_rate"]) or v["imu_rate"] < 0.0:
-        raise ParameterError("imu_rate", f"must be finite and >= 0, got {v['imu_rate']!r}")
+    require_finite_min(ParameterError, "imu_rate", v["imu_rate"])
     for name in ("world_frame_id", "base_frame_id", "imu_frame_id"):
         if not v[name].strip("/"):
             raise ParameterError(name, "must not be empty")

@@ -114,10 +114,7 @@ def _strings(
     buf: bytes, off: int, fixed: npt.NDArray[np.bool_] | None
 ) -> tuple[tuple[str, ...], int]:
     """A sequence of strings at ``off``: the texts and the offset after them."""
-    (count,) = U32.unpack_from(buf, off)
-    if fixed is not None:
-        fixed[off:off + 4] = True
-    off += 4
+    count, off = _count(buf, off, fixed)
     if count * 5 > len(buf) - off:  # each string is at least a length and its NUL
         raise ValueError(f"JointState bytes end early: {count} names announced")
     out = []
@@ -134,13 +131,17 @@ def _strings(
     return tuple(out), off
 
 
-def _doubles(buf: bytes, off: int, fixed: npt.NDArray[np.bool_] | None) -> tuple[Span, int]:
-    """A sequence of doubles at ``off`` (after padding): its span and the offset after it."""
-    off = align(off, 4)
+def _count(buf: bytes, off: int, fixed: npt.NDArray[np.bool_] | None) -> tuple[int, int]:
+    """A sequence's uint32 count at ``off`` (marked fixed) and the offset after it."""
     (count,) = U32.unpack_from(buf, off)
     if fixed is not None:
         fixed[off:off + 4] = True
-    off += 4
+    return count, off + 4
+
+
+def _doubles(buf: bytes, off: int, fixed: npt.NDArray[np.bool_] | None) -> tuple[Span, int]:
+    """A sequence of doubles at ``off`` (after padding): its span and the offset after it."""
+    count, off = _count(buf, align(off, 4), fixed)
     if count == 0:
         return (off, 0), off
     off = align(off, 8)

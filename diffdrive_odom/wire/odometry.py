@@ -56,7 +56,44 @@ class _Layout:
         return at
 
 
-class OdometryLayout:
+class _PlanarLayout:
+    """What Odometry and /tf share: a stamp, two frames, x, y and the quaternion's z, w."""
+
+    def __init__(self, lay: _Layout, frame_id: str, child_frame_id: str) -> None:
+        self._stamp = lay.put(STAMP, 4, 0, 0)
+        lay.string(frame_id)
+        lay.string(child_frame_id)
+        self._xy = lay.doubles(0.0, 0.0, 0.0)  # position / translation
+        self._qzw = lay.doubles(0.0, 0.0, 0.0, 1.0) + 16  # orientation / rotation z, w
+        self._buf = lay.buf  # grows in place with the fields a subclass adds
+
+    def _pose(self, sec: int, nanosec: int, x: float, y: float, qz: float,
+              qw: float) -> bytearray:
+        """The bytes with the stamp and the pose written in (the caller copies them)."""
+        buf = self._buf
+        STAMP.pack_into(buf, self._stamp, sec, nanosec)
+        _TWO.pack_into(buf, self._xy, x, y)
+        _TWO.pack_into(buf, self._qzw, qz, qw)
+        return buf
+
+    def _planar_rows(self, fields: PlanarFields,
+                     pose: npt.NDArray[np.float64]) -> npt.NDArray[np.uint8]:
+        """Rows of the bytes, each pose's stamp, x, y and quaternion z, w filled in."""
+        rows = np.tile(np.frombuffer(bytes(self._buf), dtype=np.uint8), (len(fields.sec), 1))
+        _put(rows, self._stamp, "<i4", fields.sec)
+        _put(rows, self._stamp + 4, "<u4", fields.nanosec)
+        _put(rows, self._xy, "<f8", pose[:, :2])
+        _put(rows, self._qzw, "<f8", fields.qzw)
+        return rows
+
+
+def _stamp_yaw(stamp_ns: int, yaw: float) -> tuple[int, int, float, float]:
+    """(sec, nanosec, qz, qw) of a stamp [ns] (> 0) and a planar heading."""
+    _, _, qz, qw = yaw_to_quaternion(yaw)
+    return (*split_ns(stamp_ns), qz, qw)
+
+
+class OdometryLayout(_PlanarLayout):
     """nav_msgs/Odometry bytes for fixed frames: stamp, planar pose and twist change.
 
     Position z, orientation x and y, linear y and z and angular x and y stay 0 (a
@@ -65,16 +102,11 @@ class OdometryLayout:
 
     def __init__(self, frame_id: str, child_frame_id: str) -> None:
         lay = _Layout()
-        self._stamp = lay.put(STAMP, 4, 0, 0)
-        lay.string(frame_id)
-        lay.string(child_frame_id)
-        self._xy = lay.doubles(0.0, 0.0, 0.0)  # pose.position
-        self._qzw = lay.doubles(0.0, 0.0, 0.0, 1.0) + 16  # pose.orientation z, w
+        super().__init__(lay, frame_id, child_frame_id)
         self._pose_cov = lay.doubles(*(0.0,) * 36)
         self._linear = lay.doubles(0.0, 0.0, 0.0)  # twist.linear
         self._angular = lay.doubles(0.0, 0.0, 0.0) + 16  # twist.angular z
         self._twist_cov = lay.doubles(*(0.0,) * 36)
-        self._buf = lay.buf
 
     def covariance(self, pose: Sequence[float], twist: Sequence[float]) -> None:
         """Set both 6x6 row-major covariances for this and the following messages."""
@@ -84,10 +116,7 @@ class OdometryLayout:
     def encode(self, sec: int, nanosec: int, x: float, y: float, qz: float, qw: float,
                linear: float, angular: float) -> bytes:
         """The message's bytes with these values."""
-        buf = self._buf
-        STAMP.pack_into(buf, self._stamp, sec, nanosec)
-        _TWO.pack_into(buf, self._xy, x, y)
-        _TWO.pack_into(buf, self._qzw, qz, qw)
+        buf = self._pose(sec, nanosec, x, y, qz, qw)
         _ONE.pack_into(buf, self._linear, linear)
         _ONE.pack_into(buf, self._angular, angular)
         return bytes(buf)
@@ -95,58 +124,27 @@ class OdometryLayout:
     def planar(self, stamp_ns: int, x: float, y: float, yaw: float, linear: float,
                angular: float) -> bytes:
         """The message of a planar pose and twist stamped ``stamp_ns`` (> 0)."""
-        sec, nanosec = split_ns(stamp_ns)
-        _, _, qz, qw = yaw_to_quaternion(yaw)
+        sec, nanosec, qz, qw = _stamp_yaw(stamp_ns, yaw)
         return self.encode(sec, nanosec, x, y, qz, qw, linear, angular)
 
 
-class TransformLayout:
+class TransformLayout(_PlanarLayout):
     """tf2_msgs/TFMessage bytes of one planar transform between fixed frames."""
 
     def __init__(self, frame_id: str, child_frame_id: str) -> None:
         lay = _Layout()
         lay.u32(1)  # one TransformStamped
-        self._stamp = lay.put(STAMP, 4, 0, 0)
-        lay.string(frame_id)
-        lay.string(child_frame_id)
-        self._xy = lay.doubles(0.0, 0.0, 0.0)  # translation
-        self._qzw = lay.doubles(0.0, 0.0, 0.0, 1.0) + 16  # rotation z, w
-        self._buf = lay.buf
+        super().__init__(lay, frame_id, child_frame_id)
 
     def encode(self, sec: int, nanosec: int, x: float, y: float, qz: float,
                qw: float) -> bytes:
         """The message's bytes with these values."""
-        buf = self._buf
-        STAMP.pack_into(buf, self._stamp, sec, nanosec)
-        _TWO.pack_into(buf, self._xy, x, y)
-        _TWO.pack_into(buf, self._qzw, qz, qw)
-        return bytes(buf)
+        return bytes(self._pose(sec, nanosec, x, y, qz, qw))
 
     def planar(self, stamp_ns: int, x: float, y: float, yaw: float) -> bytes:
         """The message of a planar pose stamped ``stamp_ns`` (> 0)."""
-        sec, nanosec = split_ns(stamp_ns)
-        _, _, qz, qw = yaw_to_quaternion(yaw)
+        sec, nanosec, qz, qw = _stamp_yaw(stamp_ns, yaw)
         return self.encode(sec, nanosec, x, y, qz, qw)
-
-
-def _filled(template: bytes | bytearray, n: int) -> npt.NDArray[np.uint8]:
-    """``n`` copies of a message's bytes, one row each, to fill in place."""
-    return np.tile(np.frombuffer(bytes(template), dtype=np.uint8), (n, 1))
-
-
-def _planar_rows(template: bytes | bytearray, at: tuple[int, int, int], fields: PlanarFields,
-                 pose: npt.NDArray[np.float64]) -> npt.NDArray[np.uint8]:
-    """Rows of ``template``, each pose's stamp, x, y and quaternion z, w filled in.
-
-    ``at``: the offsets of the stamp, x and z (the fields Odometry and /tf share).
-    """
-    stamp, xy, qzw = at
-    rows = _filled(template, len(fields.sec))
-    _put(rows, stamp, "<i4", fields.sec)
-    _put(rows, stamp + 4, "<u4", fields.nanosec)
-    _put(rows, xy, "<f8", pose[:, :2])
-    _put(rows, qzw, "<f8", fields.qzw)
-    return rows
 
 
 def _put(rows: npt.NDArray[np.uint8], at: int, dtype: str, values: npt.ArrayLike) -> None:
@@ -188,7 +186,7 @@ class BulkOdometry(OdometryLayout):
 
         ``fields``: the stamps and headings' fields (:func:`planar_fields`).
         """
-        rows = _planar_rows(self._buf, (self._stamp, self._xy, self._qzw), fields, pose)
+        rows = self._planar_rows(fields, pose)
         _put(rows, self._linear, "<f8", twist[:, 0])
         _put(rows, self._angular, "<f8", twist[:, 1])
         _put(rows, self._pose_cov, "<f8", pose_cov)
@@ -204,4 +202,4 @@ class BulkTransform(TransformLayout):
 
         ``fields``: the stamps and headings' fields (:func:`planar_fields`).
         """
-        return _planar_rows(self._buf, (self._stamp, self._xy, self._qzw), fields, pose)
+        return self._planar_rows(fields, pose)

@@ -31,7 +31,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
-from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.errors import ConfigError, require_finite_min
 from diffdrive_odom.core.estimation.setpose import (
     PoseRefusal,
     PoseRequest,
@@ -99,9 +99,7 @@ class OpenLoopConfig:
         if not (math.isfinite(self.timeout) and self.timeout >= 0.0):
             raise OpenLoopConfigError(
                 "cmd_vel_timeout", f"must be finite and >= 0 (0 = never), got {self.timeout!r}")
-        if not (math.isfinite(self.noise) and self.noise >= 0.0):
-            raise OpenLoopConfigError(
-                "open_loop_noise", f"must be finite and >= 0, got {self.noise!r}")
+        require_finite_min(OpenLoopConfigError, "open_loop_noise", self.noise)
 
     @property
     def topic(self) -> str:

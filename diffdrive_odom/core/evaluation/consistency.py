@@ -51,7 +51,6 @@ FloatArray = npt.NDArray[np.float64]
 REFERENCE_POSITION_M, REFERENCE_HEADING_DEG = 0.001, 0.5
 REFERENCE_ERROR: FloatArray = np.diag([REFERENCE_POSITION_M**2, REFERENCE_POSITION_M**2,
                                        math.radians(REFERENCE_HEADING_DEG) ** 2])
-NO_REFERENCE_ERROR: FloatArray = np.zeros((3, 3))
 CHI2_3_95 = 7.815  # chi-square (3 dof) 95 % quantile
 CHI2_3_999 = 16.266  # 99.9 %
 # Likelihood-ratio statistic above which a parameter at a boundary (0) is wanted by the

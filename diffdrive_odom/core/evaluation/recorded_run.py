@@ -20,8 +20,6 @@ from diffdrive_odom.core.geometry.kinematics import Geometry
 
 FloatArray = npt.NDArray[np.float64]
 
-PARAMETERS = ("left_radius", "right_radius", "separation")
-
 
 class CalibrationError(ValueError):
     """A run that cannot be used for calibration (says which and why)."""

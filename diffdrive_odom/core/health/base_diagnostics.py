@@ -17,6 +17,7 @@ from diffdrive_odom.core.health.diagnostics import (
     Report,
     by_reason_text,
     count_values,
+    dropped_since,
     finite,
     increase_since,
     seconds_text,
@@ -92,10 +93,8 @@ def cmd_vel_report(now: CommandHealth, before: CommandHealth | None = None) -> R
     """The cmd_vel node's health; ``before`` is the previous report's snapshot."""
     problems: list[tuple[Level, str]] = []
     state = _command_state(now, "command", "cmd_vel_timeout", problems)
-    dropped = increase_since(now.dropped, before.dropped if before else None)
-    if any(dropped.values()):
-        problems.append((Level.WARN, f"dropped {sum(dropped.values())} commands "
-                                     f"({by_reason_text(dropped)})"))
+    dropped = dropped_since(now.dropped, before.dropped if before else None, "commands",
+                            problems)
     out_rate = finite(now.output_rate_hz)
     if out_rate < MIN_OUTPUT_FRACTION * now.expected_output_hz:
         problems.append((Level.WARN, f"wheel commands at {out_rate:.1f} Hz, "
@@ -159,10 +158,8 @@ def follower_report(now: FollowerHealth, before: FollowerHealth | None = None) -
     age = now.odom_age_s
     if now.state is FollowerState.FOLLOWING and age is not None and age >= now.stale_after_s:
         problems.append((Level.WARN, f"no odometry for {finite(age):.2f} s while following"))
-    dropped = increase_since(now.dropped, before.dropped if before else None)
-    if any(dropped.values()):
-        problems.append((Level.WARN, f"dropped {sum(dropped.values())} messages "
-                                     f"({by_reason_text(dropped)})"))
+    dropped = dropped_since(now.dropped, before.dropped if before else None, "messages",
+                            problems)
     singular = now.near_singular - (before.near_singular if before else 0)
     if singular:
         problems.append((Level.WARN, f"{singular} steps heading across the path "
@@ -216,10 +213,8 @@ def sim_report(now: SimHealth, before: SimHealth | None = None) -> Report:
     """The simulated base's health; ``before`` is the previous report's snapshot."""
     problems: list[tuple[Level, str]] = []
     state = _command_state(now, "wheel command", "command_timeout", problems)
-    dropped = increase_since(now.dropped, before.dropped if before else None)
-    if any(dropped.values()):
-        problems.append((Level.WARN, f"dropped {sum(dropped.values())} wheel commands "
-                                     f"({by_reason_text(dropped)})"))
+    dropped = dropped_since(now.dropped, before.dropped if before else None, "wheel commands",
+                            problems)
     step_rate = finite(now.step_rate_hz)
     if step_rate < MIN_OUTPUT_FRACTION * now.expected_step_hz:
         problems.append((Level.WARN, f"simulating at {step_rate:.1f} steps/s, expected "

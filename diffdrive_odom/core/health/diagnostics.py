@@ -110,6 +110,16 @@ def by_reason_text(counts: Mapping[str, int]) -> str:
     return ", ".join(f"{k} {v}" for k, v in counts.items() if v)
 
 
+def dropped_since(now: Mapping[str, int], before: Mapping[str, int] | None, what: str,
+                  problems: list[tuple[Level, str]]) -> dict[str, int]:
+    """The drops by reason since the last report, and a WARN naming them if there are any."""
+    dropped = increase_since(now, before)
+    if any(dropped.values()):
+        problems.append((Level.WARN, f"dropped {sum(dropped.values())} {what} "
+                                     f"({by_reason_text(dropped)})"))
+    return dropped
+
+
 def worst_verdict(problems: list[tuple[Level, str]], ok_message: str) -> tuple[Level, str]:
     """The worst level; the message lists the problems, worst first."""
     if not problems:
@@ -191,10 +201,8 @@ def odometry_report(
         problems.append((Level.ERROR, f"no reading for {since:.1f} s"))
     elif since >= t.stale_after_s:
         problems.append((Level.WARN, f"stale: no reading for {since:.2f} s"))
-    dropped = increase_since(now.dropped, before.dropped if before else None)
-    if any(dropped.values()):
-        problems.append((Level.WARN, f"dropped {sum(dropped.values())} readings "
-                                     f"({by_reason_text(dropped)})"))
+    dropped = dropped_since(now.dropped, before.dropped if before else None, "readings",
+                            problems)
     def recent(count: Callable[[ReadingHealth], int]) -> int:
         return count(now) - (count(before) if before is not None else 0)
 
@@ -243,10 +251,8 @@ def _gyro(now: GyroStats | None, before: GyroStats | None,
     if now.standing_s >= STAND_WARN_S and now.zero_velocity_updates == 0:
         problems.append((Level.WARN, f"stood still {now.standing_s:.1f} s, no zero-velocity "
                                      "update: gyro bias not estimated (IMU stamps?)"))
-    dropped = increase_since(now.dropped, before.dropped if before else None)
-    if any(dropped.values()):
-        problems.append((Level.WARN, f"dropped {sum(dropped.values())} IMU samples "
-                                     f"({by_reason_text(dropped)})"))
+    dropped = dropped_since(now.dropped, before.dropped if before else None, "IMU samples",
+                            problems)
     s = now.slips
     last = "never" if s.last_stamp_ns is None else f"{s.last_stamp_ns * 1e-9:.3f}"
     return [

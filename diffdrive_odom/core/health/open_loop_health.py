@@ -15,10 +15,9 @@ from diffdrive_odom.core.estimation.open_loop import OpenLoopStats
 from diffdrive_odom.core.health.diagnostics import (
     Level,
     Report,
-    by_reason_text,
     count_values,
+    dropped_since,
     finite,
-    increase_since,
     seconds_text,
 )
 
@@ -39,13 +38,12 @@ class OpenLoopHealth:
 def open_loop_report(now: OpenLoopHealth, before: OpenLoopHealth | None = None) -> Report:
     """The status; ``before`` is the previous report's snapshot."""
     s = now.stats
-    dropped = increase_since(s.dropped, before.stats.dropped if before else None)
+    problems: list[tuple[Level, str]] = []
+    dropped = dropped_since(s.dropped, before.stats.dropped if before else None, "commands",
+                            problems)
     resets = s.time_resets - (before.stats.time_resets if before else 0)
-    problems = []
-    if any(dropped.values()):
-        problems.append(f"dropped {sum(dropped.values())} commands ({by_reason_text(dropped)})")
     if resets:
-        problems.append(f"{resets} time resets (clock jumped back)")
+        problems.append((Level.WARN, f"{resets} time resets (clock jumped back)"))
     if s.last_command_ns is None:
         state = "waiting for the first command"
     elif s.commanding:
@@ -54,7 +52,7 @@ def open_loop_report(now: OpenLoopHealth, before: OpenLoopHealth | None = None) 
         state = (f"at rest: no command for cmd_vel_timeout ({now.timeout_s:g} s)"
                  if now.timeout_s > 0 else "at rest")
     message = f"{OPEN_LOOP}: odometry from the commanded velocity on {now.topic}, not measured"
-    message += "; " + "; ".join(problems) if problems else f"; {state}"
+    message += "; " + "; ".join(text for _, text in problems) if problems else f"; {state}"
     values = [
         ("mode", OPEN_LOOP),
         ("command topic", now.topic),

@@ -18,7 +18,7 @@ import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
-from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.errors import ConfigError, require_finite_min
 from diffdrive_odom.core.geometry.integration import Pose2D, compose
 from diffdrive_odom.core.geometry.se2 import wrap_angle
 
@@ -38,8 +38,7 @@ class Segment:
     angular: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.duration) and self.duration >= 0.0):
-            raise RouteError("duration", f"must be finite and >= 0, got {self.duration!r}")
+        require_finite_min(RouteError, "duration", self.duration)
         if not (math.isfinite(self.linear) and math.isfinite(self.angular)):
             raise RouteError("twist", "linear and angular must be finite")
 
@@ -130,9 +129,10 @@ def waypoints(route: Route, start: Pose2D = ORIGIN) -> list[Pose2D]:
     return poses
 
 
-def _check_positive(field: str, value: float) -> None:
-    if not (math.isfinite(value) and value > 0.0):
-        raise RouteError(field, f"must be finite and > 0, got {value!r}")
+def _positive(**values: float) -> None:
+    """Refuse (RouteError) any of ``values`` that is not finite and > 0, in order."""
+    for field, value in values.items():
+        require_finite_min(RouteError, field, value, exclusive=True)
 
 
 def _pause(pause: float) -> tuple[Segment, ...]:
@@ -148,8 +148,7 @@ def from_waypoints(
     name: str = "waypoints",
 ) -> Route:
     """Turn in place towards each point, then drive straight to it (the UMBmark way)."""
-    _check_positive("linear", linear)
-    _check_positive("angular", angular)
+    _positive(linear=linear, angular=angular)
     segments: list[Segment] = []
     x, y, theta = start.x, start.y, start.theta
     for px, py in points:
@@ -176,9 +175,7 @@ def square(
     name: str | None = None,
 ) -> Route:
     """Drive ``side`` metres, turn 90 degrees in place, four times: back at the start."""
-    _check_positive("side", side)
-    _check_positive("linear", linear)
-    _check_positive("angular", angular)
+    _positive(side=side, linear=linear, angular=angular)
     turn_rate = -angular if clockwise else angular
     segments: list[Segment] = []
     for _ in range(4):
@@ -223,9 +220,7 @@ def circle(
     pause: float = 0.5,
 ) -> Route:
     """``laps`` turns around a circle of ``radius`` (left of the start for CCW)."""
-    _check_positive("radius", radius)
-    _check_positive("linear", linear)
-    _check_positive("laps", laps)
+    _positive(radius=radius, linear=linear, laps=laps)
     angular = (-linear if clockwise else linear) / radius
     duration = 2.0 * math.pi * radius * laps / linear
     return Route(f"circle_{radius:g}m", (Segment(duration, linear, angular), *_pause(pause)))

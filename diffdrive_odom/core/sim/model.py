@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.errors import ConfigError, require_finite_min
 from diffdrive_odom.core.geometry.integration import Pose2D, compose
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
 
@@ -94,9 +94,7 @@ class SimConfig:
         if not isinstance(self.wheels_per_side, int) or self.wheels_per_side < 1:
             raise SimConfigError("wheels_per_side", f"must be >= 1, got {self.wheels_per_side!r}")
         for name in ("motor_time_constant", "slip_stddev", "command_timeout"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise SimConfigError(name, f"must be finite and >= 0, got {value!r}")
+            require_finite_min(SimConfigError, name, getattr(self, name))
         tpr = self.ticks_per_revolution
         if not (math.isfinite(tpr) and tpr >= 0.0):
             raise SimConfigError("ticks_per_revolution", f"must be 0 or > 0, got {tpr!r}")

@@ -22,13 +22,14 @@ from fuzzing import examples
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core.commands.cmd_vel_pipeline import DROP_REASONS, IMPLAUSIBLE, CommandPipeline
-from diffdrive_odom.settings.cmd_vel import (
-    DEFAULT_PLAUSIBLE_WHEEL_VELOCITY,
+from diffdrive_odom.core.commands.cmd_vel_pipeline import (
+    DROP_REASONS,
+    IMPLAUSIBLE,
     TICKS_PER_SECOND,
     WHEEL_COMMAND_FORMATS,
-    cmd_vel_settings,
+    CommandPipeline,
 )
+from diffdrive_odom.settings.cmd_vel import DEFAULT_PLAUSIBLE_WHEEL_VELOCITY, cmd_vel_settings
 from diffdrive_odom.settings.errors import ParameterError
 
 FUZZ = settings(max_examples=examples(2000), derandomize=True, deadline=None, database=None,

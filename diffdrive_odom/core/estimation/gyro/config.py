@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.errors import ConfigError, require_finite_min
 from diffdrive_odom.core.estimation.stamps import StampSource
 
 __all__ = ["GyroConfig", "GyroConfigError"]
@@ -59,9 +59,7 @@ class GyroConfig:
             ("slip_min_angle", self.slip_min_angle, False),
             ("imu_time_offset", abs(self.time_offset), False),
         ):
-            if not (math.isfinite(value) and (value > 0.0 if positive else value >= 0.0)):
-                raise GyroConfigError(name, f"must be finite and {'>' if positive else '>='} 0, "
-                                            f"got {value!r}")
+            require_finite_min(GyroConfigError, name, value, exclusive=positive)
         if not math.isfinite(self.bias):
             raise GyroConfigError("gyro_bias", f"must be finite, got {self.bias!r}")
 

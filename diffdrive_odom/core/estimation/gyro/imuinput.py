@@ -51,7 +51,6 @@ class ImuInput:
         self._clock = ClockOffsetCheck("imu", min(CLOCK_OFFSET_WARN_S, gyro.config.timeout))
         self._warnings: list[str] = []
         self._stamps: list[int] = []  # the first samples' stamps (the period)
-        self._variance: float | None = None  # the message's yaw-rate variance, if set
         self._covariance_judged = False
         self._lag_said = False  # the IMU's lag named once, when it matters
 
@@ -92,7 +91,6 @@ class ImuInput:
             return
         a = self.gyro.config.yaw_axis
         var = sum(a[i] * covariance[3 * i + j] * a[j] for i in range(3) for j in range(3))
-        self._variance = var
         self._stamps.append(stamp_ns)
         if len(self._stamps) < COVARIANCE_AFTER:
             return

@@ -53,7 +53,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from types import MappingProxyType
 
-from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.errors import ConfigError, require_finite_min
 from diffdrive_odom.core.estimation.online.kalman import kalman_update, quadratic
 from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.core.estimation.online.online_scale import OnlineScale, ReferenceConfig
@@ -101,13 +101,10 @@ class OnlineConfig:
     reference: ReferenceConfig | None = None  # the scale's reference pose (online_scale)
 
     def __post_init__(self) -> None:
-        for name, value in (("online_calibration_min_turn", self.min_turn),
-                            ("online_calibration_random_walk", self.random_walk)):
-            if not (math.isfinite(value) and value >= 0.0):
-                raise OnlineConfigError(name, f"must be finite and >= 0, got {value!r}")
-        if not (math.isfinite(self.apply_sigma) and self.apply_sigma > 0.0):
-            raise OnlineConfigError("online_calibration_apply_sigma",
-                                    f"must be finite and > 0, got {self.apply_sigma!r}")
+        require_finite_min(OnlineConfigError, "online_calibration_min_turn", self.min_turn)
+        require_finite_min(OnlineConfigError, "online_calibration_random_walk", self.random_walk)
+        require_finite_min(OnlineConfigError, "online_calibration_apply_sigma", self.apply_sigma,
+                           exclusive=True)
 
 
 class OnlineGeometry:

@@ -40,7 +40,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
 
-from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.errors import ConfigError, require_finite_min
 from diffdrive_odom.core.estimation.online.kalman import kalman_update, quadratic
 from diffdrive_odom.core.estimation.online.ratios import ratio_geometry
 from diffdrive_odom.core.geometry.kinematics import Geometry
@@ -110,9 +110,8 @@ class ReferenceConfig:
                                        "must name a topic ('' = no reference)")
         for name, value in (("position_stddev", self.position_stddev),
                             ("heading_stddev", self.heading_stddev)):
-            if not (math.isfinite(value) and value > 0.0):
-                raise ReferenceConfigError(f"online_calibration_reference_{name}",
-                                           f"must be finite and > 0, got {value!r}")
+            require_finite_min(ReferenceConfigError, f"online_calibration_reference_{name}",
+                               value, exclusive=True)
 
 
 @dataclass(frozen=True)

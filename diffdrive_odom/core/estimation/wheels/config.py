@@ -7,10 +7,9 @@ rules' thresholds. Apart from :mod:`~.wheels.estimator` because
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
-from diffdrive_odom.core.errors import ConfigError
+from diffdrive_odom.core.errors import ConfigError, require_finite_min
 
 __all__ = ["EstimatorConfig", "EstimatorConfigError"]
 
@@ -41,10 +40,7 @@ class EstimatorConfig:
             raise EstimatorConfigError(
                 "velocity_rolling_window_size", f"must be an integer >= 1, got {w!r}"
             )
-        if not (math.isfinite(self.time_jump_threshold) and self.time_jump_threshold >= 0.0):
-            raise EstimatorConfigError(
-                "time_jump_threshold", f"must be finite and >= 0, got {self.time_jump_threshold!r}"
-            )
+        require_finite_min(EstimatorConfigError, "time_jump_threshold", self.time_jump_threshold)
         if not (self.max_reading_gap > 0.0):
             raise EstimatorConfigError(
                 "max_reading_gap", f"must be > 0 (inf = no check), got {self.max_reading_gap!r}"
