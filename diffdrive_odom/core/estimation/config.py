@@ -20,9 +20,6 @@ from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
-ONLINE_NEEDS_IMU = ("online_calibration is monitor or apply but use_imu is false: online "
-                    "calibration disabled (it needs the gyro)")
-
 
 @dataclass(frozen=True)
 class OdometrySettings:
@@ -47,11 +44,6 @@ class OdometrySettings:
     open_loop: OpenLoopConfig | None = None  # open_loop true: from commands, not encoders
     # online_calibration: monitor or apply (None: disabled; without use_imu: nothing).
     online: OnlineConfig | None = None
-
-    @property
-    def online_note(self) -> str:
-        """Why online calibration does nothing though asked for ('' when it runs or is off)."""
-        return ONLINE_NEEDS_IMU if self.online is not None and self.gyro is None else ""
 
     @property
     def takes_bulk(self) -> bool:

@@ -16,12 +16,11 @@ import pytest
 from gyrostreams import ISSUE_ROUTE, NAMES, TIMINGS, B, R, Route, stream, truth
 from simstreams import SIM_TIMING, sim_stream, true_ratios
 
-from diffdrive_odom.core.estimation.config import ONLINE_NEEDS_IMU
 from diffdrive_odom.core.estimation.online.online_apply import APPLIED_NOTE, CONFIGURED_NOTE
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.ros.geometry_estimate import estimate_message
-from diffdrive_odom.settings.odometry import odometry_settings
+from diffdrive_odom.settings.odometry import APPLY_NEEDS_IMU, odometry_settings, online_warning
 
 from oracle import arc, mahalanobis2
 
@@ -156,7 +155,7 @@ def test_not_applied_until_determined_and_precise(route: Route,
 
 def test_without_the_gyro_it_is_disabled_and_said() -> None:
     pipe = pipeline("apply", use_imu=False)
-    assert pipe.online is None and pipe.settings.online_note == ONLINE_NEEDS_IMU
+    assert pipe.online is None and online_warning(pipe.settings) == APPLY_NEEDS_IMU
 
 
 def test_back_to_monitor_at_runtime_keeps_pose_and_covariance() -> None:

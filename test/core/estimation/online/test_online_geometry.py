@@ -29,13 +29,12 @@ from gyrostreams import (
     truth,
 )
 
-from diffdrive_odom.core.estimation.config import ONLINE_NEEDS_IMU
 from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.core.estimation.online.ratios import multipliers
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.settings.odometry import odometry_settings
+from diffdrive_odom.settings.odometry import odometry_settings, online_warning
 
 from oracle import mahalanobis2
 
@@ -210,13 +209,13 @@ def test_settings_modes() -> None:
         odometry_settings({**base, "online_calibration": False})
     assert odometry_settings({**base, "online_calibration": "disabled"}).online is None
     wheels_only = ReadingPipeline(odometry_settings(base))
-    assert wheels_only.settings.online_note == ONLINE_NEEDS_IMU
-    assert wheels_only.stats.online is None
+    # monitor (the default) without the gyro: nothing runs, and no line says so at start.
+    assert wheels_only.stats.online is None and online_warning(wheels_only.settings) == ""
     gyro = ReadingPipeline(odometry_settings({**base, "use_imu": True}))
-    assert gyro.settings.online_note == "" and gyro.stats.online is not None
+    assert gyro.stats.online is not None
     off = ReadingPipeline(odometry_settings({**base, "use_imu": True,
                                              "online_calibration": "disabled"}))
-    assert off.stats.online is None and off.settings.online_note == ""
+    assert off.stats.online is None
     # At runtime: monitor -> disabled -> monitor (a fresh estimate), the gyro carries on.
     gyro.reconfigure(off.settings)
     assert gyro.stats.online is None and gyro.gyro is not None and gyro.gyro.observer is None
