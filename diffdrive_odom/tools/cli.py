@@ -60,6 +60,12 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
+def command_parser(command: str, description: str) -> argparse.ArgumentParser:
+    """The parser of ``diffdrive-odom COMMAND``: its name in the usage, every default shown."""
+    return argparse.ArgumentParser(prog=f"{PROGRAM} {command}", description=description,
+                                   formatter_class=HelpFormatter)
+
+
 def version() -> str:
     """The installed distribution's version, else package.xml's (a source checkout).
 

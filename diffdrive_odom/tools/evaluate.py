@@ -26,7 +26,7 @@ from diffdrive_odom.core.evaluation.metrics import (
     match,
 )
 from diffdrive_odom.tools import fleet
-from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cli import command_parser
 from diffdrive_odom.tools.cmdline.args import (
     add_reference_arguments,
     fail,
@@ -116,11 +116,7 @@ def summary_figures(metrics: Metrics) -> dict[str, float]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="diffdrive-odom eval",
-        description="Compare odometry with ground truth recorded in a bag.",
-        formatter_class=HelpFormatter,
-    )
+    ap = command_parser("eval", "Compare odometry with ground truth recorded in a bag.")
     ap.add_argument("bags", nargs="+", metavar="BAG",
                     help="bag with the odometry (and, by default, the ground truth); several: "
                     "a fleet (--json/--plot then name directories; one table at the end)")

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from diffdrive_odom.ros.messages import message_class
-from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cli import command_parser
 from diffdrive_odom.wire.conversions import split_ns
 
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
@@ -46,12 +46,8 @@ def _message_class(msgtype: str) -> Any:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="diffdrive-odom play",
-        description="Publish a bag's messages with their recorded timing (and /clock). "
-        "The fallback where `ros2 bag play` is not installed.",
-        formatter_class=HelpFormatter,
-    )
+    ap = command_parser("play", "Publish a bag's messages with their recorded timing (and "
+                        "/clock). The fallback where `ros2 bag play` is not installed.")
     ap.add_argument("bag", help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag")
     ap.add_argument("-r", "--rate", type=float, default=1.0, help="speed factor (> 0)")
     ap.add_argument("-l", "--loop", action="store_true",

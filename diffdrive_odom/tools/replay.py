@@ -21,7 +21,7 @@ from pathlib import Path
 
 from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.tools import evaluate, fleet
-from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cli import command_parser
 from diffdrive_odom.tools.cmdline.args import (
     DEFAULT_REFERENCE,
     add_param_arguments,
@@ -42,12 +42,9 @@ PREFIX = "[replay]"
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="diffdrive-odom replay",
-        description="Run the odometry node's estimator over a bag offline and write what "
-        "the node would publish (odom + /tf) to a rosbag2 and/or CSV, and/or evaluate it.",
-        formatter_class=HelpFormatter,
-    )
+    ap = command_parser("replay", "Run the odometry node's estimator over a bag offline and "
+                        "write what the node would publish (odom + /tf) to a rosbag2 and/or "
+                        "CSV, and/or evaluate it.")
     ap.add_argument("bags", nargs="+", metavar="BAG",
                     help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag; several: a fleet "
                     "(each bag's outputs in the -o/--csv/--json/--plot directories, named "
