@@ -152,17 +152,10 @@ def main(argv: Sequence[str]) -> int:
     ``--dask`` cluster; the exit status is then the number that failed.
     """
     args = _parser().parse_args(list(argv))
-    if len(args.bags) == 1:
-        if args.summary:
-            return fail(PREFIX, "--summary is a fleet's table: give several bags (one bag: "
-                        "--json FILE)")
-        args.bag = args.bags[0]
-        return run_bag(args)
-    if args.reference_bag:
-        return fail(PREFIX, "--reference-bag takes one odometry bag (each of several bags "
-                    "holds its own reference)")
-    done = fleet.run_fleet(args, run_bag, PREFIX, (("json", ".json"), ("plot", ".png")))
-    return fail(PREFIX, done) if isinstance(done, str) else done
+    return fleet.dispatch(
+        args, run_bag, PREFIX, (("json", ".json"), ("plot", ".png")), "--json FILE",
+        "--reference-bag takes one odometry bag (each of several bags holds its own "
+        "reference)" if args.reference_bag else None)
 
 
 def run_bag(args: argparse.Namespace) -> int:

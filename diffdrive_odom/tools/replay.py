@@ -119,22 +119,11 @@ def main(argv: Sequence[str]) -> int:
     ``--dask`` cluster; the exit status is then the number that failed.
     """
     args = _parser().parse_args(list(argv))
-    if len(args.bags) == 1:
-        if args.summary:
-            return _error("--summary is a fleet's table: give several bags (one bag: "
-                          "--eval --json FILE)")
-        args.bag = args.bags[0]
-        return run_bag(args)
-    return _run_fleet(args)
-
-
-def _run_fleet(args: argparse.Namespace) -> int:
-    """Every bag through :func:`run_bag`, outputs named after the bag in the given directories."""
-    if not (args.output or args.csv or args.eval):
-        return _error("nothing to do: give -o OUT_DIR, --csv DIR and/or --eval")
-    done = fleet.run_fleet(args, run_bag, PREFIX, (("output", ""), ("csv", ".csv"),
-                                                   ("json", ".json"), ("plot", ".png")))
-    return _error(done) if isinstance(done, str) else done
+    return fleet.dispatch(
+        args, run_bag, PREFIX, (("output", ""), ("csv", ".csv"), ("json", ".json"),
+                                ("plot", ".png")), "--eval --json FILE",
+        None if args.output or args.csv or args.eval else
+        "nothing to do: give -o OUT_DIR, --csv DIR and/or --eval")
 
 
 def run_bag(args: argparse.Namespace) -> int:
