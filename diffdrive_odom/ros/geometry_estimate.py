@@ -15,7 +15,6 @@ from collections.abc import Callable
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from diffdrive_odom.core.estimation.online.online_apply import APPLY_FIELDS
@@ -23,13 +22,13 @@ from diffdrive_odom.core.estimation.online.online_estimate import FIELDS as GYRO
 from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
 from diffdrive_odom.core.estimation.online.online_scale import SCALE_FIELDS, scale_values
 from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
+from diffdrive_odom.ros.qos import qos
 
 TOPIC = "~/geometry_estimate"
 PERIOD_S = 1.0
 FIELDS = GYRO_FIELDS + SCALE_FIELDS + APPLY_FIELDS
 LABEL = ",".join(FIELDS)
-QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+QOS = qos(1, reliable=True, latched=True)
 
 
 def estimate_message(est: OnlineEstimate) -> Float64MultiArray:

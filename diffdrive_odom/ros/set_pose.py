@@ -21,6 +21,7 @@ from std_srvs.srv import Trigger
 
 from diffdrive_odom.core.estimation.setpose import PoseRefusal, PoseRequest
 from diffdrive_odom.ros.throttle import KeyedThrottle
+from diffdrive_odom.wire.conversions import stamp_to_ns
 
 TOPIC = "~/set_pose"
 RESET_SERVICE = "~/reset_odometry"
@@ -29,9 +30,8 @@ RESET_SERVICE = "~/reset_odometry"
 def pose_request(msg: PoseWithCovarianceStamped) -> PoseRequest:
     """The message's fields as the core takes them."""
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    return PoseRequest(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
-                       msg.header.frame_id, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w),
-                       tuple(msg.pose.covariance))
+    return PoseRequest(stamp_to_ns(msg.header.stamp), msg.header.frame_id, (p.x, p.y, p.z),
+                       (q.x, q.y, q.z, q.w), tuple(msg.pose.covariance))
 
 
 class PoseTaker(Protocol):
