@@ -33,7 +33,7 @@ from diffdrive_odom.tools.cmdline.args import (
     outputs_problem,
 )
 
-__all__ = ["main", "output_problem", "plot", "report", "run_bag", "summary_figures"]
+__all__ = ["main", "plot", "report", "run_bag", "summary_figures"]
 
 PREFIX = "[eval]"
 
@@ -140,11 +140,6 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def output_problem(json_path: str | None, plot_path: str | None) -> str | None:
-    """Why ``--json`` / ``--plot`` cannot be written, checked before any work."""
-    return outputs_problem(("--json", json_path), ("--plot", plot_path))
-
-
 def main(argv: Sequence[str]) -> int:
     """``diffdrive-odom eval``; exit 2 when a topic, bag or output path cannot be used.
 
@@ -162,7 +157,7 @@ def run_bag(args: argparse.Namespace) -> int:
     """One bag (``args.bag``) with the parsed flags: what ``eval BAG ...`` does."""
     if not (args.segment_length > 0 and args.max_gap > 0):
         return fail(PREFIX, "--segment-length and --max-gap must be > 0")
-    problem = output_problem(args.json, args.plot)
+    problem = outputs_problem(("--json", args.json), ("--plot", args.plot))  # before any work
     if problem:
         return fail(PREFIX, problem)
 
