@@ -102,9 +102,7 @@ def invocation() -> str:
     """
     script = Path(sys.executable).parent / PROGRAM
     found = shutil.which(PROGRAM)
-    if found is not None and (not script.exists() or Path(found).resolve() == script.resolve()):
-        return PROGRAM
-    if not script.exists():
+    if not script.exists() or (found is not None and Path(found).resolve() == script.resolve()):
         return PROGRAM
     try:
         return str(script.relative_to(Path.cwd()))
