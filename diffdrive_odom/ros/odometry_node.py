@@ -41,7 +41,7 @@ from diffdrive_odom.ros.publishers import OdometryOutput
 from diffdrive_odom.ros.qos import SENSOR_IN_QOS
 from diffdrive_odom.ros.reference_input import ReferenceSubscription
 from diffdrive_odom.ros.runtime import run
-from diffdrive_odom.ros.set_pose import ResetService, SetPoseSubscription
+from diffdrive_odom.ros.set_pose import PoseInputs
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, odometry_settings, online_warning
 from diffdrive_odom.settings.params import ParamValue
@@ -81,8 +81,7 @@ class OdometryEndpoints:
         # use_imu is read-only: the subscription exists for the node's whole life or not.
         self._imu_sub = None if settings.gyro is None else node.create_subscription(
             Imu, "imu", self._on_imu, SENSOR_IN_QOS, raw=True)
-        self._reset_srv = ResetService(node, self._pipeline.reset)
-        self._set_pose = SetPoseSubscription(node, self._pipeline, self._throttle)
+        self._pose_inputs = PoseInputs(node, self._pipeline.reset, self._pipeline, self._throttle)
         # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
         # and a missing clock is one of the mistakes this warning is for.
         self._input_timer = node.create_timer(
@@ -118,8 +117,7 @@ class OdometryEndpoints:
         if self._estimate_pub is not None:
             self._estimate_pub.destroy()
         node.destroy_timer(self._input_timer)
-        self._reset_srv.destroy()
-        self._set_pose.destroy()
+        self._pose_inputs.destroy()
         node.destroy_subscription(self._sub)
         if self._imu_sub is not None:
             node.destroy_subscription(self._imu_sub)

@@ -32,7 +32,7 @@ from diffdrive_odom.ros.cmd_vel_input import CommandInput, Vector
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard
 from diffdrive_odom.ros.publishers import OdometryOutput
-from diffdrive_odom.ros.set_pose import ResetService, SetPoseSubscription
+from diffdrive_odom.ros.set_pose import PoseInputs
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
@@ -64,8 +64,7 @@ class OpenLoopEndpoints:
         self._throttle = KeyedThrottle(node.get_logger())
         self._guard = ParameterGuard(node, values, self._build, self._apply)
         self._input = CommandInput(node, cfg.topic, cfg.stamped, self._on_command)
-        self._reset_srv = ResetService(node, self._odo.reset)
-        self._set_pose = SetPoseSubscription(node, self, self._throttle)
+        self._pose_inputs = PoseInputs(node, self._odo.reset, self, self._throttle)
         self._rate_hz = publication_rate(settings.publish_rate)
         self._timer = node.create_timer(1.0 / self._rate_hz, self._on_timer)
         self._last_rx: float | None = None
@@ -85,8 +84,7 @@ class OpenLoopEndpoints:
         self._guard.close()
         self._diagnostics.destroy()
         node.destroy_timer(self._timer)
-        self._reset_srv.destroy()
-        self._set_pose.destroy()
+        self._pose_inputs.destroy()
         self._input.destroy()
         self._output.destroy()
 
