@@ -25,10 +25,11 @@ from diffdrive_odom.core.motion.paths import Point
 from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.tools.bags import bagwriter
+from diffdrive_odom.tools.replaying.sinks import PoseLog
 from diffdrive_odom.wire.conversions import reference_pose, stamp_to_ns
 
 from . import interrupts
-from .report import ImuReading, JointSample, PoseSeries, Recording, Square
+from .report import ImuReading, JointSample, Recording, Square
 from .settings import BAG_TOPICS, FOLLOWER
 
 RECORD_QOS = qos(1000, reliable=True)
@@ -52,7 +53,7 @@ class Recorder:
         self.writer: bagwriter.BagWriter | None = None
         self.now_ns: int | None = None
         self._log_ns = 0  # the last log time written: each message's is later
-        self.odom, self.truth = PoseSeries(), PoseSeries()
+        self.odom, self.truth = PoseLog(), PoseLog()
         self.joint_states: list[JointSample] = []
         self.imu: list[ImuReading] = []
         self.counts: dict[str, int] = dict.fromkeys(self.topics, 0)
