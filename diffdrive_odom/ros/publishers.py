@@ -1,15 +1,18 @@
 """Publishers that follow a managed node's state: one call for plain and lifecycle nodes.
 
 So the odometry endpoints and the /diagnostics publisher are written once for
-``odometry_node`` and ``odometry_lifecycle_node``; and ``odom`` with ``/tf``
-(:class:`OdometryOutput`) once for both of its modes, encoders and open loop.
+``odometry_node`` and ``odometry_lifecycle_node``; ``odom`` with ``/tf``
+(:class:`OdometryOutput`) once for both of its modes, encoders and open loop; and a
+report on a steady timer (:class:`SteadyPublisher`) once for every node.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, cast
 
 from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -34,6 +37,25 @@ def destroy_publisher(node: Node, publisher: Publisher) -> None:
         node.destroy_lifecycle_publisher(publisher)
     else:
         node.destroy_publisher(publisher)
+
+
+class SteadyPublisher:
+    """A publisher fed by a timer on the steady clock (/diagnostics, ~/geometry_estimate).
+
+    Steady time, so a paused /clock (use_sim_time) does not silence the report.
+    """
+
+    def __init__(self, node: Node, msg_type: Any, topic: str, qos_profile: QoSProfile,
+                 period_s: float, tick: Callable[[], None]) -> None:
+        self._node = node
+        self._pub = create_publisher(node, msg_type, topic, qos_profile)
+        self._timer = node.create_timer(period_s, tick,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def destroy(self) -> None:
+        """Remove the timer and the publisher from the node."""
+        self._node.destroy_timer(self._timer)
+        destroy_publisher(self._node, self._pub)
 
 
 class OdometryOutput:
