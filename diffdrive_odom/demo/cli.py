@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from diffdrive_odom.core.motion import routes
-from diffdrive_odom.tools.cli import HelpFormatter, invocation
+from diffdrive_odom.tools.cli import command_parser, invocation
 
 from . import interrupts
 from .settings import DEFAULT_PARAMS, PROGRAM, ROUTES, DemoError, DemoOptions, parse_override
@@ -17,12 +17,9 @@ SHORT_SIDE = 1.0
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog=PROGRAM,
-        description="Closed-loop demo: path_follower_node + cmd_vel_node + sim_node + "
-                    "odometry_node over DDS drive UMBmark on the odometry; calibrates from "
-                    "the run, prints the table, writes a plot and a bag.",
-        formatter_class=HelpFormatter)
+    ap = command_parser("demo", "Closed-loop demo: path_follower_node + cmd_vel_node + "
+                        "sim_node + odometry_node over DDS drive UMBmark on the odometry; "
+                        "calibrates from the run, prints the table, writes a plot and a bag.")
     ap.add_argument("--route", default="umbmark", choices=list(ROUTES),
                     help="squares to drive (default: UMBmark, 4 m square CW then CCW; the "
                          "UMBmark calibration row needs both directions)")

@@ -7,7 +7,6 @@ from collections.abc import Mapping, Sequence
 from contextlib import ExitStack
 from pathlib import Path
 from types import TracebackType
-from typing import Any
 
 import rclpy
 from geometry_msgs.msg import PoseStamped
@@ -26,19 +25,15 @@ from diffdrive_odom.core.motion.paths import Point
 from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.tools.bags import bagwriter
-from diffdrive_odom.wire.conversions import quaternion_to_yaw, stamp_to_ns
+from diffdrive_odom.tools.replaying.sinks import PoseLog
+from diffdrive_odom.wire.conversions import reference_pose, stamp_to_ns
 
 from . import interrupts
-from .report import ImuReading, JointSample, PoseSeries, Recording, Square
+from .report import ImuReading, JointSample, Recording, Square
 from .settings import BAG_TOPICS, FOLLOWER
 
 RECORD_QOS = qos(1000, reliable=True)
 LATEST_QOS = qos(1, reliable=False)  # only the newest /clock matters
-
-
-def _pose_of(msg: Any) -> tuple[float, float, float]:
-    p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    return float(p.x), float(p.y), quaternion_to_yaw(q)
 
 
 class Recorder:
@@ -58,7 +53,7 @@ class Recorder:
         self.writer: bagwriter.BagWriter | None = None
         self.now_ns: int | None = None
         self._log_ns = 0  # the last log time written: each message's is later
-        self.odom, self.truth = PoseSeries(), PoseSeries()
+        self.odom, self.truth = PoseLog(), PoseLog()
         self.joint_states: list[JointSample] = []
         self.imu: list[ImuReading] = []
         self.counts: dict[str, int] = dict.fromkeys(self.topics, 0)
@@ -140,7 +135,7 @@ class Recorder:
         elif topic in ("/odom", "/ground_truth/odom"):
             msg = deserialize_message(raw, Odometry)
             series = self.odom if topic == "/odom" else self.truth
-            series.add(stamp_to_ns(msg.header.stamp), *_pose_of(msg))
+            series.add(*reference_pose(msg))
         elif topic == f"/{FOLLOWER}/cross_track_error":
             e = float(deserialize_message(raw, Float64).data)
             self.cross_track_max = max(self.cross_track_max, abs(e))

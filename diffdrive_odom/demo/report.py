@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import textwrap
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from diffdrive_odom.core.estimation.gyro.config import GyroConfig
@@ -50,27 +50,6 @@ class ImuReading(NamedTuple):
     wx: float
     wy: float
     wz: float
-
-
-@dataclass
-class PoseSeries:
-    """Poses by stamp as received (odometry or ground truth)."""
-
-    stamp_ns: list[int] = field(default_factory=list)
-    x: list[float] = field(default_factory=list)
-    y: list[float] = field(default_factory=list)
-    yaw: list[float] = field(default_factory=list)
-
-    def add(self, stamp_ns: int, x: float, y: float, yaw: float) -> None:
-        """Append one pose."""
-        self.stamp_ns.append(stamp_ns)
-        self.x.append(x)
-        self.y.append(y)
-        self.yaw.append(yaw)
-
-    def trajectory(self) -> Trajectory:
-        """As the metrics module's trajectory (sorted, unwrapped)."""
-        return Trajectory.from_arrays(self.stamp_ns, self.x, self.y, self.yaw)
 
 
 @dataclass(frozen=True)

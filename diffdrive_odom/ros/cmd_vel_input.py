@@ -13,12 +13,8 @@ from typing import Any
 from geometry_msgs.msg import Twist, TwistStamped
 from rclpy.node import Node
 
-from diffdrive_odom.ros.qos import qos
+from diffdrive_odom.ros.qos import CMD_IN_QOS
 from diffdrive_odom.wire.conversions import stamp_to_ns
-
-# Best effort matches reliable and best-effort publishers alike (teleop, Nav2,
-# joystick drivers); only the newest command matters, so the queue is short.
-CMD_IN_QOS = qos(5, reliable=False)
 
 Vector = tuple[float, float, float]
 # linear (x, y, z), angular (x, y, z), the stamp [ns] (None: a Twist or a zero stamp)

@@ -13,12 +13,10 @@ from diagnostic_msgs.msg import (
     DiagnosticStatus,
     KeyValue,
 )
-from rclpy.clock import Clock
-from rclpy.clock_type import ClockType
 from rclpy.node import Node
 
 from diffdrive_odom.core.health.diagnostics import Report
-from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
+from diffdrive_odom.ros.publishers import SteadyPublisher
 from diffdrive_odom.ros.qos import DIAGNOSTICS_QOS
 
 # As ROS 2's diagnostic_updater: an absolute topic (one per robot, whatever the node's
@@ -38,7 +36,7 @@ def diagnostic_status_name(node: Node, task: str) -> str:
     return f"{base}: {task}"
 
 
-class DiagnosticsPublisher:
+class DiagnosticsPublisher(SteadyPublisher):
     """Publishes ``report()`` as a one-status DiagnosticArray on /diagnostics at 1 Hz.
 
     The timer runs on the steady clock, like the wheel-command heartbeat, so a paused
@@ -55,18 +53,11 @@ class DiagnosticsPublisher:
         hardware_id: str = "none",
         period_s: float = DIAGNOSTICS_PERIOD_S,
     ) -> None:
-        self._node = node
         self._report = report
         self.name = diagnostic_status_name(node, task)
         self.hardware_id = hardware_id
-        self._pub = create_publisher(node, DiagnosticArray, DIAGNOSTICS_TOPIC, DIAGNOSTICS_QOS)
-        self._timer = node.create_timer(
-            period_s, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
-
-    def destroy(self) -> None:
-        """Remove the publisher and its timer from the node."""
-        self._node.destroy_timer(self._timer)
-        destroy_publisher(self._node, self._pub)
+        super().__init__(node, DiagnosticArray, DIAGNOSTICS_TOPIC, DIAGNOSTICS_QOS, period_s,
+                         self.publish)
 
     def publish(self) -> None:
         """Publish the current report now (the timer calls this once a period)."""

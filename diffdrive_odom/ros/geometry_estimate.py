@@ -13,23 +13,21 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from diffdrive_odom.core.estimation.online.online_apply import APPLY_FIELDS
 from diffdrive_odom.core.estimation.online.online_estimate import FIELDS as GYRO_FIELDS
 from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
 from diffdrive_odom.core.estimation.online.online_scale import SCALE_FIELDS, scale_values
-from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
+from diffdrive_odom.ros.publishers import SteadyPublisher
+from diffdrive_odom.ros.qos import qos
 
 TOPIC = "~/geometry_estimate"
 PERIOD_S = 1.0
 FIELDS = GYRO_FIELDS + SCALE_FIELDS + APPLY_FIELDS
 LABEL = ",".join(FIELDS)
-QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+QOS = qos(1, reliable=True, latched=True)
 
 
 def estimate_message(est: OnlineEstimate) -> Float64MultiArray:
@@ -42,16 +40,13 @@ def estimate_message(est: OnlineEstimate) -> Float64MultiArray:
     return msg
 
 
-class GeometryEstimatePublisher:
+class GeometryEstimatePublisher(SteadyPublisher):
     """Publishes what ``estimate`` returns when its filter updated (None: nothing)."""
 
     def __init__(self, node: Node, estimate: Callable[[], OnlineEstimate | None]) -> None:
-        self._node = node
         self._estimate = estimate
-        self._pub = create_publisher(node, Float64MultiArray, TOPIC, QOS)
         self._windows = -1
-        self._timer = node.create_timer(PERIOD_S, self._tick,
-                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+        super().__init__(node, Float64MultiArray, TOPIC, QOS, PERIOD_S, self._tick)
 
     def _tick(self) -> None:
         est = self._estimate()
@@ -59,8 +54,3 @@ class GeometryEstimatePublisher:
             return
         self._windows = est.windows
         self._pub.publish(estimate_message(est))
-
-    def destroy(self) -> None:
-        """Remove the timer and the publisher."""
-        self._node.destroy_timer(self._timer)
-        destroy_publisher(self._node, self._pub)

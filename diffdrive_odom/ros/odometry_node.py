@@ -17,7 +17,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
-from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
@@ -25,7 +24,7 @@ from sensor_msgs.msg import Imu, JointState
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.pipeline import IMU_SILENT, ReadingPipeline
-from diffdrive_odom.core.estimation.publication import Publication, Refusal, pipeline_publication
+from diffdrive_odom.core.estimation.publication import Refusal, pipeline_publication
 from diffdrive_odom.core.estimation.results import Outcome
 from diffdrive_odom.core.estimation.wheels.timeline import Status
 from diffdrive_odom.core.health.diagnostics import (
@@ -38,17 +37,16 @@ from diffdrive_odom.core.health.diagnostics import (
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.geometry_estimate import GeometryEstimatePublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
-from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
-from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, SENSOR_IN_QOS, TF_QOS
+from diffdrive_odom.ros.publishers import OdometryOutput
+from diffdrive_odom.ros.qos import SENSOR_IN_QOS
 from diffdrive_odom.ros.reference_input import ReferenceSubscription
 from diffdrive_odom.ros.runtime import run
-from diffdrive_odom.ros.set_pose import ResetService, SetPoseSubscription
+from diffdrive_odom.ros.set_pose import PoseInputs
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS, odometry_settings, online_warning
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.wire.imu import ImuFields, decode_imu
 from diffdrive_odom.wire.jointstate import JointArrays, JointStateDecoder
-from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
 if TYPE_CHECKING:
     from diffdrive_odom.ros.open_loop import OpenLoopEndpoints
@@ -70,29 +68,20 @@ class OdometryEndpoints:
     """
 
     def __init__(self, node: Node, values: dict[str, ParamValue]) -> None:
-        # Here, not at the top: tf2_msgs is no PyPI package, and --help must work without
-        # it (runtime.run turns its absence into one line saying how to get it).
-        from tf2_msgs.msg import TFMessage
-
         self._node = node
         settings = self._build(values)
-        self._settings = settings
+        self._output = OdometryOutput(node, settings)
         self._pipeline = ReadingPipeline(settings)
         self._decoder = JointStateDecoder()
-        self._build_messages(settings)
         self._throttle = KeyedThrottle(node.get_logger())
         self._guard = ParameterGuard(node, values, self._build, self._apply)
-
-        self._odom_pub = create_publisher(node, Odometry, "odom", RELIABLE_OUT_QOS)
-        self._tf_pub = create_publisher(node, TFMessage, "/tf", TF_QOS)
         self._sub = node.create_subscription(
             JointState, "joint_states", self._on_joint_state, SENSOR_IN_QOS, raw=True
         )
         # use_imu is read-only: the subscription exists for the node's whole life or not.
         self._imu_sub = None if settings.gyro is None else node.create_subscription(
             Imu, "imu", self._on_imu, SENSOR_IN_QOS, raw=True)
-        self._reset_srv = ResetService(node, self._pipeline.reset)
-        self._set_pose = SetPoseSubscription(node, self._pipeline, self._throttle)
+        self._pose_inputs = PoseInputs(node, self._pipeline.reset, self._pipeline, self._throttle)
         # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
         # and a missing clock is one of the mistakes this warning is for.
         self._input_timer = node.create_timer(
@@ -128,23 +117,20 @@ class OdometryEndpoints:
         if self._estimate_pub is not None:
             self._estimate_pub.destroy()
         node.destroy_timer(self._input_timer)
-        self._reset_srv.destroy()
-        self._set_pose.destroy()
+        self._pose_inputs.destroy()
         node.destroy_subscription(self._sub)
         if self._imu_sub is not None:
             node.destroy_subscription(self._imu_sub)
         if self._ref_sub is not None:
             self._ref_sub.destroy()
-        destroy_publisher(node, self._tf_pub)
-        destroy_publisher(node, self._odom_pub)
+        self._output.destroy()
 
     def _build(self, values: dict[str, ParamValue]) -> OdometrySettings:
         return odometry_settings(values, self._node.get_namespace())
 
     def _apply(self, settings: OdometrySettings) -> None:
         """Install accepted runtime changes; the pose carries on without a jump."""
-        self._settings = settings
-        self._build_messages(settings)
+        self._output.configure(settings)
         self._pipeline.reconfigure(settings)
         self._node.get_logger().info("parameters updated")
 
@@ -243,26 +229,6 @@ class OdometryEndpoints:
             self._throttle.warning(verdict.code, f"joint_states reading {verdict.warning} "
                                    f"[{verdict.code}]: {verdict.reason}")
 
-    def _build_messages(self, settings: OdometrySettings) -> None:
-        """Fill what stays the same from message to message (frames, covariance) once.
-
-        Each reading then only writes the stamp, pose and twist into the same bytes.
-        """
-        self._odom = OdometryLayout(settings.odom_frame_id, settings.base_frame_id)
-        self._tf = TransformLayout(settings.odom_frame_id, settings.base_frame_id)
-        self._covariance_changed = True
-
-    def _set_covariance(self, out: Publication) -> None:
-        """The covariance of the published odometry (the only place that sets it).
-
-        Propagated: the pipeline's, every message. Static (the parameters' diagonals):
-        written only after a change.
-        """
-        if self._pipeline.estimator.uncertainty is None and not self._covariance_changed:
-            return
-        self._odom.covariance(out.pose_covariance, out.twist_covariance)
-        self._covariance_changed = False
-
     def _publish(self, stamp_ns: int) -> None:
         out = pipeline_publication(self._pipeline)  # replay publishes by the same rule
         # The pose and twist are always finite (the estimator keeps no non-finite state),
@@ -272,12 +238,9 @@ class OdometryEndpoints:
         if isinstance(out, Refusal):
             self._throttle.warning(out.code, out.reason)
             return
-        self._set_covariance(out)
-        pose = out.pose
-        x, y, theta = pose.x, pose.y, pose.theta
-        self._odom_pub.publish(self._odom.planar(stamp_ns, x, y, theta, out.linear, out.angular))
-        if self._settings.enable_odom_tf:
-            self._tf_pub.publish(self._tf.planar(stamp_ns, x, y, theta))
+        # Propagated: the pipeline's covariance, every message; else the parameters'.
+        self._output.publish(stamp_ns, out,
+                             static_covariance=self._pipeline.estimator.uncertainty is None)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import time
 
-from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
@@ -32,14 +31,12 @@ from diffdrive_odom.core.health.open_loop_health import OpenLoopHealth, open_loo
 from diffdrive_odom.ros.cmd_vel_input import CommandInput, Vector
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard
-from diffdrive_odom.ros.publishers import create_publisher, destroy_publisher
-from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, TF_QOS
-from diffdrive_odom.ros.set_pose import ResetService, SetPoseSubscription
+from diffdrive_odom.ros.publishers import OdometryOutput
+from diffdrive_odom.ros.set_pose import PoseInputs
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.settings.params import ParamValue
-from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
 DROP_TEXT = {"non_finite": "velocity command with NaN/inf ignored",
              "stale_stamp": "stale velocity command ignored (stamped over cmd_vel_timeout ago)",
@@ -56,23 +53,18 @@ class OpenLoopEndpoints:
     """
 
     def __init__(self, node: Node, values: dict[str, ParamValue]) -> None:
-        from tf2_msgs.msg import TFMessage  # not on PyPI: see odometry_node
-
         self._node = node
         settings = self._build(values)
         cfg = settings.open_loop
         assert cfg is not None  # _build refuses settings without it
         self._settings = settings
+        self._output = OdometryOutput(node, settings)
         self._odo = OpenLoopOdometry(cfg, settings.geometry,
                                      settings.estimator.time_jump_threshold)
         self._throttle = KeyedThrottle(node.get_logger())
-        self._build_messages(settings)
         self._guard = ParameterGuard(node, values, self._build, self._apply)
-        self._odom_pub = create_publisher(node, Odometry, "odom", RELIABLE_OUT_QOS)
-        self._tf_pub = create_publisher(node, TFMessage, "/tf", TF_QOS)
         self._input = CommandInput(node, cfg.topic, cfg.stamped, self._on_command)
-        self._reset_srv = ResetService(node, self._odo.reset)
-        self._set_pose = SetPoseSubscription(node, self, self._throttle)
+        self._pose_inputs = PoseInputs(node, self._odo.reset, self, self._throttle)
         self._rate_hz = publication_rate(settings.publish_rate)
         self._timer = node.create_timer(1.0 / self._rate_hz, self._on_timer)
         self._last_rx: float | None = None
@@ -92,11 +84,9 @@ class OpenLoopEndpoints:
         self._guard.close()
         self._diagnostics.destroy()
         node.destroy_timer(self._timer)
-        self._reset_srv.destroy()
-        self._set_pose.destroy()
+        self._pose_inputs.destroy()
         self._input.destroy()
-        destroy_publisher(node, self._tf_pub)
-        destroy_publisher(node, self._odom_pub)
+        self._output.destroy()
 
     def _build(self, values: dict[str, ParamValue]) -> OdometrySettings:
         settings = odometry_settings(values, self._node.get_namespace())
@@ -110,17 +100,13 @@ class OpenLoopEndpoints:
         self._settings = settings
         self._odo.configure(settings.open_loop, settings.geometry)
         self._odo.jump_ns = round(settings.estimator.time_jump_threshold * 1e9)
-        self._build_messages(settings)
+        self._output.configure(settings)
         rate = publication_rate(settings.publish_rate)
         if rate != self._rate_hz:
             self._rate_hz = rate
             self._node.destroy_timer(self._timer)
             self._timer = self._node.create_timer(1.0 / rate, self._on_timer)
         self._node.get_logger().info("parameters updated")
-
-    def _build_messages(self, settings: OdometrySettings) -> None:
-        self._odom = OdometryLayout(settings.odom_frame_id, settings.base_frame_id)
-        self._tf = TransformLayout(settings.odom_frame_id, settings.base_frame_id)
 
     def _now_ns(self) -> int:
         return int(self._node.get_clock().now().nanoseconds)
@@ -151,12 +137,7 @@ class OpenLoopEndpoints:
         if isinstance(out, Refusal):
             self._throttle.warning(out.code, out.reason)
             return
-        self._odom.covariance(out.pose_covariance, out.twist_covariance)
-        pose = out.pose
-        self._odom_pub.publish(self._odom.planar(now, pose.x, pose.y, pose.theta, out.linear,
-                                                 out.angular))
-        if self._settings.enable_odom_tf:
-            self._tf_pub.publish(self._tf.planar(now, pose.x, pose.y, pose.theta))
+        self._output.publish(now, out)
 
     def set_pose(self, request: PoseRequest) -> str | PoseRefusal:
         """``~/set_pose`` (the same subscription as with encoders), in the odom frame."""

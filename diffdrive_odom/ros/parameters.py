@@ -104,8 +104,11 @@ def declare(
     Registers the node's one pre-set callback (:func:`convert_on_set`) and reports,
     once, the names given to this node that no node of this package knows.
     """
-    report_unknown_overrides(node)
+    # rclpy 7.1 has no public accessor for the overrides; the public alternative,
+    # automatically_declare_parameters_from_overrides, would declare every stray name
+    # as a parameter of the node (and collide with declare_parameter below).
     overrides = getattr(node, "_parameter_overrides", None) or {}
+    report_unknown_overrides(node, overrides)
     specs = tuple(specs)
     values: dict[str, ParamValue] = {}
     for spec in specs:
@@ -159,15 +162,11 @@ def parameter_values(node: Node, specs: Iterable[ParamSpec]) -> dict[str, ParamV
     return {spec.name: _param_value(node.get_parameter(spec.name)) for spec in specs}
 
 
-def report_unknown_overrides(node: Node) -> None:
-    """Log unknown overrides (one warning) and ignored diff_drive_controller ones (one info).
+def report_unknown_overrides(node: Node, overrides: Iterable[str]) -> None:
+    """Log unknown ``overrides`` (one warning) and ignored diff_drive_controller ones (one info).
 
     Typos get the closest real name.
     """
-    # rclpy 7.1 has no public accessor for the overrides; the public alternative,
-    # automatically_declare_parameters_from_overrides, would declare every stray name
-    # as a parameter of the node (and collide with declare_parameter below).
-    overrides = getattr(node, "_parameter_overrides", None) or {}
     warning, info = unknown_parameters_report(list(overrides))
     log: Any = cast(Any, node).get_logger()
     if warning:

@@ -31,6 +31,10 @@ def qos(depth: int, reliable: bool, latched: bool = False) -> QoSProfile:
 # A best-effort subscriber matches reliable *and* best-effort publishers, so encoder
 # drivers of either kind connect; the deep queue absorbs bursts (bag replay).
 SENSOR_IN_QOS = qos(100, reliable=False)
+# Commands in (cmd_vel, wheel commands): best effort matches reliable and best-effort
+# publishers alike (teleop, Nav2, joystick drivers); only the newest command matters, so
+# the queue is short.
+CMD_IN_QOS = qos(5, reliable=False)
 # What Nav2 and robot_localization expect of odometry.
 RELIABLE_OUT_QOS = qos(10, reliable=True)
 TF_QOS = qos(100, reliable=True)

@@ -403,6 +403,4 @@ def make_executor(
 
 
 def _program() -> str:
-    import os
-
     return os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else "diffdrive_odom"

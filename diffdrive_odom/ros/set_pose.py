@@ -21,6 +21,7 @@ from std_srvs.srv import Trigger
 
 from diffdrive_odom.core.estimation.setpose import PoseRefusal, PoseRequest
 from diffdrive_odom.ros.throttle import KeyedThrottle
+from diffdrive_odom.wire.conversions import stamp_to_ns
 
 TOPIC = "~/set_pose"
 RESET_SERVICE = "~/reset_odometry"
@@ -29,9 +30,8 @@ RESET_SERVICE = "~/reset_odometry"
 def pose_request(msg: PoseWithCovarianceStamped) -> PoseRequest:
     """The message's fields as the core takes them."""
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    return PoseRequest(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
-                       msg.header.frame_id, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w),
-                       tuple(msg.pose.covariance))
+    return PoseRequest(stamp_to_ns(msg.header.stamp), msg.header.frame_id, (p.x, p.y, p.z),
+                       (q.x, q.y, q.z, q.w), tuple(msg.pose.covariance))
 
 
 class PoseTaker(Protocol):
@@ -42,15 +42,22 @@ class PoseTaker(Protocol):
         ...
 
 
-class SetPoseSubscription:
-    """The ``~/set_pose`` subscription of one odometry node, feeding its pipeline."""
+class PoseInputs:
+    """One odometry node's ``~/reset_odometry`` service and ``~/set_pose`` subscription.
 
-    def __init__(self, node: Node, pipeline: PoseTaker, throttle: KeyedThrottle) -> None:
-        self._node, self._pipeline, self._throttle = node, pipeline, throttle
+    ``reset`` puts the pose back to the origin; ``pipeline`` takes a set pose.
+    """
+
+    def __init__(self, node: Node, reset: Callable[[], None], pipeline: PoseTaker,
+                 throttle: KeyedThrottle) -> None:
+        self._node, self._reset = node, reset
+        self._pipeline, self._throttle = pipeline, throttle
+        self._srv = node.create_service(Trigger, RESET_SERVICE, self._on_reset)
         self._sub = node.create_subscription(PoseWithCovarianceStamped, TOPIC, self._on_pose, 10)
 
     def destroy(self) -> None:
-        """Remove the subscription from the node."""
+        """Remove the service and the subscription from the node."""
+        self._node.destroy_service(self._srv)
         self._node.destroy_subscription(self._sub)
 
     def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
@@ -60,18 +67,6 @@ class SetPoseSubscription:
                                    f"set_pose refused [{out.code}]: {out.reason}")
         else:
             self._node.get_logger().info(out)
-
-
-class ResetService:
-    """The ``~/reset_odometry`` service of one odometry node: its pose back to the origin."""
-
-    def __init__(self, node: Node, reset: Callable[[], None]) -> None:
-        self._node, self._reset = node, reset
-        self._srv = node.create_service(Trigger, RESET_SERVICE, self._on_reset)
-
-    def destroy(self) -> None:
-        """Remove the service from the node."""
-        self._node.destroy_service(self._srv)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self._reset()

@@ -42,7 +42,7 @@ from diffdrive_odom.core.health.diagnostics import RateMeter, Report, Reporter
 from diffdrive_odom.core.sim.model import TWO_PI, DiffDriveSim
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
-from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, qos
+from diffdrive_odom.ros.qos import CMD_IN_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.ros.runtime import run
 from diffdrive_odom.ros.throttle import WARN_THROTTLE_S
 from diffdrive_odom.settings.params import ParamValue
@@ -51,9 +51,6 @@ from diffdrive_odom.wire.conversions import ns_to_stamp, yaw_to_quaternion
 
 NODE_NAME = "sim_node"
 MAX_STEP_NS = 1_000_000_000  # a clock jump larger than this is not simulated as motion
-
-# Commands: best effort matches reliable and best-effort publishers; only the newest counts.
-COMMAND_QOS = qos(5, reliable=False)
 CLOCK_QOS = qos(1, reliable=True)
 
 
@@ -92,10 +89,10 @@ class SimNode(Node):
             self._clock_pub = self.create_publisher(ClockMsg, "/clock", CLOCK_QOS)
         if s.wheel_command_format == JOINT_STATE:
             self.create_subscription(
-                JointState, "wheel_commands", self._on_joint_command, COMMAND_QOS)
+                JointState, "wheel_commands", self._on_joint_command, CMD_IN_QOS)
         else:
             self.create_subscription(
-                Float64MultiArray, "wheel_commands", self._on_array_command, COMMAND_QOS)
+                Float64MultiArray, "wheel_commands", self._on_array_command, CMD_IN_QOS)
         if s.publish_clock:
             # Wall-clock (steady) timer: the node drives /clock, it must not wait on it.
             steady = Clock(clock_type=ClockType.STEADY_TIME)

@@ -51,7 +51,7 @@ from diffdrive_odom.tools.calibrating.report import (
     umbmark_report,
 )
 from diffdrive_odom.tools.calibrating.runs import PREFIX, Settings, decode, gyro_settings
-from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cli import command_parser
 from diffdrive_odom.tools.cmdline.args import (
     add_param_arguments,
     add_reference_arguments,
@@ -66,14 +66,10 @@ if TYPE_CHECKING:  # scipy and rosbags (the ``tools`` extra) only where they are
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="diffdrive-odom calibrate",
-        description="Fit wheel radii and separation to ground truth recorded with the wheel "
-        "readings, check the fit on held-out runs, bootstrap its uncertainty; or run "
-        "Borenstein and Feng's UMBmark (--umbmark CW_BAG CCW_BAG --side L); prints a params "
-        "block to paste.",
-        formatter_class=HelpFormatter,
-    )
+    ap = command_parser("calibrate", "Fit wheel radii and separation to ground truth "
+                        "recorded with the wheel readings, check the fit on held-out runs, "
+                        "bootstrap its uncertainty; or run Borenstein and Feng's UMBmark "
+                        "(--umbmark CW_BAG CCW_BAG --side L); prints a params block to paste.")
     ap.add_argument("bags", nargs="*", metavar="BAG",
                     help="runs with /joint_states and a ground-truth pose topic")
     ap.add_argument("--umbmark", nargs=2, metavar=("CW_BAG", "CCW_BAG"), default=None,

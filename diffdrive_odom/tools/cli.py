@@ -60,6 +60,12 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
+def command_parser(command: str, description: str) -> argparse.ArgumentParser:
+    """The parser of ``diffdrive-odom COMMAND``: its name in the usage, every default shown."""
+    return argparse.ArgumentParser(prog=f"{PROGRAM} {command}", description=description,
+                                   formatter_class=HelpFormatter)
+
+
 def version() -> str:
     """The installed distribution's version, else package.xml's (a source checkout).
 
@@ -96,9 +102,7 @@ def invocation() -> str:
     """
     script = Path(sys.executable).parent / PROGRAM
     found = shutil.which(PROGRAM)
-    if found is not None and (not script.exists() or Path(found).resolve() == script.resolve()):
-        return PROGRAM
-    if not script.exists():
+    if not script.exists() or (found is not None and Path(found).resolve() == script.resolve()):
         return PROGRAM
     try:
         return str(script.relative_to(Path.cwd()))

@@ -26,14 +26,14 @@ from diffdrive_odom.core.evaluation.metrics import (
     match,
 )
 from diffdrive_odom.tools import fleet
-from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cli import command_parser
 from diffdrive_odom.tools.cmdline.args import (
     add_reference_arguments,
     fail,
     outputs_problem,
 )
 
-__all__ = ["main", "output_problem", "plot", "report", "run_bag", "summary_figures"]
+__all__ = ["main", "plot", "report", "run_bag", "summary_figures"]
 
 PREFIX = "[eval]"
 
@@ -116,11 +116,7 @@ def summary_figures(metrics: Metrics) -> dict[str, float]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="diffdrive-odom eval",
-        description="Compare odometry with ground truth recorded in a bag.",
-        formatter_class=HelpFormatter,
-    )
+    ap = command_parser("eval", "Compare odometry with ground truth recorded in a bag.")
     ap.add_argument("bags", nargs="+", metavar="BAG",
                     help="bag with the odometry (and, by default, the ground truth); several: "
                     "a fleet (--json/--plot then name directories; one table at the end)")
@@ -144,11 +140,6 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def output_problem(json_path: str | None, plot_path: str | None) -> str | None:
-    """Why ``--json`` / ``--plot`` cannot be written, checked before any work."""
-    return outputs_problem(("--json", json_path), ("--plot", plot_path))
-
-
 def main(argv: Sequence[str]) -> int:
     """``diffdrive-odom eval``; exit 2 when a topic, bag or output path cannot be used.
 
@@ -156,24 +147,17 @@ def main(argv: Sequence[str]) -> int:
     ``--dask`` cluster; the exit status is then the number that failed.
     """
     args = _parser().parse_args(list(argv))
-    if len(args.bags) == 1:
-        if args.summary:
-            return fail(PREFIX, "--summary is a fleet's table: give several bags (one bag: "
-                        "--json FILE)")
-        args.bag = args.bags[0]
-        return run_bag(args)
-    if args.reference_bag:
-        return fail(PREFIX, "--reference-bag takes one odometry bag (each of several bags "
-                    "holds its own reference)")
-    done = fleet.run_fleet(args, run_bag, PREFIX, (("json", ".json"), ("plot", ".png")))
-    return fail(PREFIX, done) if isinstance(done, str) else done
+    return fleet.dispatch(
+        args, run_bag, PREFIX, (("json", ".json"), ("plot", ".png")), "--json FILE",
+        "--reference-bag takes one odometry bag (each of several bags holds its own "
+        "reference)" if args.reference_bag else None)
 
 
 def run_bag(args: argparse.Namespace) -> int:
     """One bag (``args.bag``) with the parsed flags: what ``eval BAG ...`` does."""
     if not (args.segment_length > 0 and args.max_gap > 0):
         return fail(PREFIX, "--segment-length and --max-gap must be > 0")
-    problem = output_problem(args.json, args.plot)
+    problem = outputs_problem(("--json", args.json), ("--plot", args.plot))  # before any work
     if problem:
         return fail(PREFIX, problem)
 

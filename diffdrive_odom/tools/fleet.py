@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from diffdrive_odom.ros import lifetime
+from diffdrive_odom.tools.cmdline.args import fail
 from diffdrive_odom.tools.cmdline.outputs import output_problem
 
 Work = Callable[[argparse.Namespace], int]
@@ -255,6 +256,25 @@ def report(results: Sequence[BagResult], prefix: str, summary: str | None = None
     failed = sum(1 for r in results if r.status != 0)
     print(f"{len(results) - failed} of {len(results)} bags done, {failed} failed")
     return min(failed, 125)
+
+
+def dispatch(args: argparse.Namespace, work: Work, prefix: str,
+             outputs: Sequence[tuple[str, str]], one_bag: str, refused: str | None) -> int:
+    """``args.bags``: one through ``work`` itself, several as a fleet (:func:`run_fleet`).
+
+    ``one_bag``: what a single bag writes instead of ``--summary``'s table; ``refused``:
+    why these flags cannot run as a fleet, or None. Exit 2 (with that line) when not.
+    """
+    if len(args.bags) == 1:
+        if args.summary:
+            return fail(prefix, "--summary is a fleet's table: give several bags (one bag: "
+                        f"{one_bag})")
+        args.bag = args.bags[0]
+        return work(args)
+    if refused:
+        return fail(prefix, refused)
+    done = run_fleet(args, work, prefix, outputs)
+    return fail(prefix, done) if isinstance(done, str) else done
 
 
 def run_fleet(args: argparse.Namespace, work: Work, prefix: str,

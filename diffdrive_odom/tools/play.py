@@ -16,11 +16,10 @@ import argparse
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from diffdrive_odom.ros.messages import message_class
-from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cli import command_parser
 from diffdrive_odom.wire.conversions import split_ns
 
 if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
@@ -29,12 +28,6 @@ if TYPE_CHECKING:  # the bag library only past the parsing (``tools`` extra)
     from diffdrive_odom.tools.bags import cdrconvert
 
 CLOCK_QOS_DEPTH = 1
-
-
-@dataclass
-class _Topic:
-    name: str
-    publisher: Any
 
 
 def _message_class(msgtype: str) -> Any:
@@ -46,12 +39,8 @@ def _message_class(msgtype: str) -> Any:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="diffdrive-odom play",
-        description="Publish a bag's messages with their recorded timing (and /clock). "
-        "The fallback where `ros2 bag play` is not installed.",
-        formatter_class=HelpFormatter,
-    )
+    ap = command_parser("play", "Publish a bag's messages with their recorded timing (and "
+                        "/clock). The fallback where `ros2 bag play` is not installed.")
     ap.add_argument("bag", help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag")
     ap.add_argument("-r", "--rate", type=float, default=1.0, help="speed factor (> 0)")
     ap.add_argument("-l", "--loop", action="store_true",
@@ -125,8 +114,8 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     node = rclpy.create_node("diffdrive_odom_player")
     log = node.get_logger()
     convert = cdrconvert.CdrConverter(reader)
-    topics: dict[int, _Topic] = {}
-    by_name: dict[str, _Topic] = {}
+    topics: dict[int, Any] = {}  # the publishers, by connection and by name
+    by_name: dict[str, Any] = {}
     try:
         for conn in conns:
             cls = _message_class(conn.msgtype)
@@ -136,7 +125,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
             name = remap.get(conn.topic, conn.topic)
             if name not in by_name:
                 qos = ros_qos.qos(100, reliable=True, latched=name == "/tf_static")
-                by_name[name] = _Topic(name, node.create_publisher(cls, name, qos))
+                by_name[name] = node.create_publisher(cls, name, qos)
             topics[id(conn)] = by_name[name]
         if not topics:
             print("[play] nothing to play", file=sys.stderr)
@@ -160,7 +149,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
                                stop_ns=stop_ns, args=args)
             if not args.loop or not rclpy.ok():
                 break
-        tail = [t.publisher for t in by_name.values()] + ([clock_pub] if clock_pub else [])
+        tail = [*by_name.values()] + ([clock_pub] if clock_pub else [])
         for pub in tail:  # let reliable readers get the last messages before exiting
             pub.wait_for_all_acked(Duration(seconds=1.0))
         log.info(f"done: {sent} messages")
@@ -177,15 +166,15 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
     return 0
 
 
-def _wait_for_subscribers(node: Any, by_name: dict[str, _Topic], wanted: Sequence[str]) -> None:
+def _wait_for_subscribers(node: Any, by_name: dict[str, Any], wanted: Sequence[str]) -> None:
     """Block until each wanted topic's publisher is matched (so no reading is lost)."""
     for name in wanted:
-        topic = by_name.get(name)
-        if topic is None:
+        publisher = by_name.get(name)
+        if publisher is None:
             node.get_logger().warning(f"--wait-for {name}: not a played topic")
             continue
         deadline = time.monotonic() + 60.0
-        while topic.publisher.get_subscription_count() == 0:
+        while publisher.get_subscription_count() == 0:
             if time.monotonic() > deadline:
                 node.get_logger().warning(f"--wait-for {name}: no subscriber after 60 s")
                 break
@@ -196,7 +185,7 @@ def _play_once(
     reader: Any,
     *,
     conns: list[Connection],
-    topics: dict[int, _Topic],
+    topics: dict[int, Any],
     convert: cdrconvert.CdrConverter,
     clock_pub: Any,
     clock_cls: Any,
@@ -225,8 +214,8 @@ def _play_once(
     if clock_pub is not None:
         publish_clock(start_ns)
     for conn, log_ns, raw in reader.messages(connections=conns, start=start_ns, stop=stop_ns):
-        topic = topics.get(id(conn))
-        if topic is None:
+        publisher = topics.get(id(conn))
+        if publisher is None:
             continue
         due = wall0 + (log_ns - start_ns) * 1e-9 / rate
         while True:
@@ -238,7 +227,7 @@ def _play_once(
                 break
             wake = due if clock_pub is None else min(due, next_clock)
             time.sleep(max(0.0, wake - now))
-        topic.publisher.publish(convert(conn, bytes(raw)))
+        publisher.publish(convert(conn, bytes(raw)))
         last_ns = log_ns
         sent += 1
     if clock_pub is not None:  # the pass ends at its last message's time

@@ -22,14 +22,12 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cli import command_parser
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="diffdrive-odom reindex", formatter_class=HelpFormatter,
-        description="Write a cut-short recording's missing metadata.yaml, or a complete "
-                    "copy of a torn or damaged one in a new folder beside it.")
+    p = command_parser("reindex", "Write a cut-short recording's missing metadata.yaml, or "
+                       "a complete copy of a torn or damaged one in a new folder beside it.")
     p.add_argument("bag", help="bag folder without metadata.yaml, or a .mcap / .db3 file")
     p.add_argument("--output", default=None,
                    help="folder for the copy (default: BAG.recovered beside BAG)")

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from diffdrive_odom.core.evaluation import metrics
 from diffdrive_odom.tools import evaluate, fleet
-from diffdrive_odom.tools.cli import HelpFormatter
+from diffdrive_odom.tools.cli import command_parser
 from diffdrive_odom.tools.cmdline.args import (
     DEFAULT_REFERENCE,
     add_param_arguments,
@@ -42,12 +42,9 @@ PREFIX = "[replay]"
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog="diffdrive-odom replay",
-        description="Run the odometry node's estimator over a bag offline and write what "
-        "the node would publish (odom + /tf) to a rosbag2 and/or CSV, and/or evaluate it.",
-        formatter_class=HelpFormatter,
-    )
+    ap = command_parser("replay", "Run the odometry node's estimator over a bag offline and "
+                        "write what the node would publish (odom + /tf) to a rosbag2 and/or "
+                        "CSV, and/or evaluate it.")
     ap.add_argument("bags", nargs="+", metavar="BAG",
                     help="rosbag2 directory (mcap/sqlite3) or ROS 1 .bag; several: a fleet "
                     "(each bag's outputs in the -o/--csv/--json/--plot directories, named "
@@ -122,22 +119,11 @@ def main(argv: Sequence[str]) -> int:
     ``--dask`` cluster; the exit status is then the number that failed.
     """
     args = _parser().parse_args(list(argv))
-    if len(args.bags) == 1:
-        if args.summary:
-            return _error("--summary is a fleet's table: give several bags (one bag: "
-                          "--eval --json FILE)")
-        args.bag = args.bags[0]
-        return run_bag(args)
-    return _run_fleet(args)
-
-
-def _run_fleet(args: argparse.Namespace) -> int:
-    """Every bag through :func:`run_bag`, outputs named after the bag in the given directories."""
-    if not (args.output or args.csv or args.eval):
-        return _error("nothing to do: give -o OUT_DIR, --csv DIR and/or --eval")
-    done = fleet.run_fleet(args, run_bag, PREFIX, (("output", ""), ("csv", ".csv"),
-                                                   ("json", ".json"), ("plot", ".png")))
-    return _error(done) if isinstance(done, str) else done
+    return fleet.dispatch(
+        args, run_bag, PREFIX, (("output", ""), ("csv", ".csv"), ("json", ".json"),
+                                ("plot", ".png")), "--eval --json FILE",
+        None if args.output or args.csv or args.eval else
+        "nothing to do: give -o OUT_DIR, --csv DIR and/or --eval")
 
 
 def run_bag(args: argparse.Namespace) -> int:

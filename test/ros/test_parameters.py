@@ -193,7 +193,7 @@ def test_an_integer_for_a_double_keeps_the_type_double(tmp_path: Path) -> None:
         assert _set(node, "wheel_radius", 2).successful
         p = node.get_parameter("wheel_radius")
         assert (p.type_, p.value) == (Parameter.Type.DOUBLE, 2.0)
-        assert node.odometry._settings.geometry.wheel_radius == 2.0  # applied, as a float
+        assert node.odometry._pipeline.settings.geometry.wheel_radius == 2.0  # applied, a float
         assert _set(node, "twist_covariance_diagonal", [1, 2, 3, 4, 5, 6]).successful
         assert node.get_parameter("twist_covariance_diagonal").type_ == (
             Parameter.Type.DOUBLE_ARRAY)

@@ -66,10 +66,6 @@ class BagWriter:
         conn = self._writer.add_connection(topic, msgtype, typestore=store or self.typestore)
         self._conns[topic] = (conn, msgtype)
 
-    def has_topic(self, topic: str) -> bool:
-        """Tell whether ``topic`` is registered."""
-        return topic in self._conns
-
     def write(self, topic: str, log_ns: int, msg: Any) -> None:
         """Serialize a rosbags message object (Jazzy types) onto ``topic``."""
         conn, msgtype = self._conns[topic]

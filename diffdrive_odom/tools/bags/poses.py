@@ -18,7 +18,7 @@ from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.tools.bags import bagio
 from diffdrive_odom.tools.bags.bagio import TF_MESSAGE
 from diffdrive_odom.tools.cmdline.args import DEFAULT_REFERENCE
-from diffdrive_odom.wire.conversions import quaternion_to_yaw, stamp_to_ns
+from diffdrive_odom.wire.conversions import quaternion_to_yaw, reference_pose, stamp_to_ns
 
 POSE_TYPES = (
     "geometry_msgs/msg/PoseStamped",
@@ -27,15 +27,6 @@ POSE_TYPES = (
     "geometry_msgs/msg/TransformStamped",
     TF_MESSAGE,
 )
-
-
-def _pose_of(msg: Any, msgtype: str) -> tuple[Any, Any]:
-    """(position-like, quaternion) of one message of a supported type."""
-    if msgtype == "geometry_msgs/msg/PoseStamped":
-        return msg.pose.position, msg.pose.orientation
-    if msgtype in ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseWithCovarianceStamped"):
-        return msg.pose.pose.position, msg.pose.pose.orientation
-    return msg.transform.translation, msg.transform.rotation  # TransformStamped
 
 
 Notify = Callable[[str], None]
@@ -86,7 +77,7 @@ def read_trajectory(
     ``notify`` told); with several, BagError names them and ``frame_flag``, the
     option that chooses one.
     """
-    by_child: dict[str, tuple[list[int], list[float], list[float], list[float]]] = {}
+    by_child: dict[str, list[list[float]]] = {}  # stamps [ns], x, y, yaw
     seen: set[str] = set()
     with bagio.open_bag(bag) as reader:
         conns = bagio.connections_for(reader, topic, POSE_TYPES)
@@ -101,14 +92,14 @@ def read_trajectory(
                     if child_frame is not None and child != child_frame.lstrip("/"):
                         continue
                     key = child if conn.msgtype == TF_MESSAGE else ""
-                    p, q = _pose_of(item, "geometry_msgs/msg/TransformStamped")
-                else:
-                    p, q = _pose_of(item, conn.msgtype)
-                ts, xs, ys, yaws = by_child.setdefault(key, ([], [], [], []))
-                ts.append(stamp_to_ns(item.header.stamp))
-                xs.append(float(p.x))
-                ys.append(float(p.y))
-                yaws.append(quaternion_to_yaw(q))
+                    p, q = item.transform.translation, item.transform.rotation
+                    pose = (stamp_to_ns(item.header.stamp), float(p.x), float(p.y),
+                            quaternion_to_yaw(q))
+                else:  # PoseStamped, PoseWithCovarianceStamped, Odometry
+                    pose = reference_pose(item)
+                for column, value in zip(by_child.setdefault(key, [[], [], [], []]), pose,
+                                         strict=True):
+                    column.append(value)
     frames = sorted(k for k in by_child if k)
     if child_frame is None and len(frames) > 1:
         raise bagio.BagError(f"{topic}: name the child frame ({frame_flag}); frames: {frames}")

@@ -50,19 +50,22 @@ class Published:
 
 
 class PoseLog:
-    """Published poses kept compactly (32 bytes each) for ``--eval``."""
+    """Poses by stamp kept compactly (32 bytes each).
+
+    Replay's published ones for ``--eval``; the demo's odometry and ground truth as received.
+    """
 
     def __init__(self) -> None:
         self.stamp_ns = array("q")
         self.xyz = array("d")
 
-    def add(self, p: Published) -> None:
-        """Keep the stamp and the planar pose of ``p``."""
-        self.stamp_ns.append(p.stamp_ns)
-        self.xyz.extend((p.pose.x, p.pose.y, p.pose.theta))
+    def add(self, stamp_ns: int, x: float, y: float, yaw: float) -> None:
+        """Keep one planar pose."""
+        self.stamp_ns.append(stamp_ns)
+        self.xyz.extend((x, y, yaw))
 
     def trajectory(self) -> Trajectory:
-        """The poses kept, as eval's trajectory."""
+        """The poses kept, as eval's trajectory (sorted, unwrapped)."""
         return Trajectory.from_arrays(
             np.frombuffer(self.stamp_ns, dtype=np.int64),
             *np.frombuffer(self.xyz, dtype=np.float64).reshape(-1, 3).T,
@@ -125,7 +128,7 @@ class OutputSink:
             self.csv_out.row(p.stamp_ns, x, y, yaw, linear=p.linear, angular=p.angular,
                              status=p.status.value, pose_covariance=p.pose_covariance)
         if self.traj is not None:
-            self.traj.add(p)
+            self.traj.add(p.stamp_ns, x, y, yaw)
 
     def stretch(self, st: Stretch) -> None:
         """Every pose of a fast-lane stretch (all ``updated``), as :meth:`__call__` one by one."""
