@@ -132,10 +132,11 @@ def test_nan_and_implausible_twists_are_counted_as_dropped() -> None:
         assert s.values["dropped: stale_stamp"] == "0"
         assert s.values["dropped: implausible"] == "0"
         assert_finite(s)
-        # No new drop: back to OK, the total kept.
-        total = s.values["dropped (total)"]
+        # No new drop: back to OK, the total kept (not reset). It may have grown since: the
+        # 0.5 s burst can straddle two 1 Hz reports (a loaded run: 1, then 7 in all).
+        total = int(s.values["dropped (total)"])
         calm = peer.wait_for(lambda s: s.values["dropped since last report"] == "0", 5.0)
-        assert calm.level == 0 and calm.values["dropped (total)"] == total
+        assert calm.level == 0 and int(calm.values["dropped (total)"]) >= total
         # 1e300 m/s = 1e301 rad/s at r = 0.1 m: finite, but beyond any wheel.
         publish_for(peer, pub, twist(1e300), 0.5)
         s = peer.wait_for(lambda s: int(s.values["dropped: implausible"]) > 0, 10.0)

@@ -174,6 +174,9 @@ def test_the_shipped_ddc_yaml_with_open_loop_true(tmp_path: Path) -> None:
         js = node.create_publisher(JointState, "/joint_states", 10)
         assert spin_until(peer.executor, lambda: pub.get_subscription_count() > 0
                           and bool(odom), 20.0)
+        # It hears us: else its reader may match our writer after the one command went
+        # (a loaded run: no "commands 1" within 10 s).
+        handshake(node, peer.executor, "/diffbot_base_controller")
         msg = twist(0.3, 0.0)
         start = time.monotonic()
         pub.publish(msg)  # one command, then silence: 0.8 s of 0.3 m/s
@@ -376,6 +379,7 @@ def test_set_pose_and_reset_in_open_loop() -> None:
         node.create_subscription(Odometry, "/odom", odom.append, 100)
         pub = node.create_publisher(PoseWithCovarianceStamped, "/odometry_node/set_pose", 10)
         assert spin_until(ex, lambda: pub.get_subscription_count() > 0 and bool(odom), 20.0)
+        handshake(node, ex, "/odometry_node")  # it hears us: the one set_pose arrives
         msg = PoseWithCovarianceStamped()
         msg.header.frame_id = "odom"
         msg.pose.pose.position.x, msg.pose.pose.position.y = 1.5, -2.0
