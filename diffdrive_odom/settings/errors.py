@@ -24,8 +24,9 @@ class ParameterError(ValueError):
 
 def one_of(name: str, value: str, choices: Iterable[str]) -> str:
     """``value`` if it is one of ``choices``, else the ParameterError that lists them."""
-    if value not in tuple(choices):
-        raise ParameterError(name, f"must be one of {', '.join(choices)}, got {value!r}")
+    options = tuple(choices)  # once: an iterator would be spent by the test
+    if value not in options:
+        raise ParameterError(name, f"must be one of {', '.join(options)}, got {value!r}")
     return value
 
 
