@@ -200,3 +200,32 @@ def pose_stamped_msg(stamp_ns: int, x: float, y: float, yaw: float) -> Any:
     return t[POSE](header=_header(stamp_ns, "map"), pose=t["geometry_msgs/msg/Pose"](
         position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
         orientation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
+
+
+def mounted_copy(src: Path, dst: Path, x: float, y: float, yaw: float,
+                 topic: str = "/ground_truth/pose") -> Path:
+    """``src`` with its PoseStamped ``topic`` moved onto a mount: ``R = B M``, M = (x, y, yaw).
+
+    What a reference that far off the axle and that much turned would have recorded of
+    the same robot (the point ``p + R(theta) (x, y)``, its heading ``theta + yaw``),
+    written here with plain trigonometry, not the package's mount. Other topics as they
+    are.
+    """
+    from rosbags.rosbag2 import Reader
+
+    with Reader(src) as reader, Writer(dst, version=9,
+                                       storage_plugin=StoragePlugin.MCAP) as writer:
+        out = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=STORE)
+               for c in reader.connections}
+        for conn, log_ns, raw in reader.messages():
+            if conn.topic == topic:
+                msg = STORE.deserialize_cdr(raw, conn.msgtype)
+                p, q = msg.pose.position, msg.pose.orientation
+                theta = 2.0 * np.arctan2(q.z, q.w)
+                c, s = np.cos(theta), np.sin(theta)
+                msg = pose_stamped_msg(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec,
+                                       float(p.x + c * x - s * y), float(p.y + s * x + c * y),
+                                       float(theta + yaw))
+                raw = bytes(STORE.serialize_cdr(msg, conn.msgtype))
+            writer.write(out[conn.id], log_ns, raw)
+    return dst

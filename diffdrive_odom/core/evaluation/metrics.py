@@ -18,6 +18,11 @@ Figures (all in metres / radians; see :class:`Metrics`):
 Stamps are matched by interpolating the reference at the odometry's stamps (linear
 in x, y and the continuous heading), never extrapolated and never across a gap in
 the reference longer than ``max_gap``.
+
+A reference mounted turned on the robot (a marker body's yaw) would turn every
+start-aligned figure with it: :func:`travel_yaw` finds that yaw from the reference
+alone (its heading against its own direction of travel), for ``eval`` to move the
+reference onto base_link before these figures are taken.
 """
 
 from __future__ import annotations
@@ -247,3 +252,37 @@ def evaluate(
         segment_length_m=segment_length,
         rpe_segments=n_seg,
     )
+
+
+TRAVEL_MAX_CURVATURE = 1.0  # rad/m: straighter stretches show the heading (see travel_yaw)
+TRAVEL_MIN_STEP_M = 0.005  # stretches shorter than this are not a direction
+
+
+def travel_yaw(ref: Trajectory) -> tuple[float, float, float]:
+    """The reference frame's yaw in base_link from its direction of travel: (yaw, sigma, m).
+
+    A differential drive moves along its heading, so over a stretch the reference's
+    heading minus the direction it moved is its mount's yaw (driving forward). Stretches
+    of at least ``TRAVEL_MIN_STEP_M``, the straighter ones (``TRAVEL_MAX_CURVATURE``:
+    turning, a reference off the axle moves sideways too) weighted by length; sigma is
+    the weighted spread over the square root of the stretches' count; the third value
+    is the distance it rests on [m] (0: the reference never moved: yaw 0, sigma NaN).
+    """
+    if len(ref) < 2:
+        return 0.0, math.nan, 0.0
+    path = ref.path_length()
+    ends = np.searchsorted(path, np.arange(0.0, path[-1], TRAVEL_MIN_STEP_M), side="left")
+    ends = np.unique(np.append(ends, len(ref) - 1))
+    dx, dy = np.diff(ref.x[ends]), np.diff(ref.y[ends])
+    length = np.hypot(dx, dy)
+    turned = np.abs(np.diff(ref.yaw[ends]))
+    straight = (length >= TRAVEL_MIN_STEP_M) & (turned <= TRAVEL_MAX_CURVATURE * length)
+    if not straight.any():
+        return 0.0, math.nan, 0.0
+    mid = 0.5 * (ref.yaw[ends[:-1]] + ref.yaw[ends[1:]])
+    offset = wrap_angles(mid - np.arctan2(dy, dx))[straight]
+    w = length[straight]
+    yaw = math.atan2(float(np.sum(w * np.sin(offset))), float(np.sum(w * np.cos(offset))))
+    spread = wrap_angles(offset - yaw)
+    sigma = math.sqrt(float(np.sum(w * spread**2) / np.sum(w)) / len(w))
+    return yaw, sigma, float(np.sum(w))
