@@ -58,6 +58,7 @@ from diffdrive_odom.core.evaluation.recorded_run import (
     Run,
     single_segment,
     start_stamp,
+    trajectory,
     values_of,
     with_values,
 )
@@ -109,17 +110,18 @@ YAW_RULE = always(YAW_ONLY)
 
 @dataclass(frozen=True)
 class RunFigures:
-    """One run's :func:`~.judge.judgment` before and after calibration.
+    """One run's :func:`~.judge.judgment` before and after calibration (its slips bridged).
 
-    ``*_all``: the same over every step, as wheels-only replay integrates them (None
-    when the fit left none of the run's steps out).
+    ``*_all``: ``eval``'s figures over every step, the slips in, as wheels-only replay
+    integrates them and ``replay --eval`` judges them (the reference moved onto base_link
+    by the fit's mount); None when the fit left none of the run's steps out.
     """
 
     name: str
     before: Judgment
     after: Judgment
-    before_all: Judgment | None = None
-    after_all: Judgment | None = None
+    before_all: Metrics | None = None
+    after_all: Metrics | None = None
 
 
 @dataclass(frozen=True)
@@ -391,11 +393,19 @@ def run_figures(runs: Sequence[Run], nominal: Geometry, fitted: Geometry,
     out = []
     for r in runs:
         before, after = (judgment(r, g, mount, max_gap) for g in (nominal, fitted))
-        every = ((judgment(r, nominal, mount, max_gap, bridged=False),
-                  judgment(r, fitted, mount, max_gap, bridged=False))
+        every = ((every_step(r, nominal, mount, max_gap), every_step(r, fitted, mount, max_gap))
                  if before.left_out else (None, None))
         out.append(RunFigures(r.name, before, after, *every))
     return tuple(out)
+
+
+def every_step(run: Run, geometry: Geometry, mount: Mount = AXLE, max_gap: float = 0.5
+               ) -> Metrics:
+    """``eval``'s figures of ``run`` over every step, as wheels-only replay integrates it."""
+    if run.reference is None:
+        raise CalibrationError(f"{run.name}: no reference trajectory")
+    return evaluate(trajectory(run, geometry), base_reference(run.reference, mount),
+                    max_gap=max_gap)
 
 
 def figures_of(run: Run, geometry: Geometry, max_gap: float = 0.5,

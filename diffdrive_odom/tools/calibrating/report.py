@@ -223,10 +223,12 @@ def _every_step(r: calibration.RunFigures) -> str:
     """What wheels-only replay will show of a run whose slips the fit left out ('' if none)."""
     if r.before_all is None or r.after_all is None:
         return ""
-    return (f"; its {r.after.left_out} slip steps left out (bridged by the reference). "
-            f"Over every step, as wheels-only replay integrates them (the slips in): "
-            f"{r.before_all.error:.4f} -> {r.after_all.error:.4f} m, end "
-            f"{r.before_all.end:.4f} -> {r.after_all.end:.4f} m")
+    return (f"\n    these figures leave out its {r.after.left_out} slip steps (bridged by the "
+            "reference); wheels-only replay integrates them: replay --eval's final position "
+            f"error, start aligned, {r.before_all.final_position_error_aligned_m:.4f} -> "
+            f"{r.after_all.final_position_error_aligned_m:.4f} m (nominal -> calibrated, "
+            "--reference-offset the mount below; use_imu takes the slips' heading from the "
+            "gyro)")
 
 
 def mount_lines(found: assessment.MountFound) -> str:
