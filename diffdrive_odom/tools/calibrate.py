@@ -45,6 +45,7 @@ from diffdrive_odom.core.uncertainty.noise import (
 from diffdrive_odom.tools import fleet
 from diffdrive_odom.tools.calibrating.report import (
     check_lines,
+    coverage_line,
     fit_report,
     implausible_lines,
     left_out_lines,
@@ -275,6 +276,8 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
         plot(result, runs, args.plot)
     print(fit_report(result, a.geometry_covariance, args.session_drift))
     print(mount_lines(a.mount))
+    if coverage_line(a):
+        print(coverage_line(a))
     if rotation is not None:
         print(rotation_line(rotation, len(runs), reference))
     for line in implausible_lines(a.implausible, a.mount, args.force):

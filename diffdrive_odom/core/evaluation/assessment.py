@@ -86,6 +86,8 @@ class Assessment:
     mount: MountFound
     implausible: tuple[Implausible, ...]
     spread_folds: tuple[crossval.HeldOut, ...]  # whose geometries fit rotation_noise_k
+    coverage: determinacy.Coverage  # whether all the runs determine the geometry
+    weakest: FloatArray  # the combination of the three values they see least (unit)
 
     @property
     def refused(self) -> bool:
@@ -170,7 +172,8 @@ def assess(runs: Sequence[Run], nominal: Geometry, *, given: Mount | None = None
                else crossval.with_drift(result.values, covariance[:3, :3], drift))
     return Assessment(chosen, result, verdict, covariance, printed,
                       _mount_found(result, spec, covariance, lever_held),
-                      implausible(nominal, result.values, printed), tuple(spread_folds))
+                      implausible(nominal, result.values, printed), tuple(spread_folds),
+                      determinacy.coverage(shapes), determinacy.weakest(shapes))
 
 
 def reference_mount(runs: Sequence[Run], nominal: Geometry, given: Mount | None) -> MountFound:

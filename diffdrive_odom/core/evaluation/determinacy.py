@@ -306,6 +306,18 @@ def lever_reason(shapes: Sequence[Shape]) -> str:
     return ""
 
 
+def weakest(shapes: Sequence[Shape]) -> FloatArray:
+    """The combination of the three values ``shapes`` see least (unit, relative changes).
+
+    The geometry's information (the mount's fitted part eliminated) has its smallest
+    eigenvalue along it: what runs turning one way only leave free.
+    """
+    info = geometry_part(sum((s.information for s in shapes), np.zeros((6, 6))), _lever(shapes))
+    _, u = np.linalg.eigh(info)
+    v = u[:, 0]
+    return np.asarray(v if v[np.argmax(np.abs(v))] > 0 else -v, dtype=np.float64)
+
+
 def coverage(shapes: Sequence[Shape]) -> Coverage:
     """Whether ``shapes`` (a fold's training runs) determine the geometry, and if not why."""
     travel = sum(s.travel for s in shapes)

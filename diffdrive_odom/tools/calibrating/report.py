@@ -244,6 +244,18 @@ def mount_lines(found: assessment.MountFound) -> str:
             f"(1-sigma: {found.source})\n  fitted: {what}")
 
 
+def coverage_line(a: assessment.Assessment) -> str:
+    """What all the runs do not determine ('' when they determine the geometry)."""
+    reason = a.coverage.reason
+    if not reason:
+        return ""
+    w = a.weakest
+    return (f"NOT DETERMINED by these runs: {reason}; the combination they see least, "
+            f"{w[0]:+.2f} left radius {w[1]:+.2f} right radius {w[2]:+.2f} separation "
+            "(relative changes), is not determined: the values printed hold along it only "
+            "as far as these runs go (runs that turn the other way determine it)")
+
+
 def implausible_lines(found: Sequence[assessment.Implausible], mount: assessment.MountFound,
                       forced: bool) -> list[str]:
     """A value moved too far to be the wheels: named, with its likely causes."""
