@@ -164,7 +164,7 @@ def test_calibrate_says_what_wheels_only_replay_will_show_of_the_slips_it_left_o
                       r"slip steps .* wheels-only replay integrates them: replay --eval's final "
                       r"position error, start aligned, ([\d.]+) -> ([\d.]+) m", out, re.M)
     assert [s[0] for s in said] == ["run1", "run2", "run3"], out
-    run, steps, nominal, calibrated = said[0]
+    _, steps, nominal, calibrated = said[0]
     assert 80 <= int(steps) <= 95
     assert float(calibrated) > float(nominal), said  # what the user met: worse, said now
 
