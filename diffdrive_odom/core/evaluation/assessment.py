@@ -187,6 +187,10 @@ def _mount_found(result: calibration.Fit, spec: MountSpec, covariance: FloatArra
                  lever_held: str) -> MountFound:
     if spec.given is not None:
         return MountFound(spec.given, True, (math.nan,) * 3, "given")
+    if result.ends_only:  # the end poses hold the whole trajectory's mount
+        return MountFound(result.mount, False, (math.nan,) * 3,
+                          "held where the whole trajectory's fit puts it (the end poses "
+                          "alone do not fit it)", lever_held)
     fitted = (result.lever_fitted, result.lever_fitted, result.yaw_fitted)
     if covariance is not None:
         boot = np.sqrt(np.diag(covariance)[3:6])

@@ -254,19 +254,21 @@ def evaluate(
     )
 
 
-TRAVEL_MAX_CURVATURE = 1.0  # rad/m: straighter stretches show the heading (see travel_yaw)
 TRAVEL_MIN_STEP_M = 0.005  # stretches shorter than this are not a direction
 
 
 def travel_yaw(ref: Trajectory) -> tuple[float, float, float]:
     """The reference frame's yaw in base_link from its direction of travel: (yaw, sigma, m).
 
-    A differential drive moves along its heading, so over a stretch the reference's
-    heading minus the direction it moved is its mount's yaw (driving forward). Stretches
-    of at least ``TRAVEL_MIN_STEP_M``, the straighter ones (``TRAVEL_MAX_CURVATURE``:
-    turning, a reference off the axle moves sideways too) weighted by length; sigma is
-    the weighted spread over the square root of the stretches' count; the third value
-    is the distance it rests on [m] (0: the reference never moved: yaw 0, sigma NaN).
+    A differential drive's axle centre moves along its heading, never sideways: over a
+    stretch, the reference's displacement seen in base_link's heading (the reference's
+    less the mount's yaw ``a``) has no sideways part but what a lever arm ``l_x`` ahead of
+    the axle adds on a turn, ``dtheta l_x`` (an arm along the axle adds none). Least
+    squares over the stretches of ``TRAVEL_MIN_STEP_M`` or more of the reference's own
+    path, ``|d| sin(phi - theta + a) = dtheta l_x`` in ``a`` and ``l_x`` (Gauss-Newton
+    from the stretches' circular mean): no odometry in it, so nothing of the geometry
+    judged. Sigma from the residuals; the third value is the distance it rests on [m]
+    (0: the reference never moved: yaw 0, sigma NaN). Driving backwards fits too.
     """
     if len(ref) < 2:
         return 0.0, math.nan, 0.0
@@ -275,14 +277,21 @@ def travel_yaw(ref: Trajectory) -> tuple[float, float, float]:
     ends = np.unique(np.append(ends, len(ref) - 1))
     dx, dy = np.diff(ref.x[ends]), np.diff(ref.y[ends])
     length = np.hypot(dx, dy)
-    turned = np.abs(np.diff(ref.yaw[ends]))
-    straight = (length >= TRAVEL_MIN_STEP_M) & (turned <= TRAVEL_MAX_CURVATURE * length)
-    if not straight.any():
+    keep = length >= TRAVEL_MIN_STEP_M
+    if keep.sum() < 3:
         return 0.0, math.nan, 0.0
-    mid = 0.5 * (ref.yaw[ends[:-1]] + ref.yaw[ends[1:]])
-    offset = wrap_angles(mid - np.arctan2(dy, dx))[straight]
-    w = length[straight]
-    yaw = math.atan2(float(np.sum(w * np.sin(offset))), float(np.sum(w * np.cos(offset))))
-    spread = wrap_angles(offset - yaw)
-    sigma = math.sqrt(float(np.sum(w * spread**2) / np.sum(w)) / len(w))
-    return yaw, sigma, float(np.sum(w))
+    d, turn = length[keep], np.diff(ref.yaw[ends])[keep]
+    rel = wrap_angles(np.arctan2(dy, dx) - 0.5 * (ref.yaw[ends[:-1]] + ref.yaw[ends[1:]]))[keep]
+    yaw = -math.atan2(float(np.sum(d * np.sin(rel))), float(np.sum(d * np.cos(rel))))
+    lever = 0.0
+    for _ in range(20):  # Gauss-Newton on (a, l_x)
+        r = d * np.sin(rel + yaw) - turn * lever
+        jac = np.column_stack((d * np.cos(rel + yaw), -turn))
+        step = np.linalg.lstsq(jac, -r, rcond=None)[0]
+        yaw, lever = yaw + float(step[0]), lever + float(step[1])
+        if abs(step[0]) < 1e-12:
+            break
+    r = d * np.sin(rel + yaw) - turn * lever
+    jac = np.column_stack((d * np.cos(rel + yaw), -turn))
+    cov = np.linalg.pinv(jac.T @ jac) * float(np.sum(r**2)) / max(len(r) - 2, 1)
+    return math.remainder(yaw, math.tau), math.sqrt(max(float(cov[0, 0]), 0.0)), float(d.sum())
