@@ -14,8 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.rosbag2.metadata import dump_qos_v9
 from ruamel.yaml import YAML
+
+from diffdrive_odom.tools.bags.rosbagsinternals import dump_qos_v9
 
 __all__ = ["copy", "metadata", "yaml_text"]
 
@@ -39,7 +40,7 @@ def metadata(reader: Any, storage_id: str) -> dict[str, Any]:
         key = (conn.topic, conn.msgtype)
         counts[key] = counts.get(key, 0) + conn.msgcount
         first.setdefault(key, conn)
-    storages = reader.readers
+    storages = reader.storages
     total = sum(s.message_count for s in storages)
     whole = span(min(s.start_time for s in storages), max(s.end_time for s in storages), total)
     info = {
