@@ -9,12 +9,11 @@ recovered messages into a new bag with its own metadata and (MCAP) summary.
 
 from __future__ import annotations
 
-from io import StringIO
 from pathlib import Path
 from typing import Any
 
+import yaml
 from rosbags.rosbag2 import StoragePlugin, Writer
-from ruamel.yaml import YAML
 
 from diffdrive_odom.tools.bags.rosbagsinternals import dump_qos_v9
 
@@ -69,12 +68,8 @@ def metadata(reader: Any, storage_id: str) -> dict[str, Any]:
 
 
 def yaml_text(data: dict[str, Any]) -> str:
-    """YAML as rosbag2's readers (and rosbags) take it."""
-    yaml = YAML(typ="safe")
-    yaml.default_flow_style = False
-    out = StringIO()
-    yaml.dump(data, out)
-    return out.getvalue()
+    """YAML as rosbag2's readers (and rosbags) take it, in rosbag2's key order."""
+    return yaml.safe_dump(data, default_flow_style=False, sort_keys=False)
 
 
 def copy(reader: Any, out: Path, storage_id: str) -> int:
