@@ -70,8 +70,11 @@ def unreadable(path: Path, err: BaseException) -> UnreadableBagError:
                                  f"`diffdrive-odom reindex {path}` then writes a new one")
         return UnreadableBagError(f"{path}: {reason}; give {KINDS}")
     if path.suffix == ".bag":
-        with path.open("rb") as f:
-            head = f.read(len(ROS1_MAGIC))
+        try:
+            with path.open("rb") as f:
+                head = f.read(len(ROS1_MAGIC))
+        except OSError as failed:
+            return UnreadableBagError(f"{path}: cannot be read ({failed.strerror or failed})")
         if head != ROS1_MAGIC:
             what = "an empty file" if not head else "it does not start with '#ROSBAG V2.0'"
             return UnreadableBagError(f"{path}: not a ROS 1 bag ({what}); give {KINDS}")

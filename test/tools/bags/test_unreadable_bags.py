@@ -11,6 +11,7 @@ that does not parse. Where the line says what to do, the test does it and the ba
 from __future__ import annotations
 
 import random
+import re
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -44,17 +45,16 @@ def noise_bag(tmp: Path) -> tuple[Path, str]:
 def cut_ros1_bag(tmp: Path) -> tuple[Path, str]:
     bag = tmp / "cut.bag"
     bag.write_bytes(TB3.read_bytes()[:600_000])  # the index is at the end
-    return bag, (f"{bag}: a ROS 1 bag whose index does not read (Bag index looks damaged: "
-                 "('Header could not be read from file.',)): a recording cut short is made "
-                 f"whole by ROS 1's `rosbag reindex {bag}`")
+    return bag, (f"{bag}: a ROS 1 bag whose index does not read (REASON): a recording cut "
+                 f"short is made whole by ROS 1's `rosbag reindex {bag}`")
 
 
 def scrambled_ros1_bag(tmp: Path) -> tuple[Path, str]:
     bag = tmp / "scrambled.bag"
     shutil.copy(TB3, bag)
     _scramble(bag, 400_000, 400, seed=1)  # inside a compressed chunk, a third of the way
-    return bag, (f"{bag}: damaged 14.0 s into the recording (Invalid data stream): it "
-                 "cannot be read past that point: record the run again")
+    return bag, (f"{bag}: damaged 14.0 s into the recording (REASON): it cannot be read "
+                 "past that point: record the run again")
 
 
 def scrambled_mcap(tmp: Path) -> tuple[Path, str]:
@@ -62,16 +62,15 @@ def scrambled_mcap(tmp: Path) -> tuple[Path, str]:
     shutil.copytree(RUN04, bag)
     (mcap,) = bag.glob("*.mcap")
     _scramble(mcap, mcap.stat().st_size // 2, 300, seed=2)
-    return bag, (f"{bag}: damaged (Python int too large to convert to C ssize_t): "
-                 f"`diffdrive-odom reindex {mcap}` copies what still reads into a new bag")
+    return bag, (f"{bag}: damaged (REASON): `diffdrive-odom reindex {mcap}` copies what "
+                 "still reads into a new bag")
 
 
 def bad_metadata(tmp: Path) -> tuple[Path, str]:
     bag = tmp / "run04"
     shutil.copytree(RUN04, bag)
     (bag / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  version: [9\n")
-    return bag, (f"{bag}: its metadata.yaml does not read (Could not load YAML from "
-                 f"{bag}/metadata.yaml: while parsing a flow sequence): move it aside and the "
+    return bag, (f"{bag}: its metadata.yaml does not read (REASON): move it aside and the "
                  f"storage files are read without it; `diffdrive-odom reindex {bag}` then "
                  "writes a new one")
 
@@ -81,12 +80,19 @@ DAMAGES: dict[str, Callable[[Path], tuple[Path, str]]] = {
                             bad_metadata)}
 
 
-def _one_line(capsys: pytest.CaptureFixture[str]) -> str:
+def _is(line: str, expected: str) -> bool:
+    """``line`` is ``expected``, whose REASON (rosbags' or a codec's words) may be any text."""
+    return re.fullmatch(".+".join(re.escape(p) for p in expected.split("REASON")),
+                        line) is not None
+
+
+def _said(prefix: str, expected: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """One line on stderr, and it is ``prefix`` and ``expected``."""
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1, err
     assert "Traceback" not in err and "codec" not in err, err
-    return lines[0]
+    assert _is(lines[0], f"{prefix} {expected}"), (lines[0], expected)
 
 
 @pytest.mark.parametrize("damage", DAMAGES)
@@ -98,14 +104,14 @@ def test_replay_eval_and_calibrate_say_in_one_line_what_is_wrong_and_what_to_do(
     out.mkdir()
     assert cli(["replay", str(bag), "--params-file", str(params), "--csv",
                 str(out / "o.csv"), "-o", str(out / "bag")]) == 2
-    assert _one_line(capsys) == f"[replay] {line}"
+    _said("[replay]", line, capsys)
     odom = "/odom" if bag.suffix == ".bag" else "/firmware/odom"  # TB3's, OptiOdom's
     assert cli(["eval", str(bag), "--odom", odom, "--json", str(out / "e.json")]) == 2
-    assert _one_line(capsys) == f"[eval] {line}"
+    _said("[eval]", line, capsys)
     # beside an intact run of the same robot: TB3 has no ground truth but its /odom
     other, truth = (TB3, ["--ground-truth", "/odom"]) if bag.suffix == ".bag" else (RUN04, [])
     assert cli(["calibrate", str(bag), str(other), "--params-file", str(params), *truth]) == 2
-    assert _one_line(capsys) == f"[calibrate] {line}"
+    _said("[calibrate]", line, capsys)
     assert list(out.iterdir()) == []  # nothing half-written
 
 
@@ -138,9 +144,8 @@ def test_reindex_of_a_ros1_bag_points_to_ros1_s_own(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bag, _ = cut_ros1_bag(tmp_path)
     assert cli(["reindex", str(bag)]) == 2
-    assert _one_line(capsys) == (f"[reindex] {bag}: a ROS 1 bag; this makes rosbag2 "
-                                 f"recordings whole, ROS 1's `rosbag reindex {bag}` does it "
-                                 "for a ROS 1 bag")
+    _said("[reindex]", f"{bag}: a ROS 1 bag; this makes rosbag2 recordings whole, ROS 1's "
+          f"`rosbag reindex {bag}` does it for a ROS 1 bag", capsys)
 
 
 @pytest.mark.dds
@@ -149,5 +154,5 @@ def test_play_of_a_bag_damaged_part_way_ends_with_the_line(
     bag, line = scrambled_ros1_bag(tmp_path)
     assert cli(["play", str(bag), "--rate", "20"]) == 2
     err = capsys.readouterr().err
-    assert err.splitlines()[-1] == f"[play] {line}", err
+    assert _is(err.splitlines()[-1], f"[play] {line}"), err
     assert "Traceback" not in err
