@@ -130,6 +130,12 @@ def test_calibrate_of_the_turtlebot3_bag_leaves_its_slips_out(
                              re.M), said.out
             assert "likely causes:" in said.out and "/**:" not in said.out
             assert "no params block: a value moved too far" in said.out
+    code = cli(["calibrate", str(bag), "--params-file", str(params), "--ground-truth", "/odom",
+                "--imu-topic", "none", "--force"])
+    forced = capfd.readouterr().out
+    assert code == 0
+    assert re.search(r"^IMPLAUSIBLE: .* \(--force: block printed anyway\):$", forced, re.M), forced
+    assert "/**:" in forced and _values(forced) == fits[True]
     drawing = {"left wheel radius": 0.033, "right wheel radius": 0.033,
                "wheel separation": 0.287}
     for name, value in drawing.items():

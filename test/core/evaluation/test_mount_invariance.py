@@ -20,10 +20,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from diffdrive_odom.core.bulk import batch
-from diffdrive_odom.core.evaluation import assessment, calibration
+from diffdrive_odom.core.evaluation import assessment, calibration, consistency, umbmark
 from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.core.evaluation.recorded_run import Run
 from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mount import Mount
 from diffdrive_odom.settings.odometry import odometry_settings
 
 from rosutil import DATA
@@ -112,3 +113,21 @@ def test_calibrate_with_defaults_on_a_mount_is_calibrate_on_the_axle(
     m, (sx, sy, syaw) = got.mount.mount, got.mount.sigma
     assert abs(m.x - want[0]) < sx and abs(m.y - want[1]) < sy
     assert abs(math.remainder(m.yaw - want[2], math.tau)) < syaw
+
+
+@settings(max_examples=6, deadline=None)
+@given(x=LEVER, y=LEVER, yaw=ANGLE)
+def test_umbmark_s_ends_and_the_consistency_terms_take_the_mount(
+        x: float, y: float, yaw: float) -> None:
+    """UMBmark's reference end and the consistency fit's final-pose error (what
+    rotation_noise_k is fitted from) on a mounted reference, its mount given, are the
+    axle's: the reference's own start frame, turned by the mount's yaw, never enters."""
+    m = Mount(x, y, yaw)
+    for run in _runs()[:2]:
+        moved = mounted(run, x, y, yaw)
+        assert run.reference is not None and moved.reference is not None
+        assert umbmark.reference_end(moved, moved.reference, m) == pytest.approx(
+            umbmark.reference_end(run, run.reference), abs=1e-9)
+        got = consistency.run_terms(moved, NOMINAL, mount=m).error
+        want = consistency.run_terms(run, NOMINAL).error
+        assert got == pytest.approx(want, abs=1e-9)
