@@ -145,7 +145,10 @@ class _Chunk:
     header: npt.NDArray[np.int64]  # (n,) header stamps
     logs: npt.NDArray[np.int64]  # (n,) receive times (0: unknown)
     stamps: npt.NDArray[np.int64]  # (n + 1,) stamps as the pipeline uses them
-    dt: Array
+    # (n + 1,) where each row's counts were first seen, each row the reference in turn
+    changed: npt.NDArray[np.int64]
+    moved: npt.NDArray[np.bool_]  # (n,) the step changes the counts
+    dt: Array  # (n,) the interval each step is judged over (CountTrack.judged)
     d_left: Array
     d_right: Array
     peak: Array
@@ -197,6 +200,7 @@ def _chunk_lanes(
             state = pipe.handover()
             ref = state.reference
             if (ref is not None and not ref.from_velocity and ref.stamp_ns == c.stamps[i]
+                    and state.counts[0] == c.changed[i]
                     and ref.values == tuple(c.values[i].tolist())):
                 j = int(ends[np.searchsorted(ends, i)])
                 stretch = _bulk(pipe, state, c, i, j)
@@ -273,17 +277,36 @@ def _arrays(
             low, high = counter_range(enc.counter_bits)
             ok &= (cur.min(axis=1) >= low) & (cur.max(axis=1) < high)
         dt_ns = stamps[1:] - stamps[:-1]
-        dt = dt_ns * 1e-9
+        dt, moved, changed = _judged(values, stamps, state.counts[0] if usable else 0,
+                                     dt_ns * 1e-9, cfg.max_reading_gap)
         d_left, d_right, peak = position_increments(enc, values)
         arcs = wheel_arcs(settings.geometry, d_left, d_right)
         ds, dtheta = body_from_arcs(settings.geometry, *arcs)
-        ok &= ((dt_ns > 0) & (dt <= cfg.max_reading_gap)
+        ok &= ((dt_ns > 0) & (dt_ns * 1e-9 <= cfg.max_reading_gap)
                & plausible_steps(cfg, dt, d_left, d_right, peak, arcs, MARGIN)
                & np.isfinite(ds / dt) & np.isfinite(dtheta / dt))
     if not settings.takes_bulk:
         ok[:] = False
-    return _Chunk(values=values, header=header, logs=logs, stamps=stamps, dt=dt, d_left=d_left,
-                  d_right=d_right, peak=peak, ds=ds, dtheta=dtheta, plain=ok)
+    return _Chunk(values=values, header=header, logs=logs, stamps=stamps, changed=changed,
+                  moved=moved, dt=dt, d_left=d_left, d_right=d_right, peak=peak, ds=ds,
+                  dtheta=dtheta, plain=ok)
+
+
+def _judged(values: Array, stamps: npt.NDArray[np.int64], first: int, step_dt: Array,
+            cap: float) -> tuple[Array, npt.NDArray[np.bool_], npt.NDArray[np.int64]]:
+    """:meth:`~.wheels.counts.CountTrack.judged` for every row in turn: the intervals.
+
+    ``first``: where row 0's counts were first seen. Returns each step's interval (since
+    its reference's counts were first seen, capped at ``cap``; never less than the
+    stamps'), whether it changed the counts, and where each row's were first seen.
+    """
+    moved = (values[1:] != values[:-1]).any(axis=1)
+    rows = np.arange(len(values))
+    last = np.maximum.accumulate(np.where(np.concatenate(([True], moved)), rows, 0))
+    changed = np.where(last == 0, first, stamps[last])
+    since = (stamps[1:] - changed[:-1]) * 1e-9
+    return (np.where(since <= step_dt, step_dt, np.maximum(step_dt, np.minimum(since, cap))),
+            moved, changed)
 
 
 SAFE_HEADING = 3.0  # below pi: a heading within (-3, 3) is its own wrap_angle
@@ -383,7 +406,13 @@ def _bulk(
     last_log = int(c.logs[k])
     ref = WheelReading(int(c.stamps[j]), tuple(c.values[j].tolist()), False,
                        last_log if last_log > 0 else None)
-    end = Handover(reference=ref,
+    changes = np.flatnonzero(c.moved[sl])  # the last step that moved the counts, if any
+    last_move = state.counts[1]
+    if len(changes):
+        m = i + int(changes[-1])
+        last_move = WheelIncrement(float(c.dt[m]), float(c.d_left[m]), float(c.d_right[m]),
+                                   float(c.peak[m]))
+    end = Handover(reference=ref, counts=(int(c.changed[j]), last_move),
                    pose=Pose2D(float(x[-1]), float(y[-1]), float(thetas[-1])),
                    windows=windows, covariance=cov.covariance, sensitivity=cov.sensitivity,
                    rates=cov.rates, gate=gate.state, clock_named=state.clock_named)
