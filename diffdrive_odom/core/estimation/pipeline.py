@@ -237,6 +237,8 @@ class ReadingPipeline:
             gyro.wheel_stamp_ns = max(gyro.wheel_stamp_ns or 0, self._estimator.stamp_ns)
             if status is Status.TIME_RESET:
                 gyro.wheel_stamp_ns = self._estimator.stamp_ns
+            if self._estimator.stamp_ns == stamp_ns:  # the newest wheel stamp's arrival
+                gyro.wheel_receive_ns = receive_ns
         if status in (Status.DROPPED, Status.HELD):
             return Outcome(verdict, False, "", warning, stamp_ns)
         self._last_usable_ns = stamp_ns

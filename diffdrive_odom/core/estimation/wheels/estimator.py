@@ -57,7 +57,7 @@ from typing import Protocol
 
 from diffdrive_odom.core.estimation.wheels import timeline
 from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
-from diffdrive_odom.core.estimation.wheels.counts import CountTrack, gap_motion, speeds
+from diffdrive_odom.core.estimation.wheels.counts import CountTrack, gap_motion
 from diffdrive_odom.core.estimation.wheels.encoders import (
     EncoderConfig,
     JointLookup,
@@ -329,11 +329,7 @@ class OdometryEstimator:
             ref, held, self.pose, None if unc is None else (unc.covariance, unc.sensitivity),
             timeline.suspect_jump(ref, held, cfg.max_reading_gap))
         self._held = self._stale = None
-        after = increment(self.encoders, held, reading)
-        why = implausible(cfg, after, wheel_arcs(self.geometry, after.d_left, after.d_right))
-        gap = f"the step after it is implausible: {why}" if why else gap_motion(
-            self.encoders, cfg, self.geometry, ref, held, self.counts.start,
-            self.counts.before(ref, cfg.max_reading_gap), speeds(after))
+        gap = gap_motion(self.encoders, cfg, self.geometry, ref, held, reading, self.counts)
         self._forget_twist()
         if isinstance(gap, WheelIncrement):
             gap = "" if self._integrate_gap(gap, ref.stamp_ns, held.stamp_ns) else (
@@ -375,7 +371,7 @@ class OdometryEstimator:
                            "switched between position and velocity input")
         inc = counts.judged(ref, reading, increment(self.encoders, ref, reading),
                             counts.changed_ns if changed_ns is None else changed_ns,
-                            self.config.max_reading_gap)
+                            self.config)
         rate = inc
         if stale is not None and stale[1].from_velocity == reading.from_velocity:
             rate = increment(self.encoders, stale[1], reading)
@@ -420,17 +416,18 @@ class OdometryEstimator:
             (ds, dtheta) if rate_arcs is arcs else body_from_arcs(self.geometry, *rate_arcs)
         )
         linear, angular = rate_ds / rate.dt, rate_dtheta / rate.dt
-        gyro = None
+        gyro, start = None, self.pose
         if self.heading is not None:
             gyro = self.heading.step(self.geometry, t0_ns, t1_ns, inc.d_left, inc.d_right, arcs)
-            if gyro is not None:
-                ds, dtheta = gyro.ds, gyro.dtheta
+            if gyro is not None:  # held readings only turned the pose: one arc from before
+                ds, dtheta = gyro.ds, gyro.dtheta + gyro.merged
+                start = Pose2D(start.x, start.y, start.theta - gyro.merged)
                 angular = dtheta / inc.dt
                 linear = ds / inc.dt if gyro.slip else linear
         isfinite = math.isfinite
         if not (isfinite(ds) and isfinite(dtheta) and isfinite(linear) and isfinite(angular)):
             return False
-        pose = compose(self.pose, ds, dtheta)
+        pose = compose(start, ds, dtheta)
         if not (isfinite(pose.x) and isfinite(pose.y) and isfinite(pose.theta)):
             return False
         if self.uncertainty is not None and gyro is not None and self.heading is not None:

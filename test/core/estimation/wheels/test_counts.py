@@ -112,18 +112,35 @@ def test_the_hold_changes_nothing_but_the_poses_while_held() -> None:
 
 
 def test_the_interval_is_capped_at_max_reading_gap() -> None:
-    """Counts standing 5 s, then 300 rad in one reading: over the 5 s since they last
-    changed that is 60 rad/s (plausible), but the interval is capped at
-    max_reading_gap (1 s): 300 rad/s, over max_wheel_speed, skipped."""
-    est = estimator()
+    """Counts standing 5 s, then 5 rad in one reading with max_wheel_speed 4: over the
+    5 s since they last changed that is 1 rad/s, but the interval is capped at
+    max_reading_gap (1 s): 5 rad/s, skipped; 3 rad passes."""
     rows = [(PERIOD * k, [0.0, 0.0]) for k in range(251)]  # 5 s standing
-    feed(est, rows)
-    verdict = est.update(ns(5.0 + PERIOD), NAMES, [300.0, 300.0])
-    assert verdict.status is Status.REANCHORED and verdict.code is Reason.TOO_FAST
-    assert "in 1 s" in verdict.reason, verdict.reason
+    for moved, status in ((5.0, Status.REANCHORED), (3.0, Status.UPDATED)):
+        est = estimator(max_wheel_speed=4.0)
+        feed(est, rows)
+        verdict = est.update(ns(5.0 + PERIOD), NAMES, [moved, moved])
+        assert verdict.status is status, verdict.reason
+    assert "in 1 s" in feed(estimator(max_wheel_speed=4.0), [*rows, (5.02, [5.0, 5.0])])[-1].reason
+
+
+def test_a_spike_on_a_released_reading_is_judged_over_its_own_step() -> None:
+    """40 rad on the left wheel of the reading that ends a 0.28 s hold: over the hold
+    that is 143 rad/s (under max_wheel_speed), but no wheel at 4 rad/s before it gets
+    there within max_wheel_acceleration 20 rad/s^2: judged over its own 1 ms, skipped.
+    The readings after it come back: the pose is the circle less those two steps."""
+    rows = held_rows(1.0, 1.3, 2.0)
+    at = next(k for k, (t, _) in enumerate(rows) if round(t * 1e3) % 20)
+    rows[at] = (rows[at][0], [rows[at][1][0] + 40.0, rows[at][1][1]])
     est = estimator()
-    feed(est, rows)
-    assert est.update(ns(5.0 + PERIOD), NAMES, [150.0, 150.0]).status is Status.UPDATED
+    verdicts = feed(est, rows)
+    assert verdicts[at].code is Reason.TOO_FAST and "in 0.001 s" in verdicts[at].reason
+    assert verdicts[at + 1].code is Reason.TOO_FAST  # back from the spike: skipped too
+    assert all(v.status is Status.UPDATED for v in verdicts[at + 2:])
+    # Lost: the motion of the hold (1.0 -> release) and of the step after it.
+    lost = (rows[at + 1][0] - 1.0)
+    want = oracle.arc(V * (2.0 - lost), W * (2.0 - lost))
+    assert_pose(est.pose, Pose2D(*want))
 
 
 # --------------------------------------------------------------- gaps (item 2)
