@@ -228,14 +228,20 @@ class Replayed:
     gaps_integrated: int
 
 
-def replay(rec: Recording, params: dict[str, Any]) -> Replayed:
-    """``rec`` through replay's engine (the node's pipeline, the fast lane) with ``params``."""
+def replay(rec: Recording, params: dict[str, Any],
+           imu: Sequence[bagreadings.ImuSample] = ()) -> Replayed:
+    """``rec`` through replay's engine (the node's pipeline, the fast lane) with ``params``.
+
+    ``imu``: gyro samples to merge in by log time, as replay reads a bag (``use_imu``).
+    """
     out: list[Published] = []
-    stats = replay_readings(rec.readings(), odometry_settings(params), out.append)
+    rows: list[Any] = sorted([*rec.readings(), *imu], key=lambda r: (r.log_ns, r.stamp_ns))
+    stats = replay_readings(rows, odometry_settings(params), out.append)
     traj = Trajectory.from_arrays([p.stamp_ns for p in out], [p.pose.x for p in out],
                                   [p.pose.y for p in out], [p.pose.theta for p in out])
+    # (read by name: the benches judge an older tree too, PYTHONPATH set to it)
     return Replayed(stats.final_pose.theta, traj, stats.reasons, stats.examples,
-                    stats.pipeline.gaps_integrated)
+                    getattr(stats.pipeline, "gaps_integrated", 0))
 
 
 def outside(traj: Trajectory, windows: Sequence[tuple[int, int]]) -> Trajectory:
@@ -278,3 +284,49 @@ def judge(name: str, rec: Recording, robot: Robot, params: dict[str, Any],
             outside(b.trajectory, windows))]
         ate = (fits[0], fits[1], fits[2], fits[3])
     return Judged(name, copy, anchor_heading(rec, robot), a, b, ate)
+
+
+# --- real faults, to count what the gates still catch ---------------------------------
+
+SPIKE_RAD = 40.0  # a counter glitch that returns: one row's left wheel this far up
+RESTART_S = 2.0  # a driver restart: this long without rows, then counting from near 0
+
+
+def with_faults(rec: Recording, robot: Robot, seed: int
+                ) -> tuple[Recording, list[tuple[str, int, int]]]:
+    """The run with two faults a driver really makes, each where the wheels move.
+
+    A counter spike that returns (one row's left count :data:`SPIKE_RAD` up, the next
+    row as it was) about a third into the run; a driver restart two thirds in: no rows
+    for :data:`RESTART_S`, then the counters counting again from the row before the
+    first one after it (near zero, not zero; a wrapping counter wraps). Returns the rows
+    and the faults as ``(kind, from, to)`` stamps.
+    """
+    rng = np.random.default_rng(seed)
+    t, pos = rec.stamp_ns.copy(), rec.position.copy()
+    speed = np.abs(np.diff(robot.angles(pos), axis=0)).max(axis=1)
+    moving = np.flatnonzero(speed > 0.0) + 1
+    n = len(t)
+
+    def pick(lo: float, hi: float) -> int:
+        choice = moving[(moving > lo * n) & (moving < hi * n - 1)]
+        return int(rng.choice(choice)) if len(choice) else int(lo * n)
+
+    unit = 2 * math.pi / robot.ticks_per_revolution if robot.ticks_per_revolution else 1.0
+    span = 2.0 ** robot.counter_bits if robot.counter_bits else 0.0
+    k = pick(0.25, 0.45)
+    pos[k, 0] += round(SPIKE_RAD / unit) if robot.ticks_per_revolution else SPIKE_RAD
+    faults = [("spike", int(t[k - 1]), int(t[k + 1]))]
+    r = pick(0.6, 0.8)
+    end = int(np.searchsorted(t, t[r] + round(RESTART_S * 1e9)))
+    if end < n:
+        pos[end:] -= pos[end - 1]
+        if span:
+            pos[end:] %= span
+        keep = np.ones(n, dtype=np.bool_)
+        keep[r + 1:end] = False
+        t, pos = t[keep], pos[keep]
+        faults.append(("restart", int(rec.stamp_ns[r]), int(rec.stamp_ns[end])))
+    if span:
+        pos %= span
+    return replace(rec, stamp_ns=t, log_ns=t.copy(), position=pos), faults
