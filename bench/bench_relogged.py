@@ -6,13 +6,15 @@ Every real run (:mod:`realruns`: 47 OptiOdom runs, 7 PHIL runs; ``--quick``: 3) 
 copy made by ``test/relogged.py`` (holds of 0.1-0.3 s released 1 ms after the previous
 row, up to three gaps of 1-5 s inside turns, stamps jittered by up to 2 ms; seeded by the
 run's name), both replayed through replay's engine with the run's nominal parameters.
-Per run: the holds and gaps (their seconds); the final heading of the unmodified run
-against an anchor that integrates every count (written without the package), and of
-the copy against the unmodified run; the ATE after the best SE(2) fit [mm] of both, on
-all their poses and on the same rows (outside the copy's holds and gaps, in both: a
-held row's pose is stale in any estimate, the counts being held); what replay named on
-the copy. The goals: every heading within 0.1 deg, every same-rows ATE at most 1 mm
-worse; the worst run of each is named. Then, for the runs with a gyro (PHIL), the same
+Per run: the holds and gaps (their seconds); the final heading of an anchor that
+integrates every count (written without the package), of the unmodified run and of the
+copy, and their differences (the run against the anchor, the copy against the run);
+the ATE after the best SE(2) fit [mm] of both, on all their poses and on the same
+rows (outside the copy's holds and gaps, in both: a held row's pose is stale in any
+estimate, the counts being held); what replay named on the copy; the steps the
+unmodified runs skipped or restarted on (counter faults, with their heading). The goals:
+every heading within 0.1 deg, every same-rows ATE at most 1 mm worse; the worst run of
+each and every run that missed one are named. Then, for the runs with a gyro (PHIL), the same
 comparison gyro-aided (``use_imu``; no goal: the gyro-aided heading moves with the
 wheels' stamp jitter alone). ``--accelerations``: per robot, how many of the
 copies' gaps each ``max_wheel_acceleration`` integrates and how many it takes as
@@ -42,13 +44,17 @@ def main() -> int:
                         help="also: the gaps each max_wheel_acceleration integrates, over "
                         f"{SEEDS} copies of each run (a few minutes)")
     args = parser.parse_args()
-    print(f"{'run':36s} {'holds':>5s} {'gaps':>9s}  {'heading [deg]':>22s}  "
-          f"{'ATE [mm]: all poses':>19s}  {'same rows':>18s}  named on the copy")
-    print(f"{'':36s} {'':5s} {'':9s}  {'run-anchor':>10s} {'copy-run':>11s}  "
+    print(f"{'run':30s} {'holds':>5s} {'gaps':>9s}  {'final heading [deg]':>25s}  "
+          f"{'differences':>19s}  {'ATE [mm]: all poses':>19s}  {'same rows':>18s}  "
+          "named on the copy")
+    print(f"{'':30s} {'':5s} {'':9s}  {'anchor':>8s} {'run':>8s} {'copy':>8s}  "
+          f"{'run-anchor':>10s} {'copy-run':>8s}  "
           f"{'run':>9s} {'copy':>9s}  {'run':>6s} {'copy':>5s} {'diff':>5s}")
     worst_heading = (0.0, "")
     worst_ate = (-math.inf, "")
     count = met = 0
+    run_faults: list[tuple[str, str]] = []
+    missed: list[str] = []
     for run in real_runs(args.quick):
         j = judge(run.name, run.recording, run.robot, run.params, run.truth)
         plain, copy = j.unmodified, j.relogged
@@ -67,14 +73,25 @@ def main() -> int:
         named = ", ".join(f"{k} {v}" for k, v in sorted(copy.reasons.items())) or "-"
         named += "" if not plain.reasons else "; the run: " + ", ".join(
             f"{k} {v}" for k, v in sorted(plain.reasons.items()))
-        print(f"{run.name:36s} {len(j.copy.holds):5d} {len(j.copy.gaps):2d} ({gaps:4.1f}s)  "
-              f"{anchor:+10.4f} {moved:+11.4f}  {ate}  {named}")
+        finals = " ".join(f"{math.degrees(h):+8.3f}" for h in (j.anchor, plain.heading,
+                                                                copy.heading))
+        print(f"{run.name:30s} {len(j.copy.holds):5d} {len(j.copy.gaps):2d} ({gaps:4.1f}s)  "
+              f"{finals}  {anchor:+10.4f} {moved:+8.4f}  {ate}  {named}")
+        if plain.reasons:
+            run_faults.append((run.name, ", ".join(
+                f"{k} {v}" for k, v in sorted(plain.reasons.items()))
+                + f"; heading {anchor:+.4f} deg from the anchor"))
+        if not ok:
+            missed.append(run.name)
         count += 1
         met += ok
+    faults = [f"{name} ({codes})" for name, codes in run_faults] or ["none"]
+    print("steps the unmodified runs skipped or restarted on (counter faults): "
+          + "; ".join(faults))
     print(f"goals (heading within {HEADING_DEG} deg of the run's and the anchor's, same-rows "
           f"ATE at most {1e3 * ATE_M:g} mm worse): met on {met} of {count} runs; worst heading "
           f"{worst_heading[0]:.4f} deg ({worst_heading[1]}), worst ATE change "
-          f"{worst_ate[0]:+.2f} mm ({worst_ate[1]})")
+          f"{worst_ate[0]:+.2f} mm ({worst_ate[1]}); missed on: {', '.join(missed) or 'none'}")
     gyro_aided(args.quick)
     if args.accelerations:
         accelerations(args.quick)
