@@ -27,6 +27,7 @@ from circledrive import (
     positions,
 )
 
+from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
 from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig, Reason
 from diffdrive_odom.core.estimation.wheels.estimator import OdometryEstimator
@@ -34,7 +35,9 @@ from diffdrive_odom.core.estimation.wheels.timeline import Status, Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.geometry.se2 import wrap_angle
+from diffdrive_odom.core.health.diagnostics import ReadingHealth, odometry_report
 from diffdrive_odom.core.uncertainty.noise import NoiseModel, unknown_path
+from diffdrive_odom.settings.odometry import odometry_settings
 
 import oracle
 
@@ -171,6 +174,35 @@ def test_a_gap_whose_counts_went_on_is_integrated_as_one_arc(gap_s: float) -> No
     assert f"{gap_s:.3f} s without a reading" in named.reason
     assert_pose(est.pose, circle(2.0 + gap_s))
     assert est.linear == pytest.approx(V, rel=1e-9)  # the steps after it, not the gap's
+
+
+def test_an_integrated_gap_is_named_once_in_the_log_and_in_diagnostics() -> None:
+    """The node's pipeline fed the circle with a 2 s gap: one warning (the log), one
+    ``gap_integrated`` in its counters, and /diagnostics' report names it in the second
+    that saw it, not in the next one, while its count stays in the values."""
+    pipe = ReadingPipeline(odometry_settings({"wheel_radius": R, "wheel_separation": B}))
+    warned = []
+    for k in range(round(4.0 / PERIOD) + 1):
+        t = PERIOD * k
+        if not 1.0 < t < 3.0 - 1e-9:
+            out = pipe.feed(ns(t), NAMES, positions(t))
+            warned += [out.verdict.code] if out.verdict.warning else []
+    assert warned == [Reason.GAP_INTEGRATED]
+    stats = pipe.stats
+    assert stats.gaps_integrated == 1 and stats.gap_reanchors == 0 and stats.reanchors == 0
+
+    def health(uptime: float) -> ReadingHealth:
+        return ReadingHealth(uptime_s=uptime, reading_rate_hz=50.0, since_last_reading_s=0.01,
+                             dropped=dict(stats.dropped), reanchors=stats.reanchors,
+                             causes=dict(stats.causes), gap_reanchors=stats.gap_reanchors,
+                             gaps_integrated=stats.gaps_integrated,
+                             time_resets=stats.time_resets)
+
+    first = odometry_report(health(4.0))
+    assert first.message == "1 gaps in the readings, their motion integrated from the counts"
+    later = odometry_report(health(5.0), health(4.0))
+    assert "gap" not in later.message, later.message
+    assert dict(later.values)["gaps integrated"] == "1"
 
 
 def test_the_gaps_covariance_grows_by_the_unknown_path() -> None:
