@@ -183,8 +183,8 @@ def run_bag(args: argparse.Namespace) -> int:
         print(f"{PREFIX} {warning}", file=sys.stderr)
     for note, count in stats.notes.items():
         print(f"{PREFIX} {count} x {note}", file=sys.stderr)
-    for code, count in stats.reasons.most_common(5):
-        print(f"  {count} x {code}: {stats.examples[code]}", file=sys.stderr)
+    for line in stats.reason_lines():
+        print(line, file=sys.stderr)
     for reason, count in stats.refused.most_common():  # the node's warning, counted
         print(f"{PREFIX} {reason}: {count} pose(s) not written", file=sys.stderr)
     if ref is not None:

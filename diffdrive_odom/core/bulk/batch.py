@@ -117,6 +117,13 @@ def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock | GyroSample],
             elif verdict.code is Reason.FUTURE_STAMP:  # discarded: so are its steps
                 for column in (stamps, dts, lefts, rights, segs):
                     del column[trial_start:]
+        if verdict.code is Reason.GAP_INTEGRATED and est.last_gap is not None:
+            end, gap = est.last_gap  # the gap's own step, before the one after it
+            stamps.append(end)
+            dts.append(gap.dt)
+            lefts.append(gap.d_left)
+            rights.append(gap.d_right)
+            segs.append(segments - 1)
         if status is Status.UPDATED:
             inc = est.last_increment
             assert inc is not None  # set by every UPDATED step

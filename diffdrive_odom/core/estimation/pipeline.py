@@ -78,7 +78,9 @@ class ReadingPipeline:
         self._published = 0
         self._dropped: dict[str, int] = {}
         self._reanchors = 0
+        self._causes: dict[str, int] = {}
         self._gap_reanchors = 0
+        self._gaps_integrated = 0
         self._time_resets = 0
         self._last_usable_ns: int | None = None
         self._velocity = False
@@ -182,7 +184,9 @@ class ReadingPipeline:
             published=self._published,
             dropped=MappingProxyType(dict(self._dropped)),
             reanchors=self._reanchors,
+            causes=MappingProxyType(dict(self._causes)),
             gap_reanchors=self._gap_reanchors,
+            gaps_integrated=self._gaps_integrated,
             time_resets=self._time_resets,
             last_usable_stamp_ns=self._last_usable_ns,
             velocity_fallback=self._velocity,
@@ -233,15 +237,21 @@ class ReadingPipeline:
             gyro.wheel_stamp_ns = max(gyro.wheel_stamp_ns or 0, self._estimator.stamp_ns)
             if status is Status.TIME_RESET:
                 gyro.wheel_stamp_ns = self._estimator.stamp_ns
+            if self._estimator.stamp_ns == stamp_ns:  # the newest wheel stamp's arrival
+                gyro.wheel_receive_ns = receive_ns
         if status in (Status.DROPPED, Status.HELD):
             return Outcome(verdict, False, "", warning, stamp_ns)
         self._last_usable_ns = stamp_ns
         if status is Status.REANCHORED:
             self._reanchors += 1
+            if verdict.cause:
+                self._causes[verdict.cause] = self._causes.get(verdict.cause, 0) + 1
         elif status is Status.TIME_RESET:
             self._time_resets += 1
         elif verdict.code is Reason.GAP:
             self._gap_reanchors += 1
+        elif verdict.code is Reason.GAP_INTEGRATED:
+            self._gaps_integrated += 1
         note = switched
         if self._estimator.from_velocity != self._velocity:
             self._velocity = not self._velocity
@@ -267,7 +277,8 @@ class ReadingPipeline:
         """The state a bulk integrator starts from (see :class:`Handover`)."""
         est, unc = self._estimator, self._estimator.uncertainty
         return Handover(
-            reference=None if self._setpose.pending else est.handover(), pose=est.pose,
+            reference=None if self._setpose.pending else est.handover(),
+            counts=(est.counts.changed_ns, est.counts.moved), pose=est.pose,
             windows=est.twist_windows(),
             covariance=() if unc is None else unc.covariance,
             sensitivity=() if unc is None else unc.sensitivity,
@@ -283,7 +294,7 @@ class ReadingPipeline:
         """
         assert state.reference is not None
         est, unc = self._estimator, self._estimator.uncertainty
-        est.take_over(state.reference, state.pose, state.windows, inc, step)
+        est.take_over(state.reference, state.pose, state.windows, inc, step, state.counts)
         if unc is not None:
             unc.covariance, unc.sensitivity = state.covariance, state.sensitivity
             unc.set_rates(state.rates)
