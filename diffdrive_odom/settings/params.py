@@ -372,6 +372,16 @@ def parse_override(text: str) -> tuple[str, ParamValue]:
     return name, _rcl_value(tree, name)
 
 
+def _one_line(err: Exception) -> str:
+    """PyYAML's multi-line message as one line: what it found, and where."""
+    import yaml
+
+    if isinstance(err, yaml.MarkedYAMLError) and err.problem_mark is not None:
+        mark = err.problem_mark
+        return f"{err.problem} (line {mark.line + 1}, column {mark.column + 1})"
+    return " ".join(str(err).split())
+
+
 def rcl_entries(sources: Sequence[ParamSource]) -> dict[str, dict[str, ParamValue]]:
     """The table rcl builds: node name -> parameters, in rcl's order."""
     import yaml
@@ -387,7 +397,8 @@ def rcl_entries(sources: Sequence[ParamSource]) -> dict[str, dict[str, ParamValu
         try:
             tree = _yaml_tree(text)
         except yaml.YAMLError as err:
-            raise ParameterError("--params-file", f"{item} is not YAML: {err}") from None
+            raise ParameterError("--params-file", f"{item} is not YAML: {_one_line(err)}",
+                                 ) from None
         if tree is None:
             continue
         if not isinstance(tree, yaml.MappingNode):

@@ -129,7 +129,8 @@ def main(argv: Sequence[str]) -> int:
 def run_bag(args: argparse.Namespace) -> int:
     """One bag (``args.bag``) with the parsed flags: what ``replay BAG ...`` does."""
     settings = online_report.replay_settings(
-        args, settings_from_args, lambda text: print(f"{PREFIX} {text}", file=sys.stderr))
+        args, lambda a, settled: settings_from_args(a, PREFIX, settled),
+        lambda text: print(f"{PREFIX} {text}", file=sys.stderr))
     if isinstance(settings, str):
         return _error(settings)
     problem = _output_problem(args)

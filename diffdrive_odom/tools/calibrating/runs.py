@@ -57,8 +57,7 @@ def decode(bag: str, settings: Settings, args: argparse.Namespace, reference: bo
     if imu is None:
         steps = batch.wheel_steps(bagblocks.read_joint_blocks(bag, args.topic, jump), used)
     else:
-        assert used.gyro is not None
-        by_log = used.gyro.stamp_source is StampSource.RECEIVE_TIME
+        by_log = used.gyro is not None and used.gyro.stamp_source is StampSource.RECEIVE_TIME
         with bagio.open_bag(bag) as reader:
             steps = batch.wheel_steps(bagreadings.iter_readings(
                 reader, args.topic, imu, stream=bagreadings.Stream(
@@ -91,11 +90,12 @@ def gyro_settings(args: argparse.Namespace, settings: OdometrySettings) -> Odome
     """How a bag with an IMU is decoded: the node's settings with the gyro on.
 
     ``use_imu`` true, its gyro parameters from the params given, no online estimate.
+    use_imu is set after every params source, as ``replay --online-calibration`` sets
+    it: a ``-p`` would lose to a params file's own ``odometry_node`` section (the demo's
+    says ``use_imu: false``). The sources were loaded (and their problems said) once.
     """
     if settings.gyro is None:
-        extra = argparse.Namespace(**vars(args))
-        extra.ros_params = [*args.ros_params, ("param", "use_imu:=true")]
-        got = settings_from_args(extra)
+        got = settings_from_args(args, None, {"use_imu": True})
         if isinstance(got, str):
             return got
         settings = got
