@@ -37,9 +37,17 @@ ParamValue = Any
 EXAMPLE_PARAMS_FILE = Path(__file__).resolve().parent.parent / "data" / "demo_params.yaml"
 
 
+def _quoted(value: ParamValue) -> str:
+    """The hint for a number or a list given as a string (``wheel_radius: "0.033"``), else ''."""
+    if isinstance(value, str) and (_number_text(value) is not None
+                                   or value.strip().startswith("[")):
+        return f" (quoted, so a string: write {value} without quotes)"
+    return ""
+
+
 def _as_float(name: str, value: ParamValue) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParameterError(name, f"must be a number, got {value!r}")
+        raise ParameterError(name, f"must be a number, got {value!r}{_quoted(value)}")
     return float(value)
 
 
@@ -49,7 +57,7 @@ def _as_int(name: str, value: ParamValue) -> int:
     if isinstance(value, float) and value.is_integer():
         return int(value)
     if not isinstance(value, int):
-        raise ParameterError(name, f"must be an integer, got {value!r}")
+        raise ParameterError(name, f"must be an integer, got {value!r}{_quoted(value)}")
     return value
 
 
@@ -79,7 +87,7 @@ def _as_str_list(name: str, value: ParamValue) -> tuple[str, ...]:
 
 def _as_float_list(name: str, value: ParamValue) -> tuple[float, ...]:
     if isinstance(value, str) or not isinstance(value, Iterable):
-        raise ParameterError(name, f"must be a list of numbers, got {value!r}")
+        raise ParameterError(name, f"must be a list of numbers, got {value!r}{_quoted(value)}")
     return tuple(_as_float(name, v) for v in value)
 
 
@@ -156,10 +164,12 @@ class ParamSpec:
     def admit(self, value: ParamValue) -> ParamValue:
         """A value given at start, as the node declares it, or ParameterError.
 
-        Converted to the declared type (:func:`as_declared_type`), typed and inside
-        :attr:`range`; else the error names the parameter (rclpy would raise a traceback).
+        Converted to the declared type (:func:`as_declared_type`, but a string stays a
+        string: rcl typed the value, and a quoted number is refused as rclpy's
+        ``declare_parameter`` refuses it), typed and inside :attr:`range`; else the error
+        names the parameter (rclpy would raise a traceback).
         """
-        typed = self.coerce(as_declared_type(self, value))
+        typed = self.coerce(as_declared_type(self, value, strings=False))
         if self.range is not None and not self.range.holds(typed):
             raise ParameterError(self.name, f"must be {self.range.text()}, got {typed!r}")
         return list(typed) if isinstance(typed, tuple) else typed
@@ -185,7 +195,7 @@ def _as_double(value: ParamValue) -> ParamValue:
     return value
 
 
-def as_declared_type(spec: ParamSpec, value: ParamValue) -> ParamValue:
+def as_declared_type(spec: ParamSpec, value: ParamValue, strings: bool = True) -> ParamValue:
     """``value`` in the type ``spec`` declares, when it came in another with the same meaning.
 
     Else ``value`` unchanged (rclpy then refuses the type, naming both).
@@ -197,12 +207,16 @@ def as_declared_type(spec: ParamSpec, value: ParamValue) -> ParamValue:
       ``parameter_dict_from_yaml_file``) re-reads each value of the file as
       ``yaml.safe_load(str(value))``, and YAML 1.1 takes ``str(1e-05)`` = ``'1e-05'``
       (no dot) and ``'nan'`` for strings, so a node's own dump would not load back. A
-      list with such an item arrives as one string, ``'[0.001, 1e-06]'``.
+      list with such an item arrives as one string, ``'[0.001, 1e-06]'``. Only at
+      runtime: ``strings`` False (at start, where rcl typed what the user wrote) leaves
+      a string as it is.
     * For a list, no value: an empty list (``-p left_wheel_names:=[]``, ``[]`` in a file)
       has no element type, so rcl gives it none and rclpy hands it over as None.
     """
     if value is None and spec.kind.endswith("_array"):
         return []
+    if isinstance(value, str) and not strings:
+        return value
     if spec.kind == "double":
         return _as_double(value)
     if spec.kind == "integer" and isinstance(value, float) and value.is_integer():
