@@ -13,6 +13,7 @@ A ``ros2 launch`` killed with SIGKILL (or SIGHUP, which it does not handle) runs
 shutdown: its nodes, handed to init, kept running. Each now watches launch's pid and
 stops by itself. ``rviz:=true`` without RViz2 failed only when launch came to start it,
 after the odometry node, which stayed running: now it is named before anything starts.
+And what the same command says of an argument no file declares (issue 39 item 5).
 """
 
 from __future__ import annotations
@@ -143,3 +144,32 @@ def test_ctrl_c_in_the_launch_terminal_ends_every_node_cleanly(
     assert {m.group(1): 0 for m in FINISHED.finditer(text)} | {
         m.group(1): int(m.group(2)) for m in DIED.finditer(text)} == dict.fromkeys(NODES, 0), text
     assert "Traceback" not in text, text
+
+
+@pytest.mark.parametrize("launch_file", ["base.launch.py", "odometry.launch.py"])
+def test_an_unknown_launch_argument_gets_one_warning_naming_the_real_one(
+        ros2_env: dict[str, str], launch_file: str) -> None:
+    """``publish_tf:=false`` (robot_localization's name) was silently ignored: one warning
+    line now names enable_odom_tf, and launch goes on (an including file's arguments
+    reach what it includes, so it is not refused; base.launch.py's include of
+    odometry.launch.py says nothing more). With enable_odom_tf:=false the node's start
+    line no longer says ``odom -> base_link``."""
+    command = [launch_file, "publish_tf:=false", "enable_odom_tf:=false", "use_sim_tme:=true"]
+    with launched(ros2_env, *command) as (proc, lines):
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline and not any(
+                "wheel odometry:" in line for line in lines):
+            assert proc.poll() is None, "".join(lines)
+            time.sleep(0.1)
+        os.killpg(proc.pid, signal.SIGINT)
+        assert proc.wait(timeout=30) == 0, "".join(lines)
+    text = "".join(lines)
+    warned = [ln for ln in text.splitlines() if "has no launch argument" in ln]
+    assert len(warned) == 1, text
+    assert warned[0].startswith("[WARNING] [launch]: "), warned
+    assert f"{launch_file} has no launch argument publish_tf:= (did you mean " \
+        "enable_odom_tf?" in warned[0], warned
+    assert "use_sim_tme:= (did you mean use_sim_time?)" in warned[0], warned
+    assert "enable_odom_tf:=," not in warned[0], warned  # a known one is not named
+    start = [ln for ln in text.splitlines() if "wheel odometry:" in ln]
+    assert len(start) == 1 and "->" not in start[0] and "no /tf" in start[0], start
