@@ -1,7 +1,7 @@
 """``diffdrive-odom replay``: run the node's estimator over a bag offline, as fast as the disk.
 
 The command line: its flags, the checks made before any work, and what it prints. One
-code path with the node: the same parameter file (``params.resolve_parameters`` +
+code path with the node: the same parameter file (``rcl.resolve_parameters`` +
 ``odometry_settings``, so a bad value is refused with the same one line; the flags it
 shares with calibrate are :mod:`diffdrive_odom.tools.cmdline.args`), the same pipeline
 and publication rule (the engines in :mod:`diffdrive_odom.tools.replaying`: readings,

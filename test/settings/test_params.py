@@ -20,11 +20,8 @@ from diffdrive_odom.settings.odometry import (
     frame_prefix,
     odometry_settings,
 )
-from diffdrive_odom.settings.params import (
-    ParamSpec,
-    load_params_file,
-    parse_override,
-)
+from diffdrive_odom.settings.params import ParamSpec
+from diffdrive_odom.settings.rcl import load_params_file, parse_override
 from diffdrive_odom.settings.registry import unknown_parameters_report
 from diffdrive_odom.settings.sim import SIM_PARAMS, sim_settings
 

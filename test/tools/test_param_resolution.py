@@ -3,7 +3,7 @@
 Each case starts the real ``odometry_node`` with a command line, reads every declared
 parameter back over its ``get_parameters`` service, and compares with what
 ``diffdrive-odom replay`` makes of the equivalent flags (its own argument parser,
-then ``params.resolve_parameters``). Also: unknown names are reported once.
+then ``rcl.resolve_parameters``). Also: unknown names are reported once.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from diffdrive_odom.settings.odometry import ODOMETRY_PARAMS
-from diffdrive_odom.settings.params import resolve_parameters
+from diffdrive_odom.settings.rcl import resolve_parameters
 from diffdrive_odom.tools import replay
 from diffdrive_odom.tools.cmdline.args import load_settings
 

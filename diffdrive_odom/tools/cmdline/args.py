@@ -17,7 +17,7 @@ from typing import Any
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.settings.params import ParamSource, ParamValue, resolve_parameters
+from diffdrive_odom.settings.rcl import ParamSource, ParamValue, resolve_parameters
 from diffdrive_odom.settings.registry import unknown_parameters_report
 from diffdrive_odom.settings.shadowed import shadowed_overrides_line
 from diffdrive_odom.tools.cmdline.outputs import output_problem

@@ -23,7 +23,7 @@ from pathlib import Path
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.settings.params import ParamValue, resolve_parameters
+from diffdrive_odom.settings.rcl import ParamValue, resolve_parameters
 from diffdrive_odom.tools.replaying import online_plot  # matplotlib only where it draws
 
 ROWS = 6  # estimates printed over the run besides the final one
