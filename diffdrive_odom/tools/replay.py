@@ -137,7 +137,7 @@ def run_bag(args: argparse.Namespace) -> int:
     if problem:
         return _error(problem)
     from diffdrive_odom.tools.bags import bagio, poses  # past the parsing: --help needs no rosbags
-    from diffdrive_odom.tools.replaying import bag
+    from diffdrive_odom.tools.replaying import bag, lagcheck
 
     ref: metrics.Trajectory | None = None
     gt_topic = ""
@@ -177,7 +177,16 @@ def run_bag(args: argparse.Namespace) -> int:
     gyro = stats.pipeline.gyro
     fleet.record(args, readings=stats.readings, poses=stats.published,
                  slips=None if gyro is None else gyro.slips.events)
-    for warning in stats.warnings:
+    judged: tuple[metrics.Trajectory, metrics.Metrics] | None = None
+    if ref is not None:
+        try:
+            est = traj.trajectory()
+            judged = est, metrics.evaluate(est, ref)
+        except ValueError as err:
+            return _error(f"--eval: {err}")
+    lag = lagcheck.advice(args, settings, stats, ref,
+                          None if judged is None else judged[1].final_position_error_aligned_m)
+    for warning in [*lagcheck.other_warnings(stats), *([lag] if lag else [])]:
         print(f"{PREFIX} {warning}", file=sys.stderr)
     for note, count in stats.notes.items():
         print(f"{PREFIX} {count} x {note}", file=sys.stderr)
@@ -185,11 +194,10 @@ def run_bag(args: argparse.Namespace) -> int:
         print(f"  {count} x {code}: {stats.examples[code]}", file=sys.stderr)
     for reason, count in stats.refused.most_common():  # the node's warning, counted
         print(f"{PREFIX} {reason}: {count} pose(s) not written", file=sys.stderr)
-    if ref is not None:
+    if ref is not None and judged is not None:
+        est, figures = judged
+        fleet.record(args, **evaluate.summary_figures(figures))
         try:
-            est = traj.trajectory()
-            figures = metrics.evaluate(est, ref)
-            fleet.record(args, **evaluate.summary_figures(figures))
             evaluate.report(figures, est, ref, args.json, args.plot,
                             labels=("replay", gt_topic))
         except ValueError as err:
