@@ -88,7 +88,8 @@ class ReadingPipeline:
         self._gyro: GyroHeading | None = None
         self._imu: ImuInput | None = None
         self._online: OnlineGeometry | None = None
-        self._imu_silent = False  # so a missing IMU is named at the first step
+        self._imu_silent = False  # so a missing IMU is named (see _imu_note)
+        self._first_usable_ns: int | None = None
         self._setpose = SetPoseRule()
         self._attach_gyro(settings)
 
@@ -166,6 +167,21 @@ class ReadingPipeline:
         scale = None if self._online is None else self._online.scale
         return "" if scale is None else scale.feed(stamp_ns, x, y, yaw)
 
+    def _imu_note(self, silent: bool, stamp_ns: int) -> bool:
+        """True when the IMU's silence (or its end) is to be said for this step.
+
+        Before the IMU's first sample the wheels only wait imu_timeout before it is
+        named: an IMU that starts a little after the wheels (the TurtleBot3 bag's 0.3 s;
+        its topic matched after joint_states at a node's start) is no silence, and "IMU
+        silent" then "IMU samples again" at every start told nothing.
+        """
+        if silent == self._imu_silent:
+            return False
+        if not silent or self._imu is None or self._imu.samples or self._gyro is None:
+            return True
+        first = self._first_usable_ns
+        return first is None or stamp_ns - first >= self._gyro.config.timeout * 1e9
+
     @property
     def estimator(self) -> OdometryEstimator:
         """The estimator (pose, twist, last step); feed readings through :meth:`feed` only."""
@@ -242,6 +258,8 @@ class ReadingPipeline:
         if status in (Status.DROPPED, Status.HELD):
             return Outcome(verdict, False, "", warning, stamp_ns)
         self._last_usable_ns = stamp_ns
+        if self._first_usable_ns is None:
+            self._first_usable_ns = stamp_ns
         if status is Status.REANCHORED:
             self._reanchors += 1
             if verdict.cause:
@@ -256,7 +274,7 @@ class ReadingPipeline:
         if self._estimator.from_velocity != self._velocity:
             self._velocity = not self._velocity
             note = VELOCITY_ON if self._velocity else VELOCITY_OFF
-        elif gyro is not None and gyro.steps != steps and gyro.silent != self._imu_silent:
+        elif gyro is not None and gyro.steps != steps and self._imu_note(gyro.silent, stamp_ns):
             self._imu_silent = gyro.silent
             note = IMU_SILENT if gyro.silent else IMU_BACK
         if self._imu is not None and not warning:

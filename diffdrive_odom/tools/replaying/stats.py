@@ -87,4 +87,4 @@ class ReplayStats:
                 + (", IMU silent at the end" if g.silent else "")
                 + f"; wheel stamps' jitter {g.jitter * 1e3:.1f} ms; "
                 + ("IMU lag not measured (turn more than a radian)" if g.lag is None
-                   else g.lag.line(g.jitter)))
+                   else g.lag.measured()))

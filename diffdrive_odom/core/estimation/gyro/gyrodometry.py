@@ -95,7 +95,7 @@ class GyroHeading:
         self.config = config
         self.quantization = quantization  # rad^2: a joint's variance per reading (ticks)
         self.jitter = StampJitter()  # the wheel stamps' timing error, measured turning
-        self.lag = ImuLag()  # how much later the IMU's stamps are than the wheels'
+        self.lag = ImuLag(config.time_offset)  # how much later the IMU's stamps are
         self._moved_ns: int | None = None  # the last wheel stamp that moved
         self._held_from: int | None = None  # start of the readings held since then
         self._held_turn = 0.0  # the gyro's turn handed out over them (provisional)
@@ -123,6 +123,8 @@ class GyroHeading:
 
     def set_config(self, config: GyroConfig) -> None:
         """New settings at runtime; the bias estimate carries on (its start value is for starts)."""
+        if config.time_offset != self.config.time_offset:
+            self.lag.clear(config.time_offset)
         self.config = config
         self._axis = config.yaw_axis
         self._slips.min_angle = config.slip_min_angle
