@@ -360,6 +360,21 @@ def test_umbmark_recovers_the_ratio_and_the_separation_without_noise() -> None:
     assert abs(one.separation / (TRUE.separation * s) - 1) < 0.02
 
 
+def test_umbmark_stops_at_its_floor_instead_of_failing() -> None:
+    # tolerance 0 is never reached: the passes shrink alpha and beta to float's floor
+    # and stall there; that is convergence (below umbmark.FLOOR), not an error, and the
+    # geometry is the one a reachable tolerance gives.
+    cw = simulate(routes.umbmark(SIDE, clockwise=True), 0.001, seed=4)
+    ccw = simulate(routes.umbmark(SIDE, clockwise=False), 0.001, seed=5)
+    assert cw.reference is not None and ccw.reference is not None
+    ends = (umbmark.reference_end(cw, cw.reference), umbmark.reference_end(ccw, ccw.reference))
+    floor = umbmark.umbmark(cw, ccw, *ends, side=SIDE, nominal=NOMINAL, tolerance=0.0)
+    reached = umbmark.umbmark(cw, ccw, *ends, side=SIDE, nominal=NOMINAL)
+    assert floor.passes < 200
+    assert floor.geometry.separation == pytest.approx(reached.geometry.separation, rel=1e-8)
+    assert floor.geometry.right_radius == pytest.approx(reached.geometry.right_radius, rel=1e-8)
+
+
 def test_umbmark_with_noise_stays_near_the_truth() -> None:
     # One square each way states no uncertainty (the paper averages five). With 1 mm
     # slip per sqrt(m), a 2 m leg's heading wanders ~6 mrad (1-sigma), so the end
