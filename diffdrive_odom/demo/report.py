@@ -166,7 +166,7 @@ class DemoResult:
         lines = [
             f"{self.route} ({self.side_m:g} m squares, {kinds}), path_follower_node on the "
             f"odometry: {self.distance_m:.2f} m driven in {self.sim_seconds:.0f} s of "
-            f"simulated time ({self.wall_seconds:.0f} s wall)",
+            "simulated time",
             f"follower: cross-track error <= {100 * self.cross_track_odom_m:.1f} cm on the "
             f"odometry; ground truth within {100 * self.cross_track_truth_m:.1f} cm of the "
             "commanded path",

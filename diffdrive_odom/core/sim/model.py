@@ -232,8 +232,10 @@ class DiffDriveSim:
                     sign = (cfg.geometry.left_wheel_sign if e.side == "left"
                             else cfg.geometry.right_wheel_sign)
                     joints += sign * extra
-        d_left = float(np.mean(d_angle[:n]))
-        d_right = float(np.mean(d_angle[n:]))
+        # Each side's mean (the sum over n, as np.mean; its dispatch cost ten times more
+        # than the sum on these few joints, at every substep).
+        d_left = float(d_angle[:n].sum()) / n
+        d_right = float(d_angle[n:].sum()) / n
         if cfg.slip_stddev > 0.0:
             d_left, d_right = self._slip(d_left, d_right)
         ds, dtheta = body_increment(cfg.geometry, d_left, d_right)
