@@ -30,7 +30,7 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, Float64
 
 from diffdrive_odom.core.motion.paths import Point
-from diffdrive_odom.ros.lockstep import Participant
+from diffdrive_odom.ros.lockstep import Participant, settle
 from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.ros.runtime import make_executor
@@ -123,6 +123,7 @@ class Recorder:
         """
         with interrupts.deferred():
             self.executor.spin_once(timeout_sec=timeout)
+            settle(self.executor)  # answers the loop
 
     def _on_clock(self, now_ns: int) -> None:
         """A step's /clock: what came since the last one is written, then the driver acts."""

@@ -61,7 +61,7 @@ class CmdVelNode(Node):
         self._pipeline = CommandPipeline(s)
         # The clock of the heartbeat, watchdog and limits: steady, or simulated in lockstep.
         self._loop = join(self, bool(values["lockstep"]))
-        self._clock = self._loop.clock
+        self._loop_clock = self._loop.clock
         self._moving = False  # a command is being followed (for the timeout log)
         self._received = False
         self._type_checked_ns = 0
@@ -111,7 +111,7 @@ class CmdVelNode(Node):
 
     def _accept(self, lin: Vector, ang: Vector, stamp_ns: int | None) -> None:
         self._received = True
-        now_ns = self._clock.now().nanoseconds
+        now_ns = self._loop_clock.now().nanoseconds
         refusal = self._pipeline.accept(lin, ang, now_ns,
                                         self.get_clock().now().nanoseconds, stamp_ns)
         if refusal is not None:
@@ -124,7 +124,7 @@ class CmdVelNode(Node):
     # --- output -----------------------------------------------------------------
 
     def _on_tick(self) -> None:
-        now = self._clock.now().nanoseconds
+        now = self._loop_clock.now().nanoseconds
         tick = self._pipeline.tick(now, self.get_clock().now().nanoseconds)
         if tick.refused is not None:
             self._throttle.warning(tick.refused.reason, tick.refused.text)
@@ -159,7 +159,7 @@ class CmdVelNode(Node):
     # --- diagnostics --------------------------------------------------------------
 
     def _init_diagnostics(self) -> None:
-        start = self._clock.now().nanoseconds * 1e-9
+        start = self._loop_clock.now().nanoseconds * 1e-9
         self._accepted_ns = None
         self._last_moving = False
         self._command_rate = RateMeter(start)
@@ -169,7 +169,7 @@ class CmdVelNode(Node):
             self, DIAGNOSTIC_TASK, self._diagnose)
 
     def _diagnose(self) -> Report:
-        now_ns = self._clock.now().nanoseconds
+        now_ns = self._loop_clock.now().nanoseconds
         if self._moving:
             state = CommandState.COMMANDING
         elif self._accepted_ns is None:

@@ -10,9 +10,10 @@ a :class:`Participant`, which
   timers that are due (on simulated time, inside that message: a heartbeat answers the
   step it belongs to, never the next);
 - gives reliable subscriptions deep enough for a step (:data:`LOOP_QOS`), counts what the
-  node sends and takes on them, and after each message taken answers on
-  :data:`ANSWER_TOPIC` (``std_msgs/String``: the node's name, then a line per count,
-  ``sent /odom 12``: readable with ``ros2 topic echo``).
+  node sends and takes on them, and answers on :data:`ANSWER_TOPIC` (``std_msgs/String``:
+  the node's name, then a line per count, ``sent /odom 12``: readable with ``ros2 topic
+  echo``) once it has taken all that is ready (:func:`settle`, called by the spin loop
+  after each message: a step's burst of messages gets one answer, not one each).
 
 ``sim_node`` in lockstep holds a :class:`Conductor`: it counts the sim's own messages,
 reads the answers, and calls the sim's next phase once the loop has answered the last;
@@ -22,6 +23,7 @@ a steady guard names what the loop still owes when an answer is late.
 from __future__ import annotations
 
 import time
+import weakref
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
@@ -53,6 +55,9 @@ CLOCK_TOPIC = "/clock"
 POLL_S = 0.1  # [s, steady] how often a participant looks whether its counts changed unasked
 GUARD_S = 5.0  # [s, wall] an answer this late is named (again each GUARD_S)
 START_SETTLE_S = 0.5  # [s, wall] the loop stays matched this long before the first step
+
+# Messages a settle() takes before it answers anyway (a stream that never pauses).
+SETTLE_MAX = 50
 
 Publish = Callable[[Any], None]
 
@@ -208,6 +213,8 @@ class Participant(_Counts):
         # Run at every /clock before the timers: the simulated time now [ns].
         self.on_clock: list[Callable[[int], None]] = []
         self._said = ""
+        self.owed = False  # taken messages not answered yet
+        _participants.add(self)
         self._answer_pub = node.create_publisher(String, ANSWER_TOPIC, ANSWER_OUT_QOS)
         self._clock_sub = self.subscription(ClockMsg, CLOCK_TOPIC, self._on_clock, LOOP_QOS)
         # Counts can change outside a message (sent at start, endpoints matched): said too.
@@ -239,15 +246,45 @@ class Participant(_Counts):
             timer.run_due(now)
 
     def _taken(self) -> None:
-        self._answer()
+        global _taken_here
+        _taken_here += 1
+        self.owed = True  # answered by settle() once nothing more is ready (or the poll)
+
+    def answer_owed(self) -> None:
+        """Answer if a message was taken since the last answer."""
+        if self.owed:
+            self._answer()
 
     def _answer(self) -> None:
+        self.owed = False
         text = self._said = self.matched().answer(self.name)
         self._answer_pub.publish(String(data=text))
 
     def _answer_if_changed(self) -> None:
-        if self.matched().answer(self.name) != self._said:
+        if self.owed or self.matched().answer(self.name) != self._said:
             self._answer()
+
+
+_participants: weakref.WeakSet[Participant] = weakref.WeakSet()  # this process's
+_taken_here = 0  # messages its participants took, all told
+
+
+def settle(executor: Any) -> None:
+    """After a spin: take what else is ready at once, then answer (a spin loop's duty).
+
+    Called after each ``spin_once`` of a loop that spins a participant (``runtime``'s, the
+    demo's recorder, a test's peer): what is already waiting is taken first, so a step's
+    burst of messages is answered once. Nothing happens without a participant owed.
+    """
+    for _ in range(SETTLE_MAX):
+        if not any(p.owed for p in _participants):
+            return
+        before = _taken_here
+        executor.spin_once(timeout_sec=0.0)
+        if _taken_here == before:
+            break
+    for p in tuple(_participants):
+        p.answer_owed()
 
 
 def join(node: Node, lockstep: bool) -> Alone | Participant:

@@ -63,7 +63,7 @@ class PathFollowerNode(Node):
             PathFollower(s.path, s.gains, s.geometry) if s.path is not None else None)
         self._guard = ParameterGuard(self, values, follower_settings, self._apply)
         loop = join(self, bool(values["lockstep"]))
-        self._clock = loop.clock  # steady, or simulated in lockstep
+        self._loop_clock = loop.clock  # steady, or simulated in lockstep
         self._last_stamp_ns: int | None = None
         self._odom_ns: int | None = None  # the loop clock's time of the last odometry
         self._odom_frame = ""
@@ -153,7 +153,7 @@ class PathFollowerNode(Node):
         if not all(math.isfinite(n) for n in numbers):
             self._drop("non_finite_odom", "odometry with NaN/inf ignored")
             return
-        self._odom_ns = self._clock.now().nanoseconds
+        self._odom_ns = self._loop_clock.now().nanoseconds
         self._odom_frame = msg.header.frame_id.lstrip("/")
         stamp = stamp_to_ns(msg.header.stamp)
         last, self._last_stamp_ns = self._last_stamp_ns, stamp
@@ -205,7 +205,7 @@ class PathFollowerNode(Node):
             state = FollowerState.WAITING
         else:
             state = FollowerState.FOLLOWING
-        now = self._clock.now().nanoseconds
+        now = self._loop_clock.now().nanoseconds
         return self._reporter(FollowerHealth(
             state=state,
             odom_age_s=None if self._odom_ns is None else (now - self._odom_ns) * 1e-9,
