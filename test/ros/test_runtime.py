@@ -146,8 +146,8 @@ from diffdrive_odom.ros.runtime import run
 def factory():
     node = Node("starting_node")
     os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while the node is being built
-    time.sleep(0.5)  # rclpy's handler has shut the context down by now
-    node.create_timer(1.0, lambda: None)  # so this raises, as sim_node's did under launch
+    time.sleep(0.5)  # rclpy's own handler would have shut the context down by now
+    node.create_timer(1.0, lambda: None)  # and this raised, as sim_node's did under launch
     return node
 
 sys.exit(run(factory, ["starting_node"]))
@@ -155,9 +155,10 @@ sys.exit(run(factory, ["starting_node"]))
 
 
 def test_a_stop_signal_while_the_node_is_built_ends_it_with_exit_0() -> None:
-    """CI's ros2 launch Ctrl-C test once caught sim_node still in its constructor: the
-    signal shut the context down under it, its next create_timer raised, exit 1 with a
-    traceback. The stop was asked for: exit 0, nothing printed."""
+    """CI's ros2 launch Ctrl-C test once caught sim_node still in its constructor: rclpy's
+    signal handler shut the context down under it, its next create_timer raised, exit 1
+    with a traceback. Now the signal only asks for the stop, which comes after the
+    constructor: exit 0, nothing printed."""
     proc = subprocess.run([sys.executable, "-c", STOPPED_WHILE_STARTING],
                           capture_output=True, text=True, timeout=30)
     assert proc.returncode == 0, proc.stderr
