@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from diffdrive_odom.core.motion.paths import Point
-from diffdrive_odom.tools.replaying.sinks import PoseLog
 
 from .report import Square
 from .settings import SETTLE_S, START_REST_S
@@ -26,8 +25,6 @@ class Heard(Protocol):
     """What the driver asks of the recorder."""
 
     done_true: int  # times the follower said its path is done
-    odom: PoseLog
-    truth: PoseLog
 
     def send_path(self, points: Sequence[Point]) -> None:
         """Publish a path for the follower."""
@@ -44,7 +41,7 @@ class Leg:
 class Drive:
     """Rest ``START_REST_S``; each square: its path sent, driven until done, settled.
 
-    ``finished`` once the odometry and the truth of the last square's end are recorded;
+    ``finished`` once the odometry and the truth of the last square's end are heard;
     ``squares`` the squares as driven, ``doing`` what it waits for (for error messages).
     """
 
@@ -81,7 +78,7 @@ class Drive:
             self.doing = f"driving the {'CW' if leg.clockwise else 'CCW'} square"
             h.send_path(leg.points)
             return
-        end = self.squares[-1].end_ns
+        # The odometry and truth of the last square's end came with that step's readings:
+        # heard once the next /clock comes.
         self.doing = "waiting for the last odometry and ground truth"
-        self.finished = all(len(p.stamp_ns) > 0 and max(p.stamp_ns) >= end
-                            for p in (h.odom, h.truth))
+        self.finished = now_ns > self.squares[-1].end_ns

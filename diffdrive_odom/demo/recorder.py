@@ -2,11 +2,12 @@
 
 It takes part in the lockstep (:mod:`diffdrive_odom.ros.lockstep`): the sim waits for its
 answers too, so everything a step sends reaches it before the next ``/clock``. At each
-``/clock`` it writes what it heard since the last one into the bag, logged at the last
-one's simulated time (when all of it was sent), in a fixed order (by topic, as the loop
-sends them; each topic in its own order) and one nanosecond apart: log times are
-simulated time and the bag is the same, byte for byte, on every run. Then the driver
-(``on_step``) acts on what is now known (sends a square's path), before it answers.
+``/clock`` what it heard since the last one is the last step's, all of it: it is written
+into the bag logged at the last ``/clock``'s simulated time (when all of it was sent), in
+a fixed order (by topic, as the loop sends them; each topic in its own order) and one
+nanosecond apart, so log times are simulated time and the bag is the same, byte for byte,
+on every run. The driver (``on_step``) acts first (sends a square's path) and the loop
+has its answer; the writing comes after, while the loop handles the next readings.
 """
 
 from __future__ import annotations
@@ -74,6 +75,7 @@ class Recorder:
         order += [t for t in self.topics if t not in order]
         self._rank = {t: i for i, t in enumerate(order)}
         self._heard: list[tuple[int, int, str, bytes]] = []  # since the last /clock
+        self._unwritten: list[tuple[int, list[tuple[int, int, str, bytes]]]] = []  # steps
         self.odom, self.truth = PoseLog(), PoseLog()
         self.joint_states: list[JointSample] = []
         self.imu: list[ImuReading] = []
@@ -113,6 +115,8 @@ class Recorder:
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
+        if exc_type is None:
+            self.write()
         self._stack.close()
         self.writer = None
 
@@ -124,11 +128,13 @@ class Recorder:
         with interrupts.deferred():
             self.executor.spin_once(timeout_sec=timeout)
             settle(self.executor)  # answers the loop
+            self.write()
 
     def _on_clock(self, now_ns: int) -> None:
-        """A step's /clock: what came since the last one is written, then the driver acts."""
-        if self.now_ns is not None:
-            self._record(self.now_ns)
+        """A step's /clock: what came since the last one is that step's; the driver acts."""
+        if self.now_ns is not None and self._heard:
+            self._unwritten.append((self.now_ns, self._heard))
+            self._heard = []
         self.now_ns = now_ns
         if self.on_step is not None:
             self.on_step(now_ns)
@@ -142,15 +148,16 @@ class Recorder:
     def _hear(self, topic: str, raw: bytes) -> None:
         self._heard.append((self._rank[topic], len(self._heard), topic, bytes(raw)))
 
-    def _record(self, log_ns: int) -> None:
-        """What was heard since the last /clock, into the bag at ``log_ns`` (and decoded)."""
-        heard, self._heard = sorted(self._heard), []
-        for _, _, topic, raw in heard:
-            log_ns = self._log_ns = max(log_ns, self._log_ns + 1)
-            self.counts[topic] += 1
-            if self.writer is not None:
-                self.writer.write_cdr(topic, log_ns, raw)
-            self._decode(topic, raw)
+    def write(self) -> None:
+        """The steps heard in full, into the bag at their times (and decoded)."""
+        unwritten, self._unwritten = self._unwritten, []
+        for log_ns, heard in unwritten:
+            for _, _, topic, raw in sorted(heard):
+                log_ns = self._log_ns = max(log_ns, self._log_ns + 1)
+                self.counts[topic] += 1
+                if self.writer is not None:
+                    self.writer.write_cdr(topic, log_ns, raw)
+                self._decode(topic, raw)
 
     def _decode(self, topic: str, raw: bytes) -> None:
         """Keep what the evaluation reads of a recorded message."""
@@ -191,7 +198,8 @@ class Recorder:
         return f"{clock}; done {self.done_true}x; {counts}"
 
     def recording(self, squares: Sequence[Square]) -> Recording:
-        """What was recorded, for :mod:`.report`."""
+        """What was recorded (the steps heard in full), for :mod:`.report`."""
+        self.write()
         return Recording(tuple(self.joint_states), self.odom.trajectory(),
                          self.truth.trajectory(), tuple(squares), self.cross_track_max,
                          tuple(self.imu))

@@ -37,9 +37,17 @@ from rclpy.timer import Timer
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import String
 
-from diffdrive_odom.core.sim.lockstep import Tally, lags, missing, resolve, unmatched
+from diffdrive_odom.core.sim.lockstep import (
+    Tally,
+    answered,
+    lags,
+    missing,
+    resolve,
+    unmatched,
+)
 from diffdrive_odom.ros.qos import qos
 from diffdrive_odom.settings.errors import ParameterError
+from diffdrive_odom.wire import cdr
 from diffdrive_odom.wire.conversions import stamp_to_ns
 
 ANSWER_TOPIC = "/lockstep"
@@ -147,8 +155,12 @@ class _Counts:
         self._writers: list[tuple[str, Publisher]] = []
         self._readers: list[tuple[str, Subscription]] = []
 
-    def _taken(self) -> None:
+    def _taken(self, topic: str) -> None:
         """A message was taken to the end: the participant answers, the conductor looks."""
+
+    def _early(self, handle: Callable[[], None], stamp_ns: int | None) -> bool:
+        """Hold a message to handle later (True), or let it be handled now."""
+        return False
 
     def subscription(self, msg_type: Any, topic: str, callback: Callable[[Any], None],
                      qos_profile: QoSProfile, raw: bool = False) -> Subscription:
@@ -159,11 +171,16 @@ class _Counts:
         """
         took = self.tally.took
         name: list[str] = []
+        stamp_of = _stamp_reader(msg_type, raw)
 
-        def counted(msg: Any) -> None:
+        def handle(msg: Any) -> None:
             callback(msg)
             took[name[0]] += 1
-            self._taken()
+            self._taken(name[0])
+
+        def counted(msg: Any) -> None:
+            if not self._early(lambda: handle(msg), stamp_of(msg)):
+                handle(msg)
 
         profile = qos(max(LOOP_DEPTH, qos_profile.depth), reliable=True,
                       latched=qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL)
@@ -209,6 +226,8 @@ class Participant(_Counts):
             raise ParameterError("lockstep", "needs use_sim_time: true (the node runs on "
                                  "the simulation's /clock)")
         self.clock = clock
+        self._now = 0  # the last /clock taken [ns]
+        self._held: list[Callable[[], None]] = []  # stamped after it: for the next /clock
         self._timers: list[_SimTimer] = []
         # Run at every /clock before the timers: the simulated time now [ns].
         self.on_clock: list[Callable[[int], None]] = []
@@ -233,22 +252,47 @@ class Participant(_Counts):
 
     def destroy(self) -> None:
         """Remove the answers' publisher, the /clock subscription and the poll."""
+        _participants.discard(self)
         self._node.destroy_timer(self._poll)
         self._node.destroy_subscription(self._clock_sub)
         self._node.destroy_publisher(self._answer_pub)
 
+    @property
+    def ticks(self) -> bool:
+        """It has work of its own at a /clock: the step's readings wait until it took it."""
+        return bool(self._timers or self.on_clock)
+
     def _on_clock(self, msg: ClockMsg) -> None:
-        now = stamp_to_ns(msg.clock)
+        now = self._now = stamp_to_ns(msg.clock)
         self.clock.set_ros_time_override(Time(nanoseconds=now, clock_type=ClockType.ROS_TIME))
+        held, self._held = self._held, []
+        for handle in held:
+            handle()
         for hook in tuple(self.on_clock):
             hook(now)
         for timer in tuple(self._timers):
             timer.run_due(now)
 
-    def _taken(self) -> None:
+    def _early(self, handle: Callable[[], None], stamp_ns: int | None) -> bool:
+        """A message stamped after this node's clock came before its /clock: held until then.
+
+        The sim sends a step's /clock before its readings; a node without work of its own
+        at a /clock need not have taken it when the readings are sent (the sim waits only
+        for those that tick), and two writers' messages may arrive in either order. Its
+        next /clock is that step's, so the message is handled at the step's time.
+        """
+        if stamp_ns is None or stamp_ns <= self._now:
+            return False
+        self._held.append(handle)
+        return True
+
+    def _taken(self, topic: str) -> None:
         global _taken_here
         _taken_here += 1
-        self.owed = True  # answered by settle() once nothing more is ready (or the poll)
+        # answered by settle() once nothing more is ready (or the poll); a /clock alone is
+        # answered with the readings by a node that does not tick (none waits for it)
+        if topic != CLOCK_TOPIC or self.ticks:
+            self.owed = True
 
     def answer_owed(self) -> None:
         """Answer if a message was taken since the last answer."""
@@ -257,10 +301,12 @@ class Participant(_Counts):
 
     def _answer(self) -> None:
         self.owed = False
+        self.tally.ticks = self.ticks
         text = self._said = self.matched().answer(self.name)
         self._answer_pub.publish(String(data=text))
 
     def _answer_if_changed(self) -> None:
+        self.tally.ticks = self.ticks
         if self.owed or self.matched().answer(self.name) != self._said:
             self._answer()
 
@@ -287,6 +333,24 @@ def settle(executor: Any) -> None:
         p.answer_owed()
 
 
+def _stamp_reader(msg_type: Any, raw: bool) -> Callable[[Any], int | None]:
+    """How to read a message's header stamp [ns] (None: it has no header, or unreadable)."""
+    fields: dict[str, str] = getattr(msg_type, "get_fields_and_field_types", dict)()
+    if next(iter(fields), None) != "header":
+        return lambda msg: None
+    if not raw:
+        return lambda msg: stamp_to_ns(msg.header.stamp)
+
+    def from_bytes(buf: bytes) -> int | None:
+        try:
+            head = cdr.header(buf, "a stamped message")
+        except ValueError:
+            return None
+        return None if head is None else head[0] * 1_000_000_000 + head[1]
+
+    return from_bytes
+
+
 def join(node: Node, lockstep: bool) -> Alone | Participant:
     """The node's loop: a :class:`Participant` in lockstep, else :class:`Alone`."""
     return Participant(node) if lockstep else Alone(node)
@@ -295,15 +359,19 @@ def join(node: Node, lockstep: bool) -> Alone | Participant:
 class Conductor(_Counts):
     """The sim's side: its own messages counted, the participants' answers read.
 
-    ``start()`` is called once every participant expected has answered with its
-    endpoints matched and nothing owed, for :data:`START_SETTLE_S`; then ``step()``
-    each time the loop has answered all that was sent since the last call. ``where()``
-    says for the guard's lines which step the loop owes.
+    ``start()`` (it sends the first /clock) is called once every participant expected
+    has answered with its endpoints matched and nothing owed, for
+    :data:`START_SETTLE_S`; then ``step()`` each time the loop has answered all that was
+    sent since the last call (it returns True when it sent a /clock, which only the
+    participants that tick must have taken before the next phase). ``where()`` says for
+    the guard's lines which step the loop owes.
     """
 
     def __init__(self, node: Node, expected: Sequence[str], start: Callable[[], None],
-                 step: Callable[[], None], where: Callable[[], str]) -> None:
+                 step: Callable[[], bool], where: Callable[[], str]) -> None:
         super().__init__(node)
+        # The phase sent last is a /clock: only the participants that tick must take it.
+        self.at_clock = False
         ns = node.get_namespace()
         self._expected = tuple(dict.fromkeys(resolve(n, ns) for n in expected))
         self._start, self._step, self._where = start, step, where
@@ -334,17 +402,25 @@ class Conductor(_Counts):
                                   f"({', '.join(self._expected)}): not waited for")
             return
         self._answers[name] = tally
-        self._taken()
+        self._taken(ANSWER_TOPIC)
 
-    def _taken(self) -> None:
-        if self.started and not lags(self.tallies()):
+    def _clock(self) -> str | None:
+        return CLOCK_TOPIC if self.at_clock else None
+
+    def _taken(self, topic: str) -> None:
+        """A message taken or an answer heard: step on while the loop has answered.
+
+        Again at once after a step: a phase no participant reads (readings nobody takes) is
+        answered as it is sent; the next /clock always has readers (each participant's).
+        """
+        while self.started and answered(self.tallies(), self._clock()):
             self._since = time.monotonic()
-            self._step()
+            self.at_clock = self._step()
 
     def _owed(self) -> list[str]:
         tallies = self.tallies()
         if self.started:
-            return lags(tallies)
+            return lags(tallies, self._clock())
         return (missing(self._expected, tallies) or unmatched(tallies) or lags(tallies))
 
     def _guard(self) -> None:
@@ -357,9 +433,10 @@ class Conductor(_Counts):
             elif self._ready_since is None:
                 self._ready_since = now
             elif now - self._ready_since >= START_SETTLE_S:
-                self.started = self.stepping = True
+                self.started = self.stepping = self.at_clock = True
                 self._since = now
                 self._start()
+                self._taken(ANSWER_TOPIC)
                 return
         if owed and now - self._since >= GUARD_S and now - self._warned >= GUARD_S:
             self._warned = now

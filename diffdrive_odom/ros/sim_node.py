@@ -261,26 +261,31 @@ class SimNode(Node):
         self._phase = Phase.CLOCK
         self._send_clock()
 
-    def _lockstep_step(self) -> None:
-        """Lockstep: the loop answered the last phase; the next one.
+    def _lockstep_step(self) -> bool:
+        """Lockstep: the loop answered the last phase; the next one (True: a /clock).
 
-        After the /clock: this instant's readings (its gyro samples first). After the
-        readings: the physics one step on the wheel command the loop sent, then its /clock.
+        After the /clock: this instant's readings (its gyro samples first), then at once
+        the physics one step on the wheel command the loop sent at the /clock, while the
+        loop answers the readings (no wheel command comes meanwhile). After the readings:
+        the next step's /clock.
         """
         if self._phase is Phase.CLOCK:
             self._phase = Phase.READINGS
             for msg in self._imu_due:
                 self._publish_imu(msg)
-            self._publish(self._now_ns())
+            now = self._now_ns()
+            self._publish(now)
+            self._imu_due = self._advance(self._step_ns, now + self._step_ns)
         else:
             self._phase = Phase.CLOCK
-            self._imu_due = self._advance(self._step_ns, self._now_ns() + self._step_ns)
             self._send_clock()
+        return self._phase is Phase.CLOCK
 
     def _lockstep_where(self) -> str:
         """The step the loop owes an answer to, for the guard's warning."""
-        return (f"the {self._phase.value} of the step at "
-                f"{(self._now_ns() - self._start_ns) * 1e-9:.3f} s (simulated)")
+        at = self._now_ns() - self._start_ns - (self._step_ns if self._phase is Phase.READINGS
+                                               else 0)
+        return f"the {self._phase.value} of the step at {at * 1e-9:.3f} s (simulated)"
 
     def _on_clock_tick(self) -> None:
         """Follow the node's clock: advance by however much time really passed."""

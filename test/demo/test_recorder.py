@@ -89,8 +89,9 @@ class Feed:
 
 
 def test_the_recorder_records_the_gyro_into_the_bag_and_the_recording(tmp_path: Path) -> None:
-    """An Imu on /imu (the sim's gyro) is written raw and kept for the gyro-aided replay,
-    once the next /clock says its step is over."""
+    """An Imu on /imu (the sim's gyro, a sample of the step that ends at this /clock) is
+    written raw and kept for the gyro-aided replay, once the next /clock says its step is
+    over."""
     from sensor_msgs.msg import Imu
 
     from diffdrive_odom.tools.bags import bagio
@@ -100,15 +101,40 @@ def test_the_recorder_records_the_gyro_into_the_bag_and_the_recording(tmp_path: 
         feed = Feed(rec)
         feed.clock(12_000_000_000)
         msg = Imu()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 500
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 11, 999_999_500
         msg.angular_velocity.x, msg.angular_velocity.z = 0.25, -0.125
         feed.send("/imu", msg)
         assert not rec.imu  # not before its step is over
         feed.clock(12_020_000_000)
         recording = rec.recording([])
-    assert recording.imu == ((12_000_000_500, 0.25, 0.0, -0.125),)
+    assert recording.imu == ((11_999_999_500, 0.25, 0.0, -0.125),)
     with bagio.open_bag(bag) as reader:
         assert bagio.count_messages(reader, "/imu") == rec.counts["/imu"] == 1
+
+
+def test_a_message_stamped_after_the_recorders_clock_waits_for_that_clock(
+        tmp_path: Path) -> None:
+    """The sim sends a step's /clock before its readings, but two writers' messages may
+    arrive in either order: a reading stamped after the last /clock taken is held (not
+    taken, not answered) until the /clock of its time comes, then taken as that step's."""
+    from sensor_msgs.msg import Imu
+
+    with Recorder(DOMAIN, tmp_path / "bag") as rec:
+        feed = Feed(rec)
+        feed.clock(12_000_000_000)
+        msg = Imu()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 20_000_000
+        took = rec.loop.tally.took
+        feed.pubs["/imu"].publish(msg)
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            rec.spin_once(0.05)
+        assert took["/imu"] == 0
+        feed.clock(12_020_000_000)
+        feed.until(lambda: took["/imu"] == 1)
+        feed.clock(12_040_000_000)
+        recording = rec.recording([])
+    assert [s[0] for s in recording.imu] == [12_020_000_000]
 
 
 def step_messages(k: int) -> dict[str, Any]:

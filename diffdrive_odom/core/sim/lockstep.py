@@ -29,25 +29,32 @@ from dataclasses import dataclass, field
 # The four counts of a tally, as an answer's lines name them: "<kind> <topic> <count>".
 SENT, TOOK, READERS, WRITERS = "sent", "took", "readers", "writers"
 KINDS = (SENT, TOOK, READERS, WRITERS)
+TICKS = "ticks"
 
 
 @dataclass
 class Tally:
-    """One participant's counts per topic (fully qualified names): its answer."""
+    """One participant's counts per topic (fully qualified names): its answer.
+
+    ``ticks``: it runs work of its own at a /clock (a heartbeat, a recorder's step), so
+    the readings of a step wait until it has taken that step's /clock.
+    """
 
     sent: dict[str, int] = field(default_factory=dict)  # messages it published
     took: dict[str, int] = field(default_factory=dict)  # messages it took, to the end
     readers: dict[str, int] = field(default_factory=dict)  # readers its writer matched
     writers: dict[str, int] = field(default_factory=dict)  # writers its reader matched
+    ticks: bool = False
 
     def answer(self, name: str) -> str:
-        """The answer's text: the participant's name, then a line per count.
+        """The answer's text: the participant's name, ``ticks`` if it does, a line per count.
 
         Plain text, one ``std_msgs/String``: cheap to send and read at every message
         taken, and readable as it is (``ros2 topic echo /lockstep``).
         """
-        return "\n".join([name, *(f"{kind} {topic} {n}" for kind in KINDS
-                                   for topic, n in getattr(self, kind).items())])
+        return "\n".join([name, *([TICKS] if self.ticks else []),
+                          *(f"{kind} {topic} {n}" for kind in KINDS
+                            for topic, n in getattr(self, kind).items())])
 
     @classmethod
     def parse(cls, text: str) -> tuple[str, Tally]:
@@ -55,6 +62,9 @@ class Tally:
         name, *lines = text.split("\n")
         tally = cls()
         for line in lines:
+            if line == TICKS:
+                tally.ticks = True
+                continue
             kind, _, rest = line.partition(" ")
             topic, _, count = rest.rpartition(" ")
             if kind not in KINDS or not topic:
@@ -63,18 +73,37 @@ class Tally:
         return name, tally
 
 
-def lags(tallies: Mapping[str, Tally]) -> list[str]:
+def lags(tallies: Mapping[str, Tally], clock: str | None = None) -> list[str]:
     """What keeps the step from being answered, one line per reader and topic short.
 
     Empty: every participant has taken all the participants sent on the topics it reads.
     A reader may have taken more (a publisher outside the loop): that never holds it up.
+    ``clock``: the phase of a step's /clock (this topic), which only the participants that
+    tick must have taken (the others take it with the readings that follow).
     """
-    sent: Counter[str] = Counter()
-    for tally in tallies.values():
-        sent.update(tally.sent)
+    sent = _sent(tallies)
     return [f"{name} has taken {n} of the {sent[topic]} messages sent on {topic}"
             for name, tally in tallies.items() for topic, n in tally.took.items()
-            if n < sent[topic]]
+            if n < sent.get(topic, 0) and (tally.ticks or topic != clock)]
+
+
+def answered(tallies: Mapping[str, Tally], clock: str | None = None) -> bool:
+    """:func:`lags` is empty (asked at every answer the sim hears: no text made)."""
+    sent = _sent(tallies)
+    return all(n >= sent.get(topic, 0) or (topic == clock and not tally.ticks)
+               for tally in tallies.values() for topic, n in tally.took.items())
+
+
+def _sent(tallies: Mapping[str, Tally]) -> dict[str, int]:
+    """Messages sent on each topic by all the participants.
+
+    A plain sum: Counter.update is several times slower, and this runs at every answer.
+    """
+    sent: dict[str, int] = {}
+    for tally in tallies.values():
+        for topic, n in tally.sent.items():
+            sent[topic] = sent.get(topic, 0) + n
+    return sent
 
 
 def unmatched(tallies: Mapping[str, Tally]) -> list[str]:

@@ -18,7 +18,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from diffdrive_odom.core.sim.lockstep import Tally, lags, missing, resolve, unmatched
+from diffdrive_odom.core.sim.lockstep import (
+    Tally,
+    answered,
+    lags,
+    missing,
+    resolve,
+    unmatched,
+)
 
 SIM = "/sim_node"
 # participant -> (topics it reads, topics it writes)
@@ -59,6 +66,25 @@ def test_a_reader_short_of_what_was_sent_is_named_and_a_foreign_extra_holds_noth
                              "/joint_states"]
     tallies["/odometry_node"].took["/joint_states"] = 5
     assert lags(tallies) == []  # 9 taken on /cmd_vel, none sent in the loop: a foreign one
+
+
+def test_only_a_participant_that_ticks_must_have_taken_the_clock_phase() -> None:
+    """A step's /clock: a node with work of its own at a /clock (a heartbeat) must have
+    taken it before the readings are sent; one that only answers readings takes it with
+    them. Once the readings are out, every reader of /clock must have taken it."""
+    ticking = Tally(took={"/clock": 2, "/cmd_vel": 1}, ticks=True)
+    assert Tally.parse(ticking.answer("/cmd_vel_node")) == ("/cmd_vel_node", ticking)
+    tallies = {
+        SIM: Tally(sent={"/clock": 3, "/joint_states": 2}),
+        "/odometry_node": Tally(took={"/clock": 2, "/joint_states": 2}),
+        "/cmd_vel_node": ticking,
+    }
+    held = ["/cmd_vel_node has taken 2 of the 3 messages sent on /clock"]
+    assert lags(tallies, "/clock") == held and not answered(tallies, "/clock")
+    ticking.took["/clock"] = 3
+    assert lags(tallies, "/clock") == [] and answered(tallies, "/clock")
+    assert lags(tallies) == ["/odometry_node has taken 2 of the 3 messages sent on /clock"]
+    assert not answered(tallies)
 
 
 def test_the_start_waits_for_every_endpoint_and_every_participant() -> None:
