@@ -62,15 +62,20 @@ def options(args: argparse.Namespace) -> DemoOptions:
     )
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``diffdrive-odom demo``: 0 on success, 1 if the run failed, 2 on bad options."""
-    args = _parser().parse_args(list(sys.argv[1:] if argv is None else argv))
+def parse(argv: Sequence[str]) -> DemoOptions:
+    """The command line as run options, checked before anything starts (DemoError)."""
     from .settings import check_options, load_settings
 
+    opts = options(_parser().parse_args(list(argv)))
+    check_options(opts)
+    load_settings(opts)
+    return opts
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``diffdrive-odom demo``: 0 on success, 1 if the run failed, 2 on bad options."""
     try:
-        opts = options(args)
-        check_options(opts)
-        load_settings(opts)
+        opts = parse(sys.argv[1:] if argv is None else argv)
     except DemoError as err:
         print(f"[{PROGRAM}] {err}", file=sys.stderr)
         return 2
