@@ -9,6 +9,10 @@ from setuptools import find_packages, setup
 PACKAGE = "diffdrive_odom"
 # package.xml is the one place the version is written (rosdep, bloom and colcon read it).
 VERSION = ElementTree.parse(Path(__file__).resolve().parent / "package.xml").findtext("version")
+# The bag tools (replay, eval, calibrate, play, reindex) and the demo's report and plot.
+# rosbags to the minor version tested: the bulk writer and the recovery of torn
+# recordings lean on its internals (diffdrive_odom/tools/bags/rosbagsinternals.py).
+TOOLS = ["rosbags>=0.11.9,<0.12", "orjson", "matplotlib", "scipy"]
 
 setup(
     name=PACKAGE,
@@ -27,16 +31,17 @@ setup(
     ],
     package_data={f"{PACKAGE}.data": ["*"]},
     include_package_data=True,
+    # What the nodes import besides ROS (package.xml's python3-numpy and python3-yaml):
     # rclpy and the messages come from ROS (apt, or the ros-jazzy-* wheels), tf2_msgs
-    # too (scripts/build_tf2_msgs.sh where no apt): not PyPI requirements.
-    install_requires=["setuptools", "numpy", "pyyaml"],
+    # too (scripts/build_tf2_msgs.sh where no apt): not PyPI requirements. setuptools
+    # builds the package (pip and colcon bring it); nothing imports it at run time.
+    install_requires=["numpy", "pyyaml"],
     extras_require={
-        # The bag tools (replay, eval, calibrate, play) and the demo's report and plot.
-        "tools": ["rosbags", "orjson", "matplotlib", "scipy"],
+        "tools": TOOLS,
         # The test suite (`colcon test` runs it as pytest): the tools plus the test tools.
-        "test": ["pytest", "pytest-timeout", "hypothesis", "mcap-ros2-support",
-                 "rosbags", "orjson", "matplotlib", "scipy"],
-        "fleet": ["dask[distributed]"],  # replay / eval --dask ADDRESS
+        "test": ["pytest", "pytest-timeout", "hypothesis", "mcap", "mcap-ros2-support",
+                 *TOOLS],
+        "fleet": ["distributed"],  # replay / eval --dask ADDRESS (dask.distributed, with dask)
     },
     zip_safe=True,
     maintainer="diffdrive_odom maintainers",

@@ -23,6 +23,12 @@ Sizes (issue 19): synthetic bags of 1e4, 1e5 and 1e6 readings (``--sizes``), sid
 side: rosbags' decode-only, replay -> bag and replay -> CSV through the fast lane
 (:mod:`diffdrive_odom.core.bulk.fastlane`), replay -> bag one reading at a time (up to
 ``--slow-max`` readings), and the peak traced allocation of replay -> bag.
+
+Writers (issue 39, ``--writers N``): replay's rows (an Odometry and a /tf message a
+reading) into MCAP by the bulk path, which leans on rosbags' writer internals
+(:mod:`diffdrive_odom.tools.bags.rosbagsinternals`), and by the two public writers, one
+message at a time: rosbags' ``Writer.write`` and the mcap library's
+``Writer.add_message``; timed round by round, side by side.
 """
 
 from __future__ import annotations
@@ -166,6 +172,67 @@ def bench_sizes(tmp: Path, sizes: list[int], slow_max: int, settings: OdometrySe
         shutil.rmtree(out, ignore_errors=True)
 
 
+def bench_writers(tmp: Path, n: int, rounds: int = 3) -> None:
+    """``n`` rows of replay's two messages through each MCAP writer (us a message)."""
+    from mcap.writer import CompressionType
+    from mcap.writer import Writer as McapWriter
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
+
+    odom = np.frombuffer(OdometryLayout("odom", "base_link").planar(
+        10**9, 1.0, 2.0, 0.3, 0.1, 0.2), dtype=np.uint8)
+    tf = np.frombuffer(TransformLayout("odom", "base_link").planar(10**9, 1.0, 2.0, 0.3),
+                       dtype=np.uint8)
+    rows = [np.tile(odom, (n, 1)), np.tile(tf, (n, 1))]
+    log = 10**18 + np.arange(n, dtype=np.int64) * 10_000_000
+    out = tmp / "writers"
+
+    def bulk() -> None:
+        with bagwriter.BagWriter(out) as w:
+            w.add_topic("/odom", bagio.ODOMETRY)
+            w.add_topic("/tf", bagio.TF_MESSAGE)
+            w.write_rows(["/odom", "/tf"], log, rows)
+
+    def rosbags_one_by_one() -> None:
+        store = bagio.typestore()
+        with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+            conns = [w.add_connection("/odom", bagio.ODOMETRY, typestore=store),
+                     w.add_connection("/tf", bagio.TF_MESSAGE, typestore=store)]
+            for k, stamp in enumerate(log.tolist()):
+                for conn, data in zip(conns, rows, strict=True):
+                    w.write(conn, stamp, data[k].tobytes())
+
+    def mcap_one_by_one() -> None:
+        out.mkdir()
+        with (out / "writers.mcap").open("wb") as f:
+            w = McapWriter(f, compression=CompressionType.NONE)
+            w.start("ros2", "bench")
+            channels = [w.register_channel(topic, "cdr", w.register_schema(kind, "ros2msg", b""))
+                        for topic, kind in (("/odom", bagio.ODOMETRY), ("/tf", bagio.TF_MESSAGE))]
+            for k, stamp in enumerate(log.tolist()):
+                for channel, data in zip(channels, rows, strict=True):
+                    w.add_message(channel, stamp, data[k].tobytes(), stamp)
+            w.finish()
+
+    cases: dict[str, Callable[[], None]] = {
+        "bulk (rosbags internals)": bulk, "rosbags Writer.write": rosbags_one_by_one,
+        "mcap Writer.add_message": mcap_one_by_one}
+    best = dict.fromkeys(cases, float("inf"))
+    for k in range(rounds):  # side by side: each round times each, in a rotated order
+        names = list(cases)
+        for name in names[k % len(names):] + names[:k % len(names)]:
+            best[name] = min(best[name], _best(cases[name], 1,
+                                               partial(shutil.rmtree, out, True)))
+    shutil.rmtree(out, ignore_errors=True)
+    print(f"\nMCAP writers: {n} rows of Odometry ({odom.size} B) and /tf ({tf.size} B), "
+          f"best of {rounds} rounds side by side")
+    print(f"  {'writer':28s} {'us/message':>11s} {'vs bulk':>8s}")
+    for name, seconds in best.items():
+        print(f"  {name:28s} {seconds * 1e6 / (2 * n):11.2f} "
+              f"{seconds / best['bulk (rosbags internals)']:7.2f}x")
+
+
 def bench_bag(name: str, bag: Path, settings: OdometrySettings, tmp: Path) -> None:
     readings = list(bagreadings.read_joint_states(bag))
     n = len(readings)
@@ -224,6 +291,9 @@ def main() -> int:
     ap.add_argument("--slow-max", type=int, default=100_000,
                     help="largest bag also replayed one reading at a time")
     ap.add_argument("--only-sizes", action="store_true", help="only the by-size table")
+    ap.add_argument("--writers", type=int, default=100_000, metavar="N",
+                    help="rows for the MCAP writers' table (0: skip it)")
+    ap.add_argument("--only-writers", action="store_true", help="only the writers' table")
     args = ap.parse_args()
     optiodom = odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
     tb3 = odometry_settings({"wheel_radius": 0.033, "wheel_separation": 0.287,
@@ -232,6 +302,10 @@ def main() -> int:
     synth = odometry_settings({"wheel_radius": 0.05, "wheel_separation": 0.3})
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
+        if args.writers:
+            bench_writers(tmp, args.writers)
+        if args.only_writers:
+            return 0
         if args.sizes:
             bench_sizes(tmp, args.sizes, args.slow_max, synth)
         if args.only_sizes:

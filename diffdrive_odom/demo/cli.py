@@ -86,6 +86,9 @@ def _run(opts: DemoOptions) -> int:
     """The run itself: Ctrl-C or SIGTERM stop it cleanly (exit 130, every node stopped)."""
     from .loop import run
 
+    if opts.write_plot:  # a missing matplotlib is said before the drive, not after it
+        import matplotlib  # noqa: F401
+
     try:
         with interrupts.handled():
             kinds = " then ".join("CW" if cw else "CCW" for cw in opts.squares)

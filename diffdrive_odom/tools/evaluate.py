@@ -172,6 +172,8 @@ def run_bag(args: argparse.Namespace) -> int:
         try:
             est = read_trajectory(args.bag, args.odom, args.odom_child_frame,
                                   "--odom-child-frame", notify)
+        except bagio.UnreadableBagError:
+            raise  # what to do is said; no other topic can help
         except bagio.BagError as err:
             raise bagio.BagError(f"{err}{_commands_only_hint(args.bag)}") from None
         exclude = [args.odom] if ref_bag == args.bag else []

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from diffdrive_odom.ros import lifetime
+from diffdrive_odom.settings.dependencies import missing_text
 from diffdrive_odom.tools.cmdline.args import fail
 from diffdrive_odom.tools.cmdline.outputs import output_problem
 
@@ -186,8 +187,7 @@ def _on_dask(fn: Callable[..., Any], calls: Sequence[tuple[Any, ...]], address: 
     try:
         from distributed import Client
     except ImportError as exc:
-        raise FleetError("--dask needs dask.distributed: pip install "
-                         "'diffdrive_odom[fleet]' (or dask[distributed])") from exc
+        raise FleetError(missing_text("distributed", "--dask") or str(exc)) from exc
     connect: Any = Client  # untyped library
     with connect(address) as client:
         futures = [client.submit(fn, *c, pure=False) for c in calls]

@@ -100,7 +100,7 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
 
     from diffdrive_odom.ros import qos as ros_qos
     from diffdrive_odom.ros.runtime import shutdown_after_stop
-    from diffdrive_odom.tools.bags import cdrconvert
+    from diffdrive_odom.tools.bags import bagio, cdrconvert
 
     conns: list[Connection] = [
         c for c in reader.connections if args.topics is None or c.topic in args.topics
@@ -155,6 +155,9 @@ def _play(reader: Any, args: argparse.Namespace, remap: dict[str, str]) -> int:
         log.info(f"done: {sent} messages")
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except bagio.BagError as err:  # damaged part way: what was played went out
+        print(f"[play] {err}", file=sys.stderr)
+        return 2
     except Exception:
         # A stop signal's handler shuts the context down under a publish or a wait for
         # acks (rclpy then raises from them): that is the stop, not a failure of play's.

@@ -41,6 +41,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if bag.is_dir() and (bag / "metadata.yaml").exists():
         print(f"[reindex] {bag}: has its metadata.yaml already; nothing to do")
         return 0
+    if bag.suffix == ".bag":
+        print(f"[reindex] {bag}: a ROS 1 bag; this makes rosbag2 recordings whole, ROS 1's "
+              f"`rosbag reindex {bag}` does it for a ROS 1 bag", file=sys.stderr)
+        return 2
     from diffdrive_odom.tools.bags import bagio, recovery  # past the parsing: no rosbags
     from diffdrive_odom.tools.bags.reindexing import copy, metadata, yaml_text
 

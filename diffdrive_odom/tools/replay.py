@@ -138,6 +138,9 @@ def run_bag(args: argparse.Namespace) -> int:
     from diffdrive_odom.tools.bags import bagio, poses  # past the parsing: --help needs no rosbags
     from diffdrive_odom.tools.replaying import bag
 
+    if args.plot:  # a missing matplotlib is said before the replay, not after its outputs
+        import matplotlib  # noqa: F401
+
     ref: metrics.Trajectory | None = None
     gt_topic = ""
     if args.eval:  # the reference first: a wrong topic must not cost a whole replay

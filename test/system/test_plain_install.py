@@ -11,6 +11,7 @@ too. On main, ``odometry_node --help`` ended in ``No module named 'tf2_msgs'`` a
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import signal
@@ -85,19 +86,77 @@ def test_every_console_script_and_command_helps_without_the_optional_packages() 
         assert "Traceback" not in out + err, (run, err)
 
 
-def test_a_missing_extra_at_run_time_is_one_line_naming_it(tmp_path: Path) -> None:
+# What `pip install diffdrive_odom` without the extra lacks, as the line names it: the
+# extra, and its libraries for a colcon build (setup.py's TOOLS, as pip records them).
+TOOLS_LINE = ("pip install 'diffdrive_odom[tools]' (or its libraries alone: pip install "
+              "'rosbags<0.12,>=0.11.9' orjson matplotlib scipy)")
+RUN01 = DATA / "optiodom" / "square_231220200029_run-01"
+
+# Each command, with the options that reach each library of the tools extra it needs.
+NEEDS = [
+    ("replay", ("--csv", "{tmp}/o.csv"), "rosbags"),
+    ("replay", ("--csv", "{tmp}/o.csv", "--eval", "--plot", "{tmp}/o.png"), "matplotlib"),
+    ("eval", ("--odom", "/firmware/odom"), "rosbags"),
+    ("calibrate", (str(RUN01),), "rosbags"),
+    ("calibrate", (str(RUN01),), "scipy"),
+    ("calibrate", (str(RUN01), "--plot", "{tmp}/c.png"), "matplotlib"),
+    ("play", ("--rate", "50"), "rosbags"),
+    ("reindex", ("--output", "{tmp}/copy"), "rosbags"),  # of a torn recording
+]
+
+
+@pytest.mark.parametrize(("command", "options", "library"), NEEDS)
+def test_a_missing_library_at_run_time_is_one_line_naming_the_extra(
+        command: str, options: tuple[str, ...], library: str, tmp_path: Path) -> None:
     params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
-    calibrate = launch("diffdrive-odom", "calibrate", str(RUN04), "--params-file", str(params),
-                       missing=("scipy",))
-    replay = launch("diffdrive-odom", "replay", str(RUN04), "--params-file", str(params),
-                    "--csv", str(tmp_path / "o.csv"), missing=("rosbags",))
-    code, out, err = finish(calibrate)
-    assert (code, err) == (
-        2, "diffdrive-odom calibrate needs scipy: pip install 'diffdrive_odom[tools]'\n"), out
-    code, out, err = finish(replay)
-    assert (code, err) == (
-        2, "diffdrive-odom replay needs rosbags: pip install 'diffdrive_odom[tools]'\n"), out
-    assert list(tmp_path.iterdir()) == [params]  # nothing half-written
+    out = tmp_path / "out"
+    out.mkdir()
+    bag = RUN04
+    if command == "reindex":  # an intact one has nothing to do
+        (mcap,) = RUN04.glob("*.mcap")
+        bag = tmp_path / "torn.mcap"
+        bag.write_bytes(mcap.read_bytes()[:500_000])
+    args = [str(bag), *(o.format(tmp=out) for o in options)]
+    if command in ("replay", "calibrate"):
+        args += ["--params-file", str(params)]
+    code, stdout, err = finish(launch("diffdrive-odom", command, *args, missing=(library,)))
+    assert (code, err) == (2, f"diffdrive-odom {command} needs {library}: {TOOLS_LINE}\n"), stdout
+    assert list(out.iterdir()) == []  # nothing half-written
+
+
+@pytest.mark.parametrize("library", ["rosbags", "scipy", "matplotlib"])
+def test_the_demo_missing_a_library_says_so_before_it_drives(library: str,
+                                                             tmp_path: Path) -> None:
+    """matplotlib draws the plot last: its absence was said after the drive (7 s with
+    --short, over a minute without)."""
+    output = tmp_path / "demo_output"
+    code, out, err = finish(launch("diffdrive-odom", "demo", "--short", "--output", str(output),
+                                   "--domain-id", os.environ.get("ROS_DOMAIN_ID", "0"),
+                                   missing=(library,)))
+    assert (code, err) == (2, f"diffdrive-odom demo needs {library}: {TOOLS_LINE}\n")
+    assert out == "" and not output.exists()  # nothing started, nothing written
+
+
+def test_orjson_missing_costs_nothing_but_speed(tmp_path: Path) -> None:
+    """orjson (the CSV's numbers) is the one library of the extra a tool does without."""
+    params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+    procs = [launch("diffdrive-odom", "replay", str(RUN04), "--params-file", str(params),
+                    "--csv", str(tmp_path / f"{name}.csv"), missing=missing)
+             for name, missing in (("with", ()), ("without", ("orjson",)))]
+    for proc in procs:
+        code, _, err = finish(proc)
+        assert code == 0, err
+    tables = [list(csv.reader((tmp_path / f"{n}.csv").open())) for n in ("with", "without")]
+    assert len(tables[0]) == len(tables[1]) == 1 + 1385  # the header, a row a reading
+    for row, other in zip(*tables, strict=True):  # the same doubles (in another spelling)
+        assert [_value(v) for v in row] == [_value(v) for v in other]
+
+
+def _value(text: str) -> float | str:
+    try:
+        return float(text)
+    except ValueError:
+        return text
 
 
 def test_eval_plot_without_matplotlib_prints_the_table_then_the_line(tmp_path: Path) -> None:
@@ -107,8 +166,7 @@ def test_eval_plot_without_matplotlib_prints_the_table_then_the_line(tmp_path: P
                                    missing=("matplotlib",)))
     assert code == 2, err
     assert "final position error" in out  # the table, first
-    assert err.endswith(
-        "diffdrive-odom eval needs matplotlib: pip install 'diffdrive_odom[tools]'\n"), err
+    assert err.endswith(f"diffdrive-odom eval needs matplotlib: {TOOLS_LINE}\n"), err
     assert not png.exists()
 
 

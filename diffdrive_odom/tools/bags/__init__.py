@@ -12,6 +12,8 @@ needs no rosbags; callers import the module that defines what they use.
   pose topic as a trajectory; which one is the ground truth)
 - writing: :mod:`.bagwriter` (rosbag2 by topic name), :mod:`.bulkmcap` (many rows into
   MCAP at once)
+- :mod:`.rosbagsinternals`: every use of rosbags beyond its public API (the bulk
+  writer's, recovery's, reindex's, the ROS 1 conversion's), checked name by name
 - conversion: :mod:`.cdrconvert` (any bag's messages to ROS 2 CDR)
 - recovery: :mod:`.recovery` (recordings cut short, read as they are), :mod:`.mcapscan`
   (a torn MCAP walked record by record), :mod:`.sqlitescan` (a malformed db3),
@@ -20,4 +22,4 @@ needs no rosbags; callers import the module that defines what they use.
 
 __all__ = ["bagblocks", "bagcommands", "bagio", "bagreadings", "bagwriter", "bulkmcap",
            "cdrconvert", "mcapscan", "poses", "recovery", "reindexing",
-           "reorder", "sqlitescan"]
+           "reorder", "rosbagsinternals", "sqlitescan"]

@@ -5,7 +5,8 @@ play`` and independent readers (mcap-ros2-support) must read. rclpy's serializer
 some messages in a way strict readers reject, so messages are serialised by rosbags (or
 handed over as CDR bytes the wire layer wrote), as rosbag2 with mcap storage by default
 or sqlite3 on request; many rows at once go to MCAP in bulk
-(:mod:`diffdrive_odom.tools.bags.bulkmcap`).
+(:mod:`diffdrive_odom.tools.bags.bulkmcap`, through
+:mod:`~diffdrive_odom.tools.bags.rosbagsinternals`).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from rosbags.interfaces import Connection
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.tools.bags import bulkmcap
+from diffdrive_odom.tools.bags import rosbagsinternals
 from diffdrive_odom.tools.bags.bagio import BagError, typestore
 from diffdrive_odom.tools.cmdline.outputs import STORAGES
 
@@ -39,7 +40,7 @@ class BagWriter:
         if self.path.exists():
             raise BagError(f"{self.path} exists: remove it or choose another output")
         plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-        self._writer = bulkmcap.FastWriter(self.path, version=9, storage_plugin=plugin)
+        self._writer = rosbagsinternals.FastWriter(self.path, version=9, storage_plugin=plugin)
         self.typestore = typestore()
         self._conns: dict[str, tuple[Connection, str]] = {}
         self.count = 0
@@ -85,8 +86,8 @@ class BagWriter:
         (:mod:`diffdrive_odom.tools.bags.bulkmcap`), sqlite3 one by one.
         """
         conns = [self._conns[t][0] for t in topics]
-        if bulkmcap.supported(self._writer):
-            bulkmcap.write_rows(self._writer, conns, log_ns, payloads)
+        if rosbagsinternals.supported(self._writer):
+            rosbagsinternals.write_rows(self._writer, conns, log_ns, payloads)
         else:
             for k, stamp in enumerate(log_ns.tolist()):
                 for conn, data in zip(conns, payloads, strict=True):

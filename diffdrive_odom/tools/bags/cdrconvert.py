@@ -11,10 +11,11 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 
-from rosbags.convert.converter import is_same_wireformat, migrate_bytes
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 from rosbags.typesys import Stores, get_typestore
+
+from diffdrive_odom.tools.bags.rosbagsinternals import is_same_wireformat, migrate_bytes
 
 
 class CdrConverter:

@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-from rosbags.rosbag2.storage_mcap import DECOMPRESSORS
+
+from diffdrive_odom.tools.bags.rosbagsinternals import decompress
 
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD = struct.Struct("<BQ")  # opcode, length of the body
@@ -183,11 +184,10 @@ def _crc(data: bytes) -> int:
 def chunk_bytes(buf: bytes | mmap.mmap, data: int, stored: int, compression: str,
                 size: int) -> bytes:
     """A compressed chunk's records (ValueError when they do not come out whole)."""
-    decompress = DECOMPRESSORS.get(compression)
-    if decompress is None:
-        raise ValueError(f"unknown compression {compression!r}")
     try:
-        raw = decompress(bytes(buf[data:data + stored]), size)
+        raw = decompress(compression, bytes(buf[data:data + stored]), size)
+    except KeyError:
+        raise ValueError(f"unknown compression {compression!r}") from None
     except Exception as err:  # each codec has its own error type
         raise ValueError(str(err)) from err
     if len(raw) != size:

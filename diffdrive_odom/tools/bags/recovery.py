@@ -40,11 +40,9 @@ from rosbags.interfaces import (
     MessageDefinitionFormat,
     TopicInfo,
 )
-from rosbags.rosbag2.metadata import parse_qos
-from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from diffdrive_odom.tools.bags import mcapscan, sqlitescan
+from diffdrive_odom.tools.bags import mcapscan, rosbagsinternals, sqlitescan
 from diffdrive_odom.tools.cmdline import once
 
 SUFFIXES = (".mcap", ".db3")
@@ -101,7 +99,7 @@ def _msgdef(encoding: str, data: str) -> MessageDefinition:
 
 def _qos(text: Any) -> Any:
     try:
-        return parse_qos(text or [])
+        return rosbagsinternals.parse_qos(text or [])
     except Exception:  # a damaged QoS entry costs the QoS, not the recording
         return []
 
@@ -348,20 +346,14 @@ class RecoveredReader(AnyReader):
     def __init__(self, path: Path, *, default_typestore: Typestore | None = None,
                  report: IO[str] | None = None) -> None:
         # AnyReader's own __init__ would build rosbags' readers, which refuse these
-        # files: the attributes it sets are set here, over this module's readers.
+        # files: what it sets is set over this module's readers instead.
         if not path.exists():
             raise RecoveryError(f"{path}: no such file or folder")
         files = [path] if path.is_file() else storage_files(path)
         if not files:
             raise RecoveryError(f"{path}: no metadata.yaml and no .mcap or .db3 file: "
                                 "not a recording")
-        self.paths = [path]
-        self.is2 = True
-        self.stack = None
-        self.connections: list[Connection] = []
-        self.default_typestore = default_typestore
-        self.typestore = get_typestore(Stores.EMPTY)
-        self.readers = [open_storage(f) for f in files]
+        rosbagsinternals.adopt(self, path, [open_storage(f) for f in files], default_typestore)
         self.missing = ("no metadata.yaml" if path.is_dir()
                         and not (path / "metadata.yaml").exists() else "")
         self.note = ""

@@ -9,13 +9,13 @@ recovered messages into a new bag with its own metadata and (MCAP) summary.
 
 from __future__ import annotations
 
-from io import StringIO
 from pathlib import Path
 from typing import Any
 
+import yaml
 from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.rosbag2.metadata import dump_qos_v9
-from ruamel.yaml import YAML
+
+from diffdrive_odom.tools.bags.rosbagsinternals import dump_qos_v9
 
 __all__ = ["copy", "metadata", "yaml_text"]
 
@@ -39,7 +39,7 @@ def metadata(reader: Any, storage_id: str) -> dict[str, Any]:
         key = (conn.topic, conn.msgtype)
         counts[key] = counts.get(key, 0) + conn.msgcount
         first.setdefault(key, conn)
-    storages = reader.readers
+    storages = reader.storages
     total = sum(s.message_count for s in storages)
     whole = span(min(s.start_time for s in storages), max(s.end_time for s in storages), total)
     info = {
@@ -68,12 +68,8 @@ def metadata(reader: Any, storage_id: str) -> dict[str, Any]:
 
 
 def yaml_text(data: dict[str, Any]) -> str:
-    """YAML as rosbag2's readers (and rosbags) take it."""
-    yaml = YAML(typ="safe")
-    yaml.default_flow_style = False
-    out = StringIO()
-    yaml.dump(data, out)
-    return out.getvalue()
+    """YAML as rosbag2's readers (and rosbags) take it, in rosbag2's key order."""
+    return yaml.safe_dump(data, default_flow_style=False, sort_keys=False)
 
 
 def copy(reader: Any, out: Path, storage_id: str) -> int:

@@ -201,8 +201,11 @@ def test_unusable_bags_raise_one_clear_error(tmp_path: Path) -> None:
     (tmp_path / "empty_dir").mkdir()
     (tmp_path / "notes.txt").write_text("not a bag\n")
     (tmp_path / "fake.bag").write_text("not a bag either\n")
-    for name in ("empty_dir", "notes.txt", "fake.bag"):
-        with (pytest.raises(bagio.BagError, match=f"{name}: not a readable bag"),
+    for name, what in (("empty_dir", "no metadata.yaml and no .mcap or .db3 file"),
+                       ("notes.txt", "not a readable bag"),
+                       ("fake.bag", "not a ROS 1 bag")):
+        with (pytest.raises(bagio.BagError, match=f"{name}: {what}.*; give a rosbag2 folder, "
+                            r"an \.mcap or \.db3 file, or a ROS 1 \.bag$"),
               bagio.open_bag(tmp_path / name)):
             pass
     with pytest.raises(bagio.BagError, match=r"/ground_truth/pose"):

@@ -20,7 +20,7 @@ from rosbags.rosbag2.storage_mcap import McapWriter
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.tools.bags import bagio, bagreadings, bagwriter, bulkmcap
+from diffdrive_odom.tools.bags import bagio, bagreadings, bagwriter, rosbagsinternals
 from diffdrive_odom.tools.replaying import csvout, sinks
 from diffdrive_odom.tools.replaying.readings import replay_readings
 from diffdrive_odom.tools.replaying.stats import ReplayStats
@@ -58,7 +58,7 @@ def _replay(bag: Path, settings: OdometrySettings, out: Path, *, bulk: bool,
         w.add_topic("/tf", bagio.TF_MESSAGE)
         sink = sinks.OutputSink(settings, w, t)
         if not bulk:
-            if isinstance(w._writer.storage, bulkmcap.FastMcapWriter):  # rosbags' own index
+            if isinstance(w._writer.storage, rosbagsinternals.FastMcapWriter):  # rosbags' own index
                 w._writer.storage.close_chunk = (  # type: ignore[method-assign]
                     McapWriter.close_chunk.__get__(w._writer.storage))
             return replay_readings(bagreadings.read_joint_states(bag), settings,

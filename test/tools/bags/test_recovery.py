@@ -214,11 +214,10 @@ def test_metadata_removed_gives_the_intact_readings_and_reindex_restores_it(
     with AnyReader([bag]) as r:  # rosbags, through the new metadata.yaml
         assert [(log, bytes(raw)) for _, log, raw in r.messages()] == msgs
         assert r.message_count == len(msgs)
-    from ruamel.yaml import YAML
+    import yaml
 
-    yaml = YAML(typ="safe")
-    ours = yaml.load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    theirs = yaml.load(original)["rosbag2_bagfile_information"]
+    ours = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    theirs = yaml.safe_load(original)["rosbag2_bagfile_information"]
     assert ours["version"] == 9 and ours["ros_distro"] == "jazzy"
     for key in ("storage_identifier", "relative_file_paths", "duration", "starting_time",
                 "message_count", "topics_with_message_count", "files"):
