@@ -19,6 +19,11 @@ and, on the decoded readings held in memory:
 Memory: peak traced allocation of streaming replay -> bag on a synthetic bag and on
 one four times longer.
 
+``--before COMMIT``: only replay in memory (the fast lane and step by step, a weaving
+robot at 100 Hz, and the same with every other reading repeating the counts before it
+as a Kobuki's driver does), this tree against the tree at COMMIT (``git archive``), each
+round in fresh interpreters, rounds interleaved; the median of the rounds' ratios.
+
 Sizes (issue 19): synthetic bags of 1e4, 1e5 and 1e6 readings (``--sizes``), side by
 side: rosbags' decode-only, replay -> bag and replay -> CSV through the fast lane
 (:mod:`diffdrive_odom.core.bulk.fastlane`), replay -> bag one reading at a time (up to
@@ -34,7 +39,12 @@ message at a time: rosbags' ``Writer.write`` and the mcap library's
 from __future__ import annotations
 
 import argparse
+import json
+import math
+import os
 import shutil
+import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -46,7 +56,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+if "--lane-worker" not in sys.argv:  # a worker times the tree PYTHONPATH names
+    sys.path.insert(0, str(ROOT))
 
 from diffdrive_odom.core.bulk import batch  # noqa: E402
 from diffdrive_odom.core.bulk.readings import count  # noqa: E402
@@ -282,6 +293,81 @@ def bench_memory(tmp: Path, n: int, settings: OdometrySettings) -> None:
               f"({k / seconds:,.0f} readings/s under tracemalloc)")
 
 
+def _weave(n: int, repeats: bool) -> list[tuple[int, list[float]]]:
+    """A robot weaving at 100 Hz (as :func:`_synthetic`): stamps and positions in memory.
+
+    ``repeats``: every other reading repeats the counts before it, as a Kobuki's driver
+    republishes its counters (each step that moves then judged over two periods).
+    """
+    rng = np.random.default_rng(1)
+    left = np.cumsum(0.05 + 0.02 * rng.standard_normal(n))
+    right = np.cumsum(0.05 + 0.02 * rng.standard_normal(n))
+    k = np.arange(n) // 2 * 2 if repeats else np.arange(n)
+    return [(10**9 + i * 10**7, [float(left[j]), float(right[j])]) for i, j in enumerate(k)]
+
+
+def lane_worker(stream_path: str) -> int:
+    """Time the fast lane and the step-by-step path over a stream once; a JSON line."""
+    import diffdrive_odom
+    from diffdrive_odom.core.bulk.readings import JointReading
+
+    rows = json.loads(Path(stream_path).read_text())
+    names = ("left_wheel_joint", "right_wheel_joint")
+    readings = [JointReading(t, t, names, tuple(p), ()) for t, p in rows]
+    settings = odometry_settings({"wheel_radius": 0.05, "wheel_separation": 0.3})
+    out = {}
+    for label, fast in (("fast lane", True), ("step-by-step", False)):
+        best, pose = math.inf, None
+        for _ in range(3):
+            t0 = time.process_time()
+            stats = replay_readings(readings, settings, fast=fast)
+            best = min(best, time.process_time() - t0)
+            pose = stats.final_pose
+        assert pose is not None
+        out[label] = {"us": best / len(readings) * 1e6, "pose": [pose.x, pose.y, pose.theta]}
+    out["package"] = str(Path(diffdrive_odom.__file__).resolve().parent)  # type: ignore[assignment]
+    print(json.dumps(out))
+    return 0
+
+
+def bench_before(commit: str, n: int, rounds: int) -> int:
+    """This tree's replay against the tree at ``commit``, in fresh interpreters, rounds
+    interleaved (a noisy spell hits both alike): the median of each round's ratio."""
+    from bench_node_path import old_tree
+
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        before = old_tree(commit, tmp / "before")
+        if before is None:
+            print(f"no commit {commit} in this clone's history: nothing measured")
+            return 0
+        print(f"\nreplay in memory, this tree against {commit} ({n} readings, {rounds} "
+              "interleaved rounds; us per reading, CPU time, best of 3 a round)")
+        for name, repeats in (("weave", False), ("weave, driver repeats", True)):
+            path = tmp / "stream.json"
+            path.write_text(json.dumps(_weave(n, repeats)))
+            times: dict[str, dict[str, list[float]]] = {"before": {}, "after": {}}
+            for _ in range(rounds):
+                for tree, label in ((before, "before"), (ROOT, "after")):
+                    env = {**os.environ, "PYTHONPATH": str(tree),
+                           "PYTHONDONTWRITEBYTECODE": "1"}
+                    done = subprocess.run(
+                        [sys.executable, str(Path(__file__).resolve()), "--lane-worker",
+                         str(path)], env=env, capture_output=True, text=True, check=True,
+                        cwd=tempfile.gettempdir())
+                    got = json.loads(done.stdout.strip().splitlines()[-1])
+                    assert Path(got["package"]) == (tree / "diffdrive_odom").resolve(), got
+                    for path_name in ("fast lane", "step-by-step"):
+                        times[label].setdefault(path_name, []).append(got[path_name]["us"])
+            for path_name in ("fast lane", "step-by-step"):
+                b, a = times["before"][path_name], times["after"][path_name]
+                ratios = sorted(x / y for x, y in zip(a, b, strict=True))
+                print(f"  {name:22s} {path_name:13s} before {statistics.median(b):7.2f} us, "
+                      f"after {statistics.median(a):7.2f} us: after/before median "
+                      f"{statistics.median(ratios):.3f} (range {ratios[0]:.3f}-{ratios[-1]:.3f})")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     ap.add_argument("--long", type=int, default=20_000,
@@ -291,10 +377,18 @@ def main() -> int:
     ap.add_argument("--slow-max", type=int, default=100_000,
                     help="largest bag also replayed one reading at a time")
     ap.add_argument("--only-sizes", action="store_true", help="only the by-size table")
+    ap.add_argument("--before", metavar="COMMIT",
+                    help="only: replay in memory, this tree against the tree at COMMIT")
+    ap.add_argument("--rounds", type=int, default=7, help="with --before: interleaved rounds")
+    ap.add_argument("--lane-worker", metavar="STREAM", help=argparse.SUPPRESS)
     ap.add_argument("--writers", type=int, default=100_000, metavar="N",
                     help="rows for the MCAP writers' table (0: skip it)")
     ap.add_argument("--only-writers", action="store_true", help="only the writers' table")
     args = ap.parse_args()
+    if args.lane_worker:
+        return lane_worker(args.lane_worker)
+    if args.before:
+        return bench_before(args.before, args.long, args.rounds)
     optiodom = odometry_settings({"wheel_radius": 0.042, "wheel_separation": 0.2})
     tb3 = odometry_settings({"wheel_radius": 0.033, "wheel_separation": 0.287,
                              "left_wheel_names": ["wheel_left_joint"],

@@ -14,6 +14,7 @@ Every node ends with launch, however launch ends (see odometry.launch.py).
 """
 
 # ruff: noqa: I001 (ruff takes ./launch for first-party; this is ROS 2 launch)
+import launch.logging
 from launch import LaunchContext, LaunchDescription
 from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction
 from launch.conditions import IfCondition
@@ -23,6 +24,7 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
+from diffdrive_odom.ros.launch_arguments import unknown_arguments_line
 from diffdrive_odom.ros.lifetime import child_env
 
 PACKAGE = "diffdrive_odom"
@@ -63,6 +65,16 @@ def _sim_node(context: LaunchContext) -> list[Node]:
     )]
 
 
+def _warn_unknown_arguments(context: LaunchContext, declared: list[str]) -> None:
+    """One warning line for arguments given to ``ros2 launch`` that no file here declares.
+
+    odometry.launch.py's are among ``declared``; it says nothing when included.
+    """
+    line = unknown_arguments_line(__file__, context.argv, declared)
+    if line:
+        launch.logging.get_logger("launch").warning(line)
+
+
 def generate_launch_description() -> LaunchDescription:
     """The arguments, odometry.launch.py, cmd_vel_node, the optional sim_node and follower."""
     namespace = LaunchConfiguration("namespace")
@@ -71,7 +83,7 @@ def generate_launch_description() -> LaunchDescription:
     sim_time = LaunchConfiguration("use_sim_time")
     use_sim_time = ParameterValue(sim_time, value_type=bool)
     wheel_commands = ("wheel_commands", LaunchConfiguration("wheel_commands_topic"))
-    return LaunchDescription([
+    arguments = [
         DeclareLaunchArgument(
             "params_file",
             default_value=PathJoinSubstitution(
@@ -114,7 +126,11 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument(
             "rviz", default_value="false",
             description="Also start RViz2 with the odometry, its covariance, TF and the path"),
-        # First: it checks rviz:=true's RViz2 before any node starts.
+    ]
+    return LaunchDescription([
+        *arguments,
+        OpaqueFunction(function=_warn_unknown_arguments, args=[[a.name for a in arguments]]),
+        # First of the nodes: it checks rviz:=true's RViz2 before any node starts.
         IncludeLaunchDescription(PythonLaunchDescriptionSource(
             PathJoinSubstitution([ThisLaunchFileDir(), "odometry.launch.py"]))),
         Node(

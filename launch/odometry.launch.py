@@ -16,6 +16,7 @@ once launch has ended, however it ended (SIGKILL, SIGHUP of a closed ssh session
 """
 
 # ruff: noqa: I001 (ruff takes ./launch for first-party; this is ROS 2 launch)
+import launch.logging
 from launch import LaunchContext, LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.conditions import IfCondition
@@ -25,6 +26,7 @@ from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+from diffdrive_odom.ros.launch_arguments import unknown_arguments_line
 from diffdrive_odom.ros.lifetime import child_env
 
 PACKAGE = "diffdrive_odom"
@@ -62,8 +64,22 @@ def require_rviz(context: LaunchContext) -> None:
             "sudo apt install ros-jazzy-rviz2, or launch without rviz:=true") from None
 
 
-def _nodes(context: LaunchContext) -> list[Node]:
+def warn_unknown_arguments(context: LaunchContext, launch_file: str,
+                           declared: list[str]) -> None:
+    """One warning line for arguments given to ``ros2 launch`` that ``declared`` lacks.
+
+    Not refused (an including file passes its own on); said only where ``launch_file`` is
+    the file ros2 launch ran (base.launch.py, which declares this file's arguments too,
+    says it for both).
+    """
+    line = unknown_arguments_line(launch_file, context.argv, declared)
+    if line:
+        launch.logging.get_logger("launch").warning(line)
+
+
+def _nodes(context: LaunchContext, declared: list[str]) -> list[Node]:
     """odometry_node with the switches given, and RViz2 with rviz:=true."""
+    warn_unknown_arguments(context, __file__, declared)
     require_rviz(context)
     use_sim_time = ParameterValue(LaunchConfiguration("use_sim_time"), value_type=bool)
     namespace = LaunchConfiguration("namespace").perform(context).strip("/")
@@ -101,7 +117,7 @@ def _nodes(context: LaunchContext) -> list[Node]:
 
 def generate_launch_description() -> LaunchDescription:
     """The arguments, the node and the optional RViz2."""
-    return LaunchDescription([
+    arguments = [
         DeclareLaunchArgument(
             "params_file",
             default_value=PathJoinSubstitution(
@@ -131,5 +147,6 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument(
             "rviz", default_value="false",
             description="Also start RViz2 with the odometry, its covariance, TF and the path"),
-        OpaqueFunction(function=_nodes),
-    ])
+    ]
+    declared = [a.name for a in arguments]
+    return LaunchDescription([*arguments, OpaqueFunction(function=_nodes, args=[declared])])

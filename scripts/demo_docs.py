@@ -26,18 +26,24 @@ END = "<!-- end of demo table -->"
 README_ROWS = (NOMINAL, FIT, GYRO)
 
 
-def block(text: str) -> str:
-    """The table as the pages hold it: a fenced text block between the markers."""
-    return f"{BEGIN}\n```text\n{text}\n```\n{END}"
+# How each page fences the table: GitHub shows the README; the docs' wide-output class
+# lets the demo page's long lines scroll instead of wrapping.
+README_FENCE = "```text\n"
+DOCS_FENCE = "```{code-block} text\n:class: wide-output\n\n"
 
 
-def replace_block(page: Path, text: str) -> bool:
+def block(text: str, fence: str) -> str:
+    """The table as a page holds it: a fenced text block between the markers."""
+    return f"{BEGIN}\n{fence}{text}\n```\n{END}"
+
+
+def replace_block(page: Path, text: str, fence: str) -> bool:
     """Put ``text`` between ``page``'s markers; True if the page changed."""
     old = page.read_text(encoding="utf-8")
     start, end = old.find(BEGIN), old.find(END)
     if start < 0 or end < start:
         raise SystemExit(f"{page}: no '{BEGIN}' ... '{END}' markers")
-    new = old[:start] + block(text) + old[end + len(END):]
+    new = old[:start] + block(text, fence) + old[end + len(END):]
     if new != old:
         page.write_text(new, encoding="utf-8")
     return new != old
@@ -56,9 +62,10 @@ def main(argv: list[str]) -> int:
         with interrupts.handled():
             result = loop.run(opts)
         readme, whole = tables(result)
-        changed = [str(p.relative_to(ROOT)) for p, text in (
-            (ROOT / "README.md", readme), (ROOT / "doc" / "tools" / "demo.md", whole))
-            if replace_block(p, text)]
+        changed = [str(p.relative_to(ROOT)) for p, text, fence in (
+            (ROOT / "README.md", readme, README_FENCE),
+            (ROOT / "doc" / "tools" / "demo.md", whole, DOCS_FENCE))
+            if replace_block(p, text, fence)]
         image = ROOT / "doc" / "images" / "trajectory.png"
         plot = opts.output / "trajectory.png"
         if plot.read_bytes() != image.read_bytes():

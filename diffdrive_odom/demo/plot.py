@@ -19,13 +19,18 @@ from diffdrive_odom.tools.replaying import online_plot
 
 from .report import FIT, GYRO, NOMINAL, UMBMARK
 
-# key -> colour, line style, legend label. The wheels-only replay is not drawn: it is
+# key -> colour, line style, legend label (the paths' legend, which says it all), short
+# label (the drift panel's, inside its axes). The wheels-only replay is not drawn: it is
 # the nominal line (the node's own odometry) to the encoder tick.
 STYLES = {
-    NOMINAL: ("tab:red", "-", "wheel odometry, nominal geometry (what the robot believes)"),
-    FIT: ("tab:green", "--", "wheel odometry re-integrated, calibrated (fit){}"),
-    UMBMARK: ("tab:blue", ":", "wheel odometry re-integrated, calibrated (UMBmark){}"),
-    GYRO: ("tab:purple", "-", "gyro-aided odometry (replay, use_imu; nominal geometry)"),
+    NOMINAL: ("tab:red", "-", "wheel odometry, nominal geometry (what the robot believes)",
+              "wheel odometry, nominal"),
+    FIT: ("tab:green", "--", "wheel odometry re-integrated, calibrated (fit){}",
+          "calibrated (fit){}"),
+    UMBMARK: ("tab:blue", ":", "wheel odometry re-integrated, calibrated (UMBmark){}",
+              "calibrated (UMBmark){}"),
+    GYRO: ("tab:purple", "-", "gyro-aided odometry (replay, use_imu; nominal geometry)",
+           "gyro-aided (use_imu)"),
 }
 
 
@@ -59,7 +64,7 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
                  else None)
     ax1.plot(truth.x, truth.y, "-", color="black", lw=1.8,
              label="ground truth (where the robot really went)")
-    for key, (color, style, label) in STYLES.items():
+    for key, (color, style, label, _) in STYLES.items():
         if key in odometry:
             traj = odometry[key]
             ax1.plot(traj.x, traj.y, style, color=color, lw=1.3, label=label.format(bridged))
@@ -89,14 +94,14 @@ def plot(path: Path, truth: Trajectory, odometry: Mapping[str, Trajectory],
     ax1.set_title(title)
 
     top = 0.0
-    for key, (color, style, label) in STYLES.items():
+    for key, (color, style, _, short) in STYLES.items():
         if key not in odometry:
             continue
         m = match(odometry[key], truth)
         err = np.hypot(*(m.est[:, :2] - m.ref[:, :2]).T)
         top = max(top, float(err.max()))
         ax2.plot(path_length(m.ref[:, :2]), err, style, color=color, lw=1.5,
-                 label=label.split(" (")[0] if key == NOMINAL else label.format(bridged))
+                 label=short.format(", slip steps left out" if slips else ""))
     if marks and len(truth):
         travelled = np.interp(np.asarray(marks, dtype=np.float64),
                               truth.stamp_ns.astype(np.float64), truth.path_length())

@@ -19,11 +19,8 @@ from diffdrive_odom.core.motion.paths import Point, route_points
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.follower import FollowerSettings, follower_settings
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.settings.params import (
-    EXAMPLE_PARAMS_FILE,
-    ParamValue,
-    load_params_file,
-)
+from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE, ParamValue
+from diffdrive_odom.settings.rcl import load_params_file
 from diffdrive_odom.settings.sim import SimSettings, sim_settings
 
 DEFAULT_PARAMS = EXAMPLE_PARAMS_FILE

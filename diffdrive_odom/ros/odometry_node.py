@@ -38,7 +38,7 @@ from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.geometry_estimate import GeometryEstimatePublisher
 from diffdrive_odom.ros.lockstep import join
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
-from diffdrive_odom.ros.publishers import OdometryOutput
+from diffdrive_odom.ros.publishers import OdometryOutput, frames_text
 from diffdrive_odom.ros.qos import SENSOR_IN_QOS
 from diffdrive_odom.ros.reference_input import ReferenceSubscription
 from diffdrive_odom.ros.runtime import run
@@ -108,7 +108,7 @@ class OdometryEndpoints:
         g = settings.geometry
         node.get_logger().info(
             f"wheel odometry: r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "
-            f"b={g.separation:.6g} m, {settings.odom_frame_id} -> {settings.base_frame_id}, "
+            f"b={g.separation:.6g} m, {frames_text(settings)}, "
             f"joints {list(settings.encoders.left_wheel_names)} / "
             f"{list(settings.encoders.right_wheel_names)}"
         )
@@ -160,7 +160,9 @@ class OdometryEndpoints:
             since_last_reading_s=None if self._last_rx is None else now - self._last_rx,
             dropped=dict(stats.dropped),
             reanchors=stats.reanchors,
+            causes=dict(stats.causes),
             gap_reanchors=stats.gap_reanchors,
+            gaps_integrated=stats.gaps_integrated,
             time_resets=stats.time_resets,
             velocity_fallback=stats.velocity_fallback,
             gyro=stats.gyro,

@@ -31,7 +31,7 @@ from diffdrive_odom.core.health.open_loop_health import OpenLoopHealth, open_loo
 from diffdrive_odom.ros.cmd_vel_input import CommandInput, Vector
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.parameters import ParameterGuard
-from diffdrive_odom.ros.publishers import OdometryOutput
+from diffdrive_odom.ros.publishers import OdometryOutput, frames_text
 from diffdrive_odom.ros.set_pose import PoseInputs
 from diffdrive_odom.ros.throttle import KeyedThrottle
 from diffdrive_odom.settings.errors import ParameterError
@@ -79,7 +79,7 @@ class OpenLoopEndpoints:
             f"open loop: odometry from the commanded velocity on {topic} "
             f"({self._input.type_name.rsplit('/', 1)[-1]}), held for cmd_vel_timeout "
             f"{cfg.timeout:g} s, published at {self._rate_hz:g} Hz; joint_states is not "
-            f"read; {settings.odom_frame_id} -> {settings.base_frame_id}")
+            f"read; {frames_text(settings)}")
 
     def destroy(self) -> None:
         """Remove every endpoint, timer and parameter check from the node; the pose goes."""

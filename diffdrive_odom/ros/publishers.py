@@ -107,3 +107,11 @@ class OdometryOutput:
         """Remove both publishers from the node."""
         destroy_publisher(self._node, self._tf_pub)
         destroy_publisher(self._node, self._odom_pub)
+
+
+def frames_text(settings: OdometrySettings) -> str:
+    """The frames as a start-up line says them: the transform only where /tf gets it."""
+    odom, base = settings.odom_frame_id, settings.base_frame_id
+    if settings.enable_odom_tf:
+        return f"{odom} -> {base} on /tf"
+    return f"odom in frame {odom} (child {base}), no /tf (enable_odom_tf false)"

@@ -27,7 +27,8 @@ from rclpy.signals import SignalHandlerOptions
 
 from diffdrive_odom.settings.dependencies import missing_text
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE, ParamSource
+from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE
+from diffdrive_odom.settings.rcl import ParamSource
 from diffdrive_odom.settings.shadowed import shadowed_overrides_line
 
 from . import lifetime, lockstep

@@ -202,16 +202,24 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
               "Readings in the rolling mean of the twist (never applied to the pose).",
               range=AT_LEAST_ONE),
     ParamSpec("max_wheel_speed", "double", _E.max_wheel_speed,
-              "Fastest plausible joint speed [rad/s]; faster steps are skipped "
-              "(.inf = no speed check; a wheel rolling over 1 km in one step still is).",
+              "Fastest plausible joint speed [rad/s], over the time since the counts last "
+              "changed; faster steps are skipped (.inf = no speed check; a wheel rolling "
+              "over 1 km in one step still is).",
               range=POSITIVE_OR_INF),
     ParamSpec("time_jump_threshold", "double", _E.time_jump_threshold,
               "A stamp this far [s] behind the last restarts odometry (bag loop).",
               range=NON_NEGATIVE),
     ParamSpec("max_reading_gap", "double", _E.max_reading_gap,
               "A reading this long [s] after the last usable one is held; if the next "
-              "continues from it, it is the new reference, no motion integrated (driver "
-              "restart), else it is dropped (future_stamp); .inf = off.",
+              "continues from it, the gap's motion is integrated from the counts as one "
+              "arc, unless they show a driver restart (then it is the new reference), else "
+              "it is dropped (future_stamp); also the longest interval a step is judged "
+              "over; .inf = off.",
+              range=POSITIVE_OR_INF),
+    ParamSpec("max_wheel_acceleration", "double", _E.max_wheel_acceleration,
+              "Fastest plausible change of a joint's speed [rad/s^2]: a wheel's mean speed "
+              "over a gap beyond what it showed before and after allows is a driver "
+              "restart, not motion (.inf = no bound).",
               range=POSITIVE_OR_INF),
     *GYRO_PARAMS,
     *OPEN_LOOP_PARAMS,

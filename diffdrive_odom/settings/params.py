@@ -2,8 +2,8 @@
 
 Here: :class:`ParamSpec` (one row: name, type, default, one-line meaning, the
 :class:`Range` that ``ros2 param describe`` shows, read-only), coercion, the type rule
-of values given through ROS (:func:`as_declared_type`), params-file and ``-p``
-resolution exactly as rcl does it, the report of unknown names and :func:`yaml_text`.
+of values given through ROS (:func:`as_declared_type`) and :func:`yaml_text`; how rcl
+reads params files and ``-p`` is :mod:`~diffdrive_odom.settings.rcl`.
 The tables themselves live with their node, one settings module each
 (``geometry_settings``: the rows every node shares; ``odometry_settings``,
 ``cmd_vel_settings``, ``sim_settings``, ``follower_settings``). One table serves four
@@ -19,27 +19,35 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import re
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error
+from diffdrive_odom.settings.rcl import ParamValue as ParamValue  # a parameter's value
+from diffdrive_odom.settings.rcl import rcl_scalar, rcl_value, yaml_tree
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
-ParamValue = Any
 
 # Ships with the package: the example robot (the demo's), valid for every node, so the
 # demo runs and `--help` can build a node without a file of the user's.
 EXAMPLE_PARAMS_FILE = Path(__file__).resolve().parent.parent / "data" / "demo_params.yaml"
 
 
+def _quoted(value: ParamValue) -> str:
+    """The hint for a number or a list given as a string (``wheel_radius: "0.033"``), else ''."""
+    if isinstance(value, str) and (_number_text(value) is not None
+                                   or value.strip().startswith("[")):
+        return f" (quoted, so a string: write {value} without quotes)"
+    return ""
+
+
 def _as_float(name: str, value: ParamValue) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParameterError(name, f"must be a number, got {value!r}")
+        raise ParameterError(name, f"must be a number, got {value!r}{_quoted(value)}")
     return float(value)
 
 
@@ -49,7 +57,7 @@ def _as_int(name: str, value: ParamValue) -> int:
     if isinstance(value, float) and value.is_integer():
         return int(value)
     if not isinstance(value, int):
-        raise ParameterError(name, f"must be an integer, got {value!r}")
+        raise ParameterError(name, f"must be an integer, got {value!r}{_quoted(value)}")
     return value
 
 
@@ -79,7 +87,7 @@ def _as_str_list(name: str, value: ParamValue) -> tuple[str, ...]:
 
 def _as_float_list(name: str, value: ParamValue) -> tuple[float, ...]:
     if isinstance(value, str) or not isinstance(value, Iterable):
-        raise ParameterError(name, f"must be a list of numbers, got {value!r}")
+        raise ParameterError(name, f"must be a list of numbers, got {value!r}{_quoted(value)}")
     return tuple(_as_float(name, v) for v in value)
 
 
@@ -156,10 +164,12 @@ class ParamSpec:
     def admit(self, value: ParamValue) -> ParamValue:
         """A value given at start, as the node declares it, or ParameterError.
 
-        Converted to the declared type (:func:`as_declared_type`), typed and inside
-        :attr:`range`; else the error names the parameter (rclpy would raise a traceback).
+        Converted to the declared type (:func:`as_declared_type`, but a string stays a
+        string: rcl typed the value, and a quoted number is refused as rclpy's
+        ``declare_parameter`` refuses it), typed and inside :attr:`range`; else the error
+        names the parameter (rclpy would raise a traceback).
         """
-        typed = self.coerce(as_declared_type(self, value))
+        typed = self.coerce(as_declared_type(self, value, strings=False))
         if self.range is not None and not self.range.holds(typed):
             raise ParameterError(self.name, f"must be {self.range.text()}, got {typed!r}")
         return list(typed) if isinstance(typed, tuple) else typed
@@ -168,7 +178,7 @@ class ParamSpec:
 def _number_text(text: str) -> float | None:
     """The number rcl's params-file reader makes of ``text``, else None."""
     try:
-        value = _rcl_scalar(text.strip(), True)
+        value = rcl_scalar(text.strip(), True)
     except ValueError:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -185,7 +195,7 @@ def _as_double(value: ParamValue) -> ParamValue:
     return value
 
 
-def as_declared_type(spec: ParamSpec, value: ParamValue) -> ParamValue:
+def as_declared_type(spec: ParamSpec, value: ParamValue, strings: bool = True) -> ParamValue:
     """``value`` in the type ``spec`` declares, when it came in another with the same meaning.
 
     Else ``value`` unchanged (rclpy then refuses the type, naming both).
@@ -197,12 +207,16 @@ def as_declared_type(spec: ParamSpec, value: ParamValue) -> ParamValue:
       ``parameter_dict_from_yaml_file``) re-reads each value of the file as
       ``yaml.safe_load(str(value))``, and YAML 1.1 takes ``str(1e-05)`` = ``'1e-05'``
       (no dot) and ``'nan'`` for strings, so a node's own dump would not load back. A
-      list with such an item arrives as one string, ``'[0.001, 1e-06]'``.
+      list with such an item arrives as one string, ``'[0.001, 1e-06]'``. Only at
+      runtime: ``strings`` False (at start, where rcl typed what the user wrote) leaves
+      a string as it is.
     * For a list, no value: an empty list (``-p left_wheel_names:=[]``, ``[]`` in a file)
       has no element type, so rcl gives it none and rclpy hands it over as None.
     """
     if value is None and spec.kind.endswith("_array"):
         return []
+    if isinstance(value, str) and not strings:
+        return value
     if spec.kind == "double":
         return _as_double(value)
     if spec.kind == "integer" and isinstance(value, float) and value.is_integer():
@@ -212,7 +226,7 @@ def as_declared_type(spec: ParamSpec, value: ParamValue) -> ParamValue:
             import yaml
 
             try:
-                value = _rcl_value(_yaml_tree(value), spec.name)
+                value = rcl_value(yaml_tree(value), spec.name)
             except (ParameterError, yaml.YAMLError):  # not a value rcl reads: left to rclpy
                 return value
         if isinstance(value, (list, tuple)):
@@ -243,191 +257,6 @@ def from_fields(cls: type[C], v: Mapping[str, Any], prefix: str = "") -> C:
     """
     with as_parameter_error(prefix):
         return cls(**{f.name: v[prefix + f.name] for f in dataclasses.fields(cls)})
-
-
-# ------------------------------------------------------------------ rcl's rules
-#
-# What rclpy (Jazzy) does with ``--params-file`` and ``-p``, so that the offline tools
-# read a file exactly as the node does:
-#
-# * every ``--params-file`` and every ``-p`` feeds ONE table of node entries, in
-#   command-line order; ``-p name:=value`` is an entry of the node name ``/**``;
-#   an entry keeps the place where its node name first appeared, and a later value
-#   for the same entry and parameter overwrites the earlier one;
-# * a node takes every entry whose name matches its fully qualified name, where a
-#   leading ``/`` is implied, ``/*`` stands for one path element and ``/**`` for any
-#   number of them (``/**``, ``/**/odometry_node``, ``/robot1/*``, ``odometry_node``);
-# * the matching entries are merged in table order, later ones winning. So a node's
-#   own section that comes after ``/**`` beats a ``-p`` (that is ``/**`` too), and a
-#   ``/**`` section written after the node's section beats that section.
-#
-# Values are typed as rcl_yaml_param_parser types them (not as YAML 1.1 does): quoted
-# or ``!!str`` = string; else y/yes/true/on (and capitalised forms) = true, ...;
-# then a C integer (``0x1F``, ``017`` octal), then a C double (``5e-2``, ``.nan``);
-# else a string. A list must hold one type; nested maps become dotted names.
-
-ParamSource = tuple[str, str]
-"""One ``--ros-args`` item that carries parameters: ``("file", path)`` or
-``("param", "name:=value")``."""
-
-_TRUE = {"Y", "y", "yes", "Yes", "YES", "true", "True", "TRUE", "on", "On", "ON"}
-_FALSE = {"N", "n", "no", "No", "NO", "false", "False", "FALSE", "off", "Off", "OFF"}
-_C_INT = re.compile(r"[+-]?(0[xX][0-9a-fA-F]+|0[0-7]*|[1-9][0-9]*)")
-_C_DOUBLE = re.compile(
-    r"[+-]?((\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|(?i:inf|infinity|nan)|\.(nan|NaN|NAN|inf|Inf|INF))")
-_STR_TAG = "tag:yaml.org,2002:str"
-_PLAIN = "!diffdrive_odom/plain"
-
-
-def _rcl_scalar(text: str, typed: bool) -> ParamValue:
-    """One scalar as rcl types it; ``typed`` is False for quoted / ``!!str`` ones."""
-    if not typed:
-        return text
-    if not text:
-        raise ValueError("no value")
-    if text in _TRUE:
-        return True
-    if text in _FALSE:
-        return False
-    if _C_INT.fullmatch(text):
-        number = int(text, 16) if text.lstrip("+-")[:2] in ("0x", "0X") else (
-            int(text, 8) if text.lstrip("+-").startswith("0") else int(text))
-        if -(2**63) <= number < 2**63:
-            return number
-    if _C_DOUBLE.fullmatch(text):
-        return float(text.replace(".", "", 1) if text.lstrip("+-").startswith(".")
-                     and text.lstrip("+-")[1:2].isalpha() else text)
-    return text
-
-
-def _yaml_tree(text: str) -> Any:
-    """Compose YAML keeping each scalar's style, so rcl's typing can be applied."""
-    import yaml
-
-    class _Loader(yaml.BaseLoader):
-        def resolve(self, kind: Any, value: Any, implicit: Any) -> Any:
-            if kind is yaml.ScalarNode and implicit[0]:
-                return _PLAIN
-            return super().resolve(kind, value, implicit)  # type: ignore[no-untyped-call]
-
-    return yaml.compose(text, Loader=_Loader)
-
-
-def _rcl_value(node: Any, where: str) -> ParamValue:
-    """A composed YAML node as an rcl parameter value (scalar or one-typed list)."""
-    import yaml
-
-    if isinstance(node, yaml.ScalarNode):
-        typed = node.tag == _PLAIN or (node.tag == _STR_TAG and node.style in ("|", ">"))
-        try:
-            return _rcl_scalar(node.value, typed)
-        except ValueError as err:
-            raise ParameterError(where, str(err)) from None
-    if isinstance(node, yaml.SequenceNode):
-        items = [_rcl_value(item, where) for item in node.value]
-        if any(isinstance(i, list) for i in items):
-            raise ParameterError(where, "nested lists are not parameter values")
-        if len({type(i) for i in items}) > 1:
-            raise ParameterError(where, f"a list must hold one type (rcl), got {items!r}")
-        return items
-    raise ParameterError(where, "is a map where a value was expected")
-
-
-def _collect_params(node: Any, prefix: str, out: dict[str, ParamValue]) -> None:
-    import yaml
-
-    for key, value in node.value:
-        name = f"{prefix}{key.value}"
-        if isinstance(value, yaml.MappingNode):
-            _collect_params(value, name + ".", out)
-        else:
-            out[name] = _rcl_value(value, name)
-
-
-def _collect_nodes(node: Any, path: str, entries: dict[str, dict[str, ParamValue]]) -> None:
-    import yaml
-
-    for key, value in node.value:
-        if not isinstance(value, yaml.MappingNode):
-            continue
-        if key.value == "ros__parameters":
-            _collect_params(value, "", entries.setdefault(path, {}))
-        else:
-            _collect_nodes(value, f"{path}/{key.value}" if path else str(key.value), entries)
-
-
-def parse_override(text: str) -> tuple[str, ParamValue]:
-    """``name:=value`` of a ``-p`` as rcl reads it (the value is YAML, typed as above)."""
-    import yaml
-
-    name, sep, value = text.partition(":=")
-    if not sep or not name:
-        raise ParameterError("-p", f"expects NAME:=VALUE, got {text!r}")
-    try:
-        tree = _yaml_tree(value)
-    except yaml.YAMLError as err:
-        raise ParameterError(name, f"unreadable -p value {value!r}: {err}") from None
-    if tree is None:
-        raise ParameterError(name, "-p without a value")
-    return name, _rcl_value(tree, name)
-
-
-def rcl_entries(sources: Sequence[ParamSource]) -> dict[str, dict[str, ParamValue]]:
-    """The table rcl builds: node name -> parameters, in rcl's order."""
-    import yaml
-
-    entries: dict[str, dict[str, ParamValue]] = {}
-    for kind, item in sources:
-        if kind == "param":
-            name, value = parse_override(item)
-            entries.setdefault("/**", {})[name] = value
-            continue
-        with open(item, encoding="utf-8") as f:
-            text = f.read()
-        try:
-            tree = _yaml_tree(text)
-        except yaml.YAMLError as err:
-            raise ParameterError("--params-file", f"{item} is not YAML: {err}") from None
-        if tree is None:
-            continue
-        if not isinstance(tree, yaml.MappingNode):
-            raise ParameterError("--params-file", f"{item} is not a mapping")
-        _collect_nodes(tree, "", entries)
-    return entries
-
-
-def node_matches(pattern: str, fqn: str) -> bool:
-    """Tell whether an entry applies: leading ``/`` implied, ``/*`` = one element, ``/**`` = any."""
-    name = pattern if pattern.startswith("/") else "/" + pattern
-    try:
-        return re.fullmatch(name.replace("/*", r"(/\w+)"), fqn) is not None
-    except re.error:
-        return False
-
-
-def fully_qualified_name(node_name: str, namespace: str = "/") -> str:
-    """``/ns/name`` as rcl forms it from a node name and a namespace."""
-    ns = namespace.strip("/")
-    return f"/{ns}/{node_name}" if ns else f"/{node_name}"
-
-
-def resolve_parameters(
-    sources: Sequence[ParamSource], node_name: str, namespace: str = "/"
-) -> dict[str, ParamValue]:
-    """The overrides rclpy gives the node ``namespace/node_name`` for these sources."""
-    fqn = fully_qualified_name(node_name, namespace)
-    merged: dict[str, ParamValue] = {}
-    for pattern, values in rcl_entries(sources).items():
-        if node_matches(pattern, fqn):
-            merged.update(values)
-    return merged
-
-
-def load_params_file(
-    path: str | Path, node_name: str, namespace: str = "/"
-) -> dict[str, ParamValue]:
-    """Parameters for ``node_name`` from one params YAML, as ``--params-file`` gives them."""
-    return resolve_parameters([("file", str(path))], node_name, namespace)
 
 
 def yaml_text(value: object) -> str:

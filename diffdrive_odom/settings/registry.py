@@ -110,20 +110,36 @@ _NODES = {"odometry": "odometry_node", "cmd_vel": "cmd_vel_node", "sim": "sim_no
           "follower": "path_follower_node"}
 
 
-def closest(name: str, candidates: Iterable[str]) -> str | None:
-    """The candidate ``name`` is most likely a typo of (difflib, ratio >= 0.6), if any."""
-    close = difflib.get_close_matches(name, sorted(candidates), n=1, cutoff=0.6)
-    return close[0] if close else None
+# robot_localization's names for what diff_drive_controller, and so this package, names
+# otherwise (a difflib match would take publish_tf for publish_rate).
+ROBOT_LOCALIZATION_NAMES = {"publish_tf": "enable_odom_tf", "odom_frame": "odom_frame_id",
+                            "base_link_frame": "base_frame_id"}
+
+
+def did_you_mean(name: str, candidates: Iterable[str]) -> str:
+    """``did you mean X?`` for the candidate ``name`` most likely stands for, else "".
+
+    robot_localization's name for one of ours (said so), else the closest spelling
+    (difflib, ratio >= 0.6: a typo).
+    """
+    known = sorted(candidates)
+    ours = ROBOT_LOCALIZATION_NAMES.get(name)
+    if ours in known:
+        return (f"did you mean {ours}? {name} is robot_localization's name, {ours} "
+                "diff_drive_controller's and this package's")
+    close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+    return f"did you mean {close[0]}?" if close else ""
 
 
 def unknown_name_hint(name: str, declared: Iterable[str]) -> str:
     """Why a node declaring ``declared`` has no ``name`` ("" when no reason is known).
 
-    The closest of its names (a typo), else the nodes of this package that have it.
+    The name it most likely stands for (:func:`did_you_mean`), else the nodes of this
+    package that have it.
     """
-    close = closest(name, declared)
-    if close:
-        return f"did you mean {close}?"
+    hint = did_you_mean(name, declared)
+    if hint:
+        return hint
     owners = sorted(node for key, node in _NODES.items()
                     if any(s.name == name for s in table(key).declared))
     return f"a parameter of {' and '.join(owners)}" if owners else ""
@@ -144,8 +160,8 @@ def unknown_parameters_report(names: Iterable[str]) -> tuple[str | None, str | N
     if unknown:
         hints = []
         for name in unknown:
-            close = closest(name, known)
-            hints.append(f"{name} (did you mean {close}?)" if close else name)
+            hint = did_you_mean(name, known)
+            hints.append(f"{name} ({hint})" if hint else name)
         warning = ("unknown parameters, no diffdrive_odom node uses them (ignored): "
                    + ", ".join(hints))
     if ddc:

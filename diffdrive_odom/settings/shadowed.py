@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-from diffdrive_odom.settings.params import (
+from diffdrive_odom.settings.rcl import (
     ParamSource,
     ParamValue,
     fully_qualified_name,

@@ -193,7 +193,7 @@ def main(argv: Sequence[str]) -> int:
     problem = _usage_problem(args)
     if problem:
         return _error(problem)
-    settings = settings_from_args(args)
+    settings = settings_from_args(args, PREFIX)
     if isinstance(settings, str):
         return _error(settings)
     if settings.open_loop is not None:
@@ -231,13 +231,27 @@ def decode_all(args: argparse.Namespace, plain: OdometrySettings,
         done = fleet.map_calls(decode, calls, args.jobs, args.dask)
     except fleet.FleetError as err:
         return str(err)
-    bad = [(bag, r) for bag, r in zip(args.bags, done, strict=True) if isinstance(r, Exception)]
+    bad = [(bag, _said(r)) for bag, r in zip(args.bags, done, strict=True)
+           if isinstance(r, Exception)]
     if len(bad) == 1:
-        return str(bad[0][1])  # the error names its bag
+        return bad[0][1]  # the error names its bag
     if bad:
         return (f"{len(bad)} of {len(done)} bags failed, so no fit: "
                 + "; ".join(f"{bag}: {err}" for bag, err in bad))
     return done
+
+
+def _said(err: Exception) -> str:
+    """A bag's failure in one line, never an empty one.
+
+    A bag's or the calibration's own message; anything else (a bug, a worker that died)
+    with its kind, as the fleet names it.
+    """
+    from diffdrive_odom.tools.bags import bagio
+
+    if isinstance(err, (bagio.BagError, CalibrationError)):
+        return str(err)
+    return f"{type(err).__name__}: {err}"
 
 
 def _least_squares(args: argparse.Namespace, settings: OdometrySettings,

@@ -1,7 +1,7 @@
 """``diffdrive-odom replay``: run the node's estimator over a bag offline, as fast as the disk.
 
 The command line: its flags, the checks made before any work, and what it prints. One
-code path with the node: the same parameter file (``params.resolve_parameters`` +
+code path with the node: the same parameter file (``rcl.resolve_parameters`` +
 ``odometry_settings``, so a bad value is refused with the same one line; the flags it
 shares with calibrate are :mod:`diffdrive_odom.tools.cmdline.args`), the same pipeline
 and publication rule (the engines in :mod:`diffdrive_odom.tools.replaying`: readings,
@@ -129,14 +129,15 @@ def main(argv: Sequence[str]) -> int:
 def run_bag(args: argparse.Namespace) -> int:
     """One bag (``args.bag``) with the parsed flags: what ``replay BAG ...`` does."""
     settings = online_report.replay_settings(
-        args, settings_from_args, lambda text: print(f"{PREFIX} {text}", file=sys.stderr))
+        args, lambda a, settled: settings_from_args(a, PREFIX, settled),
+        lambda text: print(f"{PREFIX} {text}", file=sys.stderr))
     if isinstance(settings, str):
         return _error(settings)
     problem = _output_problem(args)
     if problem:
         return _error(problem)
     from diffdrive_odom.tools.bags import bagio, poses  # past the parsing: --help needs no rosbags
-    from diffdrive_odom.tools.replaying import bag
+    from diffdrive_odom.tools.replaying import bag, lagcheck
 
     if args.plot:  # a missing matplotlib is said before the replay, not after its outputs
         import matplotlib  # noqa: F401
@@ -179,19 +180,27 @@ def run_bag(args: argparse.Namespace) -> int:
     gyro = stats.pipeline.gyro
     fleet.record(args, readings=stats.readings, poses=stats.published,
                  slips=None if gyro is None else gyro.slips.events)
-    for warning in stats.warnings:
-        print(f"{PREFIX} {warning}", file=sys.stderr)
-    for note, count in stats.notes.items():
-        print(f"{PREFIX} {count} x {note}", file=sys.stderr)
-    for code, count in stats.reasons.most_common(5):
-        print(f"  {count} x {code}: {stats.examples[code]}", file=sys.stderr)
-    for reason, count in stats.refused.most_common():  # the node's warning, counted
-        print(f"{PREFIX} {reason}: {count} pose(s) not written", file=sys.stderr)
+    judged: tuple[metrics.Trajectory, metrics.Metrics] | None = None
     if ref is not None:
         try:
             est = traj.trajectory()
-            figures = metrics.evaluate(est, ref)
-            fleet.record(args, **evaluate.summary_figures(figures))
+            judged = est, metrics.evaluate(est, ref)
+        except ValueError as err:
+            return _error(f"--eval: {err}")
+    lag = lagcheck.advice(args, settings, stats, ref,
+                          None if judged is None else judged[1].final_position_error_aligned_m)
+    for warning in [*lagcheck.other_warnings(stats), *([lag] if lag else [])]:
+        print(f"{PREFIX} {warning}", file=sys.stderr)
+    for note, count in stats.notes.items():
+        print(f"{PREFIX} {count} x {note}", file=sys.stderr)
+    for line in stats.reason_lines():
+        print(line, file=sys.stderr)
+    for reason, count in stats.refused.most_common():  # the node's warning, counted
+        print(f"{PREFIX} {reason}: {count} pose(s) not written", file=sys.stderr)
+    if ref is not None and judged is not None:
+        est, figures = judged
+        fleet.record(args, **evaluate.summary_figures(figures))
+        try:
             evaluate.report(figures, est, ref, args.json, args.plot,
                             labels=("replay", gt_topic))
         except ValueError as err:

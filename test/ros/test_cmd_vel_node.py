@@ -31,7 +31,7 @@ from std_msgs.msg import Float64MultiArray
 from diffdrive_odom.ros.cmd_vel_node import CmdVelNode
 from diffdrive_odom.settings.cmd_vel import CMD_VEL_PARAMS, cmd_vel_settings
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.settings.params import load_params_file
+from diffdrive_odom.settings.rcl import load_params_file
 
 from rosutil import (
     assert_refused_in_process,

@@ -19,6 +19,7 @@ import pytest
 import yaml
 from rcl_interfaces.msg import ParameterType
 from rclpy.exceptions import ParameterNotDeclaredException
+from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
 
@@ -246,6 +247,54 @@ def test_a_value_outside_the_range_at_start_is_one_line() -> None:
     with pytest.raises(ParameterError) as err, built(OdometryNode, "-p", "wheel_radius:=fast"):
         pass
     assert err.value.name == "wheel_radius" and "number" in str(err.value)
+
+
+class _Bare(Node):
+    """A plain rclpy node of the odometry node's name: rclpy's own declare, the oracle."""
+
+    def __init__(self, context: Any) -> None:
+        super().__init__("odometry_node", context=context)
+
+
+@pytest.mark.dds
+@pytest.mark.parametrize(("name", "text"), [
+    ("wheel_radius", '"0.033"'), ("encoder_counter_bits", "'16'"),
+    ("pose_covariance_diagonal", '"[0.1, 0.1, 0.1, 0.1, 0.1, 0.1]"')])
+def test_a_quoted_number_is_refused_at_start_by_every_node_and_tool(
+        name: str, text: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 39 item 3: ``wheel_radius: "0.033"`` was refused by replay and taken by the
+    node, whose start read the string as the number (the runtime rule ``ros2 param load``
+    needs, which stays: test_the_nodes_own_dump_loads_back). rcl reads a quoted value as
+    a string, and rclpy's ``declare_parameter`` with the type fixed refuses it."""
+    from rclpy.exceptions import InvalidParameterTypeException
+
+    from diffdrive_odom.ros.parameters import descriptor
+    from diffdrive_odom.tools.cli import main as cli
+
+    from rosutil import assert_refused_in_process
+
+    params = tmp_path / "p.yaml"
+    values = {**VALID, name: text}
+    params.write_text("/**:\n  ros__parameters:\n" + "".join(
+        f"    {k}: {v}\n" for k, v in values.items()), encoding="utf-8")
+    spec = spec_of(name)
+    with built(_Bare, "--params-file", str(params)) as bare, pytest.raises(
+            InvalidParameterTypeException, match="of type 'STRING'"):
+        bare.declare_parameter(name, spec.default, descriptor(spec))
+    takers = [(cls, specs) for cls, specs in NODES.values()
+              if name in {s.name for s in specs}]
+    assert len(takers) >= 2
+    for node_class, _ in takers:
+        if node_class is OdometryLifecycleNode:  # starts, so that the value can be fixed
+            with built(node_class, "--params-file", str(params)) as node:
+                assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
+            continue
+        assert_refused_in_process(node_class, name, ["--params-file", str(params)])
+    for tool, extra in (("replay", ["--eval"]), ("calibrate", [])):
+        assert cli([tool, str(tmp_path / "bag"), "--params-file", str(params), *extra]) == 2
+        lines = capsys.readouterr().err.splitlines()
+        assert len(lines) == 1 and f"invalid parameter '{name}'" in lines[0], lines
+        assert "quoted, so a string" in lines[0], lines
 
 
 @pytest.mark.dds

@@ -20,11 +20,8 @@ from diffdrive_odom.settings.odometry import (
     frame_prefix,
     odometry_settings,
 )
-from diffdrive_odom.settings.params import (
-    ParamSpec,
-    load_params_file,
-    parse_override,
-)
+from diffdrive_odom.settings.params import ParamSpec
+from diffdrive_odom.settings.rcl import load_params_file, parse_override
 from diffdrive_odom.settings.registry import unknown_parameters_report
 from diffdrive_odom.settings.sim import SIM_PARAMS, sim_settings
 
@@ -423,3 +420,15 @@ def test_unknown_names_get_the_closest_real_one() -> None:
     assert info is not None and "use_stamped_vel" in info and "position_feedback" in info
     assert "open_loop" not in info  # a parameter of odometry_node now (open-loop odometry)
     assert unknown_parameters_report(["wheel_radius", "publish_rate"]) == (None, None)
+
+
+def test_robot_localizations_names_point_to_ours() -> None:
+    """Issue 39 item 5: ``-p publish_tf:=false`` got ``did you mean publish_rate?``;
+    publish_tf is robot_localization's name, enable_odom_tf diff_drive_controller's."""
+    warning, _ = unknown_parameters_report(["publish_tf", "odom_frame", "base_link_frame"])
+    assert warning is not None
+    for theirs, ours in (("publish_tf", "enable_odom_tf"), ("odom_frame", "odom_frame_id"),
+                         ("base_link_frame", "base_frame_id")):
+        assert f"{theirs} (did you mean {ours}? {theirs} is robot_localization's name" \
+            in warning, warning
+    assert "publish_rate" not in warning

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE, parse_override
+from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE
+from diffdrive_odom.settings.rcl import parse_override
 from diffdrive_odom.tools import replay
 from diffdrive_odom.tools.cmdline.args import load_settings
 

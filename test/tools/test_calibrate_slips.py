@@ -103,6 +103,34 @@ def test_without_an_imu_nothing_is_said_left_out_even_with_use_imu_in_the_params
     assert _fitted(out["use_imu"]) == _fitted(out["plain"])
 
 
+def test_a_params_file_whose_node_section_sets_use_imu_false_still_finds_the_slips(
+        bags: tuple[list[str], Path], capfd: pytest.CaptureFixture[str]) -> None:
+    """Issue 39 item 1, the demo page's command: ``calibrate BAG --params-file
+    demo_output/params.yaml``, whose ``odometry_node:`` section says ``use_imu: false``.
+    That section beat the ``-p use_imu:=true`` calibrate added for itself: exit 2 with an
+    empty ``[calibrate]`` line (an assert) after ``[replay] /odometry_node does not get
+    -p use_imu:=true``, a -p nobody passed. Now use_imu is set after every source, as
+    ``replay --online-calibration`` sets it, and calibrate speaks as itself."""
+    import yaml
+
+    paths, params = bags
+    demo_like = params.parent / "demo_like.yaml"  # the shape of the demo's params file
+    demo_like.write_text(yaml.safe_dump({
+        "/**": {"ros__parameters": {"wheel_radius": R, "wheel_separation": B}},
+        "odometry_node": {"ros__parameters": {"use_imu": False,
+                                              "gyro_noise_density": 3e-4}}}),
+        encoding="utf-8")
+    code = cli(["calibrate", *paths, "--params-file", str(demo_like), "--reference-error",
+                "0,0"])
+    said = capfd.readouterr()
+    assert code == 0, said.err
+    err = said.err.splitlines()
+    assert err and all(ln.startswith("[calibrate] ") and ln[12:].strip() for ln in err), err
+    assert "-p" not in said.err, err  # no -p was given: none is said lost
+    lines = [ln for ln in said.out.splitlines() if ln.startswith("slip test:")]
+    assert len(lines) == 3 and all(": 4 slip event(s)" in ln for ln in lines), lines
+
+
 def test_calibrate_of_the_turtlebot3_bag_leaves_its_slips_out(
         tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """Recorded (Gazebo) data whose wheels slip: with the slips left out the fit stays

@@ -141,3 +141,17 @@ def test_a_missing_params_file_is_one_line_naming_it(node: str, tmp_path: Path) 
     lines = _lines(done.stdout + done.stderr)
     assert len(lines) == 1 and str(missing) in lines[0], lines
     assert "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize("command", ["replay", "calibrate"])
+def test_a_params_file_that_is_not_yaml_is_one_line_with_where(
+        command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 39 item 1 (every tool's failure is one line): PyYAML's message took four
+    lines, the last a caret under a blank."""
+    broken = tmp_path / "p.yaml"
+    broken.write_text("/**:\n  ros__parameters:\n    left_wheel_names: [a\n", encoding="utf-8")
+    extra = ["--eval"] if command == "replay" else []
+    assert cli([command, str(tmp_path / "bag"), "--params-file", str(broken), *extra]) == 2
+    lines = _lines(capsys.readouterr().err)
+    assert len(lines) == 1 and lines[0].startswith(f"[{command}] "), lines
+    assert f"{broken} is not YAML: " in lines[0] and "(line 4, column 1)" in lines[0], lines

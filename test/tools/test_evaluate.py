@@ -287,7 +287,7 @@ def test_eval_refuses_unusable_paths_in_one_line(
         str(text): ["eval", str(text)],
         "--plot": [*ok, "--plot", str(tmp_path / "missing_dir" / "p.png")],
         "--json": [*ok, "--json", str(tmp_path)],
-        "no ground-truth topic": ["eval", str(bag), "--odom", "/odometry"],
+        "there is no ground-truth topic": ["eval", str(bag), "--odom", "/odometry"],
     }
     for name, argv in cases.items():
         assert cli(argv) == 2, name

@@ -67,6 +67,9 @@ class WheelSteps:
     slip event's (stamp of its first step, stamp of its last step) by the node's rule
     (:mod:`~diffdrive_odom.core.estimation.gyro.slips`), ``slip_events`` how many there were
     (more than the spans kept when over ``slips.MAX_EVENTS``); None: no gyro judged.
+    ``skipped``: the readings the rules did not integrate, by reason code: how many and
+    the first one's words (``too_fast``: a step skipped, its motion lost), so a tool
+    that fits these steps can say what they leave out.
     """
 
     stamp_ns: IntArray  # stamp of the reading that ends each step
@@ -77,6 +80,7 @@ class WheelSteps:
     segments: int
     slip_spans: tuple[tuple[int, int], ...] | None = None
     slip_events: int = 0
+    skipped: tuple[tuple[str, int, str], ...] = ()  # (code, readings, the first's words)
 
     def __len__(self) -> int:
         return len(self.dt)
@@ -94,6 +98,7 @@ def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock | GyroSample],
     est = pipe.estimator
     stamps, dts, lefts, rights, segs = array("q"), array("d"), array("d"), array("d"), array("q")
     segments = 0
+    skipped: dict[str, tuple[int, str]] = {}
     trial_start = 0  # steps before the timeline on trial (estimator.on_trial) began
     on_trial = False
     # The fast lane (core.bulk.fastlane): its stretches are plain steps, never on trial.
@@ -111,12 +116,22 @@ def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock | GyroSample],
         r, outcome = item
         verdict = outcome.verdict
         status = verdict.status
+        if verdict.code not in (Reason.UPDATED, Reason.FIRST):
+            n, said = skipped.get(verdict.code, (0, verdict.reason))
+            skipped[verdict.code] = (n + verdict.count, said)
         if on_trial != est.on_trial:
             if not on_trial:  # this reading's step starts the trial
                 trial_start = len(dts)
             elif verdict.code is Reason.FUTURE_STAMP:  # discarded: so are its steps
                 for column in (stamps, dts, lefts, rights, segs):
                     del column[trial_start:]
+        if verdict.code is Reason.GAP_INTEGRATED and est.last_gap is not None:
+            end, gap = est.last_gap  # the gap's own step, before the one after it
+            stamps.append(end)
+            dts.append(gap.dt)
+            lefts.append(gap.d_left)
+            rights.append(gap.d_right)
+            segs.append(segments - 1)
         if status is Status.UPDATED:
             inc = est.last_increment
             assert inc is not None  # set by every UPDATED step
@@ -138,6 +153,7 @@ def wheel_steps(readings: Iterable[fastlane.Reading | JointBlock | GyroSample],
         segments,
         None if gyro is None else tuple(gyro.slip_spans),
         0 if gyro is None else gyro.slips.events,
+        tuple((code, n, said) for code, (n, said) in skipped.items()),
     )
 
 

@@ -50,6 +50,7 @@ from diffdrive_odom.core.estimation.gate import PublishGate
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
 from diffdrive_odom.core.estimation.results import Handover, Outcome
 from diffdrive_odom.core.estimation.stamps import StampSource, in_sync
+from diffdrive_odom.core.estimation.wheels.counts import judged_steps
 from diffdrive_odom.core.estimation.wheels.encoders import (
     JointLookup,
     WheelIncrement,
@@ -145,13 +146,25 @@ class _Chunk:
     header: npt.NDArray[np.int64]  # (n,) header stamps
     logs: npt.NDArray[np.int64]  # (n,) receive times (0: unknown)
     stamps: npt.NDArray[np.int64]  # (n + 1,) stamps as the pipeline uses them
-    dt: Array
+    # (n + 1,) where each row's counts were first seen, each row the reference in turn
+    changed: npt.NDArray[np.int64]
+    moved: npt.NDArray[np.bool_]  # (n,) the step changes the counts
+    dt: Array  # (n,) the interval each step is judged over (CountTrack.judged)
+    before: npt.NDArray[np.int64]  # (n + 1,) the last step before each row that moved (-1)
     d_left: Array
     d_right: Array
     peak: Array
     ds: Array
     dtheta: Array
     plain: npt.NDArray[np.bool_]
+
+    def last_move(self, i: int, first: WheelIncrement | None) -> WheelIncrement | None:
+        """The last step before row ``i`` that moved the counts (``first``: none in it)."""
+        m = int(self.before[i])
+        if m < 0:
+            return first
+        return WheelIncrement(float(self.dt[m]), float(self.d_left[m]), float(self.d_right[m]),
+                              float(self.peak[m]))
 
 
 def lanes(
@@ -188,6 +201,7 @@ def _chunk_lanes(
     pipe: ReadingPipeline, block: Sequence[R] | JointBlock, lookup: JointLookup,
     check_clock: bool, receive: bool,
 ) -> Iterator[tuple[R | JointReading, Outcome] | Stretch]:
+    first_moved = pipe.handover().counts[1]  # the last step that moved, as the chunk starts
     c = _arrays(pipe, block, lookup, check_clock, receive)
     n = len(block)
     ends = np.append(np.flatnonzero(~c.plain), n)
@@ -197,6 +211,7 @@ def _chunk_lanes(
             state = pipe.handover()
             ref = state.reference
             if (ref is not None and not ref.from_velocity and ref.stamp_ns == c.stamps[i]
+                    and state.counts == (c.changed[i], c.last_move(i, first_moved))
                     and ref.values == tuple(c.values[i].tolist())):
                 j = int(ends[np.searchsorted(ends, i)])
                 stretch = _bulk(pipe, state, c, i, j)
@@ -273,17 +288,20 @@ def _arrays(
             low, high = counter_range(enc.counter_bits)
             ok &= (cur.min(axis=1) >= low) & (cur.max(axis=1) < high)
         dt_ns = stamps[1:] - stamps[:-1]
-        dt = dt_ns * 1e-9
         d_left, d_right, peak = position_increments(enc, values)
+        judged = judged_steps(values, stamps, state.counts if usable else (0, None),
+                              dt_ns * 1e-9, (d_left, d_right), cfg, MARGIN)
         arcs = wheel_arcs(settings.geometry, d_left, d_right)
         ds, dtheta = body_from_arcs(settings.geometry, *arcs)
-        ok &= ((dt_ns > 0) & (dt <= cfg.max_reading_gap)
+        dt = judged.dt
+        ok &= ((dt_ns > 0) & (dt_ns * 1e-9 <= cfg.max_reading_gap) & judged.carried_on
                & plausible_steps(cfg, dt, d_left, d_right, peak, arcs, MARGIN)
                & np.isfinite(ds / dt) & np.isfinite(dtheta / dt))
     if not settings.takes_bulk:
         ok[:] = False
-    return _Chunk(values=values, header=header, logs=logs, stamps=stamps, dt=dt, d_left=d_left,
-                  d_right=d_right, peak=peak, ds=ds, dtheta=dtheta, plain=ok)
+    return _Chunk(values=values, header=header, logs=logs, stamps=stamps,
+                  changed=judged.changed, moved=judged.moved, dt=dt, before=judged.before,
+                  d_left=d_left, d_right=d_right, peak=peak, ds=ds, dtheta=dtheta, plain=ok)
 
 
 SAFE_HEADING = 3.0  # below pi: a heading within (-3, 3) is its own wrap_angle
@@ -383,7 +401,13 @@ def _bulk(
     last_log = int(c.logs[k])
     ref = WheelReading(int(c.stamps[j]), tuple(c.values[j].tolist()), False,
                        last_log if last_log > 0 else None)
-    end = Handover(reference=ref,
+    changes = np.flatnonzero(c.moved[sl])  # the last step that moved the counts, if any
+    last_move = state.counts[1]
+    if len(changes):
+        m = i + int(changes[-1])
+        last_move = WheelIncrement(float(c.dt[m]), float(c.d_left[m]), float(c.d_right[m]),
+                                   float(c.peak[m]))
+    end = Handover(reference=ref, counts=(int(c.changed[j]), last_move),
                    pose=Pose2D(float(x[-1]), float(y[-1]), float(thetas[-1])),
                    windows=windows, covariance=cov.covariance, sensitivity=cov.sensitivity,
                    rates=cov.rates, gate=gate.state, clock_named=state.clock_named)

@@ -78,7 +78,9 @@ class ReadingPipeline:
         self._published = 0
         self._dropped: dict[str, int] = {}
         self._reanchors = 0
+        self._causes: dict[str, int] = {}
         self._gap_reanchors = 0
+        self._gaps_integrated = 0
         self._time_resets = 0
         self._last_usable_ns: int | None = None
         self._velocity = False
@@ -86,7 +88,8 @@ class ReadingPipeline:
         self._gyro: GyroHeading | None = None
         self._imu: ImuInput | None = None
         self._online: OnlineGeometry | None = None
-        self._imu_silent = False  # so a missing IMU is named at the first step
+        self._imu_silent = False  # so a missing IMU is named (see _imu_note)
+        self._first_usable_ns: int | None = None
         self._setpose = SetPoseRule()
         self._attach_gyro(settings)
 
@@ -164,6 +167,21 @@ class ReadingPipeline:
         scale = None if self._online is None else self._online.scale
         return "" if scale is None else scale.feed(stamp_ns, x, y, yaw)
 
+    def _imu_note(self, silent: bool, stamp_ns: int) -> bool:
+        """True when the IMU's silence (or its end) is to be said for this step.
+
+        Before the IMU's first sample the wheels only wait imu_timeout before it is
+        named: an IMU that starts a little after the wheels (the TurtleBot3 bag's 0.3 s;
+        its topic matched after joint_states at a node's start) is no silence, and "IMU
+        silent" then "IMU samples again" at every start told nothing.
+        """
+        if silent == self._imu_silent:
+            return False
+        if not silent or self._imu is None or self._imu.samples or self._gyro is None:
+            return True
+        first = self._first_usable_ns
+        return first is None or stamp_ns - first >= self._gyro.config.timeout * 1e9
+
     @property
     def estimator(self) -> OdometryEstimator:
         """The estimator (pose, twist, last step); feed readings through :meth:`feed` only."""
@@ -182,7 +200,9 @@ class ReadingPipeline:
             published=self._published,
             dropped=MappingProxyType(dict(self._dropped)),
             reanchors=self._reanchors,
+            causes=MappingProxyType(dict(self._causes)),
             gap_reanchors=self._gap_reanchors,
+            gaps_integrated=self._gaps_integrated,
             time_resets=self._time_resets,
             last_usable_stamp_ns=self._last_usable_ns,
             velocity_fallback=self._velocity,
@@ -233,20 +253,28 @@ class ReadingPipeline:
             gyro.wheel_stamp_ns = max(gyro.wheel_stamp_ns or 0, self._estimator.stamp_ns)
             if status is Status.TIME_RESET:
                 gyro.wheel_stamp_ns = self._estimator.stamp_ns
+            if self._estimator.stamp_ns == stamp_ns:  # the newest wheel stamp's arrival
+                gyro.wheel_receive_ns = receive_ns
         if status in (Status.DROPPED, Status.HELD):
             return Outcome(verdict, False, "", warning, stamp_ns)
         self._last_usable_ns = stamp_ns
+        if self._first_usable_ns is None:
+            self._first_usable_ns = stamp_ns
         if status is Status.REANCHORED:
             self._reanchors += 1
+            if verdict.cause:
+                self._causes[verdict.cause] = self._causes.get(verdict.cause, 0) + 1
         elif status is Status.TIME_RESET:
             self._time_resets += 1
         elif verdict.code is Reason.GAP:
             self._gap_reanchors += 1
+        elif verdict.code is Reason.GAP_INTEGRATED:
+            self._gaps_integrated += 1
         note = switched
         if self._estimator.from_velocity != self._velocity:
             self._velocity = not self._velocity
             note = VELOCITY_ON if self._velocity else VELOCITY_OFF
-        elif gyro is not None and gyro.steps != steps and gyro.silent != self._imu_silent:
+        elif gyro is not None and gyro.steps != steps and self._imu_note(gyro.silent, stamp_ns):
             self._imu_silent = gyro.silent
             note = IMU_SILENT if gyro.silent else IMU_BACK
         if self._imu is not None and not warning:
@@ -267,7 +295,8 @@ class ReadingPipeline:
         """The state a bulk integrator starts from (see :class:`Handover`)."""
         est, unc = self._estimator, self._estimator.uncertainty
         return Handover(
-            reference=None if self._setpose.pending else est.handover(), pose=est.pose,
+            reference=None if self._setpose.pending else est.handover(),
+            counts=(est.counts.changed_ns, est.counts.moved), pose=est.pose,
             windows=est.twist_windows(),
             covariance=() if unc is None else unc.covariance,
             sensitivity=() if unc is None else unc.sensitivity,
@@ -283,7 +312,7 @@ class ReadingPipeline:
         """
         assert state.reference is not None
         est, unc = self._estimator, self._estimator.uncertainty
-        est.take_over(state.reference, state.pose, state.windows, inc, step)
+        est.take_over(state.reference, state.pose, state.windows, inc, step, state.counts)
         if unc is not None:
             unc.covariance, unc.sensitivity = state.covariance, state.sensitivity
             unc.set_rates(state.rates)

@@ -16,7 +16,7 @@ from diffdrive_odom.core.estimation.gate import GateState
 from diffdrive_odom.core.estimation.gyro.imulag import LagEstimate
 from diffdrive_odom.core.estimation.gyro.slips import SlipStats
 from diffdrive_odom.core.estimation.online.online_estimate import OnlineEstimate
-from diffdrive_odom.core.estimation.wheels.encoders import WheelReading
+from diffdrive_odom.core.estimation.wheels.encoders import WheelIncrement, WheelReading
 from diffdrive_odom.core.estimation.wheels.timeline import Verdict
 from diffdrive_odom.core.geometry.integration import Pose2D
 from diffdrive_odom.core.geometry.mat3 import Matrix
@@ -40,8 +40,13 @@ class PipelineStats:
       it was a pause (then a ``gap`` re-anchor) or a lone outlier (``future_stamp``).
     - ``reanchors``: implausible steps (faster than ``max_wheel_speed``, a wheel rolling
       over ``plausibility.MAX_STEP_ARC``, or not finite), skipped (code ``too_fast``).
+    - ``causes``: of those, the ones with a likely cause, by its text (which names the
+      parameter that fixes it: a counter wrapping unseen, ``encoder_counter_bits``).
     - ``gap_reanchors``: readings more than ``max_reading_gap`` after the last usable
-      one, taken as the new reference (code ``gap``).
+      one whose counts say the driver restarted, taken as the new reference (code
+      ``gap``).
+    - ``gaps_integrated``: such readings whose counts went on: the gap's motion
+      integrated as one arc (code ``gap_integrated``).
     - ``time_resets``: restarts at the origin after a stamp jumped back (``time_reset``).
     - ``last_usable_stamp_ns``: stamp of the last reading the estimator accepted
       (None before the first).
@@ -53,7 +58,9 @@ class PipelineStats:
     published: int = 0
     dropped: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
     reanchors: int = 0
+    causes: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
     gap_reanchors: int = 0
+    gaps_integrated: int = 0
     time_resets: int = 0
     last_usable_stamp_ns: int | None = None
     velocity_fallback: bool = False
@@ -116,11 +123,14 @@ class Handover:
     from here and hands the state it reached back (:meth:`ReadingPipeline.take_back`),
     so the next reading meets the pipeline exactly as if every reading had been fed.
     ``reference`` is None while a rule has something pending (a held reading, stale
-    stamps, a timeline on trial): then no stretch may start. ``covariance``,
-    ``sensitivity`` and ``rates`` are the propagated model's (empty when static).
+    stamps, a timeline on trial): then no stretch may start. ``counts``: where the
+    reference's counts were first seen [ns] and the last step that moved them
+    (:class:`~.wheels.counts.CountTrack`). ``covariance``, ``sensitivity`` and ``rates``
+    are the propagated model's (empty when static).
     """
 
     reference: WheelReading | None
+    counts: tuple[int, WheelIncrement | None]
     pose: Pose2D
     windows: tuple[tuple[float, ...], tuple[float, ...]]
     covariance: Matrix

@@ -178,7 +178,10 @@ class ReadingHealth:
     since_last_reading_s: float | None
     dropped: Mapping[str, int] = field(default_factory=dict)
     reanchors: int = 0
+    # the re-anchors with a likely cause, by its text (which names the fixing parameter)
+    causes: Mapping[str, int] = field(default_factory=dict)
     gap_reanchors: int = 0
+    gaps_integrated: int = 0  # gaps in the readings whose motion was integrated
     time_resets: int = 0
     velocity_fallback: bool = False
     gyro: GyroStats | None = None  # use_imu true: the gyro's counters and slip events
@@ -208,11 +211,18 @@ def odometry_report(
 
     reanchors = recent(lambda h: h.reanchors)
     gap_reanchors = recent(lambda h: h.gap_reanchors)
+    gaps = recent(lambda h: h.gaps_integrated)
     time_resets = recent(lambda h: h.time_resets)
+    causes = increase_since(now.causes, before.causes if before else None)
     if reanchors:
-        problems.append((Level.WARN, f"{reanchors} re-anchors (implausible step)"))
+        cause = max(causes, key=lambda k: causes[k]) if any(causes.values()) else ""
+        problems.append((Level.WARN, f"{reanchors} re-anchors (implausible step"
+                                     + (f"; {cause})" if cause else ")")))
     if gap_reanchors:
         problems.append((Level.WARN, f"{gap_reanchors} re-anchors after a gap"))
+    if gaps:
+        problems.append((Level.WARN, f"{gaps} gaps in the readings, their motion integrated "
+                                     "from the counts"))
     if time_resets:
         problems.append((Level.WARN, f"{time_resets} time resets (stamp jumped back)"))
     gyro_values = _gyro(now.gyro, before.gyro if before else None, problems)
@@ -228,7 +238,9 @@ def odometry_report(
         ("last reading [s ago]", seconds_text(since)),
         *count_values("dropped", now.dropped, dropped),
         ("re-anchors (implausible step)", str(now.reanchors)),
+        *((f"re-anchors: {cause}", str(count)) for cause, count in now.causes.items()),
         ("re-anchors after a gap", str(now.gap_reanchors)),
+        ("gaps integrated", str(now.gaps_integrated)),
         ("time resets", str(now.time_resets)),
         ("velocity fallback", "true" if now.velocity_fallback else "false"),
         ("stale after [s]", f"{t.stale_after_s:g}"),

@@ -126,3 +126,37 @@ def quantization_variance(ticks_per_revolution: float, wheels_per_side: int) -> 
         return 0.0
     tick = 2.0 * math.pi / ticks_per_revolution
     return tick * tick / 12.0 / wheels_per_side
+
+
+def unknown_path(theta: float, ds: float, dtheta: float) -> tuple[tuple[float, ...], ...]:
+    """The position covariance [m^2] (3x3, odom frame) a gap's unknown path adds to its arc.
+
+    Over a gap only the wheels' totals are known: the distance ``ds`` along the path and
+    the heading change ``dtheta``, not how the turn was spread along it. In the frame at
+    the gap's start (heading ``theta``), a path that turns one way spends its length at
+    headings ``phi`` between 0 and ``dtheta``, and ends at ``ds`` times the mean of
+    ``(cos phi, sin phi)`` over them: from ``ds (1, 0)`` (drove, then turned on the spot)
+    to ``ds (cos dtheta, sin dtheta)`` (turned, then drove). The one arc the gap is
+    integrated as spends it evenly (its chord). The added covariance is ``ds^2`` times the
+    covariance of ``(cos phi, sin phi)`` for ``phi`` uniform on ``[0, dtheta]``, the spread
+    of those headings: zero for a straight gap (nothing unknown) or a turn on the spot (no
+    distance), ``ds^2 dtheta^2 / 12`` across the path for a small turn; rotated into the
+    odom frame. The heading adds nothing: its change is exact from the counts.
+    """
+    a = dtheta
+    if abs(a) < 0.01:  # the series (next terms a^4 smaller): the closed form cancels
+        a2 = a * a
+        var_c, var_s = a2 * a2 * (1.0 / 45.0 - a2 / 315.0), a2 * (1.0 / 12.0 - a2 / 40.0)
+        cov = a * a2 * (-1.0 / 24.0 + 7.0 * a2 / 720.0)
+    else:
+        mean_c, mean_s = math.sin(a) / a, (1.0 - math.cos(a)) / a
+        half = math.sin(2.0 * a) / (4.0 * a)
+        var_c = 0.5 + half - mean_c * mean_c
+        var_s = 0.5 - half - mean_s * mean_s
+        cov = math.sin(a) ** 2 / (2.0 * a) - mean_c * mean_s
+    c, s = math.cos(theta), math.sin(theta)
+    scale = ds * ds
+    xx = scale * (c * c * var_c - 2.0 * c * s * cov + s * s * var_s)
+    yy = scale * (s * s * var_c + 2.0 * c * s * cov + c * c * var_s)
+    xy = scale * (c * s * (var_c - var_s) + (c * c - s * s) * cov)
+    return ((xx, xy, 0.0), (xy, yy, 0.0), (0.0, 0.0, 0.0))

@@ -117,7 +117,9 @@ class GyroStep:
 
     ``(ds, dtheta) = B d + c g``: ``d`` the joint increments (the wheel model's
     variance), ``g`` the gyro's angle (white variance ``var_gyro``, plus ``dt`` times
-    the bias error). Built by keyword only: eight fields, three of them matrices.
+    the bias error). Built by keyword only: nine fields, three of them matrices.
+    ``merged``: the turn readings held before it took for now (``ds`` 0); the step's arc
+    starts before them and turns by ``dtheta + merged``.
     """
 
     ds: float  # m: the step's distance
@@ -128,6 +130,7 @@ class GyroStep:
     dt: float  # s: the step's interval
     geometry: Matrix  # 2x3: d(ds, dtheta) / d(ln r_left, ln r_right, ln separation)
     slip: bool  # a wheel slipped: the heading is the gyro's
+    merged: float = 0.0  # rad: handed out by the held readings before it
 
 
 def _sensitivity_step(j: Matrix, f_pose: Matrix, f_step: Matrix, ds: float, dtheta: float,

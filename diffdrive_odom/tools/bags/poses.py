@@ -61,9 +61,10 @@ def reference_topic(
             notify(f"{DEFAULT_REFERENCE} is not in {bag}; using {plausible[0]}, its only "
                    f"ground-truth topic ({flag} to choose another)")
         return plausible[0]
-    which = "several ground-truth topics" if plausible else "no ground-truth topic"
+    which = "there are several ground-truth topics" if plausible else (
+        "there is no ground-truth topic")
     raise bagio.BagError(
-        f"{bag}: {DEFAULT_REFERENCE} is absent and there are {which}; name one with "
+        f"{bag}: {DEFAULT_REFERENCE} is absent and {which}; name one with "
         f"{flag} (pose topics: {', '.join(posed) or 'none'})")
 
 

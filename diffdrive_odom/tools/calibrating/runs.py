@@ -21,6 +21,7 @@ from pathlib import Path
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.stamps import StampSource
+from diffdrive_odom.core.estimation.wheels.encoders import Reason
 from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run
 from diffdrive_odom.tools.cmdline.args import settings_from_args
 
@@ -57,13 +58,40 @@ def decode(bag: str, settings: Settings, args: argparse.Namespace, reference: bo
     if imu is None:
         steps = batch.wheel_steps(bagblocks.read_joint_blocks(bag, args.topic, jump), used)
     else:
-        assert used.gyro is not None
-        by_log = used.gyro.stamp_source is StampSource.RECEIVE_TIME
+        by_log = used.gyro is not None and used.gyro.stamp_source is StampSource.RECEIVE_TIME
         with bagio.open_bag(bag) as reader:
             steps = batch.wheel_steps(bagreadings.iter_readings(
                 reader, args.topic, imu, stream=bagreadings.Stream(
                     jump_back_ns=jump, imu_by_log_time=by_log)), used)
-    return Run(Path(bag).name, steps, ref)
+    name = Path(bag).name
+    _said_skipped(name, args.topic, steps, used, notify)
+    return Run(name, steps, ref)
+
+
+def _said_skipped(name: str, topic: str, steps: batch.WheelSteps, settings: OdometrySettings,
+                  notify: Callable[[str], None]) -> None:
+    """What the node's rules kept out of a run, said rather than fitted around in silence.
+
+    No usable step: CalibrationError with the main reason in the node's words (the
+    missing joints named, as replay names them). Skipped steps (``too_fast``), whose
+    motion the fit never sees: one line, with the likely cause where raw counts are read
+    with no counter width (a counter wrapping: ``encoder_counter_bits``).
+    """
+    skipped = {code: (n, text) for code, n, text in steps.skipped}
+    if len(steps) < 2:
+        main = sorted(skipped.items(), key=lambda kv: -kv[1][0])[:1]
+        why = "".join(f"; {n} x {code}: {text}" for code, (n, text) in main)
+        raise CalibrationError(f"{name}: fewer than 2 usable readings on {topic}{why}")
+    if Reason.TOO_FAST not in skipped:
+        return
+    n, text = skipped[Reason.TOO_FAST]
+    enc = settings.encoders
+    cause = ("likely cause: wheel counters that wrap, read as raw ticks with "
+             "encoder_counter_bits 0: set encoder_counter_bits to the counter's width "
+             "(16 for a 16-bit counter)" if enc.ticks_per_revolution > 0 and not enc.counter_bits
+             else f"check max_wheel_speed ({settings.estimator.max_wheel_speed:g} rad/s) and "
+             "encoder_counter_bits")
+    notify(f"{name}: {n} x too_fast ({text}), so the fit misses their motion; {cause}")
 
 
 def imu_topic(bag: str, requested: str | None, notify: Callable[[str], None]) -> str | None:
@@ -91,11 +119,12 @@ def gyro_settings(args: argparse.Namespace, settings: OdometrySettings) -> Odome
     """How a bag with an IMU is decoded: the node's settings with the gyro on.
 
     ``use_imu`` true, its gyro parameters from the params given, no online estimate.
+    use_imu is set after every params source, as ``replay --online-calibration`` sets
+    it: a ``-p`` would lose to a params file's own ``odometry_node`` section (the demo's
+    says ``use_imu: false``). The sources were loaded (and their problems said) once.
     """
     if settings.gyro is None:
-        extra = argparse.Namespace(**vars(args))
-        extra.ros_params = [*args.ros_params, ("param", "use_imu:=true")]
-        got = settings_from_args(extra)
+        got = settings_from_args(args, None, {"use_imu": True})
         if isinstance(got, str):
             return got
         settings = got

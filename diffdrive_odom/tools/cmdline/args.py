@@ -17,7 +17,7 @@ from typing import Any
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
-from diffdrive_odom.settings.params import ParamSource, ParamValue, resolve_parameters
+from diffdrive_odom.settings.rcl import ParamSource, ParamValue, resolve_parameters
 from diffdrive_odom.settings.registry import unknown_parameters_report
 from diffdrive_odom.settings.shadowed import shadowed_overrides_line
 from diffdrive_odom.tools.cmdline.outputs import output_problem
@@ -35,20 +35,24 @@ def fail(prefix: str, text: str) -> int:
 def load_settings(
     params: str | Path | Sequence[ParamSource], node_name: str = NODE_NAME,
     namespace: str = "/", settled: Mapping[str, ParamValue] | None = None,
+    prefix: str | None = "[diffdrive-odom]",
 ) -> OdometrySettings:
     """Return the node's settings from its params files and ``-p`` overrides.
 
     Sources are in command-line order, resolved as rclpy resolves them for this node
     name and namespace, and validated exactly as the node does. ``settled``: values a
-    tool's own flag implies (``replay --online-calibration``: use_imu), set after every
-    source, as no ``-p`` can be (a node's own section beats it).
+    tool's own flag implies (``replay --online-calibration``, calibrate: use_imu), set
+    after every source, as no ``-p`` can be (a node's own section beats it). The
+    unknown names and a lost ``-p`` are said after the tool's ``prefix`` (None: not said,
+    for a second load of the same sources).
     """
     sources = [("file", str(params))] if isinstance(params, (str, Path)) else list(params)
     values = {**resolve_parameters(sources, node_name, namespace), **(settled or {})}
-    shadowed = shadowed_overrides_line(sources, node_name, namespace, settled or {})
-    for line in (*unknown_parameters_report(list(values)), shadowed):
-        if line:
-            print(f"[replay] {line}", file=sys.stderr)
+    if prefix is not None:
+        shadowed = shadowed_overrides_line(sources, node_name, namespace, settled or {})
+        for line in (*unknown_parameters_report(list(values)), shadowed):
+            if line:
+                print(f"{prefix} {line}", file=sys.stderr)
     return odometry_settings(values, "/" + namespace.strip("/"))
 
 
@@ -78,11 +82,15 @@ def add_param_arguments(ap: argparse.ArgumentParser, required: bool, file_help: 
                     help="node namespace (-r __ns:=): params resolution and frame prefix")
 
 
-def settings_from_args(args: argparse.Namespace) -> OdometrySettings | str:
-    """The settings :func:`add_param_arguments`' flags give, or the one line why not."""
+def settings_from_args(args: argparse.Namespace, prefix: str | None,
+                       settled: Mapping[str, ParamValue] | None = None,
+                       ) -> OdometrySettings | str:
+    """The settings :func:`add_param_arguments`' flags give, or the one line why not.
+
+    ``prefix`` and ``settled``: as :func:`load_settings` takes them.
+    """
     try:
-        return load_settings(args.ros_params, args.node_name, args.namespace,
-                             getattr(args, "settled", None))
+        return load_settings(args.ros_params, args.node_name, args.namespace, settled, prefix)
     except ParameterError as err:
         return str(err)
     except OSError as err:

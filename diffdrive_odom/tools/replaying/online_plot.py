@@ -32,14 +32,14 @@ def draw(ax: Any, trace: Trace, true: Sequence[float] | None = None, columns: in
     for i, (name, color) in enumerate(zip(NAMES, COLORS, strict=True)):
         m = np.array([e.multipliers[i] for _, e in trace])
         s = np.array([e.stddevs[i] for _, e in trace])
-        ax.plot(d, m, "-", color=color, lw=1.4, label=f"{name} multiplier, +- 1 sigma")
+        ax.plot(d, m, "-", color=color, lw=1.4, label=f"{name} multiplier +- 1 sigma")
         ax.fill_between(d, m - s, m + s, color=color, alpha=0.2, lw=0)
         if true is not None:
             ax.axhline(true[i], color=color, ls="--", lw=1.0, label=f"true {name}")
     first = next((e.distance for _, e in trace if e.determined), None)
     if first is not None:
         ax.axvline(first, color="0.4", ls=":", lw=1.0,
-                   label="determined (turned online_calibration_min_turn each way)")
+                   label="determined (turned min_turn each way)")
     if len(d):
         # The first windows' sigma is the prior's (5 %): keep the converged part readable.
         late = [e for _, e in trace if e.determined] or [e for _, e in trace]
@@ -52,7 +52,16 @@ def draw(ax: Any, trace: Trace, true: Sequence[float] | None = None, columns: in
     ax.set_xlabel("distance the estimate counted [m]")
     ax.set_ylabel("multiplier (mean radius held)")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), fontsize=8, ncol=columns)
+    # Under the x label, whatever the panel's height: a fraction of the axes put it on
+    # the label in the demo's short panel.
+    from matplotlib.transforms import offset_copy
+
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0.0), fontsize=8, ncol=columns,
+              bbox_transform=offset_copy(ax.transAxes, fig=ax.figure, y=-LABEL_ROOM_PT,
+                                         units="points"))
+
+
+LABEL_ROOM_PT = 34.0  # below the axes: the tick labels and the x label
 
 
 def write(path: str | Path, trace: Trace, title: str) -> None:

@@ -16,14 +16,14 @@ said in one line.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from pathlib import Path
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
 from diffdrive_odom.settings.errors import ParameterError
-from diffdrive_odom.settings.params import ParamValue, resolve_parameters
+from diffdrive_odom.settings.rcl import ParamValue, resolve_parameters
 from diffdrive_odom.tools.replaying import online_plot  # matplotlib only where it draws
 
 ROWS = 6  # estimates printed over the run besides the final one
@@ -43,23 +43,25 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     "params; default: the params' (none): the scale stays the configured one)")
 
 
-def replay_settings(args: argparse.Namespace,
-                    load: Callable[[argparse.Namespace], OdometrySettings | str],
-                    notify: Callable[[str], None]) -> OdometrySettings | str:
+def replay_settings(
+    args: argparse.Namespace,
+    load: Callable[[argparse.Namespace, Mapping[str, ParamValue] | None], OdometrySettings | str],
+    notify: Callable[[str], None],
+) -> OdometrySettings | str:
     """The settings replay runs with, or the one line why not.
 
     ``--reference-topic`` as the node's parameter; with ``--online-calibration`` the
     gyro (where the bag has it: ``notify`` is told) and the estimate on, set after every
-    params source (``settled``, which ``load`` reads from its namespace).
+    params source (``load``'s second argument: the values settled after them).
     """
     if args.reference_topic and not args.online_calibration:
         return "--reference-topic needs --online-calibration"
     if not args.online_calibration:
-        return load(args)
+        return load(args, None)
     settled = _online_settled(args, notify)
     if isinstance(settled, str):
         return settled
-    return load(argparse.Namespace(**{**vars(args), "settled": settled}))
+    return load(args, settled)
 
 
 def _online_settled(args: argparse.Namespace,

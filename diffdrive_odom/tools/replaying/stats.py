@@ -59,6 +59,18 @@ class ReplayStats:
             f"y={p.y:.6f} m yaw={p.theta:.6f} rad"
         ) + self._gyro_summary()
 
+    def reason_lines(self, top: int = 5) -> list[str]:
+        """The summary's lines on what the rules did, one a reason.
+
+        The ``top`` codes by count, each with its first text, then the likely causes of
+        skipped steps with the parameter that fixes them.
+        """
+        lines = [f"  {count} x {code}: {self.examples[code]}"
+                 for code, count in self.reasons.most_common(top)]
+        lines += [f"  {count} of the too_fast steps: {cause}"
+                  for cause, count in self.pipeline.causes.items()]
+        return lines
+
     def _gyro_summary(self) -> str:
         """The gyro's part of the summary line (``use_imu``), '' otherwise."""
         g = self.pipeline.gyro
@@ -75,4 +87,4 @@ class ReplayStats:
                 + (", IMU silent at the end" if g.silent else "")
                 + f"; wheel stamps' jitter {g.jitter * 1e3:.1f} ms; "
                 + ("IMU lag not measured (turn more than a radian)" if g.lag is None
-                   else g.lag.line(g.jitter)))
+                   else g.lag.measured()))

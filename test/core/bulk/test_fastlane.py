@@ -5,10 +5,12 @@ lane integrates in bulk only the stretches where none can fire. Proven here by
 property tests: streams holding every reason code (zero stamps, missing joints, NaN,
 bursts of speed, driver restarts, gaps, time resets, far-future stamps and bursts of
 them, stale stamps, counter wraps, two wheels a side, velocity-only readings, a
-driver's clock far off), replayed both ways: the same poses (1e-12 m and rad), the
+driver's clock far off, readings held and released late, gaps whose counts went on,
+restarts from a kept count), replayed both ways: the same poses (1e-12 m and rad), the
 same covariances (1e-9 of the matrix's largest entry), the same stamps, statuses,
-reason counts and counters. Also on every bag in test/data. The covariance's closed
-form (cumulative sums) against the scalar recursion, far from the origin.
+reason counts and counters (the interval each step is judged over included). Also on
+every bag in test/data. The covariance's closed form (cumulative sums) against the
+scalar recursion, far from the origin.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from diffdrive_odom.core.bulk import batch, fastlane
 from diffdrive_odom.core.bulk.readings import JointBlock, JointReading
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
+from diffdrive_odom.core.estimation.wheels.encoders import Reason
 from diffdrive_odom.core.geometry.integration import Pose2D, chord_array, compose
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
 from diffdrive_odom.core.geometry.se2 import wrap_angle
@@ -61,7 +64,7 @@ class Reading:
 EVENTS = ("zero_stamp", "missing_joint", "nan", "burst", "restart", "restart_paused", "gap",
           "time_reset", "future", "future_burst", "stale", "duplicate", "velocity",
           "velocity_nan", "bad_array", "clock_offset", "slow_driver", "no_data", "out_of_range",
-          "wheels_disagree")
+          "wheels_disagree", "hold", "moving_gap", "restart_jump")
 
 
 def _stream(seed: int, events: list[tuple[str, int]], wheels: int, ticks: float,
@@ -151,6 +154,23 @@ def _stream(seed: int, events: list[tuple[str, int]], wheels: int, ticks: float,
             emit()
         elif event == "slow_driver":
             wall += 600_000_000
+            emit()
+        elif event == "hold":  # a logger repeats the counts, then writes the moved ones
+            held = pos()
+            for _ in range(int(rng.integers(2, 16))):
+                out.append(Reading(wall + offset, wall + log_offset, names, held, ()))
+                wall += period
+                angle += speed * period * 1e-9
+            wall = out[-1].stamp_ns - offset + 1_000_000  # 1 ms after the last row
+            emit()
+        elif event == "moving_gap":  # no rows for seconds, the counts going on
+            pause = int(rng.uniform(1.2e9, 4e9))
+            wall += pause
+            angle += speed * pause * 1e-9
+            emit()
+        elif event == "restart_jump":  # after a pause, counting again from a kept value
+            wall += 1_500_000_000
+            angle -= 60.0
             emit()
         wall += period
         angle += speed * period * 1e-9
@@ -308,12 +328,19 @@ def test_each_event_alone(monkeypatch: pytest.MonkeyPatch, event: str,
 
 
 def test_every_event_kind_and_most_readings_in_bulk(monkeypatch: pytest.MonkeyPatch) -> None:
-    """One stream with every event: the lanes agree and the fast lane does the most."""
+    """One stream with every event: the lanes agree and the fast lane does the most of
+    what it may take: plain steps, not on a timeline's trial after a gap (the pipeline
+    has it pending: :meth:`ReadingPipeline.handover`)."""
     events = [(e, 60) for e in EVENTS] * 2
     readings = _stream(7, events, 2, 4096.0, 12)
     cfg = _settings(2, 4096.0, 12, 0.0, 3, "propagated", "header")
     bulk = _both(readings, cfg, 256, monkeypatch)
-    assert bulk > 0.8 * len(readings), (bulk, len(readings))
+    pipe = ReadingPipeline(cfg)
+    eligible = 0
+    for r in readings:
+        code = pipe.feed(r.stamp_ns, r.names, r.position, r.velocity, r.log_ns).verdict.code
+        eligible += code is Reason.UPDATED and not pipe.estimator.on_trial
+    assert bulk > 0.8 * eligible, (bulk, eligible, len(readings))
 
 
 def test_with_the_gyro_nothing_goes_in_bulk_and_the_lanes_agree(

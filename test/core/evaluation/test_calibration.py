@@ -32,7 +32,7 @@ from diffdrive_odom.core.evaluation.recorded_run import Run, start_stamp, values
 from diffdrive_odom.core.geometry.kinematics import Geometry, wheel_rates
 from diffdrive_odom.core.motion import routes
 from diffdrive_odom.settings import odometry as odometry_settings
-from diffdrive_odom.settings import params
+from diffdrive_odom.settings import rcl
 from diffdrive_odom.tools.cli import main as cli
 
 import oracle
@@ -460,7 +460,7 @@ def test_cli_force_prints_a_params_block_the_node_accepts(
     assert "wheel_radius_stddev_ratio" not in entry  # no sigma from 2 runs
     path = tmp_path / "calibrated.yaml"
     path.write_text(block, encoding="utf-8")
-    values = params.load_params_file(path, "odometry_node")
+    values = rcl.load_params_file(path, "odometry_node")
     settings = odometry_settings.odometry_settings(values)
     fit = calibration.fit(_optiodom_runs(), Geometry(0.042, 0.2))
     got = values_of(settings.geometry)

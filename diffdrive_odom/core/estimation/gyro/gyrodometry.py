@@ -10,9 +10,11 @@ a wheel slipped: the gyro's heading is used and a slip counted
 a real robot's (:mod:`~diffdrive_odom.core.estimation.gyro.wheelturn`): with the online
 configured ratios and the noise model's sigmas, the encoders' and the gyro's
 quantization, and the stamps' timing error measured while turning.
-Readings a driver holds (no motion within ``HOLD_S`` of the last that moved) take the
-gyro's turn for now and the next step is judged over the interval since the last
-reading that moved. The bias is estimated whenever the wheels stand still for longer
+Readings a driver holds (no motion within ``HOLD_S`` of the last that moved, or later
+while the gyro turns faster than standing wheels could, within ``max_reading_gap``: a
+logger's hold) take the gyro's turn for now and the next step is judged over the
+interval since the last reading that moved, as the wheels judge it
+(:mod:`~.wheels.counts`). The bias is estimated whenever the wheels stand still for longer
 (:mod:`~diffdrive_odom.core.estimation.gyro.standstill`).
 
 Time: the yaw rate is integrated over exactly each step's interval by header stamps
@@ -93,7 +95,7 @@ class GyroHeading:
         self.config = config
         self.quantization = quantization  # rad^2: a joint's variance per reading (ticks)
         self.jitter = StampJitter()  # the wheel stamps' timing error, measured turning
-        self.lag = ImuLag()  # how much later the IMU's stamps are than the wheels'
+        self.lag = ImuLag(config.time_offset)  # how much later the IMU's stamps are
         self._moved_ns: int | None = None  # the last wheel stamp that moved
         self._held_from: int | None = None  # start of the readings held since then
         self._held_turn = 0.0  # the gyro's turn handed out over them (provisional)
@@ -112,6 +114,7 @@ class GyroHeading:
         self._judged_to: int | None = None  # end of the last step judged for good
         self._debt = (0.0, 0.0)  # (ds, dtheta) the final judgements add to the next step
         self.wheel_stamp_ns: int | None = None  # newest wheel stamp (future check)
+        self.wheel_receive_ns: int | None = None  # when its reading came (None: unknown)
         self.silent = True  # no usable samples for the last step (or none yet)
         self.steps = 0  # wheel steps asked about
         self._per_geometry: tuple[Geometry, NoiseModel, Matrix, RatioModel] | None = None
@@ -120,6 +123,8 @@ class GyroHeading:
 
     def set_config(self, config: GyroConfig) -> None:
         """New settings at runtime; the bias estimate carries on (its start value is for starts)."""
+        if config.time_offset != self.config.time_offset:
+            self.lag.clear(config.time_offset)
         self.config = config
         self._axis = config.yaw_axis
         self._slips.min_angle = config.slip_min_angle
@@ -160,8 +165,15 @@ class GyroHeading:
 
     # --- samples -------------------------------------------------------------------
 
-    def add(self, stamp_ns: int, wx: float, wy: float, wz: float) -> str:
-        """Offer one IMU sample (rates in the IMU frame); '' if kept, else the drop code."""
+    def add(self, stamp_ns: int, wx: float, wy: float, wz: float,
+            receive_ns: int | None = None) -> str:
+        """Offer one IMU sample (rates in the IMU frame); '' if kept, else the drop code.
+
+        ``receive_ns``: when it came (None: unknown). A sample further than
+        ``max_reading_gap`` ahead of the newest wheel stamp is refused (``future_stamp``),
+        that stamp moved on by the time the receiver saw pass since its reading came: the
+        IMU goes on through a gap in the wheels' readings, a clock that jumped does not.
+        """
         ax, ay, az = self._axis
         w = float(ax * wx + ay * wy + az * wz)  # a Python float whatever the caller gave
         if not math.isfinite(w):
@@ -176,7 +188,9 @@ class GyroHeading:
         elif self._judged_to is not None and stamp_ns <= self._judged_to:
             return "stale_stamp"  # that part of the timeline is judged already
         wheel = self.wheel_stamp_ns
-        if wheel is not None and stamp_ns - wheel > self._future_ns:
+        since = self.wheel_receive_ns
+        elapsed = 0 if receive_ns is None or since is None else max(0, receive_ns - since)
+        if wheel is not None and stamp_ns - wheel - elapsed > self._future_ns:
             return "future_stamp"
         if not self.samples.insert(stamp_ns, w):
             return "stale_stamp"  # a duplicate
@@ -238,10 +252,17 @@ class GyroHeading:
         self.silent = False
         gyro = self.standstill
         gyro.grow(t1, cfg.bias_random_walk)
+        turn = 0.0
+        if held or (still and moved is not None and t1 - moved < self._future_ns):
+            turn = self._provisional(geometry, t0, t1, arcs) - gyro.bias * dt_ns * 1e-9
+            # Past a driver's repeats, within the wheels' own interval (max_reading_gap):
+            # still held while the gyro turns faster than standing wheels could (a
+            # logger's hold, not a standstill).
+            held = held or (abs(turn) * 0.5 * geometry.separation
+                            > cfg.zero_velocity_speed * dt_ns * 1e-9)
         if held:
             if self._held_from is None:
                 self._held_from = t0
-            turn = self._provisional(geometry, t0, t1, arcs) - gyro.bias * dt_ns * 1e-9
             self._held_turn += turn
             self._prune(t1)
             return GyroStep(ds=0.0, dtheta=turn, b=((0.0, 0.0), (0.0, 0.0)), c=(0.0, 1.0),
@@ -267,7 +288,8 @@ class GyroHeading:
         out = decided.step
         ds, dtheta = self._debt
         if ds or dtheta or handed_out:
-            out = replace(out, ds=out.ds + ds, dtheta=out.dtheta + dtheta - handed_out)
+            out = replace(out, ds=out.ds + ds, dtheta=out.dtheta + dtheta - handed_out,
+                          merged=handed_out)
             self._debt = (0.0, 0.0)
         self._prune(t1)
         return out

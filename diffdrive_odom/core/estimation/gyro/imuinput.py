@@ -77,7 +77,7 @@ class ImuInput:
                     self._warnings.append(said)
         if stamp_ns > 0:  # the lag the user measured between the two clocks, taken out
             stamp_ns -= round(self.gyro.config.time_offset * 1e9)
-        code = self.gyro.add(stamp_ns, wx, wy, wz)
+        code = self.gyro.add(stamp_ns, wx, wy, wz, receive_ns)
         if code:
             self._dropped[code] = self._dropped.get(code, 0) + 1
         elif not self._covariance_judged:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ImuLag", "LagEstimate"]
+__all__ = ["LINE_START", "ImuLag", "LagEstimate"]
 
 WINDOW_S = 0.25
 SPAN_S = 60.0
@@ -35,6 +35,7 @@ MAX_LAG_S = 0.3
 STEP_S = 0.005
 MIN_TURN = 1.0  # rad turned (either way, over the windows) before a lag is measured
 EVERY_S = 5.0
+LINE_START = "IMU stamps "  # how every line about the lag starts (replay finds the node's)
 # A lag over this many stamp-jitter sigmas is named: the slip test then takes part of
 # every change of turn rate as jitter.
 MATTERS_SIGMAS = 2.0
@@ -42,30 +43,71 @@ MATTERS_SIGMAS = 2.0
 
 @dataclass(frozen=True, slots=True)
 class LagEstimate:
-    """``lag`` [s]: the IMU's stamps later than the wheels' (negative: earlier); its 1-sigma."""
+    """``lag`` [s]: the IMU's stamps later than the wheels' (negative: earlier); its 1-sigma.
+
+    Measured on the stamps as used: ``offset`` (``imu_time_offset``) already taken out,
+    so the value that takes the whole lag out is :attr:`setting`.
+    """
 
     lag: float
     sigma: float
     turned: float  # rad over the span it was measured on
+    offset: float = 0.0  # s: the imu_time_offset in force while it was measured
+
+    @property
+    def setting(self) -> float:
+        """The ``imu_time_offset`` that takes the lag out: the one in force plus the rest."""
+        return self.offset + self.lag
 
     def matters(self, jitter: float) -> bool:
         """Large enough to matter for the slip test (over MATTERS_SIGMAS of the jitter)."""
         return abs(self.lag) > MATTERS_SIGMAS * max(jitter, self.sigma)
 
+    def measured(self) -> str:
+        """What was measured, with the offset in force: the summary's figure."""
+        taken = f", imu_time_offset {self.offset:.3f} taken out" if self.offset else ""
+        return (f"{LINE_START}{1e3 * self.lag:+.0f} ms +- {1e3 * self.sigma:.0f} ms after the "
+                f"wheels' (over {self.turned:.1f} rad of turns{taken})")
+
     def line(self, jitter: float) -> str:
-        """One line for a summary or /diagnostics, with what to do when it matters."""
-        text = (f"IMU stamps {1e3 * self.lag:+.0f} ms +- {1e3 * self.sigma:.0f} ms after the "
-                f"wheels' (over {self.turned:.1f} rad of turns)")
+        """One line for a log or /diagnostics: the figure, and why no value is advised.
+
+        Where it matters, the setting is named but not advised: without a reference
+        nothing tells whether it helps (:meth:`checked_line`: with one). On the simulated
+        TurtleBot3 bag the turns give +70 ms and 0.070 makes its end error worse; on
+        phil_train's runs 0 and 2 the Vicon confirms the clocks' lag, yet the end error
+        too is worse with it (doc/concepts/gyro.md).
+        """
+        text = self.measured()
         if self.matters(jitter):
-            text += (f": more than the wheel stamps' jitter ({1e3 * jitter:.0f} ms), the slip "
-                     f"test is the less sensitive; imu_time_offset: {self.lag:.3f} takes it out")
+            text += (f": {self._why(jitter)}; imu_time_offset: {self.setting:.3f} would take "
+                     "it out, not advised unchecked: a lag fitted from the turns need not be "
+                     "the clocks' (wheels that slip as a turn starts lag the body too), and "
+                     "then the offset makes the odometry worse; replay --eval of a bag with "
+                     "ground truth checks it")
         return text
+
+    def checked_line(self, jitter: float, before_m: float, after_m: float) -> str:
+        """The line once a reference judged :attr:`setting`; advised only if not worse.
+
+        ``before_m``, ``after_m``: this run's end error without it and with it.
+        """
+        text = f"{self.measured()}: {self._why(jitter)}; "
+        ends = f"this bag's end error {before_m:.4f} -> {after_m:.4f} m"
+        if after_m <= before_m:
+            return text + f"imu_time_offset: {self.setting:.3f} takes it out ({ends} with it)"
+        return text + f"imu_time_offset {self.setting:.3f} is not advised: {ends} with it"
+
+    def _why(self, jitter: float) -> str:
+        return (f"more than the wheel stamps' jitter ({1e3 * jitter:.1f} ms), so the slip "
+                "test is the less sensitive")
 
 
 class ImuLag:
     """The wheels' cumulative turn and the gyro's rates over the last span, and the fit."""
 
-    def __init__(self) -> None:
+    def __init__(self, offset: float = 0.0) -> None:
+        self._offset = offset  # s: imu_time_offset, already out of the gyro's stamps
         self._wheels: deque[tuple[int, float]] = deque()  # (stamp, cumulative turn)
         self._gyro: deque[tuple[int, float]] = deque()  # (stamp, yaw rate) as they came
         self._turn = 0.0
@@ -77,8 +119,14 @@ class ImuLag:
         """The lag last measured [s], 0 until there is one."""
         return 0.0 if self.estimate is None else self.estimate.lag
 
-    def clear(self) -> None:
-        """Forget both streams (a clock went back); the last estimate stays."""
+    def clear(self, offset: float | None = None) -> None:
+        """Forget both streams (a clock went back); the last estimate stays.
+
+        ``offset``: imu_time_offset changed (the stamps kept were shifted by the old one);
+        the last estimate keeps its own, so its setting stays right.
+        """
+        if offset is not None:
+            self._offset = offset
         self._wheels.clear()
         self._gyro.clear()
         self._turn = 0.0
@@ -135,4 +183,4 @@ class ImuLag:
         curvature = (sse[best - 1] - 2.0 * sse[best] + sse[best + 1]) / STEP_S ** 2
         resid = sse[best] / max(len(dw) - 3, 1)
         sigma = math.sqrt(2.0 * resid / curvature) if curvature > 0.0 else math.inf
-        return LagEstimate(float(shifts[best]), sigma, turned)
+        return LagEstimate(float(shifts[best]), sigma, turned, self._offset)

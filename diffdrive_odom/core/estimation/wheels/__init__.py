@@ -2,10 +2,12 @@
 
 config (the rules' settings), encoders (decode, increments), timeline (the verdicts and
 the stamp rules' texts), plausibility (the one definition of an implausible step),
-estimator (the rules in order, the integration). It imports no other concern: a step's
+counts (what the counts did: the interval a step is judged over, what a gap held),
+twist (the published twist's rolling mean), estimator (the rules in order, the
+integration). It imports no other concern: a step's
 heading from elsewhere (the gyro's) comes in through
 :class:`~diffdrive_odom.core.estimation.wheels.estimator.HeadingSource`, which the
 pipeline fills.
 """
 
-__all__ = ['config', 'encoders', 'estimator', 'plausibility', 'timeline']
+__all__ = ['config', 'counts', 'encoders', 'estimator', 'plausibility', 'timeline', 'twist']

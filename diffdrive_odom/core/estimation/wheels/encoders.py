@@ -43,6 +43,7 @@ class Reason(StrEnum):
     STALE_STAMP = "stale_stamp"  # same or slightly older stamp than the reference
     TOO_FAST = "too_fast"  # step over max_wheel_speed: skipped, re-anchored
     GAP = "gap"  # more than max_reading_gap since the last usable reading: re-anchored
+    GAP_INTEGRATED = "gap_integrated"  # the same, the counts went on: the gap's motion integrated
     TIME_RESET = "time_reset"  # stamp far back: restarted at the origin
     OUT_OF_RANGE = "out_of_range"  # a count outside the configured counter's range
     HELD = "held"  # stamp over max_reading_gap ahead: held until the next reading decides
@@ -300,22 +301,33 @@ def increment(
     mean is not a finite number comes back as NaN (see :func:`side_mean`).
     """
     dt = (current.stamp_ns - previous.stamp_ns) * 1e-9
-    scale = config.radians_per_unit
     if current.from_velocity:
+        scale = config.radians_per_unit
         deltas = [
             0.5 * (a + b) * dt * scale
             for a, b in zip(previous.values, current.values, strict=True)
         ]
-    elif config.counter_bits > 0:
-        deltas = [
-            unwrap_difference(b - a, config.counter_bits) * scale
-            for a, b in zip(previous.values, current.values, strict=True)
-        ]
-    else:  # no counter: nothing to unwrap
-        deltas = [(b - a) * scale for a, b in zip(previous.values, current.values, strict=True)]
+    else:
+        deltas = joint_deltas(config, previous.values, current.values)
     n = len(config.left_wheel_names)
     peak = max(map(abs, deltas)) if all(map(math.isfinite, deltas)) else math.nan
     return WheelIncrement(dt, side_mean(deltas[:n]), side_mean(deltas[n:]), peak)
+
+
+def joint_deltas(config: EncoderConfig, previous: Sequence[float],
+                 current: Sequence[float]) -> list[float]:
+    """Each wheel's angle change [rad] from positions ``previous`` to ``current``.
+
+    Raw differences, the counter's wrap taken out (the shortest one) and scaled; what
+    :func:`increment` averages per side and the gap rule (:mod:`~.wheels.counts`) reads
+    wheel by wheel.
+    """
+    scale = config.radians_per_unit
+    bits = config.counter_bits
+    if bits > 0:
+        return [unwrap_difference(b - a, bits) * scale
+                for a, b in zip(previous, current, strict=True)]
+    return [(b - a) * scale for a, b in zip(previous, current, strict=True)]
 
 
 def position_increments(config: EncoderConfig, values: Array) -> tuple[Array, Array, Array]:

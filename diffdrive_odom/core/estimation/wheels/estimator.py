@@ -17,18 +17,24 @@ non-finite):
   next newer reading still integrates from the reference, so no motion is lost; the
   step's interval is rebuilt from the older stamps and the twist comes from the last
   of them, so it does not spike;
+- a step of positions is judged over the time since the counts last changed, capped
+  at ``max_reading_gap`` (:mod:`~.wheels.counts`): a reading held (counts repeated) and
+  released with a stamp just after the last adds the whole hold's motion. The twist,
+  its covariance and the gyro's comparison take the same interval;
 - an implausible step is skipped and the reading becomes the new reference, so one
   glitch costs one step instead of freezing. Implausible is defined once
   (:mod:`~diffdrive_odom.core.estimation.wheels.plausibility`, with its array form): a wheel
-  faster than ``max_wheel_speed`` over the step (whose interval the gap rule bounds),
+  faster than ``max_wheel_speed`` over the step's interval (which the gap rule bounds),
   a wheel rolling more than :data:`MAX_STEP_ARC` whatever the settings, or a step
   that is not finite;
 - a reading more than ``max_reading_gap`` after the last usable one is held: if the
-  next reading continues from it (within ``max_reading_gap`` after it), the pause was
-  real and it becomes the new reference (over a driver restart that zeroes its
-  counters the difference of two readings says nothing about the motion); if the next
-  is back near the old timeline, it was a lone outlier and is dropped
-  (``future_stamp``), so a bogus stamp neither licenses travel nor fakes a bag loop;
+  next reading continues from it (within ``max_reading_gap``), the pause was real and
+  the counts decide (:mod:`~.wheels.counts`): a driver restart is a new reference
+  (``gap``), counts that went on are integrated as one arc (``gap_integrated``, the
+  covariance grown: :func:`~diffdrive_odom.core.uncertainty.noise.unknown_path`). If
+  the next is back near the old timeline, the held one was a lone outlier and is
+  dropped (``future_stamp``), so a bogus stamp neither licenses travel nor fakes a bag
+  loop;
 - a timeline taken after a gap is on trial until it has lasted
   :data:`~diffdrive_odom.core.estimation.wheels.timeline.ADOPT_CLOCK_AFTER_S` of its own stamps: a
   reading back on the old timeline (after its last reading, by no more than the new
@@ -45,13 +51,13 @@ non-finite):
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 from diffdrive_odom.core.estimation.wheels import timeline
 from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
+from diffdrive_odom.core.estimation.wheels.counts import CountTrack, gap_motion
 from diffdrive_odom.core.estimation.wheels.encoders import (
     EncoderConfig,
     JointLookup,
@@ -61,12 +67,13 @@ from diffdrive_odom.core.estimation.wheels.encoders import (
     decode,
     increment,
 )
-from diffdrive_odom.core.estimation.wheels.plausibility import implausible
+from diffdrive_odom.core.estimation.wheels.plausibility import counter_wrap, implausible
 from diffdrive_odom.core.estimation.wheels.timeline import ON_TRIAL, UPDATED, Status, Trial, Verdict
+from diffdrive_odom.core.estimation.wheels.twist import RollingTwist
 from diffdrive_odom.core.geometry.integration import Pose2D, compose
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_from_arcs, wheel_arcs
-from diffdrive_odom.core.geometry.mat3 import Matrix
-from diffdrive_odom.core.uncertainty.noise import NoiseModel
+from diffdrive_odom.core.geometry.mat3 import Matrix, add3
+from diffdrive_odom.core.uncertainty.noise import NoiseModel, unknown_path
 from diffdrive_odom.core.uncertainty.propagation import (
     ZERO3,
     ZERO_VEC,
@@ -87,25 +94,6 @@ class HeadingSource(Protocol):
              arcs: tuple[float, float]) -> GyroStep | None:
         """The step ``t0 -> t1`` (its joint increments, arcs); None: the wheels' own."""
         ...
-
-
-@dataclass
-class _RollingMean:
-    """Mean of the last ``size`` values, summed afresh so rounding never accumulates."""
-
-    size: int
-    values: deque[float] = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.values = deque(maxlen=self.size)
-
-    def push(self, value: float) -> float:
-        values = self.values
-        values.append(value)
-        return math.fsum(values) / len(values)
-
-    def clear(self) -> None:
-        self.values.clear()
 
 
 @dataclass(frozen=True)
@@ -138,14 +126,15 @@ class OdometryEstimator:
         # Geometry-free joint increments of the last integrated step (for batch replay).
         self.last_increment: WheelIncrement | None = None
         self._reference: WheelReading | None = None
+        self.counts = CountTrack()  # what the reference's counts did lately
+        self.last_gap: tuple[int, WheelIncrement] | None = None  # end stamp, step
         # A reading far ahead of the reference, kept until the next one decides.
         self._held: WheelReading | None = None
         # First and last stale (older) readings since the last step, same input mode.
         self._stale: tuple[WheelReading, WheelReading] | None = None
         # The timeline taken after the last gap, while on trial.
         self._trial: Trial | None = None
-        self._linear_mean = _RollingMean(self.config.velocity_rolling_window_size)
-        self._angular_mean = _RollingMean(self.config.velocity_rolling_window_size)
+        self._twist = RollingTwist(self.config.velocity_rolling_window_size)
         # Pose / twist covariance propagated through each step; None = not modelled
         # (covariance_model static: the caller publishes fixed diagonals).
         self.uncertainty: PoseUncertainty | None = None
@@ -208,8 +197,7 @@ class OdometryEstimator:
 
     def _forget_twist(self) -> None:
         self.linear = self.angular = 0.0
-        self._linear_mean.clear()
-        self._angular_mean.clear()
+        self._twist.clear()
         if self.uncertainty is not None:
             self.uncertainty.forget_twist()
 
@@ -221,6 +209,11 @@ class OdometryEstimator:
         self._stale = None
         self._trial = None
 
+    def _anchor(self, reading: WheelReading) -> None:
+        """``reading`` is the first of a timeline: the reference, its counts the start."""
+        self._reference = reading
+        self.counts.anchor(reading)
+
     def handover(self) -> WheelReading | None:
         """The reference if no rule has anything pending (held, stale, trial), else None.
 
@@ -231,18 +224,19 @@ class OdometryEstimator:
 
     def twist_windows(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """The rolling means' windows (linear, angular), oldest first."""
-        return tuple(self._linear_mean.values), tuple(self._angular_mean.values)
+        return self._twist.windows()
 
     def take_over(self, reference: WheelReading, pose: Pose2D,
                   windows: tuple[Sequence[float], Sequence[float]], inc: WheelIncrement,
-                  step: Step) -> None:
-        """Install what a bulk integrator reached, as if its readings had been fed here."""
+                  step: Step, counts: tuple[int, WheelIncrement | None]) -> None:
+        """Install what a bulk integrator reached, as if its readings had been fed here.
+
+        ``counts``: :attr:`counts`' ``changed_ns`` and ``moved``.
+        """
         self._reference, self.pose, self.last_increment, self.last_step = (
             reference, pose, inc, step)
-        for mean, values in zip((self._linear_mean, self._angular_mean), windows, strict=True):
-            mean.values.clear()
-            mean.values.extend(values)
-        self.linear, self.angular = (math.fsum(w) / len(w) for w in windows)
+        self.counts.changed_ns, self.counts.moved = counts
+        self.linear, self.angular = self._twist.install(windows)
 
     def update(
         self,
@@ -263,7 +257,7 @@ class OdometryEstimator:
             return Verdict(Status.DROPPED, reading.code, str(reading))
         ref = self._reference
         if ref is None:
-            self._reference = reading
+            self._anchor(reading)
             return Verdict(Status.REFERENCE, Reason.FIRST, "first reading taken as reference")
         age_ns = ref.stamp_ns - reading.stamp_ns
         gap = self.config.max_reading_gap
@@ -273,7 +267,7 @@ class OdometryEstimator:
                 return self._discard_trial(trial, reading)
             if age_ns > self.config.time_jump_threshold * 1e9:
                 self.restart()
-                self._reference = reading
+                self._anchor(reading)
                 return timeline.time_reset(age_ns)
             if age_ns > 0 and reading.from_velocity == ref.from_velocity:
                 # Kept for the next step's interval and twist (a clock stepped back).
@@ -316,45 +310,68 @@ class OdometryEstimator:
         if unc is not None and trial.covariance is not None:
             unc.covariance, unc.sensitivity = trial.covariance
         self._forget_twist()
-        verdict = self._step(trial.before, reading)
+        verdict = self._step(trial.before, reading, trial.before.stamp_ns)
         return timeline.burst_discarded(trial) if verdict.status is Status.UPDATED else verdict
 
     def _continue_after_gap(
         self, ref: WheelReading, held: WheelReading, reading: WheelReading
     ) -> Verdict:
-        """A held reading is continued: the pause was real, so it is the new reference.
+        """A held reading is continued: the pause was real; the counts say what it held.
 
-        Nothing is known of the motion over the pause: keep the pose, forget the twist,
-        then integrate this reading from the held one. The new timeline is on
-        :class:`~.wheels.timeline.Trial`, not published while on it when
-        the jump is the driver's clock
-        (:func:`~diffdrive_odom.core.estimation.wheels.timeline.suspect_jump`).
+        A restart keeps the pose, motion that went on is one arc
+        (:func:`~.wheels.counts.gap_motion`); then this reading is integrated from the
+        held one, the twist forgotten. The new timeline is on trial
+        (:class:`~.wheels.timeline.Trial`), not published while on it if the driver's
+        clock jumped (:func:`~.wheels.timeline.suspect_jump`).
         """
-        unc = self.uncertainty
+        unc, cfg = self.uncertainty, self.config
         self._trial = trial = Trial(
             ref, held, self.pose, None if unc is None else (unc.covariance, unc.sensitivity),
-            timeline.suspect_jump(ref, held, self.config.max_reading_gap))
+            timeline.suspect_jump(ref, held, cfg.max_reading_gap))
         self._held = self._stale = None
+        gap = gap_motion(self.encoders, cfg, self.geometry, ref, held, reading, self.counts)
         self._forget_twist()
-        verdict = self._step(held, reading)
+        if isinstance(gap, WheelIncrement):
+            gap = "" if self._integrate_gap(gap, ref.stamp_ns, held.stamp_ns) else (
+                "its integration is not a finite number")
+        verdict = self._step(held, reading, held.stamp_ns)
         if verdict.status is not Status.UPDATED:
             return verdict
-        return timeline.gap_taken(trial, self.config.max_reading_gap)
+        return timeline.gap_taken(trial, cfg.max_reading_gap, gap)
 
-    def _step(self, ref: WheelReading, reading: WheelReading) -> Verdict:
+    def _integrate_gap(self, gap: WheelIncrement, t0_ns: int, t1_ns: int) -> bool:
+        """The gap's step as one arc, no twist; the covariance grown for the unknown path."""
+        theta = self.pose.theta
+        arcs = wheel_arcs(self.geometry, gap.d_left, gap.d_right)
+        if not self._integrate(gap, arcs, gap, arcs, t0_ns, t1_ns, twist=False):
+            return False
+        unc, step = self.uncertainty, self.last_step
+        if unc is not None and step is not None:
+            unc.covariance = add3(unc.covariance, unknown_path(theta, step.ds, step.dtheta))
+        self.last_gap = t1_ns, gap
+        return True
+
+    def _step(self, ref: WheelReading, reading: WheelReading,
+              changed_ns: int | None = None) -> Verdict:
         """Integrate ``reading`` from the reference ``ref`` if the step is plausible.
 
-        Whatever happens, ``reading`` is the reference afterwards. After stale readings
-        (a clock stepped back by less than ``time_jump_threshold``) the step still
-        starts at ``ref``, so no motion is lost; its interval is rebuilt from the stale
-        stamps and the twist comes from the last stale reading, the true local rate.
+        Whatever happens, ``reading`` is the reference afterwards. A step of positions
+        is judged over the time since the counts last changed (``changed_ns``, default
+        the reference's), capped at ``max_reading_gap``. After stale readings (a clock
+        stepped back by less than ``time_jump_threshold``) the step still starts at
+        ``ref``, so no motion is lost; its interval is rebuilt from the stale stamps and
+        the twist comes from the last stale reading, the true local rate.
         """
         stale, self._stale = self._stale, None
         self._reference = reading
+        counts = self.counts
         if reading.from_velocity != ref.from_velocity:
+            counts.stepped(reading, None)
             return Verdict(Status.REFERENCE, Reason.INPUT_SWITCH,
                            "switched between position and velocity input")
-        inc = increment(self.encoders, ref, reading)
+        inc = counts.judged(ref, reading, increment(self.encoders, ref, reading),
+                            counts.changed_ns if changed_ns is None else changed_ns,
+                            self.config)
         rate = inc
         if stale is not None and stale[1].from_velocity == reading.from_velocity:
             rate = increment(self.encoders, stale[1], reading)
@@ -372,8 +389,9 @@ class OdometryEstimator:
         if not why and not self._integrate(inc, arcs, rate, rate_arcs,
                                            ref.stamp_ns, reading.stamp_ns):
             why = "its integration is not a finite number"
+        counts.stepped(reading, None if why else inc)
         if why:
-            return Verdict(Status.REANCHORED, Reason.TOO_FAST, f"{why}; step skipped")
+            return timeline.too_fast(why, counter_wrap(self.encoders, self.config, inc))
         return UPDATED
 
     def _integrate(
@@ -384,29 +402,32 @@ class OdometryEstimator:
         rate_arcs: tuple[float, float],
         t0_ns: int,
         t1_ns: int,
+        twist: bool = True,
     ) -> bool:
         """Apply the step ``inc``, the twist from ``rate``; False if it cannot be applied.
 
         ``arcs``, ``rate_arcs``: their wheel arcs; ``t0_ns``, ``t1_ns``: the step's
-        stamps (the gyro's interval). Nothing changes when pose, twist or step would
-        not be finite: no state is NaN.
+        stamps (the gyro's interval); ``twist`` False: the twist is not pushed (a gap's
+        step, whose mean speed is no rate). Nothing changes when pose, twist or step
+        would not be finite: no state is NaN.
         """
         ds, dtheta = body_from_arcs(self.geometry, *arcs)
         rate_ds, rate_dtheta = (
             (ds, dtheta) if rate_arcs is arcs else body_from_arcs(self.geometry, *rate_arcs)
         )
         linear, angular = rate_ds / rate.dt, rate_dtheta / rate.dt
-        gyro = None
+        gyro, start = None, self.pose
         if self.heading is not None:
             gyro = self.heading.step(self.geometry, t0_ns, t1_ns, inc.d_left, inc.d_right, arcs)
-            if gyro is not None:
-                ds, dtheta = gyro.ds, gyro.dtheta
+            if gyro is not None:  # held readings only turned the pose: one arc from before
+                ds, dtheta = gyro.ds, gyro.dtheta + gyro.merged
+                start = Pose2D(start.x, start.y, start.theta - gyro.merged)
                 angular = dtheta / inc.dt
                 linear = ds / inc.dt if gyro.slip else linear
         isfinite = math.isfinite
         if not (isfinite(ds) and isfinite(dtheta) and isfinite(linear) and isfinite(angular)):
             return False
-        pose = compose(self.pose, ds, dtheta)
+        pose = compose(start, ds, dtheta)
         if not (isfinite(pose.x) and isfinite(pose.y) and isfinite(pose.theta)):
             return False
         if self.uncertainty is not None and gyro is not None and self.heading is not None:
@@ -420,7 +441,6 @@ class OdometryEstimator:
         self.pose = pose
         self.last_step = Step(inc.dt, ds, dtheta)
         self.last_increment = inc
-        # Constant-velocity motion about the CIR has exactly this body twist.
-        self.linear = self._linear_mean.push(linear)
-        self.angular = self._angular_mean.push(angular)
+        if twist:  # constant-velocity motion about the CIR has exactly this body twist
+            self.linear, self.angular = self._twist.push(linear, angular)
         return True

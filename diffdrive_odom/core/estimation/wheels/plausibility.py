@@ -14,10 +14,13 @@ import numpy as np
 import numpy.typing as npt
 
 from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
-from diffdrive_odom.core.estimation.wheels.encoders import WheelIncrement
+from diffdrive_odom.core.estimation.wheels.encoders import EncoderConfig, WheelIncrement
 
-__all__ = ["MAX_STEP_ARC", "implausible", "plausible_steps"]
+__all__ = ["MAX_STEP_ARC", "counter_wrap", "implausible", "plausible_steps"]
 
+# Widths of the counters drivers report (bits): a step that moved one of these spans of
+# counts is the counter wrapping, not motion (:func:`counter_wrap`).
+COUNTER_WIDTHS = (8, 10, 12, 14, 16, 20, 24, 32)
 # m a wheel can roll between two readings, whatever the settings: more is no robot's
 # motion (1 km is 36 km/h for 100 s), and it keeps the pose where a double still
 # resolves the next millimetre even with ``max_wheel_speed: .inf``.
@@ -44,6 +47,28 @@ def implausible(config: EstimatorConfig, inc: WheelIncrement, arcs: tuple[float,
         return (f"a wheel rolled {_largest((s_left, s_right)):.4g} m in one step, "
                 f"over {MAX_STEP_ARC:g} m")
     return ""
+
+
+def counter_wrap(encoders: EncoderConfig, config: EstimatorConfig,
+                 inc: WheelIncrement) -> tuple[int, float]:
+    """The likely cause of an implausible step of counts: a counter wrapping unseen.
+
+    Returns the counter's width in bits and its span [rad] when the step's largest
+    movement is one such span (:data:`COUNTER_WIDTHS`, not the ``encoder_counter_bits``
+    set) give or take what the wheel may really move in the step (``max_wheel_speed``
+    over its interval), else ``(0, 0.0)``: a 16-bit counter read with
+    ``encoder_counter_bits`` unset jumps by 65536 counts, 100.5 rad at 4096 a turn.
+    """
+    unit = encoders.radians_per_unit
+    if encoders.ticks_per_revolution <= 0.0 or not math.isfinite(inc.peak):
+        return 0, 0.0
+    moved = abs(inc.peak)
+    allowed = config.max_wheel_speed * inc.dt
+    for bits in COUNTER_WIDTHS:
+        span = 2.0**bits * unit
+        if bits != encoders.counter_bits and abs(moved - span) <= allowed:
+            return bits, span
+    return 0, 0.0
 
 
 def plausible_steps(

@@ -49,6 +49,7 @@ class Verdict:
     code: Reason = Reason.UPDATED
     reason: str = ""
     count: int = 1  # readings ``dropped_code`` stands for (a discarded burst: all of them)
+    cause: str = ""  # a skipped step's likely cause and the parameter that fixes it
 
     @property
     def has_new_pose(self) -> bool:
@@ -73,6 +74,8 @@ class Verdict:
             return "dropped"
         if self.status is Status.REANCHORED or self.code is Reason.GAP:
             return "re-anchored"
+        if self.code is Reason.GAP_INTEGRATED:
+            return "after a gap"
         if self.code is Reason.CLOCK_JUMP:
             return "held"
         return ""
@@ -138,6 +141,20 @@ def suspect_jump(before: WheelReading, first: WheelReading, gap_s: float) -> boo
     return jumped > gap_ns and first.stamp_ns - first.receive_ns > gap_ns
 
 
+def too_fast(why: str, wrap: tuple[int, float]) -> Verdict:
+    """An implausible step, skipped: ``why`` (plausibility's text), and a wrap it matches.
+
+    ``wrap``: :func:`~.wheels.plausibility.counter_wrap`'s width and span, named as the
+    likely cause with the parameter that fixes it.
+    """
+    bits, span = wrap
+    cause = "" if not bits else (
+        f"likely a {bits}-bit counter wrapping ({2**bits} counts = {span:.4g} rad): set "
+        f"encoder_counter_bits: {bits}")
+    return Verdict(Status.REANCHORED, Reason.TOO_FAST,
+                   f"{why}; step skipped" + (f" ({cause})" if cause else ""), cause=cause)
+
+
 def time_reset(age_ns: int) -> Verdict:
     """A stamp far back (a bag loop): restart at the origin."""
     return Verdict(Status.TIME_RESET, Reason.TIME_RESET,
@@ -177,8 +194,11 @@ def lone_outlier(ahead_ns: int) -> Verdict:
     )
 
 
-def gap_taken(trial: Trial, max_reading_gap: float) -> Verdict:
-    """A held reading continued: the pause was real (or, if suspect, the clock jumped)."""
+def gap_taken(trial: Trial, max_reading_gap: float, why: str) -> Verdict:
+    """A held reading continued: the pause was real (or, if suspect, the clock jumped).
+
+    ``why``: what in the counts makes it a restart ('': its motion was integrated).
+    """
     if trial.suspect:
         elapsed = (trial.first.receive_ns or 0) - (trial.before.receive_ns or 0)
         return Verdict(
@@ -187,11 +207,18 @@ def gap_taken(trial: Trial, max_reading_gap: float) -> Verdict:
             "(receive time): integrated but not published until the old clock returns "
             f"(then they are outliers) or this one lasts {ADOPT_CLOCK_AFTER_S:g} s",
         )
+    if not why:
+        return Verdict(
+            Status.UPDATED, Reason.GAP_INTEGRATED,
+            f"{trial.jump_s:.3f} s without a reading (max_reading_gap {max_reading_gap:g} "
+            "s): the counts went on, so the gap's motion is integrated as one arc (heading "
+            "from the counts, position covariance grown for the unknown path)",
+        )
     return Verdict(
         Status.UPDATED, Reason.GAP,
         f"{trial.jump_s:.3f} s since the last usable reading (max_reading_gap "
         f"{max_reading_gap:g} s): taken as the new reference, no motion integrated over "
-        "the gap (driver restart?)",
+        f"the gap (a driver restart: {why})",
     )
 
 
