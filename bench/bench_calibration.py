@@ -47,7 +47,7 @@ import numpy as np
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.bulk.readings import JointReading
 from diffdrive_odom.core.estimation.pipeline import ReadingPipeline
-from diffdrive_odom.core.evaluation import calibration, crossval
+from diffdrive_odom.core.evaluation import calibration, crossval, determinacy
 from diffdrive_odom.core.evaluation.metrics import Metrics
 from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
 from diffdrive_odom.core.geometry.kinematics import Geometry
@@ -65,6 +65,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared" / "data"
 TRAIN, TEST = SHARED / "optiodom_train", SHARED / "optiodom"
 NOMINAL = Geometry(0.042, 0.200)
+NOMINAL_VALUES = values_of(NOMINAL)  # (left radius, right radius, separation) [m]
 PARAMS = {"wheel_radius": 0.042, "wheel_separation": 0.200}
 REFERENCE_ERROR = np.diag([0.001**2, 0.001**2, math.radians(0.5) ** 2])
 # Quoted from the project README / issue 16 (the paper's text is not in this repository):
@@ -124,16 +125,36 @@ def load_all(quick: bool) -> list[Data]:
     return data
 
 
-def fitter(**kw: Any) -> Callable[[Sequence[Run]], Geometry]:
-    def f(runs: Sequence[Run]) -> Geometry:
-        return calibration.fit(runs, NOMINAL, figures=False, **kw).geometry
+def fitter(**kw: Any) -> Callable[[Sequence[Run]], calibration.Fit]:
+    def f(runs: Sequence[Run]) -> calibration.Fit:
+        return calibration.fit(runs, NOMINAL, figures=False, **kw)
     return f
+
+
+_SHAPES: dict[str, determinacy.Shape] = {}
+
+
+def lever_rule(runs: Sequence[Run]) -> calibration.MountSpec:
+    """``calibrate``'s rule for the mount: its lever arm fitted where these runs determine it.
+
+    The runs' shapes taken on the axle (where these references are), once per run.
+    """
+    for r in runs:
+        if r.name not in _SHAPES:
+            _SHAPES[r.name] = determinacy.shape(r, NOMINAL, lever=True)
+    held = determinacy.lever_reason([_SHAPES[r.name] for r in runs])
+    return calibration.YAW_ONLY if held else calibration.MountSpec(lever=True)
+
+
+def product(runs: Sequence[Run]) -> calibration.Fit:
+    """The product's fit: the whole trajectory, the mount's yaw, its lever arm where determined."""
+    return calibration.fit(runs, NOMINAL, figures=False, mount=lever_rule(runs))
 
 
 TRAIN_ONLY = "231220200029"  # the bag squares: never in a training group of the others
 
 
-def cross_validate(data: Sequence[Data], fit: Callable[[Sequence[Run]], Geometry]
+def cross_validate(data: Sequence[Data], fit: Callable[[Sequence[Run]], calibration.Fit]
                    ) -> dict[str, dict[str, list[Metrics]]]:
     """Per group: metrics of each run for nominal, in-sample, LORO and LOEO geometries."""
     groups = dict.fromkeys(d.group for d in data)
@@ -146,13 +167,14 @@ def cross_validate(data: Sequence[Data], fit: Callable[[Sequence[Run]], Geometry
         runs = [d.run for d in mine]
         cols: dict[str, list[Metrics]] = {"nominal": [], "in-sample": [], "LORO": [],
                                           "LOEO": []}
-        g_in = fit(runs)
-        g_eo = fit(others) if others else None
+        g_in = fit(runs).geometry
+        g_eo = fit(others).geometry if others else None
         cols["nominal"] = [calibration.figures_of(r, NOMINAL) for r in runs]
         cols["in-sample"] = [calibration.figures_of(r, g_in) for r in runs]
         if len(runs) > 1 and mine[0].exp != TRAIN_ONLY:
-            cols["LORO"] = [h.held_out for h in crossval.held_out(runs, NOMINAL, fitter=fit)
-                            if h.held_out is not None]
+            cols["LORO"] = [calibration.figures_of(r, h.geometry) for r, h in
+                            zip(runs, crossval.held_out(runs, NOMINAL, fitter=fit), strict=True)
+                            if h.geometry is not None]
         if g_eo is not None:
             cols["LOEO"] = [calibration.figures_of(r, g_eo) for r in runs]
         out[g] = cols
@@ -186,25 +208,27 @@ def objectives(data: Sequence[Data], quick: bool) -> None:
           f"{'ATE LOEO':>8s} {'exp. worse':>10s}")
     rows: list[tuple[str, dict[str, Any]]] = [
             ("end poses (OptiOdom-like)", dict(ends_only=True, loss="linear",
-                                               fit_start_yaw=False)),
+                                               mount=calibration.ON_AXLE)),
             ("end poses + start yaw", dict(ends_only=True, loss="linear")),
-            ("whole trajectory", dict(loss="linear", fit_start_yaw=False)),
+            ("whole trajectory", dict(loss="linear", mount=calibration.ON_AXLE)),
             ("whole trajectory + start yaw", dict(loss="linear")),
-            ("whole trajectory + yaw, Cauchy *", {})]
+            ("whole trajectory + yaw, Cauchy", {}),
+            ("whole trajectory + mount, Cauchy *", {"mount": None})]
     if quick:
         rows = rows[2:]
     for label, kw in rows:
-        cv = cross_validate(data, fitter(**kw))
+        cv = cross_validate(data, product if kw.get("mount", 0) is None else fitter(**kw))
         s = [summary(pooled(cv, c)) for c in ("in-sample", "LORO", "LOEO")]
         print(f"{label:34s} {s[0][0]:9.4f} {s[1][0]:7.4f} {s[2][0]:7.4f} {s[1][2]:8.4f} "
               f"{s[2][2]:8.4f} {worse(cv):4d} of {len(cv)}", flush=True)
-    print("* the product's fit. Nominal: "
+    print("* the product's fit (the mount's yaw, its lever arm where the runs determine it; "
+          "'start yaw' is the mount's yaw alone). Nominal: "
           + "{:.4f} m final, {:.4f} m ATE".format(*[summary(pooled(cv, 'nominal'))[i]
                                                      for i in (0, 2)]))
 
 
 def per_experiment(data: Sequence[Data]) -> None:
-    cv = cross_validate(data, fitter())
+    cv = cross_validate(data, product)
     print("\n== 2. The product's fit per experiment: final position error mean/worst [m], "
           "ATE [m], relative error [%/m] ==")
     cols = ("nominal", "in-sample", "LORO", "LOEO")
@@ -235,7 +259,7 @@ def coverage(data: Sequence[Data]) -> dict[str, tuple[Geometry, np.ndarray | Non
     fits: dict[str, tuple[Geometry, np.ndarray | None]] = {}
     for g in dict.fromkeys(d.group for d in data):
         runs = [d.run for d in data if d.group == g]
-        geo = fitter()(runs)
+        geo = fitter()(runs).geometry
         cov = crossval.bootstrap(runs, NOMINAL)
         fits[g] = (geo, cov)
         v = values_of(geo)
@@ -388,7 +412,7 @@ def nees_section(data: Sequence[Data], quick: bool) -> None:
                   and d.exp != TRAIN_ONLY]
         if len(others) < crossval.MIN_RUNS_FOR_SIGMA:
             continue
-        geo = fitter()(others)
+        geo = fitter()(others).geometry
         cov = crossval.bootstrap(others, NOMINAL)
         assert cov is not None
         sr, sb = crossval.stddev_ratios(values_of(geo), crossval.with_drift(values_of(geo),

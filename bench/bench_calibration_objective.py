@@ -7,10 +7,12 @@ Data: the 45 OptiOdom training runs (``bench_calibration``'s cache of
 Odometry Calibration of Wheeled Mobile Robots"). Per experiment: the objective is chosen
 on its odd runs (run-01, 03, ...) by ``core.evaluation.objective.choose`` (what
 ``calibrate`` does: leave-one-run-out over the folds that can judge, the lowest worst
-final error), fitted on them, and judged on its even runs: their final position error,
-start aligned, worst and mean [m]. Beside it, on the same split: the paper's objective
-(the end poses only, no start yaw, plain squares: ``objective.END_POSES``), the whole
-trajectory alone (``calibrate``'s default before: ``objective.TRAJECTORY``), and what the
+by the one judge, the mount's lever arm fitted where the runs determine it), fitted on
+them, and judged on its even runs by the one judge (``core.evaluation.judge``: the
+whole trajectory and its end, the reference on the axle as it is on these runs), worst
+and mean [m]. Beside it, on the same split: the paper's objective (the end poses only,
+plain squares, the reference held on the axle: ``calibration.fit(ends_only=True,
+mount=ON_AXLE)``), the whole trajectory alone (``objective.TRAJECTORY``), and what the
 choice by the mean of the folds would have taken. Per kind: the worst and the mean over
 the even runs of the kind's experiments (each fitted on its own odd runs). The free path
 of one run (free/020120212354) has no even run: it is not judged.
@@ -28,7 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from diffdrive_odom.core.evaluation import calibration, objective
+from diffdrive_odom.core.evaluation.judge import judgment
 from diffdrive_odom.core.evaluation.recorded_run import Run
+from diffdrive_odom.core.geometry.kinematics import Geometry
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "bench"))
@@ -42,21 +46,24 @@ def odd(run: Run) -> bool:
     return int(run.name.rsplit("-", 1)[1]) % 2 == 1
 
 
-def held_out(fitted_on: Sequence[Run], judged: Sequence[Run],
-             goal: objective.Objective) -> list[float]:
-    """Final position errors (start aligned) of ``judged`` with ``goal`` fitted on the others."""
-    geometry = goal.fit(fitted_on, bc.NOMINAL, figures=False).geometry
-    return [calibration.figures_of(r, geometry).final_position_error_aligned_m for r in judged]
+def held_out(geometry: Geometry, judged: Sequence[Run]) -> list[float]:
+    """The one judge's figure of ``judged`` with ``geometry`` (fitted on other runs)."""
+    return [judgment(r, geometry).error for r in judged]
 
 
 def split(fitted_on: Sequence[Run], judged: Sequence[Run]) -> dict[str, tuple[str, list[float]]]:
-    """Per column: the objective's name and the judged runs' final errors."""
-    choice = objective.choose(fitted_on, bc.NOMINAL)
+    """Per column: the objective's name and the judged runs' errors."""
+    choice = objective.choose(fitted_on, bc.NOMINAL, mount=bc.lever_rule)
     by_mean = (min(choice.scores, key=lambda s: s.mean).objective if choice.scores
                else choice.objective)
-    cols = {"chosen": choice.objective, "by mean": by_mean, "paper": objective.END_POSES,
-            "trajectory": objective.TRAJECTORY}
-    return {k: (o.name, held_out(fitted_on, judged, o)) for k, o in cols.items()}
+    spec = bc.lever_rule(fitted_on)
+    cols = {k: (o.name, o.fit(fitted_on, bc.NOMINAL, figures=False, mount=spec).geometry)
+            for k, o in (("chosen", choice.objective), ("by mean", by_mean),
+                         ("trajectory", objective.TRAJECTORY))}
+    cols["paper"] = ("end poses, on the axle", calibration.fit(
+        fitted_on, bc.NOMINAL, ends_only=True, loss="linear", mount=calibration.ON_AXLE,
+        figures=False).geometry)
+    return {k: (name, held_out(g, judged)) for k, (name, g) in cols.items()}
 
 
 def cell(errors: Sequence[float]) -> str:
@@ -79,8 +86,8 @@ def main() -> int:
         print(f"skipped: {bc.TRAIN} is not here (a user's clone)")
         return 0
     data = [d for d in bc.load_all(False) if d.exp != bc.TRAIN_ONLY]
-    print("== 1. Per experiment: fitted on its odd runs, judged on its even runs; final "
-          "position error, start aligned, worst/mean [m] ==")
+    print("== 1. Per experiment: fitted on its odd runs, judged on its even runs; the one "
+          "judge's whole-trajectory error, worst/mean [m] ==")
     print(HEAD)
     per_kind: dict[str, dict[str, list[float]]] = {k: {} for k in KINDS}
     for group in dict.fromkeys(d.group for d in data):

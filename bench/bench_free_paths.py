@@ -37,6 +37,7 @@ import sys
 from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -47,6 +48,7 @@ from diffdrive_odom.core.evaluation import calibration
 from diffdrive_odom.core.evaluation.metrics import interpolate
 from diffdrive_odom.core.evaluation.recorded_run import Run, start_stamp, values_of, with_values
 from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mount import AXLE
 from diffdrive_odom.core.geometry.se2 import between, conjugate, wrap_angles
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -75,7 +77,7 @@ OBJECTIVES: tuple[tuple[str, dict[str, Any]], ...] = (
     ("+ end weight 0.5", {"end_weight": 0.5}),
     ("+ end weight 1", {"end_weight": 1.0}),
     ("end poses (OptiOdom-like)", {"ends_only": True, "loss": "linear",
-                                   "fit_start_yaw": False}),
+                                   "mount": calibration.ON_AXLE}),
 )
 
 
@@ -151,6 +153,17 @@ def candidate_fit(runs: Sequence[Run], *, yaw: str = "shared", mount: bool = Fal
     return geometry(np.asarray(sol.x))
 
 
+def geometry_of(fit: Callable[[Sequence[Run]], calibration.Fit]
+                ) -> Callable[[Sequence[Run]], Geometry]:
+    """A fitter's geometry alone."""
+    return lambda runs: fit(runs).geometry
+
+
+def as_fit(fit: Callable[[Sequence[Run]], Geometry]) -> Callable[[Sequence[Run]], Any]:
+    """A geometry fitter as the held-out folds take one (its mount: the axle, these runs')."""
+    return lambda runs: SimpleNamespace(geometry=fit(runs), mount=AXLE)
+
+
 def end_errors(runs: Sequence[Run], geometry: Geometry) -> np.ndarray:
     """Each run's final position error, start aligned (``eval``'s figure), [m]."""
     return _end_errors([calibration.prepare(r, 0.5, ends_only=True) for r in runs], geometry)
@@ -206,14 +219,14 @@ def minimax_section(data: Sequence[bc.Data]) -> None:
     print(f"\n== 3. The floor on {FREE}: the smallest worst final error (start aligned) over "
           "its runs any single geometry reaches ==")
     fits: dict[str, Callable[[Sequence[Run]], Geometry]] = {
-        "end poses (OptiOdom-like)": bc.fitter(ends_only=True, loss="linear",
-                                               fit_start_yaw=False),
-        "default (whole trajectory)": bc.fitter()}
+        "end poses (OptiOdom-like)": geometry_of(bc.fitter(ends_only=True, loss="linear",
+                                                           mount=calibration.ON_AXLE)),
+        "default (whole trajectory)": geometry_of(bc.fitter())}
     rows: list[tuple[str, Geometry]] = [(k, f(runs)) for k, f in fits.items()]
-    rows += [(f"default, {r.name[-6:]} alone", bc.fitter()([r])) for r in runs]
+    rows += [(f"default, {r.name[-6:]} alone", bc.fitter()([r]).geometry) for r in runs]
     free, g = best_worst(runs, bc.NOMINAL)
     rows.append(("minimax, scale free", g))
-    others = [values_of(bc.fitter()([d.run for d in data if d.group == grp]))
+    others = [values_of(bc.fitter()([d.run for d in data if d.group == grp]).geometry)
               for grp in dict.fromkeys(d.group for d in data) if grp != FREE]
     means = [0.5 * (v[0] + v[1]) / bc.NOMINAL.wheel_radius for v in others]
     scales = {"0.96 x nominal": 0.96, "0.98 x nominal": 0.98, "nominal": 1.0,
@@ -242,7 +255,7 @@ def candidates_section(data: Sequence[bc.Data]) -> None:
           f"{'ATE LOEO':>8s} {'worse':>5s}  {'free in':>7s} {'free LORO':>13s} "
           f"{'free LOEO':>13s}")
     for label, kw in CANDIDATES:
-        cv = bc.cross_validate(data, partial(candidate_fit, **kw))
+        cv = bc.cross_validate(data, as_fit(partial(candidate_fit, **kw)))
         s = [bc.summary(bc.pooled(cv, c)) for c in ("in-sample", "LORO", "LOEO")]
         f = cv[FREE]
         print(f"{label:34s} {s[0][0]:9.4f} {s[1][0]:7.4f} {s[2][0]:7.4f} {s[1][2]:8.4f} "

@@ -61,7 +61,7 @@ def fit_side(d: Data) -> bool:
 
 def printed_ratios(runs: Sequence[Run]) -> tuple[float, float]:
     """The ratios calibrate prints for a fit on ``runs``: bootstrap + session drift."""
-    geo = bench_calibration.fitter()(runs)
+    geo = bench_calibration.fitter()(runs).geometry
     cov = crossval.bootstrap(runs, NOMINAL)
     assert cov is not None
     return crossval.stddev_ratios(values_of(geo), crossval.with_drift(values_of(geo), cov))
@@ -88,7 +88,7 @@ def calibrated_terms(data: Sequence[Data]) -> Judged:
         if len(others) < crossval.MIN_RUNS_FOR_SIGMA:
             print(f"  {g}: {len(others)} runs of its kind elsewhere, too few: skipped")
             continue
-        geo = bench_calibration.fitter()(others)
+        geo = bench_calibration.fitter()(others).geometry
         sr, sb = printed_ratios(others)
         for d in mine:
             out[d.run.name] = (d, consistency.run_terms(d.run, geo), sr, sb)

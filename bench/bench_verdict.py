@@ -8,13 +8,15 @@ Robots"), converted once with its ``to_rosbag2.py`` into the cache folder that
 ``bench_calibration.py`` uses. Skips, saying so, where the data are missing.
 
 For every experiment and every 3- and 4-run subset of its runs, as a user would give
-them to ``calibrate``: fit the subset (``core.calibration.fit``, the CLI's fit), then
-judge that geometry on the experiment's OTHER runs by their worst final position error
-(start aligned) against the nominal geometry's worst on the same runs: better, worse,
-or a tie (within 1 mm). The verdict on the subset itself is the CLI's:
+them to ``calibrate``: fit the subset (``core.calibration.fit``, the CLI's fit: the mount's
+yaw, its lever arm where the subset determines it), then judge that geometry on the
+experiment's OTHER runs by the one judge's worst (``core.evaluation.judge``: the whole
+trajectory and its end, the reference moved onto base_link by the fit's mount) against
+the nominal geometry's worst on the same runs: better, worse, or a tie (within 1 mm).
+The verdict on the subset itself is the CLI's:
 
 - old: the rule at 13dd1c3, ``crossval.check`` over every leave-one-run-out fold
-  (accepted when the mean final error and the mean ATE both drop, else refused);
+  (accepted when the held-out mean drops, else refused);
 - folds: ``crossval.judge`` without its margin: the same check over the folds that can
   judge (training runs that determine the geometry, a held-out run whose end depends
   on it: ``core.determinacy``), "cannot tell" when none remains (the block is printed
@@ -41,6 +43,7 @@ runs (a 4-run subset's folds are 3-run subsets), on at most 2 processes.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import math
 import multiprocessing
@@ -51,8 +54,8 @@ from pathlib import Path
 
 from diffdrive_odom.core.bulk import batch
 from diffdrive_odom.core.evaluation import calibration, crossval, determinacy
+from diffdrive_odom.core.evaluation.judge import judgment
 from diffdrive_odom.core.evaluation.recorded_run import Run
-from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.tools.bags import bagreadings, poses
 
@@ -131,15 +134,13 @@ def judge_experiment(job: tuple[str, list[Path], tuple[str, ...], tuple[int, ...
     """Every subset of one experiment: held-out truth and each rule's verdict."""
     name, bags, rules, sizes = job
     runs = [load(b) for b in bags]
-    shapes = [determinacy.shape(r, NOMINAL) for r in runs]
-    nominal_fpe = [calibration.figures_of(r, NOMINAL).final_position_error_aligned_m
-                   for r in runs]
-    fits: dict[tuple[str, ...], Geometry] = {}
+    shapes = [determinacy.shape(r, NOMINAL, lever=True) for r in runs]
+    fits: dict[tuple[str, ...], calibration.Fit] = {}
 
-    def fit(training: Sequence[Run]) -> Geometry:
+    def fit(training: Sequence[Run]) -> calibration.Fit:
         key = tuple(r.name for r in training)
         if key not in fits:
-            fits[key] = calibration.fit(training, NOMINAL, figures=False).geometry
+            fits[key] = bench_calibration.product(training)
         return fits[key]
 
     tally = Tally()
@@ -152,23 +153,23 @@ def judge_experiment(job: tuple[str, list[Path], tuple[str, ...], tuple[int, ...
             if not others:
                 continue
             sub = [runs[i] for i in chosen]
-            geometry = fit(sub)
-            worst_cal = max(calibration.figures_of(runs[i], geometry)
-                            .final_position_error_aligned_m for i in others)
-            in_sample = [calibration.figures_of(r, geometry).final_position_error_aligned_m
-                         for r in sub]
-            worst_nom = max(nominal_fpe[i] for i in others)
+            found = fit(sub)
+            worst_cal = max(judgment(runs[i], found.geometry, found.mount).error for i in others)
+            in_sample = [judgment(r, found.geometry, found.mount).error for r in sub]
+            worst_nom = max(judgment(runs[i], NOMINAL, found.mount).error for i in others)
+            lever = bench_calibration.lever_rule(sub).lever
+            chosen_shapes = [dataclasses.replace(shapes[i], lever=lever) for i in chosen]
             truth = ("tie" if abs(worst_cal - worst_nom) <= TIE_M
                      else "better" if worst_cal < worst_nom else "worse")
             tally.subsets += 1
             tally.truth[truth] += 1
             results = crossval.held_out(sub, NOMINAL, fitter=fit)
-            for i in chosen:
-                training = [shapes[j] for j in chosen if j != i]
+            for k, i in enumerate(chosen):
+                training = [s for j, s in enumerate(chosen_shapes) if j != k]
                 if not (determinacy.coverage(training).reason or determinacy.judges(shapes[i])):
-                    tally.leverage.append(determinacy.leverage(training, shapes[i]))
+                    tally.leverage.append(determinacy.leverage(training, chosen_shapes[k]))
             for rule in rules:
-                got = outcome(rule, sub, results, [shapes[i] for i in chosen], in_sample)
+                got = outcome(rule, sub, results, chosen_shapes, in_sample)
                 tally.outcome[rule][got] += 1
                 false = ((truth == "better" and got == "refused")
                          or (truth == "worse" and got == "accepted"))
@@ -221,7 +222,7 @@ def main(argv: Sequence[str]) -> int:
     with multiprocessing.get_context("fork").Pool(max(1, min(2, args.jobs))) as pool:
         done = dict(pool.imap_unordered(judge_experiment, jobs))
     print(f"\nEvery {'- and '.join(map(str, sizes))}-run subset of an experiment, judged on "
-          f"its other runs (worst final position error, start aligned, tie within "
+          f"its other runs (worst whole-trajectory error, the one judge; tie within "
           f"{1000 * TIE_M:g} mm)")
     head = (f"{'experiment':24s} {'sets':>4s} {'bet.':>4s} {'tie':>4s} {'wor.':>4s} "
             f"{'leverage':>11s}")

@@ -143,14 +143,16 @@ def joint_state_msg(t: Any, stamp_ns: int, left: float, right: float) -> Any:
 def write_sensor_bag(path: Path, messages: Iterable[tuple[Any, ...]],
                      imu_hz: float, noise_density: float = 3e-4, truth: Truth | None = None,
                      truth_hz: float = 100.0, imu: bool = True,
-                     truth_topic: str = "/ground_truth/pose") -> None:
+                     truth_topic: str = "/ground_truth/pose",
+                     static: tuple[str, float, float, float] | None = None) -> None:
     """An MCAP bag of ``gyrostreams`` messages, each logged at its receive time.
 
     JointStates on /joint_states (positions), Imu on /imu (the yaw rate, its
     angular_velocity_covariance honest: the density squared times the rate; ``imu``
     False: none written). ``truth``: its poses at ``truth_hz`` on ``truth_topic``
     (PoseStamped, stamped and logged at the true time). ``refstreams``' reference poses
-    (if any) as PoseStamped on /reference.
+    (if any) as PoseStamped on /reference. ``static``: (frame, x, y, yaw), the transform
+    base_link -> frame latched on /tf_static before everything else.
     """
     t = STORE.types
     zero3 = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
@@ -160,6 +162,11 @@ def write_sensor_bag(path: Path, messages: Iterable[tuple[Any, ...]],
     with writer:
         joints = writer.add_connection("/joint_states", JS, typestore=STORE)
         imus = writer.add_connection("/imu", IMU, typestore=STORE) if imu else None
+        if static is not None:
+            frame, *pose = static
+            latched = writer.add_connection("/tf_static", TF_MESSAGE, typestore=STORE)
+            writer.write(latched, T0, bytes(STORE.serialize_cdr(
+                OdomMessages(STORE, "base_link", frame).tf(T0, *pose), TF_MESSAGE)))
         if truth is not None:
             _write_truth(writer, truth, truth_hz, truth_topic)
         messages = list(messages)
@@ -200,3 +207,32 @@ def pose_stamped_msg(stamp_ns: int, x: float, y: float, yaw: float) -> Any:
     return t[POSE](header=_header(stamp_ns, "map"), pose=t["geometry_msgs/msg/Pose"](
         position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
         orientation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
+
+
+def mounted_copy(src: Path, dst: Path, x: float, y: float, yaw: float,
+                 topic: str = "/ground_truth/pose") -> Path:
+    """``src`` with its PoseStamped ``topic`` moved onto a mount: ``R = B M``, M = (x, y, yaw).
+
+    What a reference that far off the axle and that much turned would have recorded of
+    the same robot (the point ``p + R(theta) (x, y)``, its heading ``theta + yaw``),
+    written here with plain trigonometry, not the package's mount. Other topics as they
+    are.
+    """
+    from rosbags.rosbag2 import Reader
+
+    with Reader(src) as reader, Writer(dst, version=9,
+                                       storage_plugin=StoragePlugin.MCAP) as writer:
+        out = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=STORE)
+               for c in reader.connections}
+        for conn, log_ns, raw in reader.messages():
+            if conn.topic == topic:
+                msg = STORE.deserialize_cdr(raw, conn.msgtype)
+                p, q = msg.pose.position, msg.pose.orientation
+                theta = 2.0 * np.arctan2(q.z, q.w)
+                c, s = np.cos(theta), np.sin(theta)
+                msg = pose_stamped_msg(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec,
+                                       float(p.x + c * x - s * y), float(p.y + s * x + c * y),
+                                       float(theta + yaw))
+                raw = bytes(STORE.serialize_cdr(msg, conn.msgtype))
+            writer.write(out[conn.id], log_ns, raw)
+    return dst

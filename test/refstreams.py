@@ -3,7 +3,8 @@
 On its own clock: its own rate and phase, stamps at the true measurement time plus a
 constant clock offset and a jitter, arriving ``latency`` (itself jittered) later (a
 lidar odometry's processing), in a frame of its own (``map``: the truth turned and
-shifted), with white noise on each pose, an optional dropout and jumps (AMCL
+shifted), mounted on the robot where it is (``mount``: off the axle, turned), with
+white noise on each pose, an optional dropout and jumps (AMCL
 relocalising: the pose off by a fixed amount from then on). :func:`merge` puts its
 messages among a ``gyrostreams`` stream in receive-time order. Nothing here calls the
 package.
@@ -34,6 +35,7 @@ class Reference:
     position_stddev: float = 0.002  # m, white, per pose
     heading_stddev: float = 0.001  # rad, white, per pose
     frame: tuple[float, float, float] = (3.0, -2.0, 0.7)  # its frame's x, y, yaw in odom's
+    mount: tuple[float, float, float] = (0.0, 0.0, 0.0)  # its own frame's x, y, yaw on the robot
     dropout: tuple[float, float] | None = None  # s: silent over this span
     jumps: tuple[tuple[float, float, float, float], ...] = ()  # (t, dx, dy, dyaw) from t on
 
@@ -51,6 +53,9 @@ def reference(tru: Truth, ref: Reference, seconds: float, seed: int = 7) -> list
     for tk in t:
         x, y = float(np.interp(tk, tru.t, tru.x)), float(np.interp(tk, tru.t, tru.y))
         th = float(np.interp(tk, tru.t, tru.theta))
+        mx, my, myaw = ref.mount  # the point it tracks and the way it faces on the robot
+        x, y = x + math.cos(th) * mx - math.sin(th) * my, y + math.sin(th) * mx + math.cos(th) * my
+        th += myaw
         for tj, dx, dy, dth in ref.jumps:
             if tk >= tj:
                 x, y, th = x + dx, y + dy, th + dth

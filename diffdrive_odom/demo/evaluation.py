@@ -147,7 +147,9 @@ def calibrate_rows(rec: Recording, odo: OdometrySettings, true: Geometry, side: 
     readings = _within_truth(rec)
     whole = _run("demo", readings, judge, rec.truth, rec.imu)
     try:
-        fitted = calibration.fit([whole], nominal, figures=False).geometry
+        # the sim's truth is base_link's own pose: its mount is given, on the axle
+        fitted = calibration.fit([whole], nominal, mount=calibration.ON_AXLE,
+                                 figures=False).geometry
         found = {FIT: fitted}
         cw = [s for s in rec.squares if s.clockwise]
         ccw = [s for s in rec.squares if not s.clockwise]

@@ -104,7 +104,7 @@ class OdometryEndpoints:
         ref = None if settings.gyro is None or settings.online is None else (
             settings.online.reference)  # read-only: for the node's whole life or not
         self._ref_sub = None if ref is None else ReferenceSubscription(
-            node, ref, self._pipeline, self._throttle)
+            node, ref, self._pipeline, self._throttle, settings.base_frame_id)
         g = settings.geometry
         node.get_logger().info(
             f"wheel odometry: r_left={g.left_radius:.6g} m, r_right={g.right_radius:.6g} m, "

@@ -22,6 +22,7 @@ from diffdrive_odom.core.estimation.open_loop import (
 )
 from diffdrive_odom.core.estimation.stamps import StampSource
 from diffdrive_odom.core.estimation.wheels.config import EstimatorConfig
+from diffdrive_odom.core.geometry.mount import Mount
 from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_K,
     DEFAULT_RADIUS_STDDEV_RATIO,
@@ -133,6 +134,14 @@ REFERENCE_PARAMS: tuple[ParamSpec, ...] = (
               "odom: only distances are compared).", read_only=True, range=POSITIVE),
     ParamSpec("online_calibration_reference_heading_stddev", "double", _R.heading_stddev,
               "1-sigma of each reference heading [rad].", read_only=True, range=POSITIVE),
+    ParamSpec("online_calibration_reference_offset", "double_array", [0.0, 0.0, 0.0],
+              "Where the reference is mounted: the pose of its frame in the base frame, "
+              "x, y [m], yaw [rad] (a marker body, camera or antenna off the axle or "
+              "turned); each pose is moved onto the base frame by it.", read_only=True),
+    ParamSpec("online_calibration_reference_frame", "string", "",
+              "The reference's frame: its mount read from /tf_static (base_frame_id -> "
+              "this frame) instead of online_calibration_reference_offset; reference "
+              "poses wait for it. '' = the offset.", read_only=True),
 )
 ONLINE_MODES = ("disabled", "monitor", "apply")
 ONLINE_PARAMS: tuple[ParamSpec, ...] = (
@@ -354,9 +363,15 @@ def online_warning(settings: OdometrySettings) -> str:
 def _reference_config(v: Mapping[str, Any]) -> ReferenceConfig | None:
     """The reference pose's settings (checked even without a topic), None without one."""
     topic = v["online_calibration_reference_topic"]
+    offset = v["online_calibration_reference_offset"]
+    if len(offset) != 3 or not all(math.isfinite(o) for o in offset):
+        raise ParameterError("online_calibration_reference_offset",
+                             f"needs 3 finite values (x, y [m], yaw [rad]), got {list(offset)}")
     cfg = ReferenceConfig(topic or "/none", v["online_calibration_reference_type"],
                           v["online_calibration_reference_position_stddev"],
-                          v["online_calibration_reference_heading_stddev"])
+                          v["online_calibration_reference_heading_stddev"],
+                          Mount(offset[0], offset[1], offset[2]),
+                          v["online_calibration_reference_frame"].strip("/"))
     return cfg if topic else None
 
 

@@ -32,10 +32,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
-from diffdrive_odom.core.evaluation import leftout, metrics
-from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run, trajectory
+from diffdrive_odom.core.evaluation import metrics
+from diffdrive_odom.core.evaluation.judge import base_reference, odometry
+from diffdrive_odom.core.evaluation.recorded_run import CalibrationError, Run
 from diffdrive_odom.core.evaluation.umbmark import reference_end, umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mount import AXLE, Mount
 from diffdrive_odom.core.uncertainty.noise import (
     DEFAULT_K,
     SESSION_DRIFT_RATIO,
@@ -43,8 +45,11 @@ from diffdrive_odom.core.uncertainty.noise import (
 from diffdrive_odom.tools import fleet
 from diffdrive_odom.tools.calibrating.report import (
     check_lines,
+    coverage_line,
     fit_report,
+    implausible_lines,
     left_out_lines,
+    mount_lines,
     objective_lines,
     params_block,
     rotation_line,
@@ -93,10 +98,13 @@ def _parser() -> argparse.ArgumentParser:
                     help="Imu topic whose gyro finds the slips to leave out of the fit, by the "
                     "node's rule (use_imu, slip_min_angle; the params' gyro settings); 'none': "
                     "no slip test (default: the bag's only sensor_msgs/Imu topic, if any)")
-    add_reference_arguments(ap)
+    add_reference_arguments(ap, "fitted beside the geometry: its yaw from the direction of "
+                            "travel, its lever arm where the runs determine it (turns both "
+                            "ways or spins), else 0, said so; printed with its sigma")
     ap.add_argument("--force", action="store_true",
                     help="print the params block even when the calibrated geometry does not "
-                    "beat the nominal one on held-out runs (default: refused, exit 1)")
+                    "beat the nominal one on held-out runs, or moved a value more than 10 %% "
+                    "from nominal and 5 sigma (default: refused, exit 1)")
     ap.add_argument("--session-drift", type=float, default=SESSION_DRIFT_RATIO, metavar="RATIO",
                     help="relative 1-sigma drift of the radii and separation between recording "
                     "sessions (tyres, floor), added in quadrature to the bootstrap sigma: what "
@@ -104,8 +112,8 @@ def _parser() -> argparse.ArgumentParser:
                     "doc/concepts/calibration.md; 0: the bootstrap alone)")
     ap.add_argument("--reference-error", default="1,0.5", metavar="MM,DEG",
                     help="1-sigma error of the reference itself, position [mm] and heading "
-                    "[deg], added to the covariance when rotation_noise_k is fitted (a motion "
-                    "capture's: tracked point off the axle, markers' yaw; 0,0 for a "
+                    "[deg] (its own noise: where it is mounted is --reference-offset's), "
+                    "added to the covariance when rotation_noise_k is fitted (0,0 for a "
                     "simulator's truth)")
     ap.add_argument("--objective", choices=("auto", "trajectory", "end-poses"), default=None,
                     help="what the fit minimises: auto chooses among the whole trajectory, it "
@@ -164,8 +172,8 @@ def _usage_problem(args: argparse.Namespace) -> str | None:
             return f"--end-weight weighs the trajectory objective, not --objective {args.objective}"
         if args.window is not None or args.no_mount:
             return ("--window/--no-mount are gone: the fit uses the whole trajectory with the "
-                    "reference's start yaw as its only nuisance (offset from the axle and "
-                    "clock lag fixed at 0); see doc/concepts/calibration.md")
+                    "reference's mount as its nuisance (--reference-offset, or fitted; clock "
+                    "lag fixed at 0); see doc/concepts/calibration.md")
     else:
         if args.bags:
             return "--umbmark takes its two bags itself; no other BAG"
@@ -257,46 +265,41 @@ def _said(err: Exception) -> str:
 def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
                    runs: Sequence[Run]) -> int:
     """Fit, check it on held-out runs, bootstrap its sigma; print (or refuse) the block."""
-    from diffdrive_odom.core.evaluation import crossval, determinacy, objective
+    from diffdrive_odom.core.evaluation import assessment
 
-    nominal = settings.geometry
-    shapes = [determinacy.shape(r, nominal) for r in runs] if len(runs) >= 2 else None
-    chosen = objective.chosen_by(args.objective, args.end_weight, runs, nominal, shapes)
-    goal = chosen.objective
-    result = goal.fit(runs, nominal)
-    in_sample = [r.after.final_position_error_aligned_m for r in result.runs]
-    folds = chosen.folds() or crossval.held_out(runs, nominal, fitter=goal.fitter(nominal))
-    verdict = crossval.judge(runs, folds, nominal, in_sample, shapes=shapes) if shapes else None
-    spread = goal.spread  # whose refits give the sigma and rotation_noise_k
-    spread_folds = (folds if spread == goal else chosen.folds(spread)
-                    or crossval.held_out(runs, nominal, fitter=spread.fitter(nominal)))
-    covariance = crossval.bootstrap(runs, nominal, fitter=spread.weighted(runs, nominal))
-    printed = None if covariance is None else crossval.with_drift(result.values, covariance,
-                                                                  args.session_drift)
-    ratios = None if printed is None else crossval.stddev_ratios(result.values, printed)
-    refused = verdict is not None and not verdict.cannot_tell and not verdict.better
-    print(check_lines(verdict, len(runs), refused and args.force))
-    for line in left_out_lines(runs, nominal):
+    a = assessment.assess(runs, settings.geometry, given=args.reference_offset,
+                          objective_name=args.objective, end_weight=args.end_weight,
+                          drift=args.session_drift)
+    result, verdict, ratios = a.fit, a.verdict, a.ratios
+    print(check_lines(verdict, len(runs), a.refused and args.force))
+    for line in left_out_lines(runs, settings.geometry):
         print(line)
-    print(objective_lines(chosen))
-    how = f"least squares on {len(runs)} run(s), {goal.name}"
+    print(objective_lines(a.choice))
+    how = f"least squares on {len(runs)} run(s), {a.choice.objective.name}"
     if verdict is not None and verdict.cannot_tell:
         how += "; held-out check CANNOT TELL, see its first line"
     rotation = None
     reference = _reference_error(args.reference_error) or (0.0, 0.0)  # checked at the start
     if ratios is not None:
-        rotation = rotation_fit(runs, [h.geometry for h in spread_folds], settings, ratios,
-                                reference)
+        rotation = rotation_fit(runs, [None if h.geometry is None or h.mount is None
+                                       else (h.geometry, h.mount) for h in a.spread_folds],
+                                settings, ratios, reference, result.mount)
     text = params_block(result.geometry, ratios, how,
                         None if rotation is None else rotation.noise.k_rotation)
     if args.plot:
         plot(result, runs, args.plot)
-    print(fit_report(result, covariance, args.session_drift))
+    print(fit_report(result, a.geometry_covariance, args.session_drift))
+    print(mount_lines(a.mount))
+    if coverage_line(a):
+        print(coverage_line(a))
     if rotation is not None:
         print(rotation_line(rotation, len(runs), reference))
-    if refused and not args.force:
-        print(f"{PREFIX} no params block: the nominal geometry did better on held-out runs "
-              "(--force prints it anyway)")
+    for line in implausible_lines(a.implausible, a.mount, args.force):
+        print(line)
+    if a.withheld and not args.force:
+        why = ("the nominal geometry did better on held-out runs" if a.refused
+               else "a value moved too far to be the wheels (above)")
+        print(f"{PREFIX} no params block: {why} (--force prints it anyway)")
         return 1
     if args.yaml:
         Path(args.yaml).write_text(text, encoding="utf-8")
@@ -304,21 +307,23 @@ def _least_squares(args: argparse.Namespace, settings: OdometrySettings,
     return 0
 
 
-def rotation_fit(runs: Sequence[Run], geometries: Sequence[Geometry | None],
+def rotation_fit(runs: Sequence[Run], fitted: Sequence[tuple[Geometry, Mount] | None],
                  settings: OdometrySettings, ratios: tuple[float, float],
-                 reference: tuple[float, float]) -> consistency.NoiseFit:
+                 reference: tuple[float, float], mount: Mount) -> consistency.NoiseFit:
     """``rotation_noise_k`` by maximum likelihood of the held-out final poses.
 
-    Each run integrated with the geometry fitted on the others; the wheel noise k (the
-    node's, from the params given) and the printed ratios held fixed.
+    Each run integrated with the geometry fitted on the others (the reference moved onto
+    base_link by that fit's mount); the wheel noise k (the node's, from the params
+    given), the printed ratios and the reference's own error (seen through ``mount``'s
+    lever arm) held fixed.
     """
     from diffdrive_odom.core.evaluation import consistency
 
     noise = settings.noise
     k = DEFAULT_K if noise is None else 0.5 * (noise.k_left + noise.k_right)
-    terms = consistency.held_out_terms(runs, geometries)
+    terms = consistency.held_out_terms(runs, fitted)
     return consistency.fit_noise(terms, consistency.Noise(k, 0.0, *ratios),
-                                 reference=consistency.reference_error(*reference))
+                                 reference=consistency.reference_error(*reference, mount))
 
 
 def _umbmark(args: argparse.Namespace, settings: Settings) -> int:
@@ -327,14 +332,21 @@ def _umbmark(args: argparse.Namespace, settings: Settings) -> int:
     ccw = decode(args.umbmark[1], settings, args, not typed)
     for line in left_out_lines((cw, ccw), settings[0].geometry):
         print(line)
+    nominal = settings[0].geometry
+    mount = AXLE
     if typed:
         cw_end = _end_point(args.cw_end, "--cw-end")
         ccw_end = _end_point(args.ccw_end, "--ccw-end")
     else:
+        from diffdrive_odom.core.evaluation import assessment
+
         assert cw.reference is not None and ccw.reference is not None
-        cw_end = reference_end(cw, cw.reference)
-        ccw_end = reference_end(ccw, ccw.reference)
-    result = umbmark(cw, ccw, cw_end, ccw_end, side=args.side, nominal=settings[0].geometry)
+        found = assessment.reference_mount((cw, ccw), nominal, args.reference_offset)
+        mount = found.mount
+        print(mount_lines(found))
+        cw_end = reference_end(cw, cw.reference, mount)
+        ccw_end = reference_end(ccw, ccw.reference, mount)
+    result = umbmark(cw, ccw, cw_end, ccw_end, side=args.side, nominal=nominal, mount=mount)
     text = params_block(result.geometry, None, f"UMBmark, side {args.side:g} m")
     if args.yaml:
         Path(args.yaml).write_text(text, encoding="utf-8")
@@ -353,16 +365,16 @@ def plot(fit: Fit, runs: Sequence[Run], path: str | Path) -> None:
     fig, axes = plt.subplots(1, len(runs), figsize=(5.5 * len(runs), 5.5), squeeze=False)
     for ax, run, figures in zip(axes[0], runs, fit.runs, strict=True):
         assert run.reference is not None
-        ax.plot(run.reference.x, run.reference.y, "k-", lw=1.5, label="ground truth")
-        spans = leftout.bridges(run)  # drawn as fitted and judged: the slips left out
-        for geometry, style, label, m in (
+        ref = base_reference(run.reference, fit.mount)  # base_link, as judged
+        ax.plot(ref.x, ref.y, "k-", lw=1.5, label="ground truth (base_link)")
+        for geometry, style, label, j in (
                 (fit.nominal, "--", "nominal", figures.before),
                 (fit.geometry, "-", "calibrated", figures.after)):
-            est = leftout.trajectory(run, geometry, spans) if spans else trajectory(run, geometry)
-            matched = metrics.match(est, run.reference)
-            aligned = metrics.align_start(matched.est, matched.ref)
+            est, _ = odometry(run, geometry, fit.mount)  # the slips left out, as fitted
+            matched = metrics.match(est, ref)
+            aligned = metrics.align_best_fit(matched.est, matched.ref)
             ax.plot(aligned[:, 0], aligned[:, 1], style, lw=1.0,
-                    label=f"{label}: end error {m.final_position_error_aligned_m:.3f} m")
+                    label=f"{label}: {j.error:.3f} m")
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")

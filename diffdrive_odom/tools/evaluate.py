@@ -3,7 +3,10 @@
 The figures are computed by the pure :mod:`diffdrive_odom.core.evaluation.metrics` (see its
 docstring for what each means), the trajectories read from bags by
 :mod:`diffdrive_odom.tools.bags.poses`; this module is the CLI, and writes the JSON and
-the plot (replay ``--eval`` writes them here too). Callers that compute figures import them from
+the plot (replay ``--eval`` writes them here too). The reference is first moved onto
+base_link (:func:`on_base_link`): by ``--reference-offset`` when given, else by the
+yaw its own direction of travel shows (:func:`~diffdrive_odom.core.evaluation.metrics.travel_yaw`),
+its lever arm then taken as 0 and said so. Callers that compute figures import them from
 :mod:`~diffdrive_odom.core.evaluation.metrics`, where they are defined.
 """
 
@@ -18,13 +21,16 @@ from pathlib import Path
 
 import numpy as np
 
+from diffdrive_odom.core.evaluation.judge import base_reference
 from diffdrive_odom.core.evaluation.metrics import (
     Metrics,
     Trajectory,
     align_start,
     evaluate,
     match,
+    travel_yaw,
 )
+from diffdrive_odom.core.geometry.mount import Mount
 from diffdrive_odom.tools import fleet
 from diffdrive_odom.tools.cli import command_parser
 from diffdrive_odom.tools.cmdline.args import (
@@ -33,9 +39,30 @@ from diffdrive_odom.tools.cmdline.args import (
     outputs_problem,
 )
 
-__all__ = ["main", "plot", "report", "run_bag", "summary_figures"]
+__all__ = ["OFFSET_DEFAULT", "main", "on_base_link", "plot", "report", "run_bag",
+           "summary_figures"]
 
 PREFIX = "[eval]"
+OFFSET_DEFAULT = ("its yaw from the reference's own direction of travel, its lever arm 0; "
+                  "calibrate fits both where its runs determine them")
+
+
+def on_base_link(ref: Trajectory, offset: Mount | None) -> tuple[Trajectory, str]:
+    """The reference moved onto base_link, and the line that says by what mount.
+
+    ``offset``: ``--reference-offset`` (None: the yaw from its direction of travel,
+    :func:`~diffdrive_odom.core.evaluation.metrics.travel_yaw`, the lever arm 0).
+    """
+    if offset is not None:
+        return base_reference(ref, offset), f"reference mount (--reference-offset): {offset.text()}"
+    yaw, sigma, moved = travel_yaw(ref)
+    mount = Mount(0.0, 0.0, yaw)
+    if moved <= 0.0:
+        return ref, "reference mount: taken as base_link's (the reference never moves straight)"
+    return base_reference(ref, mount), (
+        f"reference mount: yaw {math.degrees(yaw):+.2f} +- {math.degrees(sigma):.2f} deg from "
+        f"its direction of travel ({moved:.1f} m), lever arm taken as 0 (give "
+        "--reference-offset X,Y,YAW if it is off the axle: calibrate prints it)")
 
 
 # --- output ---------------------------------------------------------------------------------
@@ -124,7 +151,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="odometry topic (any pose type, or /tf)")
     ap.add_argument("--odom-child-frame", default=None, metavar="FRAME",
                     help="odometry child frame on /tf (default: the only one there)")
-    add_reference_arguments(ap)
+    add_reference_arguments(ap, OFFSET_DEFAULT)
     ap.add_argument("--reference-bag", default=None, metavar="BAG",
                     help="read the reference from this bag instead, e.g. replay's input "
                     "(default: BAG)")
@@ -185,7 +212,9 @@ def run_bag(args: argparse.Namespace) -> int:
             # The usual case: the output of replay, which holds only the odometry.
             raise bagio.BagError(f"{err}. A bag written by replay holds no ground truth: "
                                  "give the bag it replayed as --reference-bag BAG") from None
-        ref = read_trajectory(ref_bag, gt, args.child_frame, "--child-frame", notify)
+        ref, line = on_base_link(read_trajectory(ref_bag, gt, args.child_frame, "--child-frame",
+                                                 notify), args.reference_offset)
+        notify(line)
         metrics = evaluate(est, ref, args.segment_length, args.max_gap)
         fleet.record(args, **summary_figures(metrics))
         report(metrics, est, ref, args.json, args.plot, (args.odom, gt))

@@ -24,6 +24,7 @@ from diffdrive_odom.tools import evaluate, fleet
 from diffdrive_odom.tools.cli import command_parser
 from diffdrive_odom.tools.cmdline.args import (
     DEFAULT_REFERENCE,
+    add_offset_argument,
     add_param_arguments,
     fail,
     outputs_problem,
@@ -76,6 +77,7 @@ def _parser() -> argparse.ArgumentParser:
                     f"{DEFAULT_REFERENCE}, else the bag's only ground-truth topic)")
     ap.add_argument("--child-frame", default=None, metavar="FRAME",
                     help="ground truth child frame when it is on /tf (default: the only one)")
+    add_offset_argument(ap, f"with --eval: {evaluate.OFFSET_DEFAULT}")
     ap.add_argument("--json", metavar="FILE",
                     help="with --eval: write the figures as JSON (default: none)")
     ap.add_argument("--plot", metavar="FILE",
@@ -153,8 +155,10 @@ def run_bag(args: argparse.Namespace) -> int:
             gt_topic = poses.reference_topic(
                 args.bag, None if args.eval == AUTO_REFERENCE else args.eval, notify=notify,
                 flag="--eval TOPIC")
-            ref = poses.read_trajectory(args.bag, gt_topic, args.child_frame,
-                                           "--child-frame", notify)
+            ref, line = evaluate.on_base_link(poses.read_trajectory(
+                args.bag, gt_topic, args.child_frame, "--child-frame", notify),
+                args.reference_offset)
+            notify(line)
         except bagio.BagError as err:
             return _error(f"--eval: {err}")
     try:

@@ -60,6 +60,19 @@ def pose(ns: int) -> PoseStamped:
     return msg
 
 
+def stand(ex: Any, joints: Any, imu: Any, ref: Any, first: int, count: int) -> None:
+    """Readings ``first`` .. standing, a 200 Hz gyro, a reference pose every fifth."""
+    for k in range(first, first + count):
+        for j in range(4):
+            imu.publish(gyro(T0_NS + k * STEP_NS + j * STEP_NS // 4))
+        if k % 5 == 1:
+            ref.publish(pose(T0_NS + k * STEP_NS - STEP_NS // 2))
+        spin_for(ex, 0.002)
+        if k:
+            joints.publish(reading(k))
+        spin_for(ex, 0.004)
+
+
 def test_geometry_estimate_has_the_documented_layout() -> None:
     with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true", "-p",
                                      "online_calibration:=apply", "-p",
@@ -73,15 +86,7 @@ def test_geometry_estimate_has_the_documented_layout() -> None:
         ref = peer.node.create_publisher(PoseStamped, "/ref", 10)
         assert spin_until(ex, lambda: ref.get_subscription_count() > 0, 15.0)
         send_first(ex, joints, sink, reading(0))
-        for k in range(51):
-            for j in range(4):
-                imu.publish(gyro(T0_NS + k * STEP_NS + j * STEP_NS // 4))
-            if k % 5 == 1:
-                ref.publish(pose(T0_NS + k * STEP_NS - STEP_NS // 2))
-            spin_for(ex, 0.002)
-            if k:
-                joints.publish(reading(k))
-            spin_for(ex, 0.004)
+        stand(ex, joints, imu, ref, 0, 51)
         standing = FIELDS.index("excluded_standstill")
         assert spin_until(ex, lambda: any(m.data[standing] > 0 for m in got), 15.0)
         msg = got[-1]
@@ -101,3 +106,40 @@ def test_geometry_estimate_has_the_documented_layout() -> None:
         assert status.values["online calibration"] == "not yet determined"
         assert status.values["online estimate applied"] == "false"
         assert status.values["online scale"] == "from the reference: not yet determined"
+
+
+def test_the_reference_frame_s_mount_comes_from_tf_static() -> None:
+    """online_calibration_reference_frame: marker. Until /tf_static holds base_link ->
+    marker, every reference pose is refused (none counted, though the estimate runs);
+    once it is latched there, the poses count (the node reads /tf_static itself)."""
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+
+    from diffdrive_odom.ros.reference_input import STATIC_QOS
+
+    with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true", "-p",
+                                     "online_calibration_reference_topic:=/ref", "-p",
+                                     "online_calibration_reference_type:=pose_stamped", "-p",
+                                     "online_calibration_reference_frame:=marker"]) as peer:
+        ex = peer.executor
+        got: list[Any] = []
+        peer.node.create_subscription(Float64MultiArray, "/odometry_node/geometry_estimate",
+                                      got.append, QOS)
+        joints, imu, sink = gyro_rig(peer.node, ex)
+        ref = peer.node.create_publisher(PoseStamped, "/ref", 10)
+        static = peer.node.create_publisher(TFMessage, "/tf_static", STATIC_QOS)
+        assert spin_until(ex, lambda: ref.get_subscription_count() > 0
+                          and static.get_subscription_count() > 0, 15.0)
+        send_first(ex, joints, sink, reading(0))
+        poses, standing = FIELDS.index("reference_poses"), FIELDS.index("excluded_standstill")
+        stand(ex, joints, imu, ref, 1, 60)
+        # the estimate runs (standing windows) and has seen the wheels past the poses sent
+        assert spin_until(ex, lambda: any(m.data[standing] > 5 for m in got), 15.0)
+        assert all(m.data[poses] == 0.0 for m in got), [m.data[poses] for m in got]
+        t = TransformStamped()
+        t.header.frame_id, t.child_frame_id = "base_link", "marker"
+        t.transform.translation.x, t.transform.rotation.w = 0.1, 1.0
+        static.publish(TFMessage(transforms=[t]))
+        spin_for(ex, 0.2)
+        stand(ex, joints, imu, ref, 61, 60)
+        assert spin_until(ex, lambda: got[-1].data[poses] > 0, 15.0), got[-1].data[poses]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ from diffdrive_odom.core.evaluation.metrics import Trajectory
 from diffdrive_odom.tools.bags import bagio, bagwriter, poses
 from diffdrive_odom.tools.cli import main as cli
 
-from bagutil import OPTIODOM_PARAMS, OdomMessages, mcap_messages, write_params
+from bagutil import OPTIODOM_PARAMS, OdomMessages, mcap_messages, mounted_copy, write_params
 from rosutil import DATA
 
 RUN04 = DATA / "optiodom" / "square_231220200029_run-04"
@@ -67,9 +68,10 @@ def test_run04_figures_equal_an_independent_computation(tmp_path: Path) -> None:
     out = tmp_path / "out"
     assert cli(["replay", str(RUN04), "--params-file", str(params), "-o", str(out)]) == 0
     figures = tmp_path / "f.json"
+    # the motion capture tracks the robot centre, facing forward: the reference on the axle
     assert cli(["eval", str(out), "--odom", "/odom", "--reference-bag", str(RUN04),
                 "--ground-truth", "/ground_truth/pose", "--json", str(figures),
-                "--plot", str(tmp_path / "f.png")]) == 0
+                "--plot", str(tmp_path / "f.png"), "--reference-offset=0,0,0"]) == 0
     got = json.loads(figures.read_text())
     assert got["samples"] == 1385
     assert got["final_position_error_m"] == pytest.approx(final, abs=1e-9)
@@ -81,6 +83,57 @@ def test_run04_figures_equal_an_independent_computation(tmp_path: Path) -> None:
     assert got["final_position_error_aligned_m"] == pytest.approx(final, abs=1e-6)
     png = (tmp_path / "f.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+
+
+def _figures(path: Path) -> dict[str, float]:
+    return {k: float(v) for k, v in json.loads(path.read_text()).items() if v is not None}
+
+
+@pytest.mark.parametrize(("x", "y", "yaw_deg"), [(-0.12, 0.20, 150.0), (0.3, -0.3, -104.0)])
+def test_a_mounted_reference_with_its_offset_gives_the_axle_s_figures(
+        tmp_path: Path, x: float, y: float, yaw_deg: float) -> None:
+    """The same run's reference recorded off the axle and turned (bagutil.mounted_copy):
+    with --reference-offset it is moved back onto base_link, and every figure equals the
+    one against the reference on the axle (to the floats' rounding of the round trip)."""
+    params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+    out = tmp_path / "out"
+    assert cli(["replay", str(RUN04), "--params-file", str(params), "-o", str(out)]) == 0
+    mounted = mounted_copy(RUN04, tmp_path / "mounted", x, y, math.radians(yaw_deg))
+    axle, moved = tmp_path / "axle.json", tmp_path / "moved.json"
+    for ref, offset, where in ((RUN04, "0,0,0", axle), (mounted, f"{x},{y},{yaw_deg}", moved)):
+        assert cli(["eval", str(out), "--odom", "/odom", "--reference-bag", str(ref),
+                    "--json", str(where), f"--reference-offset={offset}"]) == 0
+    a, m = _figures(axle), _figures(moved)
+    assert a.keys() == m.keys()
+    for key in a:
+        assert m[key] == pytest.approx(a[key], rel=1e-6, abs=1e-9), key
+
+
+def test_without_an_offset_eval_finds_the_reference_s_yaw_from_its_travel(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A reference turned 104 deg (the phil_train Vicon marker's), no offset given: eval
+    finds the yaw from the reference's own direction of travel and says it; its
+    start-aligned figures then equal the axle's up to that estimate's error (here its
+    yaw on the axle, -0.4 deg, is the motion capture's own: the same in both)."""
+    params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+    out = tmp_path / "out"
+    assert cli(["replay", str(RUN04), "--params-file", str(params), "-o", str(out)]) == 0
+    mounted = mounted_copy(RUN04, tmp_path / "mounted", 0.0, 0.0, math.radians(104.0))
+    found = {}
+    for ref, where in ((RUN04, tmp_path / "axle.json"), (mounted, tmp_path / "moved.json")):
+        assert cli(["eval", str(out), "--odom", "/odom", "--reference-bag", str(ref),
+                    "--json", str(where)]) == 0
+        said = capsys.readouterr().err
+        m = re.search(r"reference mount: yaw ([-+\d.]+) \+- ([\d.]+) deg from its direction "
+                      r"of travel", said)
+        assert m, said
+        found[ref] = (float(m.group(1)), float(m.group(2)), _figures(where))
+    (yaw_a, sig, fig_a), (yaw_m, _, fig_m) = found[RUN04], found[mounted]
+    assert abs(yaw_a) < 3 * sig + 0.5 and sig < 0.5
+    assert yaw_m == pytest.approx(yaw_a + 104.0, abs=0.02)
+    for key in ("final_position_error_aligned_m", "ate_rmse_aligned_m", "final_error_per_m",
+                "rpe_translation_per_m"):
+        assert fig_m[key] == pytest.approx(fig_a[key], rel=1e-3), key
 
 
 def _line(n: int = 201, speed: float = 0.5, hz: float = 20.0) -> Trajectory:

@@ -39,6 +39,7 @@ from diffdrive_odom.core.estimation.wheels.encoders import (
 )
 from diffdrive_odom.core.estimation.wheels.estimator import OdometryEstimator, Step
 from diffdrive_odom.core.estimation.wheels.timeline import Status, Verdict
+from diffdrive_odom.core.geometry.mount import Mount
 from diffdrive_odom.core.uncertainty.noise import quantization_variance
 from diffdrive_odom.core.uncertainty.propagation import (
     covariance_matrix,
@@ -166,6 +167,12 @@ class ReadingPipeline:
         """
         scale = None if self._online is None else self._online.scale
         return "" if scale is None else scale.feed(stamp_ns, x, y, yaw)
+
+    def set_reference_mount(self, mount: Mount) -> None:
+        """Where the reference is mounted, once found (the node's /tf_static, a bag's)."""
+        scale = None if self._online is None else self._online.scale
+        if scale is not None:
+            scale.set_mount(mount)
 
     def _imu_note(self, silent: bool, stamp_ns: int) -> bool:
         """True when the IMU's silence (or its end) is to be said for this step.

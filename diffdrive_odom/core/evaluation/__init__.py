@@ -1,4 +1,4 @@
-"""Odometry against ground truth: metrics, calibration, held-out check, UMBmark, NEES."""
+"""Odometry against ground truth: metrics, the judge of a fit, calibration, UMBmark, NEES."""
 
-__all__ = ['calibration', 'consistency', 'crossval', 'determinacy', 'leftout', 'metrics',
-           'recorded_run', 'umbmark']
+__all__ = ['assessment', 'calibration', 'consistency', 'crossval', 'determinacy', 'judge',
+           'leftout', 'metrics', 'objective', 'recorded_run', 'umbmark']

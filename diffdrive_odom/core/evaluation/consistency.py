@@ -9,10 +9,12 @@ node's per-step one). The covariance is linear in its noise parameters, so each 
 propagated once per term with a unit parameter (:class:`RunTerms`); any ``k``,
 ``k_rot`` and geometry ratios then cost a 3x3 sum.
 
-The reference has an error of its own (a motion capture's tracked point is not exactly
-the axle centre, its yaw not exactly the robot's): :data:`REFERENCE_ERROR` (1 mm and
-0.5 deg, 1 sigma) is added to the covariance before the NEES is taken, and named where
-it is printed.
+The reference is moved onto base_link by its mount
+(:mod:`~diffdrive_odom.core.geometry.mount`) before the final pose is compared, as the
+fit does. It has an error of its own (a motion capture's noise):
+:data:`REFERENCE_ERROR` (1 mm and 0.5 deg, 1 sigma) is added to the covariance before
+the NEES is taken, and named where it is printed; its heading error moves a base_link
+seen through a lever arm sideways (:func:`reference_error`).
 
 :func:`fit_noise` chooses the random terms by maximum likelihood of the runs' final-pose
 errors (each run one zero-mean Gaussian draw of its covariance), the others held fixed;
@@ -35,6 +37,7 @@ from diffdrive_odom.core.evaluation import calibration, leftout
 from diffdrive_odom.core.evaluation.recorded_run import Run
 from diffdrive_odom.core.geometry.integration import chord_array
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
+from diffdrive_odom.core.geometry.mount import AXLE, Mount
 from diffdrive_odom.core.geometry.se2 import wrap_angles
 from diffdrive_odom.core.uncertainty.fastcov import (
     BulkModel,
@@ -71,18 +74,20 @@ class RunTerms:
     distance: float  # total |ds| [m]
 
 
-def run_terms(run: Run, geometry: Geometry, max_gap: float = 0.5) -> RunTerms:
+def run_terms(run: Run, geometry: Geometry, max_gap: float = 0.5,
+              mount: Mount = AXLE) -> RunTerms:
     """Integrate ``run`` with ``geometry``; its final error and unit covariance terms.
 
-    The error with the run's slip events bridged (:mod:`~.leftout`, as the fit leaves
-    them out); the covariance over every step (a slip's few steps change it little).
+    The reference moved onto base_link by ``mount``; the error with the run's slip
+    events bridged (:mod:`~.leftout`, as the fit leaves them out); the covariance over
+    every step (a slip's few steps change it little).
     """
     prepared = calibration.prepare(run, max_gap, ends_only=True)
     steps = run.steps
     x, y, th = integrate_steps(steps, geometry)
-    ex, ey, eth = (leftout.integrate(steps, geometry, prepared.bridges) if prepared.bridges
-                   else (x, y, th))
-    ref = prepared.reference[-1]
+    ex, ey, eth = (leftout.integrate(steps, geometry, prepared.bridges, mount)
+                   if prepared.bridges else (x, y, th))
+    ref = mount.base_motions(prepared.reference[-1:])[0]
     i = int(prepared.index[-1])
     error = np.array([ex[i] - ref[0], ey[i] - ref[1],
                       float(wrap_angles(eth[i:i + 1] - ref[2])[0])])
@@ -245,17 +250,22 @@ def chi2_band(n: int, dof: int = 3) -> tuple[float, float]:
     return lo, hi
 
 
-def held_out_terms(runs: Sequence[Run], geometries: Sequence[Geometry | None],
+def held_out_terms(runs: Sequence[Run], fitted: Sequence[tuple[Geometry, Mount] | None],
                    max_gap: float = 0.5) -> list[RunTerms]:
-    """Each run's terms with the geometry fitted without it (runs with None are skipped).
+    """Each run's terms with the geometry (and mount) fitted without it (None: skipped).
 
     The random terms are judged on runs the geometry was not fitted to: in-sample, the
     fit absorbs part of each run's own random error and the errors read too small.
     """
-    return [run_terms(r, g, max_gap) for r, g in zip(runs, geometries, strict=True)
-            if g is not None]
+    return [run_terms(r, f[0], max_gap, f[1]) for r, f in zip(runs, fitted, strict=True)
+            if f is not None]
 
 
-def reference_error(position_m: float, heading_rad: float) -> FloatArray:
-    """The reference's own error as a covariance: ``position_m`` in x and y, 1 sigma."""
-    return np.diag([position_m**2, position_m**2, heading_rad**2])
+def reference_error(position_m: float, heading_rad: float, mount: Mount = AXLE) -> FloatArray:
+    """The reference's own error as base_link's covariance (1 sigma of each pose).
+
+    ``position_m`` in x and y, ``heading_rad`` in the heading; seen through the mount's
+    lever arm, the heading error also moves base_link by ``heading_rad`` times the lever.
+    """
+    position = position_m**2 + (heading_rad * mount.lever) ** 2
+    return np.diag([position, position, heading_rad**2])

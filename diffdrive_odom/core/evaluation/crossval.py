@@ -5,7 +5,10 @@ user needs is the error on the next run. :func:`held_out` fits on all runs but o
 group (a run: leave-one-run-out; an experiment: leave-one-experiment-out) and measures
 the group left out, for every group; :func:`check` compares that with the nominal
 geometry on the same runs, the test ``calibrate`` applies to itself before it
-recommends anything.
+recommends anything. Both are measured by the one judge of a fit
+(:func:`~diffdrive_odom.core.evaluation.judge.judgment`: the whole trajectory against the
+reference moved onto base_link, and its end), each with the mount the fold's own fit
+found (the reference's mount is not what is judged: nominal and calibrated share it).
 
 The geometry's uncertainty is a bootstrap over runs (Efron): refit on runs drawn with
 replacement, ``B`` times; the spread of the refits is what another set of runs of the
@@ -35,13 +38,14 @@ import numpy as np
 import numpy.typing as npt
 
 from diffdrive_odom.core.evaluation import calibration, determinacy
-from diffdrive_odom.core.evaluation.metrics import Metrics
+from diffdrive_odom.core.evaluation.judge import Judgment, judgment
 from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
 from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mount import Mount
 from diffdrive_odom.core.uncertainty.noise import SESSION_DRIFT_RATIO
 
 FloatArray = npt.NDArray[np.float64]
-Fitter = Callable[[Sequence[Run]], Geometry]
+Fitter = Callable[[Sequence[Run]], "calibration.Fit"]
 
 BOOTSTRAP_RUNS = 20
 MIN_RUNS_FOR_SIGMA = 3
@@ -49,19 +53,23 @@ SEED = 16  # fixed: the same runs print the same sigma
 
 
 def default_fitter(nominal: Geometry) -> Fitter:
-    """:func:`calibration.fit` with its defaults (the whole trajectory), geometry only."""
-    return lambda runs: calibration.fit(runs, nominal, figures=False).geometry
+    """:func:`calibration.fit` with its defaults (the whole trajectory, the mount's yaw)."""
+    return lambda runs: calibration.fit(runs, nominal, figures=False)
 
 
 @dataclass(frozen=True)
 class HeldOut:
-    """One run judged with a geometry fitted without it (``geometry`` None: none possible)."""
+    """One run judged with a geometry fitted without it (``geometry`` None: none possible).
+
+    ``mount``: the one the fold's fit found (None: none), which judges nominal too.
+    """
 
     run: str
     group: Hashable
     geometry: Geometry | None
-    nominal: Metrics
-    held_out: Metrics | None
+    mount: Mount | None
+    nominal: Judgment
+    held_out: Judgment | None
 
 
 def held_out(runs: Sequence[Run], nominal: Geometry, groups: Sequence[Hashable] | None = None,
@@ -76,47 +84,40 @@ def held_out(runs: Sequence[Run], nominal: Geometry, groups: Sequence[Hashable] 
     out = []
     for g in dict.fromkeys(labels):
         rest = [r for r, lab in zip(runs, labels, strict=True) if lab != g]
-        geometry = fit(rest) if rest else None
+        found = fit(rest) if rest else None
         for r, lab in zip(runs, labels, strict=True):
-            if lab == g:
-                out.append(HeldOut(r.name, g, geometry, calibration.figures_of(r, nominal),
-                                   None if geometry is None
-                                   else calibration.figures_of(r, geometry)))
+            if lab != g:
+                continue
+            if found is None:
+                out.append(HeldOut(r.name, g, None, None, judgment(r, nominal), None))
+            else:
+                out.append(HeldOut(r.name, g, found.geometry, found.mount,
+                                   judgment(r, nominal, found.mount),
+                                   judgment(r, found.geometry, found.mount)))
     return out
 
 
 @dataclass(frozen=True)
 class Check:
-    """Held-out means against nominal on the same runs; ``better`` only if both drop."""
+    """Held-out mean of the judge's figure against nominal's on the same runs [m]."""
 
     runs: int
-    fpe_nominal: float  # mean start-aligned final position error [m]
-    fpe_held_out: float
-    ate_nominal: float  # mean start-aligned ATE RMSE [m]
-    ate_held_out: float
+    nominal: float
+    held_out: float
 
     @property
     def better(self) -> bool:
-        """Held-out final error and ATE both below nominal's."""
-        return self.fpe_held_out < self.fpe_nominal and self.ate_held_out < self.ate_nominal
+        """The held-out whole-trajectory error below nominal's."""
+        return self.held_out < self.nominal
 
 
 def check(results: Sequence[HeldOut]) -> Check | None:
     """Summarise :func:`held_out`; None when no run could be held out."""
-    done = [h for h in results if h.held_out is not None]
+    done = [(h.nominal, h.held_out) for h in results if h.held_out is not None]
     if not done:
         return None
-
-    def mean(f: Callable[[HeldOut], float]) -> float:
-        return float(np.mean([f(h) for h in done]))
-
-    return Check(
-        len(done),
-        mean(lambda h: h.nominal.final_position_error_aligned_m),
-        mean(lambda h: h.held_out.final_position_error_aligned_m if h.held_out else 0.0),
-        mean(lambda h: h.nominal.ate_rmse_aligned_m),
-        mean(lambda h: h.held_out.ate_rmse_aligned_m if h.held_out else 0.0),
-    )
+    return Check(len(done), float(np.mean([n.error for n, _ in done])),
+                 float(np.mean([h.error for _, h in done])))
 
 
 @dataclass(frozen=True)
@@ -124,7 +125,7 @@ class Verdict:
     """The held-out check over the folds that count, what was left out and why, the margin.
 
     ``check`` is None when no fold counts. ``margin`` [m] is the noise of the held-out
-    mean final error: the RMS final error the full fit leaves on its own runs (those
+    mean error: the RMS of the judge's figure the full fit leaves on its own runs (those
     whose end depends on the geometry; what no geometry explains: slip, the runs'
     scatter) over the square root of the folds counted. A change within it cannot tell
     better from worse. ``every_fold`` is the check over all folds, the rule before.
@@ -137,9 +138,9 @@ class Verdict:
 
     @property
     def within_margin(self) -> bool:
-        """The held-out change of the mean final error is within the margin."""
+        """The held-out change of the mean error is within the margin."""
         c = self.check
-        return c is not None and abs(c.fpe_held_out - c.fpe_nominal) <= self.margin
+        return c is not None and abs(c.held_out - c.nominal) <= self.margin
 
     @property
     def cannot_tell(self) -> bool:
@@ -159,7 +160,7 @@ def judge(runs: Sequence[Run], results: Sequence[HeldOut], nominal: Geometry,
     """:func:`check` over the folds that can judge the fit (:func:`fold_reasons`), with its margin.
 
     ``results`` from :func:`held_out` with the same ``groups``; ``in_sample``: the full
-    fit's final position error on each run, in order (the margin; empty: none);
+    fit's judge figure on each run, in order (the margin; empty: none);
     ``shapes`` (one per run, :func:`determinacy.shape`) when the caller has them. None
     when no run could be held out.
     """
@@ -210,10 +211,11 @@ def fold_reasons(shapes: Sequence[determinacy.Shape], groups: Sequence[Hashable]
 def bootstrap(runs: Sequence[Run], nominal: Geometry, resamples: int = BOOTSTRAP_RUNS,
               seed: int = SEED, fitter: Callable[[Sequence[float]], FloatArray] | None = None
               ) -> FloatArray | None:
-    """3x3 covariance of (left radius, right radius, separation) [m^2]; None below 3 runs.
+    """Covariance of the fitted values; None below 3 runs.
 
-    ``fitter`` maps per-run weights to fitted values (default: :func:`calibration.fit`;
-    ``calibrate``'s: its objective's, :meth:`~.objective.Objective.weighted`).
+    ``fitter`` maps per-run weights to fitted values (default: :func:`calibration.fit`'s
+    (left radius, right radius, separation) [m], 3x3; ``calibrate``'s: its objective's
+    with the mount, :meth:`~.objective.Objective.weighted`).
     """
     if len(runs) < MIN_RUNS_FOR_SIGMA:
         return None

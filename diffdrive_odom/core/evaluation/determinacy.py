@@ -16,11 +16,25 @@ set of runs fails, each named:
   odometry errors in mobile robots": a square's type A and type B errors are told apart
   only by squares driven both ways). Measured on the fit's own normal equations: the
   runs mirrored (left and right wheels swapped, the path reflected) give information
-  ``M``, the runs themselves ``A`` (both with the reference's start yaw, the fit's
+  ``M``, the runs themselves ``A`` (both with the reference's mount, the fit's
   nuisance, eliminated); the largest generalised eigenvalue of ``(M, A)`` is how much
   more strongly, at worst, the mirrored runs would see a combination of the three
   values. Balanced runs give about 1; on the OptiOdom runs (at the nominal geometry)
   circles or squares of one direction gave 770 to 2300, a single free path 15.
+
+The reference's lever arm (its offset from the axle, :mod:`~diffdrive_odom.core.geometry.mount`)
+is fitted only where the runs determine it (:func:`lever_reason`): a turn moves a
+reference off the axle sideways, but a turn at one curvature, one way, moves it as a
+slightly different geometry would. Measured as the worst factor by which freeing the
+lever arm widens the geometry's variance (the largest generalised eigenvalue of the
+geometry's information with the lever arm held and with it eliminated): circles and
+squares both ways, free paths, lines with spins on the spot 1.0 to 2.9 on the OptiOdom
+runs; squares one way (turned on the spot at the corners) 6.4 to 7.6; circles one way 96
+to 135. :data:`MAX_LEVER_INFLATION` lies between (25, near their geometric mean). And
+the lever arm must be seen at all: its 1-sigma, were the residuals 1 cm RMS
+(:data:`LEVER_NOISE_M`), is 3 to 10 mm on those runs and 0.22 to 1.4 m on two straight
+lines alone (a line does not turn the reference about the axle); :data:`MAX_LEVER_SIGMA_M`
+lies between (0.05 m, near their geometric mean).
 
 A fold also judges nothing when its held-out run ends in the same place whatever the
 geometry (a turn on the spot): :func:`judges` asks that a 1 % change of the values move
@@ -45,7 +59,12 @@ rounded) and holds on the December ones (2.13 and 5.19).
 The thresholds: :data:`MIN_TRAVEL_M` and :data:`MIN_TURN_RAD` are where a 1 % error of
 the scale or of the separation moves a run by 10 mm or 0.9 deg, well above a motion
 capture's own error (1 mm, 0.5 deg); :data:`MAX_MIRROR_RATIO` lies between the balanced
-and one-way runs above (10x in amplitude).
+runs (1.0 to 1.3 on the OptiOdom experiments that turn both ways, 11 on its single
+20 m free path, with the mount's yaw and lever arm eliminated) and those turning one way:
+phil_train's three Vicon runs, all counter-clockwise, 56, where two fits of their
+geometry (calibrate's and bench/anchor.py's) part by 3.7 % in the separation; the
+OptiOdom circles or squares of one direction 770 to 2300. It was 100 before phil_train
+was measured.
 """
 
 from __future__ import annotations
@@ -62,14 +81,19 @@ from diffdrive_odom.core.bulk.batch import integrate_steps
 from diffdrive_odom.core.evaluation import calibration
 from diffdrive_odom.core.evaluation.recorded_run import Run, values_of, with_values
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
+from diffdrive_odom.core.geometry.mount import AXLE, Mount
 
 FloatArray = npt.NDArray[np.float64]
 
 MIN_TRAVEL_M = 1.0  # arc length driven, all runs together
 MIN_TURN_RAD = math.pi / 2  # heading span of the run that turns most
-MAX_MIRROR_RATIO = 100.0
+MAX_MIRROR_RATIO = 30.0
 MIN_END_SHIFT_M = 0.01  # end moved by a 1 % change of the values, at worst
 MAX_LEVERAGE = 3.0  # held-out end shift per unit of training residual, at worst
+MAX_LEVER_INFLATION = 25.0  # the geometry's variance widened by a free lever arm, at worst
+MAX_LEVER_SIGMA_M = 0.05  # the lever arm's 1-sigma at LEVER_NOISE_M of residual, at worst
+LEVER_NOISE_M = 0.01
+GEOMETRY, LEVER, YAW = (0, 1, 2), (3, 4), (5,)  # the information's columns
 _STEP = 1e-5  # relative step of the central differences
 
 
@@ -81,8 +105,9 @@ class Shape:
     turn_span: float  # max - min heading [rad]
     net_turn: float  # end heading [rad], + counter-clockwise
     end_jacobian: FloatArray  # 2x3: end position per relative change of the values [m]
-    information: FloatArray  # 4x4 J^T J: log radii, log separation, start yaw
+    information: FloatArray  # 6x6 J^T J: log radii, log separation, the mount (x, y, yaw)
     mirrored: FloatArray  # the same for the run mirrored
+    lever: bool = False  # whether the fit frees the lever arm (eliminated with the yaw)
 
     @property
     def end_shift(self) -> float:
@@ -106,7 +131,10 @@ class Coverage:
 
 
 def mirrored(run: Run) -> Run:
-    """The run driven the other way: wheels swapped, its reference reflected about x."""
+    """The run driven the other way: wheels swapped, its reference reflected about x.
+
+    Its mount is reflected too (:func:`mirrored_mount`).
+    """
     ref = run.reference
     steps = dataclasses.replace(run.steps, d_left=run.steps.d_right,
                                 d_right=run.steps.d_left)
@@ -114,11 +142,29 @@ def mirrored(run: Run) -> Run:
                else dataclasses.replace(ref, y=-ref.y, yaw=-ref.yaw))
 
 
-def information(run: Run, nominal: Geometry, max_gap: float = 0.5) -> FloatArray:
-    """``J^T J`` of the fit's residuals of ``run`` at ``nominal`` (its weighting, 4x4).
+def mirrored_mount(mount: Mount) -> Mount:
+    """A mount reflected about base_link's x axis, as :func:`mirrored` reflects a run."""
+    return Mount(mount.x, -mount.y, -mount.yaw)
+
+
+def nudged(mount: Mount, d: FloatArray) -> Mount:
+    """``mount`` moved by ``d`` = (x, y, yaw) in base_link (``D M``).
+
+    The mount's columns of the information are taken in base_link, so they do not
+    depend on where the reference is mounted: the same runs with their reference moved
+    give the same information.
+    """
+    c, s = math.cos(float(d[2])), math.sin(float(d[2]))
+    return Mount(float(d[0]) + c * mount.x - s * mount.y, float(d[1]) + s * mount.x + c * mount.y,
+                 float(d[2]) + mount.yaw)
+
+
+def information(run: Run, nominal: Geometry, mount: Mount = AXLE,
+                max_gap: float = 0.5) -> FloatArray:
+    """``J^T J`` of the fit's residuals of ``run`` at ``nominal`` (its weighting, 6x6).
 
     Columns: the logs of the left and right radius and the separation (relative
-    changes), then the reference's start yaw.
+    changes), then the mount's x, y and yaw, moved in base_link (:func:`nudged`).
     """
     p = calibration.prepare(run, max_gap)
     base = values_of(nominal)
@@ -128,9 +174,10 @@ def information(run: Run, nominal: Geometry, max_gap: float = 0.5) -> FloatArray
     def res(x: FloatArray) -> FloatArray:
         v = base * np.exp(x[:3])
         g = with_values(nominal, float(v[0]), float(v[1]), float(v[2]))
-        return weight * calibration.residuals(p, g, float(x[3]), heading_length).ravel()
+        return weight * calibration.residuals(p, g, nudged(mount, x[3:]),
+                                              heading_length).ravel()
 
-    cols = [(res(_STEP * e) - res(-_STEP * e)) / (2 * _STEP) for e in np.eye(4)]
+    cols = [(res(_STEP * e) - res(-_STEP * e)) / (2 * _STEP) for e in np.eye(6)]
     jac = np.column_stack(cols)
     return np.asarray(jac.T @ jac, dtype=np.float64)
 
@@ -149,14 +196,19 @@ def end_jacobian(run: Run, nominal: Geometry) -> FloatArray:
                             for e in np.eye(3)])
 
 
-def shape(run: Run, nominal: Geometry, max_gap: float = 0.5) -> Shape:
-    """One run's travel, turning and information (the fit's Jacobian), and its mirror's."""
+def shape(run: Run, nominal: Geometry, mount: Mount = AXLE, lever: bool = False,
+          max_gap: float = 0.5) -> Shape:
+    """One run's travel, turning and information (the fit's Jacobian), and its mirror's.
+
+    ``mount``: where the reference sits (given, or as fitted); ``lever``: whether the
+    fit frees its lever arm (:func:`lever_reason` decides it on all the runs).
+    """
     ds, _ = body_increment(nominal, run.steps.d_left, run.steps.d_right)
     _, _, th = integrate_steps(run.steps, nominal)
     heading = np.concatenate(([0.0], th))
     return Shape(float(np.sum(np.abs(ds))), float(np.ptp(heading)), float(heading[-1]),
-                 end_jacobian(run, nominal), information(run, nominal, max_gap),
-                 information(mirrored(run), nominal, max_gap))
+                 end_jacobian(run, nominal), information(run, nominal, mount, max_gap),
+                 information(mirrored(run), nominal, mirrored_mount(mount), max_gap), lever)
 
 
 def judges(held_out: Shape) -> str:
@@ -174,7 +226,8 @@ def leverage(training: Sequence[Shape], held_out: Shape) -> float:
     ``||G A^-1/2||`` (spectral norm); inf when the training runs leave a combination of
     the values free.
     """
-    info = geometry_part(sum((s.information for s in training), np.zeros((4, 4))))
+    info = geometry_part(sum((s.information for s in training), np.zeros((6, 6))),
+                         _lever(training))
     w, u = np.linalg.eigh(info)
     if w[0] <= 1e-12 * max(float(w[-1]), 1e-300):
         return math.inf
@@ -192,21 +245,82 @@ def extrapolates(training: Sequence[Shape], held_out: Shape,
             f"it; {max_leverage:g}x or less needed)")
 
 
-def geometry_part(info: FloatArray) -> FloatArray:
-    """The 3x3 information on the geometry with the start yaw eliminated (Schur complement)."""
-    a, b, d = info[:3, :3], info[:3, 3], float(info[3, 3])
-    return a if d <= 0.0 else np.asarray(a - np.outer(b, b) / d, dtype=np.float64)
+def _lever(shapes: Sequence[Shape]) -> bool:
+    return bool(shapes) and shapes[0].lever
 
 
-def mirror_ratio(shapes: Sequence[Shape]) -> float:
-    """Largest generalised eigenvalue of (mirrored, own) information; inf when singular."""
-    own = geometry_part(sum((s.information for s in shapes), np.zeros((4, 4))))
-    mir = geometry_part(sum((s.mirrored for s in shapes), np.zeros((4, 4))))
+def geometry_part(info: FloatArray, lever: bool = False) -> FloatArray:
+    """The 3x3 information on the geometry, the mount's fitted part eliminated (Schur).
+
+    The yaw always, the lever arm with ``lever`` (held, its columns are dropped).
+    """
+    nuisance = [*LEVER, *YAW] if lever else list(YAW)
+    g = list(GEOMETRY)
+    a, b, d = info[np.ix_(g, g)], info[np.ix_(g, nuisance)], info[np.ix_(nuisance, nuisance)]
+    return np.asarray(a - b @ np.linalg.pinv(d) @ b.T, dtype=np.float64)
+
+
+def generalised_max(own: FloatArray, other: FloatArray) -> float:
+    """Largest generalised eigenvalue of ``(other, own)``; inf when ``own`` is singular."""
     w, u = np.linalg.eigh(own)
     if w[0] <= 1e-12 * max(float(w[-1]), 1e-300):
         return math.inf
     white = u / np.sqrt(w)
-    return float(np.linalg.eigvalsh(white.T @ mir @ white)[-1])
+    return float(np.linalg.eigvalsh(white.T @ other @ white)[-1])
+
+
+def mirror_ratio(shapes: Sequence[Shape]) -> float:
+    """Largest generalised eigenvalue of (mirrored, own) information; inf when singular."""
+    lever = _lever(shapes)
+    own = geometry_part(sum((s.information for s in shapes), np.zeros((6, 6))), lever)
+    mir = geometry_part(sum((s.mirrored for s in shapes), np.zeros((6, 6))), lever)
+    return generalised_max(own, mir)
+
+
+def lever_inflation(shapes: Sequence[Shape]) -> float:
+    """How much freeing the lever arm widens the geometry's variance, at worst."""
+    info = sum((s.information for s in shapes), np.zeros((6, 6)))
+    return generalised_max(geometry_part(info, True), geometry_part(info, False))
+
+
+def lever_sigma(shapes: Sequence[Shape], noise: float = LEVER_NOISE_M) -> float:
+    """The lever arm's largest 1-sigma [m] were the residuals ``noise`` RMS (inf: not seen)."""
+    info = sum((s.information for s in shapes), np.zeros((6, 6)))
+    keep, rest = list(LEVER), [*GEOMETRY, *YAW]
+    a, b, d = info[np.ix_(keep, keep)], info[np.ix_(keep, rest)], info[np.ix_(rest, rest)]
+    w = np.linalg.eigvalsh(a - b @ np.linalg.pinv(d) @ b.T)
+    return math.inf if w[0] <= 0.0 else noise / math.sqrt(float(w[0]))
+
+
+def lever_reason(shapes: Sequence[Shape]) -> str:
+    """Why ``shapes`` (all the runs) do not determine the reference's lever arm ("" if they do)."""
+    if not shapes:
+        return "no run"
+    sigma = lever_sigma(shapes)
+    if sigma > MAX_LEVER_SIGMA_M:
+        return (f"these runs barely turn it about the axle (its 1-sigma would be "
+                f"{sigma:.2g} m at {1000 * LEVER_NOISE_M:g} mm of residual; "
+                f"{MAX_LEVER_SIGMA_M:g} m or less needed: turns both ways or spins on the "
+                "spot determine it)")
+    inflation = lever_inflation(shapes)
+    if inflation > MAX_LEVER_INFLATION:
+        return (f"turning at one curvature, one way, it trades with the geometry: freeing it "
+                f"would widen the geometry's variance {inflation:.0f}x "
+                f"({MAX_LEVER_INFLATION:g}x or less needed; turns both ways or spins on the "
+                "spot determine it)")
+    return ""
+
+
+def weakest(shapes: Sequence[Shape]) -> FloatArray:
+    """The combination of the three values ``shapes`` see least (unit, relative changes).
+
+    The geometry's information (the mount's fitted part eliminated) has its smallest
+    eigenvalue along it: what runs turning one way only leave free.
+    """
+    info = geometry_part(sum((s.information for s in shapes), np.zeros((6, 6))), _lever(shapes))
+    _, u = np.linalg.eigh(info)
+    v = u[:, 0]
+    return np.asarray(v if v[np.argmax(np.abs(v))] > 0 else -v, dtype=np.float64)
 
 
 def coverage(shapes: Sequence[Shape]) -> Coverage:

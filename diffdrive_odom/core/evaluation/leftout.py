@@ -8,8 +8,10 @@ and a fit that keeps them takes a spinning wheel for geometry.
 
 How a whole-trajectory objective leaves a step out: the slipped steps are *bridged*
 with the reference's own motion over them (its pose at the last step before the slip
-to its pose at the end of the slip, in its body frame, turned by the fit's start yaw
-as the rest of the reference is), and the wheels' steps before and after are
+to its pose at the end of the slip, in its body frame, moved onto base_link by the
+reference's mount as the rest of the reference is: ``M D M^-1``,
+:meth:`~diffdrive_odom.core.geometry.mount.Mount.base_motions`), and the wheels' steps
+before and after are
 integrated as before. Every other step then weighs on the residuals exactly as it
 did: its error carries on through the bridge to the end of the run, as it would
 without the slip. The alternative, cutting the run at each slip into pieces each
@@ -36,6 +38,7 @@ from diffdrive_odom.core.evaluation.metrics import Trajectory, covered, interpol
 from diffdrive_odom.core.evaluation.recorded_run import Run, start_stamp
 from diffdrive_odom.core.geometry.integration import Pose2D, integrate_batch
 from diffdrive_odom.core.geometry.kinematics import Geometry, body_increment
+from diffdrive_odom.core.geometry.mount import AXLE, Mount
 from diffdrive_odom.core.geometry.se2 import between
 
 FloatArray = npt.NDArray[np.float64]
@@ -130,12 +133,20 @@ def inside(spans: tuple[Bridge, ...], n: int) -> BoolArray:
     return mask
 
 
+def replaced(spans: tuple[Bridge, ...], n: int) -> BoolArray:
+    """Which of ``n`` steps the bridges replace (left out of the fit and of its figures)."""
+    gone = np.zeros(n, dtype=bool)
+    for b in spans:
+        gone[b.start:min(b.end, n)] = True
+    return gone
+
+
 def integrate(steps: WheelSteps, geometry: Geometry, spans: tuple[Bridge, ...],
-              start_yaw: float = 0.0) -> tuple[FloatArray, FloatArray, FloatArray]:
+              mount: Mount = AXLE) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Pose after every step, the bridges' steps by the reference's motion (NaN inside).
 
-    ``start_yaw``: the reference's yaw about the start (the fit's nuisance): its motion
-    is turned by it into the odometry's frame. Without bridges, exactly
+    ``mount``: where the reference sits on the robot (the fit's nuisance): its motion is
+    moved onto base_link by it. Without bridges, exactly
     :func:`~diffdrive_odom.core.bulk.batch.integrate_steps`. One segment only.
     """
     if not spans:
@@ -143,7 +154,6 @@ def integrate(steps: WheelSteps, geometry: Geometry, spans: tuple[Bridge, ...],
     ds, dth = body_increment(geometry, steps.d_left, steps.d_right)
     n = len(steps)
     x, y, th = (np.full(n, np.nan) for _ in range(3))
-    c, s = math.cos(start_yaw), math.sin(start_yaw)
     pose, k = Pose2D(), 0
     for b in (*spans, Bridge(n, n, (0.0, 0.0, 0.0))):
         if b.start > k:
@@ -152,8 +162,7 @@ def integrate(steps: WheelSteps, geometry: Geometry, spans: tuple[Bridge, ...],
             pose = Pose2D(float(x[b.start - 1]), float(y[b.start - 1]), float(th[b.start - 1]))
         if b.motion is None or b.end == b.start:
             break
-        mx, my, mth = b.motion
-        mx, my = c * mx - s * my, s * mx + c * my
+        mx, my, mth = mount.base_motions(np.array([b.motion]))[0]
         ct, st = math.cos(pose.theta), math.sin(pose.theta)
         pose = Pose2D(pose.x + ct * mx - st * my, pose.y + st * mx + ct * my, pose.theta + mth)
         x[b.end - 1], y[b.end - 1], th[b.end - 1] = pose.x, pose.y, pose.theta
@@ -161,9 +170,10 @@ def integrate(steps: WheelSteps, geometry: Geometry, spans: tuple[Bridge, ...],
     return x, y, th
 
 
-def trajectory(run: Run, geometry: Geometry, spans: tuple[Bridge, ...]) -> Trajectory:
+def trajectory(run: Run, geometry: Geometry, spans: tuple[Bridge, ...],
+               mount: Mount = AXLE) -> Trajectory:
     """The odometry of ``run`` for ``geometry`` with the bridges (the poses inside dropped)."""
-    x, y, th = integrate(run.steps, geometry, spans)
+    x, y, th = integrate(run.steps, geometry, spans, mount)
     zero = np.zeros(1)
     return Trajectory.from_arrays(pose_stamps(run.steps), np.concatenate((zero, x)),
                                   np.concatenate((zero, y)), np.concatenate((zero, th)))
@@ -175,9 +185,7 @@ def left_out(run: Run, nominal: Geometry, max_gap: float = 0.5) -> LeftOut | Non
     if steps.slip_spans is None:
         return None
     spans = bridges(run, max_gap)
-    gone = np.zeros(len(steps), dtype=bool)
-    for b in spans:
-        gone[b.start:min(b.end, len(steps))] = True
+    gone = replaced(spans, len(steps))
     ds, dth = body_increment(nominal, steps.d_left[gone], steps.d_right[gone])
     turned = sum(abs(b.motion[2]) for b in spans if b.motion is not None)
     return LeftOut(spans, steps.slip_events, int(gone.sum()), float(np.abs(ds).sum()),

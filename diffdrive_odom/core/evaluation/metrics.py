@@ -18,6 +18,11 @@ Figures (all in metres / radians; see :class:`Metrics`):
 Stamps are matched by interpolating the reference at the odometry's stamps (linear
 in x, y and the continuous heading), never extrapolated and never across a gap in
 the reference longer than ``max_gap``.
+
+A reference mounted turned on the robot (a marker body's yaw) would turn every
+start-aligned figure with it: :func:`travel_yaw` finds that yaw from the reference
+alone (its heading against its own direction of travel), for ``eval`` to move the
+reference onto base_link before these figures are taken.
 """
 
 from __future__ import annotations
@@ -247,3 +252,46 @@ def evaluate(
         segment_length_m=segment_length,
         rpe_segments=n_seg,
     )
+
+
+TRAVEL_MIN_STEP_M = 0.005  # stretches shorter than this are not a direction
+
+
+def travel_yaw(ref: Trajectory) -> tuple[float, float, float]:
+    """The reference frame's yaw in base_link from its direction of travel: (yaw, sigma, m).
+
+    A differential drive's axle centre moves along its heading, never sideways: over a
+    stretch, the reference's displacement seen in base_link's heading (the reference's
+    less the mount's yaw ``a``) has no sideways part but what a lever arm ``l_x`` ahead of
+    the axle adds on a turn, ``dtheta l_x`` (an arm along the axle adds none). Least
+    squares over the stretches of ``TRAVEL_MIN_STEP_M`` or more of the reference's own
+    path, ``|d| sin(phi - theta + a) = dtheta l_x`` in ``a`` and ``l_x`` (Gauss-Newton
+    from the stretches' circular mean): no odometry in it, so nothing of the geometry
+    judged. Sigma from the residuals; the third value is the distance it rests on [m]
+    (0: the reference never moved: yaw 0, sigma NaN). Driving backwards fits too.
+    """
+    if len(ref) < 2:
+        return 0.0, math.nan, 0.0
+    path = ref.path_length()
+    ends = np.searchsorted(path, np.arange(0.0, path[-1], TRAVEL_MIN_STEP_M), side="left")
+    ends = np.unique(np.append(ends, len(ref) - 1))
+    dx, dy = np.diff(ref.x[ends]), np.diff(ref.y[ends])
+    length = np.hypot(dx, dy)
+    keep = length >= TRAVEL_MIN_STEP_M
+    if keep.sum() < 3:
+        return 0.0, math.nan, 0.0
+    d, turn = length[keep], np.diff(ref.yaw[ends])[keep]
+    rel = wrap_angles(np.arctan2(dy, dx) - 0.5 * (ref.yaw[ends[:-1]] + ref.yaw[ends[1:]]))[keep]
+    yaw = -math.atan2(float(np.sum(d * np.sin(rel))), float(np.sum(d * np.cos(rel))))
+    lever = 0.0
+    for _ in range(20):  # Gauss-Newton on (a, l_x)
+        r = d * np.sin(rel + yaw) - turn * lever
+        jac = np.column_stack((d * np.cos(rel + yaw), -turn))
+        step = np.linalg.lstsq(jac, -r, rcond=None)[0]
+        yaw, lever = yaw + float(step[0]), lever + float(step[1])
+        if abs(step[0]) < 1e-12:
+            break
+    r = d * np.sin(rel + yaw) - turn * lever
+    jac = np.column_stack((d * np.cos(rel + yaw), -turn))
+    cov = np.linalg.pinv(jac.T @ jac) * float(np.sum(r**2)) / max(len(r) - 2, 1)
+    return math.remainder(yaw, math.tau), math.sqrt(max(float(cov[0, 0]), 0.0)), float(d.sum())

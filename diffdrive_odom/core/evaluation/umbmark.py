@@ -31,6 +31,7 @@ from diffdrive_odom.core.evaluation.recorded_run import (
     with_values,
 )
 from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mount import AXLE, Mount
 from diffdrive_odom.core.geometry.se2 import between
 
 
@@ -79,6 +80,13 @@ class Umbmark:
 
 
 EndPoint = tuple[float, float]
+
+# What is left of alpha and beta [rad] when the iteration stops shrinking it is accepted
+# below FLOOR: 1e-5 rad a square moves the separation by 6 ppm (about a micrometre on a
+# 0.2 m track), far below what two squares measure. STALL_PASSES passes in a row that do
+# not halve it make a stall.
+FLOOR = 1e-5
+STALL_PASSES = 3
 
 
 def umbmark_pass(cw_error: EndPoint, ccw_error: EndPoint, side: float,
@@ -130,13 +138,14 @@ def umbmark_correct(geometry: Geometry, p: UmbmarkPass) -> Geometry:
                        geometry.separation * p.e_b)
 
 
-def _end_error(run: Run, geometry: Geometry, truth_end: EndPoint) -> EndPoint:
+def _end_error(run: Run, geometry: Geometry, truth_end: EndPoint,
+               mount: Mount = AXLE) -> EndPoint:
     """Measured minus odometric end position, in the start frame [m] (slips bridged)."""
     spans = leftout.bridges(run)
     if not spans:
         end = final_pose(run.steps, geometry)
         return truth_end[0] - end.x, truth_end[1] - end.y
-    x, y, _ = leftout.integrate(run.steps, geometry, spans)
+    x, y, _ = leftout.integrate(run.steps, geometry, spans, mount)
     if not (math.isfinite(x[-1]) and math.isfinite(y[-1])):
         raise CalibrationError(f"{run.name}: a slip at its end the reference does not cover")
     return truth_end[0] - float(x[-1]), truth_end[1] - float(y[-1])
@@ -144,14 +153,17 @@ def _end_error(run: Run, geometry: Geometry, truth_end: EndPoint) -> EndPoint:
 
 def umbmark(
     cw: Run, ccw: Run, cw_end: EndPoint, ccw_end: EndPoint, *, side: float,
-    nominal: Geometry, tolerance: float = 1e-9, max_passes: int = 200,
+    nominal: Geometry, tolerance: float = 1e-9, max_passes: int = 200, mount: Mount = AXLE,
 ) -> Umbmark:
     """UMBmark from one square each way: ``*_end`` is where the robot really stopped.
 
     The end positions are relative to the start pose, in its frame (x forward,
-    y left), as a tape measure gives them. The paper's correction is applied to the
+    y left), as a tape measure gives them (base_link's: a reference's moved there by
+    ``mount``, :func:`reference_end`, which also bridges its slips with it). The paper's
+    correction is applied to the
     nominal geometry, then again to the corrected one with the same recorded wheel
-    increments, until ``alpha`` and ``beta`` are below ``tolerance`` rad.
+    increments, until ``alpha`` and ``beta`` are below ``tolerance`` rad, or until
+    passes stop shrinking them while they are below :data:`FLOOR` (its floor).
     """
     if not (math.isfinite(side) and side > 0.0):
         raise CalibrationError(f"--side must be > 0 m, got {side!r}")
@@ -159,14 +171,23 @@ def umbmark(
         single_segment(run)
 
     def one(g: Geometry) -> UmbmarkPass:
-        return umbmark_pass(_end_error(cw, g, cw_end), _end_error(ccw, g, ccw_end), side,
-                            nominal.separation)
+        return umbmark_pass(_end_error(cw, g, cw_end, mount), _end_error(ccw, g, ccw_end, mount),
+                            side, nominal.separation)
 
     first = one(nominal)
     geometry, p, passes = umbmark_correct(nominal, first), first, 1
+    best, stalled = math.inf, 0
     while passes < max_passes:
         p = one(geometry)
-        if max(abs(p.alpha), abs(p.beta)) < tolerance:
+        left = max(abs(p.alpha), abs(p.beta))
+        if left < tolerance:
+            break
+        # At its floor a pass no longer halves what is left; below FLOOR that is the
+        # answer (a demo run stalled at 1.2e-6 rad after shrinking x0.1 a pass), above
+        # it the iteration is not converging and says so.
+        stalled = stalled + 1 if left > 0.5 * best else 0
+        best = min(best, left)
+        if stalled >= STALL_PASSES and left < FLOOR:
             break
         geometry = umbmark_correct(geometry, p)
         passes += 1
@@ -176,23 +197,24 @@ def umbmark(
             f"beta {p.beta:.3g} rad)")
 
     def errors(g: Geometry) -> tuple[float, float]:
-        e1, e2 = _end_error(cw, g, cw_end), _end_error(ccw, g, ccw_end)
+        e1, e2 = _end_error(cw, g, cw_end, mount), _end_error(ccw, g, ccw_end, mount)
         return math.hypot(*e1), math.hypot(*e2)
 
     return Umbmark(nominal, side, first, geometry, passes, errors(nominal), errors(geometry),
                    umbmark_correct(nominal, first))
 
 
-def reference_end(run: Run, reference: Trajectory) -> EndPoint:
-    """The reference's end position relative to its pose at the run's start, in that frame.
+def reference_end(run: Run, reference: Trajectory, mount: Mount = AXLE) -> EndPoint:
+    """base_link's end position relative to its pose at the run's start, in that frame.
 
-    As UMBmark wants it (so a reference in any world frame works): the start is the
-    stamp of the run's first reading, where the odometry starts at the origin.
+    As UMBmark wants it (so a reference in any world frame works): the reference's
+    motion moved onto base_link by ``mount``; the start is the stamp of the run's first
+    reading, where the odometry starts at the origin.
     """
     single_segment(run)
     ends = np.array([start_stamp(run.steps), int(run.steps.stamp_ns[-1])], dtype=np.int64)
     if not covered(reference, ends, math.inf).all():
         raise CalibrationError(f"{run.name}: the reference does not cover the whole run")
     poses = interpolate(reference, ends)
-    x, y, _ = between(poses[:1], poses[1:])[0]
+    x, y, _ = mount.base_motions(between(poses[:1], poses[1:]))[0]
     return float(x), float(y)

@@ -1,3 +1,3 @@
-"""The plane's geometry: SE(2) poses, 3x3 products, the wheel kinematics and the exact CIR step."""
+"""The plane's geometry: SE(2), 3x3 products, the kinematics, the exact CIR step, mounts."""
 
-__all__ = ['integration', 'kinematics', 'mat3', 'se2']
+__all__ = ['integration', 'kinematics', 'mat3', 'mount', 'se2']

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from diffdrive_odom.core.evaluation import leftout
+from diffdrive_odom.core.evaluation import judge, leftout
 from diffdrive_odom.core.evaluation.recorded_run import Run, values_of
 from diffdrive_odom.core.evaluation.umbmark import Umbmark
 from diffdrive_odom.core.geometry.kinematics import Geometry
@@ -27,7 +27,13 @@ from diffdrive_odom.core.uncertainty.noise import (
 from diffdrive_odom.settings.params import yaml_text
 
 if TYPE_CHECKING:  # scipy (the ``tools`` extra) only where it is used
-    from diffdrive_odom.core.evaluation import consistency, crossval, objective
+    from diffdrive_odom.core.evaluation import (
+        assessment,
+        calibration,
+        consistency,
+        crossval,
+        objective,
+    )
     from diffdrive_odom.core.evaluation.calibration import Fit
 
 
@@ -94,13 +100,12 @@ def check_lines(v: crossval.Verdict | None, runs: int, forced: bool) -> str:
             "fit (paths that turn both ways as they go, circles or squares each way, judge "
             "it; straight lines and spins on the spot cannot); the block is printed, judge it "
             "yourself", *left])
-    figures = (f"mean final position error {c.fpe_nominal:.4f} m nominal, {c.fpe_held_out:.4f} "
-               f"m calibrated; ATE {c.ate_nominal:.4f} -> {c.ate_held_out:.4f} m "
+    figures = (f"mean {judge.NAME} {c.nominal:.4f} m nominal, {c.held_out:.4f} m calibrated "
                f"(leave-one-run-out over {c.runs} runs"
                + (f", {len(v.left_out)} left out" if v.left_out else "") + ")")
     if v.within_margin:
         head = (f"CANNOT TELL on held-out runs: {figures}; the change is within its noise, "
-                f"{v.margin:.4f} m (the RMS in-sample final error over the square root of "
+                f"{v.margin:.4f} m (the RMS in-sample error over the square root of "
                 "the folds); the block is printed, judge it yourself")
     elif v.better:
         head = ("held-out check: calibrated geometry better than nominal on runs it did not "
@@ -120,8 +125,8 @@ def objective_lines(c: objective.Choice) -> str:
         return f"objective: {name} (the default, not chosen: {c.why})"
     counted = len(c.scores[0].judged)
     lines = [f"objective: {name}, chosen by leave-one-run-out on the {c.runs} runs: each "
-             f"refitted without one run, that run's final position error (start aligned) "
-             f"over the {counted} folds that can judge a fit; the lowest worst taken",
+             f"refitted without one run, that run's {judge.NAME} over the {counted} folds "
+             "that can judge a fit; the lowest worst taken",
              f"  {'objective':40s} {'worst [m]':>9s} {'mean [m]':>9s}  to force it"]
     for s in c.scores:
         o = s.objective
@@ -202,19 +207,81 @@ def fit_report(fit: Fit, covariance: npt.NDArray[np.float64] | None,
         if std is not None else
         f"1-sigma: not given: it needs {crossval.MIN_RUNS_FOR_SIGMA} or more runs; the "
         "node's default stddev ratios stay")
-    lines.append("fitted nuisance: none (the end poses as they are)" if fit.ends_only else
-                 f"fitted nuisance: the reference's yaw about the start "
-                 f"{math.degrees(fit.start_yaw):+.3f} deg")
     for what, value, why in calibration.FIXED:
         lines.append(f"fixed, not fitted: {what} = {value} ({why})")
     lines.append(f"RMS residual {fit.rms_before * 1e3:.2f} -> {fit.rms_after * 1e3:.2f} mm")
-    lines.append("in-sample (the runs it was fitted to) final position error, start aligned, "
-                 "nominal -> calibrated; ATE RMSE:")
+    lines.append(f"in-sample (the runs it was fitted to) {judge.NAME} ({judge.DEFINITION}), "
+                 "nominal -> calibrated:")
     for r in fit.runs:
-        lines.append(f"  {r.name}: {r.before.final_position_error_aligned_m:.4f} -> "
-                     f"{r.after.final_position_error_aligned_m:.4f} m; "
-                     f"{r.before.ate_rmse_aligned_m:.4f} -> {r.after.ate_rmse_aligned_m:.4f} m")
+        lines.append(f"  {r.name}: {r.before.error:.4f} -> {r.after.error:.4f} m "
+                     f"(path {r.before.path:.4f} -> {r.after.path:.4f}, end {r.before.end:.4f} "
+                     f"-> {r.after.end:.4f})" + _every_step(r))
     return "\n".join(lines)
+
+
+def _every_step(r: calibration.RunFigures) -> str:
+    """What wheels-only replay will show of a run whose slips the fit left out ('' if none)."""
+    if r.before_all is None or r.after_all is None:
+        return ""
+    return (f"\n    these figures leave out its {r.after.left_out} slip steps (bridged by the "
+            "reference); wheels-only replay integrates them: replay --eval's final position "
+            f"error, start aligned, {r.before_all.final_position_error_aligned_m:.4f} -> "
+            f"{r.after_all.final_position_error_aligned_m:.4f} m (nominal -> calibrated, "
+            "--reference-offset the mount below; use_imu takes the slips' heading from the "
+            "gyro)")
+
+
+def mount_lines(found: assessment.MountFound) -> str:
+    """Where the reference sits on the robot, how it is known, and what is not."""
+    m = found.mount
+    if found.given:
+        return f"reference mount (--reference-offset, held): {m.text()}"
+    what = ("its yaw (the direction of travel against its heading) and its lever arm"
+            if not found.lever_held else "its yaw (the direction of travel against its "
+            "heading); its lever arm HELD AT 0, not determined by these runs: "
+            f"{found.lever_held}; give --reference-offset X,Y,YAW if it is off the axle")
+    return (f"reference mount (its frame in base_link), fitted: {m.text(found.sigma)} "
+            f"(1-sigma: {found.source})\n  fitted: {what}")
+
+
+def coverage_line(a: assessment.Assessment) -> str:
+    """What all the runs do not determine ('' when they determine the geometry)."""
+    reason = a.coverage.reason
+    if not reason:
+        return ""
+    w = a.weakest
+    return (f"NOT DETERMINED by these runs: {reason}; the combination they see least, "
+            f"{w[0]:+.2f} left radius {w[1]:+.2f} right radius {w[2]:+.2f} separation "
+            "(relative changes), is not determined: the values printed hold along it only "
+            "as far as these runs go (runs that turn the other way determine it)")
+
+
+def implausible_lines(found: Sequence[assessment.Implausible], mount: assessment.MountFound,
+                      forced: bool) -> list[str]:
+    """A value moved too far to be the wheels: named, with its likely causes."""
+    from diffdrive_odom.core.evaluation import assessment as a
+
+    if not found:
+        return []
+    lines = [f"IMPLAUSIBLE: the fit moved a value more than {100 * a.IMPLAUSIBLE_RATIO:g} % "
+             f"from nominal and more than {a.IMPLAUSIBLE_SIGMAS:g} sigma"
+             + (" (--force: block printed anyway)" if forced else "") + ":"]
+    for v in found:
+        sigma = (f"{abs(v.fitted - v.nominal) / v.sigma:.0f} sigma" if v.sigma
+                 else "no sigma: fewer than 3 runs")
+        lines.append(f"  {v.name}: {v.nominal:.6f} -> {v.fitted:.6f} m (x{v.ratio:.4f}, {sigma})")
+    causes = ["a wrong nominal wheel_radius or ticks_per_revolution (or encoder units) in the "
+              "params: every value moves by the same factor",
+              "a wrong nominal wheel_separation"]
+    if mount.lever_held:
+        causes.append("the reference's lever arm, held at 0 but not determined by these runs: "
+                      "give --reference-offset X,Y,YAW")
+    elif not mount.given:
+        causes.append(f"the reference's mount fitted where it is not ({mount.mount.text()}): "
+                      "give --reference-offset X,Y,YAW")
+    causes.append("a reference stamped late or on another clock, or runs that slip")
+    lines.append("  likely causes: " + "; ".join(causes))
+    return lines
 
 
 def umbmark_report(u: Umbmark) -> str:

@@ -3,18 +3,20 @@
 One definition per flag, so the tools that run the node's estimator take its settings
 the same way (``--params-file``/``-p`` in rcl's order, ``--node-name``, ``--namespace``)
 and the tools that read ground truth find it the same way (``--ground-truth``,
-``--child-frame``).
+``--child-frame``) and place it on the robot the same way (``--reference-offset``).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
+from diffdrive_odom.core.geometry.mount import Mount
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.odometry import odometry_settings
 from diffdrive_odom.settings.rcl import ParamSource, ParamValue, resolve_parameters
@@ -97,14 +99,39 @@ def settings_from_args(args: argparse.Namespace, prefix: str | None,
         return f"--params-file: {err}"
 
 
-def add_reference_arguments(ap: argparse.ArgumentParser) -> None:
-    """``--ground-truth`` and ``--child-frame``: how eval and calibrate find the reference."""
+def add_reference_arguments(ap: argparse.ArgumentParser, offset_default: str) -> None:
+    """``--ground-truth``, ``--child-frame``, ``--reference-offset``: find and place the reference.
+
+    ``offset_default``: what the tool does without ``--reference-offset`` (its help's end).
+    """
     ap.add_argument("--ground-truth", default=None, metavar="TOPIC",
                     help="reference topic: PoseStamped, PoseWithCovarianceStamped, Odometry, "
                     f"or TransformStamped on /tf (default: {DEFAULT_REFERENCE}, else the "
                     "bag's only ground-truth topic, e.g. sim_node's /ground_truth/odom)")
     ap.add_argument("--child-frame", default=None, metavar="FRAME",
                     help="reference child frame on /tf (default: the only one there)")
+    add_offset_argument(ap, offset_default)
+
+
+def add_offset_argument(ap: argparse.ArgumentParser, default: str) -> None:
+    """``--reference-offset X,Y,YAW``: where the reference is mounted on the robot."""
+    ap.add_argument("--reference-offset", type=reference_offset, default=None,
+                    metavar="X,Y,YAW", help="the pose of the reference's frame in base_link "
+                    "(REP-103: x forward, y left [m], yaw counter-clockwise [deg]), as the "
+                    "base_link -> frame transform gives it: a marker body, camera or antenna "
+                    f"off the axle or turned; --reference-offset=-0.1,0.2,90 when X is "
+                    f"negative (default: {default})")
+
+
+def reference_offset(text: str) -> Mount:
+    """``X,Y,YAW`` (m, m, deg) as a mount; argparse's error (exit 2) says what is wrong."""
+    try:
+        x, y, yaw = (float(p) for p in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"give X,Y,YAW (m, m, deg), got {text!r}") from None
+    if not all(math.isfinite(v) for v in (x, y, yaw)):
+        raise argparse.ArgumentTypeError(f"X,Y,YAW must be finite, got {text!r}")
+    return Mount(x, y, math.radians(yaw))
 
 
 def outputs_problem(*outputs: tuple[str, str | None]) -> str | None:

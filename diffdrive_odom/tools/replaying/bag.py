@@ -40,6 +40,7 @@ def replay_bag(args: argparse.Namespace, settings: OdometrySettings
     The poses are also kept (the :class:`~.sinks.PoseLog`) when ``args.eval`` asks.
     """
     traj = sinks.PoseLog()
+    settings = online_report.with_static_mount(args.bag, settings)
     with ExitStack() as stack:
         reader = stack.enter_context(bagio.open_bag(args.bag))
         total = bagio.count_messages(reader, args.topic)

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.online.online_estimate import CHI2_2DOF_3SIGMA, OnlineEstimate
+from diffdrive_odom.core.geometry.mount import Mount
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.rcl import ParamValue, resolve_parameters
 from diffdrive_odom.tools.replaying import online_plot  # matplotlib only where it draws
@@ -110,6 +111,31 @@ def reference_topic(settings: OdometrySettings) -> str | None:
     online = settings.online
     ref = None if settings.gyro is None or online is None else online.reference
     return None if ref is None else ref.topic
+
+
+def with_static_mount(bag: str, settings: OdometrySettings) -> OdometrySettings:
+    """The settings with the reference's mount read from the bag's /tf_static, when asked.
+
+    ``online_calibration_reference_frame`` names the reference's frame: replay takes the
+    transform to it from the bag (the node from the live /tf_static); BagError when the
+    bag has none.
+    """
+    online = settings.online
+    ref = None if reference_topic(settings) is None or online is None else online.reference
+    if online is None or ref is None or not ref.frame:
+        return settings
+    from diffdrive_odom.tools.bags import bagio, poses
+
+    try:
+        found = poses.read_trajectory(bag, "/tf_static", ref.frame,
+                                      "online_calibration_reference_frame")
+    except bagio.BagError as err:
+        raise bagio.BagError(f"{bag}: the reference's mount (online_calibration_reference_"
+                             f"frame {ref.frame}) is not on its /tf_static ({err}): give "
+                             "online_calibration_reference_offset instead") from None
+    mount = Mount(float(found.x[0]), float(found.y[0]), float(found.yaw[0]))
+    reference = replace(ref, mount=mount, frame="")
+    return replace(settings, online=replace(online, reference=reference))
 
 
 def report(trace: list[tuple[int, OnlineEstimate]], final: OnlineEstimate | None) -> str:

@@ -29,6 +29,13 @@ Reference poses wait until the wheels' judged steps reach their stamp (a lagging
 reference is fine up to ``MAX_LAG_S``); a dropout only makes a window longer; a jump
 (AMCL relocalising) is a window whose innovation is beyond ``GATE_SIGMAS``: refused
 and counted. Pure Python, no rclpy.
+
+Each pose is first moved onto base_link by the reference's mount
+(:mod:`~diffdrive_odom.core.geometry.mount`: ``online_calibration_reference_offset``,
+or the transform to ``online_calibration_reference_frame`` the node finds on
+/tf_static, :meth:`OnlineScale.set_mount`): a reference off the axle moves further
+than base_link on every turn (``|l| dtheta``), which would read as a larger mean
+radius. Until a frame's transform is known, poses are refused (``no_mount``).
 """
 
 from __future__ import annotations
@@ -44,6 +51,7 @@ from diffdrive_odom.core.errors import ConfigError, require_finite_min
 from diffdrive_odom.core.estimation.online.kalman import kalman_update, quadratic
 from diffdrive_odom.core.estimation.online.ratios import ratio_geometry
 from diffdrive_odom.core.geometry.kinematics import Geometry
+from diffdrive_odom.core.geometry.mount import AXLE, Mount
 from diffdrive_odom.core.uncertainty.noise import NoiseModel
 
 __all__ = ["REFERENCE_TYPES", "SCALE_FIELDS", "OnlineScale", "ReferenceConfig", "ScaleEstimate",
@@ -93,12 +101,18 @@ class ReferenceConfigError(ConfigError):
 
 @dataclass(frozen=True)
 class ReferenceConfig:
-    """``online_calibration_reference_*``: the topic, its type and its noise per pose."""
+    """``online_calibration_reference_*``: the topic, its type, its noise per pose, its mount.
+
+    ``mount``: where the reference's frame sits in base_link; ``frame``: '' (the mount
+    as given), else the frame whose transform from base_link on /tf_static gives it.
+    """
 
     topic: str
     kind: str = ODOMETRY
     position_stddev: float = 0.01  # m, of each pose
     heading_stddev: float = 0.005  # rad, of each pose
+    mount: Mount = AXLE
+    frame: str = ""
 
     def __post_init__(self) -> None:
         if self.kind not in REFERENCE_TYPES:
@@ -197,13 +211,22 @@ class OnlineScale:
         self._updated_ns: int | None = None
         self._ratios = (0.0, 0.0)  # the gyro's ratios, as last observed
         self._heading = 0.0  # the wheels' heading, true (the gyro's over s) [rad]
+        # where the reference sits on the robot; None: its frame's transform not yet known
+        self.mount: Mount | None = None if config.frame else config.mount
+
+    def set_mount(self, mount: Mount) -> None:
+        """The reference's mount, found (the node's /tf_static); poses move by it from now."""
+        self.mount = mount
 
     # --- inputs ------------------------------------------------------------------
 
     def feed(self, stamp_ns: int, x: float, y: float, yaw: float) -> str:
-        """One reference pose; '' if kept, else the code it was refused with."""
+        """One reference pose (its frame's); '' if kept, else the code it was refused with."""
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(yaw)) or stamp_ns <= 0:
             return "non_finite"
+        if self.mount is None:
+            return "no_mount"
+        x, y, yaw = self.mount.base_pose(x, y, yaw)
         if self._last_ref is not None and stamp_ns <= self._last_ref:
             if self._last_ref - stamp_ns < RESTART_S * 1e9:
                 self.excluded["stale"] += 1

@@ -1,0 +1,229 @@
+"""The anchor calibration: a plain least squares on the reference's positions, without the package.
+
+Issue 38's yardstick for ``calibrate``, written here from the textbook and imported by
+``bench_anchor.py`` (nothing of ``diffdrive_odom`` is imported: an error shared by the
+product and its yardstick cannot cancel):
+
+- each run's wheel angle increments integrated with exact circular arcs (left and right
+  arcs ``r_L dphi_L``, ``r_R dphi_R``, turn ``(s_R - s_L) / b``, the chord along the
+  mid-heading);
+- the reference's point is ``p + R(theta) l``: ``l``, its lever arm from the axle centre
+  (x forward, y left), fitted; its heading is never read, so a marker body's yaw on the
+  robot does not matter;
+- every run's start pose is fitted too (a rotation and a translation per run, solved in
+  closed form for any geometry and lever arm: the 2-D Kabsch fit of the run's points on
+  the reference's); steps left out (the slips ``calibrate`` leaves out, given as stamp
+  spans) cut a run into pieces, each with a start pose of its own;
+- the three multipliers and the lever arm minimise the sum of squared position errors
+  over every reading the reference covers (no robust loss, no weights): 1-sigma from
+  the Gauss-Newton covariance with the residuals' variance.
+
+The figure it judges a geometry by (:func:`judge`): a run's RMS position error with the
+run's own start pose fitted (the same Kabsch), the lever arm given.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy import optimize
+
+FloatArray = npt.NDArray[np.float64]
+Values = Sequence[float] | FloatArray
+MAX_GAP_NS = 500_000_000  # the reference is not interpolated across a longer gap
+
+
+@dataclass(frozen=True)
+class Piece:
+    """Steps without a gap: wheel increments [rad] and the reference at each pose after a step.
+
+    ``sample``: which poses (0 = the piece's start, k = after step k - 1) the reference
+    covers; ``ref``: its positions there (m, 2).
+    """
+
+    d_left: FloatArray
+    d_right: FloatArray
+    sample: npt.NDArray[np.int64]
+    ref: FloatArray
+
+
+@dataclass(frozen=True)
+class AnchorRun:
+    """A run as the anchor reads it: its pieces."""
+
+    name: str
+    pieces: tuple[Piece, ...]
+
+
+@dataclass(frozen=True)
+class AnchorFit:
+    """The anchor's fit: multipliers (left, right, separation), lever arm [m], 5x5 covariance."""
+
+    multipliers: FloatArray
+    lever: FloatArray
+    covariance: FloatArray
+    rms: float
+    information: FloatArray  # J^T J / residual variance (the covariance's inverse)
+
+    @property
+    def sigma(self) -> FloatArray:
+        """1-sigma of the multipliers and the lever arm."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+
+# --- reading ------------------------------------------------------------------------
+
+
+def _stamp(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def read_bag(bag: Path | str, left: str, right: str, reference: str = "/ground_truth/pose",
+             ticks: float | None = None, counter_bits: int | None = None
+             ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Wheel stamps [ns], left and right wheel angles [rad] from 0; reference (n, 3): ns, x, y.
+
+    ``ticks``: raw counters per wheel turn (angles otherwise), wrapping at ``2^counter_bits``.
+    Readings sorted by header stamp.
+    """
+    from rosbags.highlevel import AnyReader
+
+    wheels: list[tuple[int, float, float]] = []
+    ref: list[tuple[int, float, float]] = []
+    with AnyReader([Path(bag)]) as reader:
+        conns = [c for c in reader.connections if c.topic in ("/joint_states", reference)]
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == reference:
+                pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+                ref.append((_stamp(msg.header), float(pose.position.x), float(pose.position.y)))
+            else:
+                names = list(msg.name)
+                wheels.append((_stamp(msg.header), float(msg.position[names.index(left)]),
+                               float(msg.position[names.index(right)])))
+    w = np.array(sorted(wheels), dtype=np.float64)
+    r = np.array(sorted(ref), dtype=np.float64)
+    angles = []
+    for col in (w[:, 1], w[:, 2]):
+        step = np.diff(col)
+        if counter_bits is not None:
+            span = 2.0 ** counter_bits
+            step = (step + span / 2) % span - span / 2
+        if ticks is not None:
+            step = step * 2.0 * math.pi / ticks
+        angles.append(np.concatenate(([0.0], np.cumsum(step))))
+    return w[:, 0], angles[0], angles[1], r
+
+
+def anchor_run(name: str, stamps: FloatArray, left: FloatArray, right: FloatArray,
+               ref: FloatArray, left_out: Sequence[tuple[int, int]] = ()) -> AnchorRun:
+    """The pieces of a run: steps whose end stamp lies in a ``left_out`` span cut it."""
+    t = stamps.astype(np.int64)
+    rt = ref[:, 0].astype(np.int64)
+    dl, dr = np.diff(left), np.diff(right)
+    cut = np.zeros(len(dl), dtype=bool)
+    for first, last in left_out:
+        cut |= (t[1:] >= first) & (t[1:] <= last)
+    i = np.clip(np.searchsorted(rt, t, side="right"), 1, len(rt) - 1)
+    covered = (t >= rt[0]) & (t <= rt[-1]) & ((rt[i] - rt[i - 1] <= MAX_GAP_NS)
+                                               | (rt[i - 1] == t))
+    xy = np.column_stack([np.interp((t - rt[0]).astype(np.float64),
+                                    (rt - rt[0]).astype(np.float64), ref[:, k]) for k in (1, 2)])
+    pieces = []
+    start = 0
+    for k in [*np.flatnonzero(cut), len(dl)]:
+        if k - start >= 2:  # steps start .. k - 1; poses start .. k
+            poses = np.arange(start, k + 1)
+            ok = covered[poses]
+            if ok.sum() >= 3:
+                pieces.append(Piece(dl[start:k], dr[start:k], np.flatnonzero(ok),
+                                    xy[poses[ok]]))
+        start = k + 1
+    return AnchorRun(name, tuple(pieces))
+
+
+# --- the model ----------------------------------------------------------------------
+
+
+def integrate(d_left: FloatArray, d_right: FloatArray, r_left: float, r_right: float,
+              separation: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Poses (x, y, theta) at the start and after every step, exact arcs."""
+    sl, sr = r_left * d_left, r_right * d_right
+    ds, dth = 0.5 * (sl + sr), (sr - sl) / separation
+    th = np.concatenate(([0.0], np.cumsum(dth)))
+    chord = ds * np.sinc(dth / (2.0 * math.pi))  # sin(dth/2) / (dth/2)
+    mid = th[:-1] + 0.5 * dth
+    x = np.concatenate(([0.0], np.cumsum(chord * np.cos(mid))))
+    y = np.concatenate(([0.0], np.cumsum(chord * np.sin(mid))))
+    return x, y, th
+
+
+def _kabsch(p: FloatArray, q: FloatArray) -> FloatArray:
+    """``q`` minus ``p`` moved by the rigid motion that lays it best on ``q`` (m, 2)."""
+    mp, mq = p.mean(axis=0), q.mean(axis=0)
+    a, b = p - mp, q - mq
+    angle = math.atan2(float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])),
+                       float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])))
+    c, s = math.cos(angle), math.sin(angle)
+    moved = np.column_stack((c * a[:, 0] - s * a[:, 1], s * a[:, 0] + c * a[:, 1]))
+    return np.asarray(b - moved, dtype=np.float64)
+
+
+def piece_errors(piece: Piece, multipliers: Values, lever: Values,
+                 radius: float, separation: float) -> FloatArray:
+    """The reference's point minus the odometry's, start pose fitted (m, 2)."""
+    x, y, th = integrate(piece.d_left, piece.d_right, radius * multipliers[0],
+                         radius * multipliers[1], separation * multipliers[2])
+    i = piece.sample
+    c, s = np.cos(th[i]), np.sin(th[i])
+    p = np.column_stack((x[i] + c * lever[0] - s * lever[1], y[i] + s * lever[0] + c * lever[1]))
+    return _kabsch(p, piece.ref)
+
+
+def fit(runs: Sequence[AnchorRun], radius: float, separation: float,
+        lever: bool = True, multipliers: Values | None = None) -> AnchorFit:
+    """The anchor's least squares (see the module); ``lever`` False: held at 0;
+    ``multipliers`` given: held, the lever arm alone fitted."""
+    pieces = [p for r in runs for p in r.pieces]
+    held = None if multipliers is None else np.asarray(multipliers, dtype=np.float64)
+
+    def unpack(v: FloatArray) -> tuple[FloatArray, FloatArray]:
+        m = held if held is not None else v[:3]
+        rest = v[3:] if held is None else v
+        return m, (rest[:2] if lever else np.zeros(2))
+
+    def res(v: FloatArray) -> FloatArray:
+        m, lv = unpack(v)
+        return np.concatenate([piece_errors(p, m, lv, radius, separation).ravel()
+                               for p in pieces])
+
+    x0 = np.array(([] if held is not None else [1.0, 1.0, 1.0]) + ([0.0, 0.0] if lever else []))
+    scale = np.array(([] if held is not None else [1e-3] * 3) + ([1e-2] * 2 if lever else []))
+    sol = optimize.least_squares(res, x0, x_scale=scale, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    r = np.asarray(sol.fun)
+    dof = max(len(r) - len(x0) - 3 * len(pieces), 1)
+    variance = float(np.sum(r**2)) / dof
+    jac = np.asarray(sol.jac)
+    info = jac.T @ jac / variance
+    full = np.zeros((5, 5))
+    idx = ([0, 1, 2] if held is None else []) + ([3, 4] if lever else [])
+    full[np.ix_(idx, idx)] = np.linalg.pinv(info)
+    full_info = np.zeros((5, 5))
+    full_info[np.ix_(idx, idx)] = info
+    m, lv = unpack(np.asarray(sol.x))
+    return AnchorFit(np.asarray(m, dtype=np.float64), np.asarray(lv, dtype=np.float64), full,
+                     math.sqrt(float(np.mean(r**2))), full_info)
+
+
+def judge(run: AnchorRun, multipliers: Values, lever: Values, radius: float,
+          separation: float) -> float:
+    """A run's RMS position error [m] with this geometry and lever arm, its start pose fitted."""
+    errs = np.concatenate([piece_errors(p, multipliers, lever, radius, separation)
+                           for p in run.pieces])
+    return float(np.sqrt(np.mean(np.sum(errs**2, axis=1))))
