@@ -11,7 +11,7 @@ SHARED_LAUNCH ?= ../shared/launch
 LAUNCH_STAMP := $(VENV)/.launch-installed
 PIP_QUIET := 2>&1 | grep -v '^WARNING: Location' || true
 
-.PHONY: venv demo test test-fast test-dds lint docs check bench clean
+.PHONY: venv demo demo-docs test test-fast test-dds lint docs check bench clean
 
 venv: $(STAMP) $(if $(wildcard $(SHARED_LAUNCH)/install.sh),$(LAUNCH_STAMP))
 
@@ -31,6 +31,11 @@ $(LAUNCH_STAMP): $(STAMP) $(SHARED_LAUNCH)/install.sh
 # DEMO_ARGS: the demo's options, e.g. DEMO_ARGS="--short --output /tmp/demo" (CI on 3.12).
 demo: venv
 	$(VENV)/bin/diffdrive-odom demo $(DEMO_ARGS)
+
+# The demo's table in README.md and doc/tools/demo.md and doc/images/trajectory.png,
+# written from a run (lockstep: every run of one install prints the same table).
+demo-docs: venv
+	$(PY) scripts/demo_docs.py $(DEMO_ARGS)
 
 # Tiers (markers in setup.cfg): test = everything (CI): all but the `serial` tests on four
 # xdist workers (each its own DDS domain; on two cores, as the DDS tests mostly wait: 5.6

@@ -33,11 +33,13 @@ from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import parameter_value_to_python
+from rclpy.parameter import Parameter, parameter_value_to_python
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 
+from diffdrive_odom.ros import lockstep
 from diffdrive_odom.ros.qos import qos
+from diffdrive_odom.ros.runtime import make_executor
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.tools.cmdline import process
 from diffdrive_odom.wire.conversions import ns_to_stamp
@@ -133,6 +135,28 @@ def ros_test_node(name: str = "test_peer") -> Iterator[tuple[Node, SingleThreade
         rclpy.try_shutdown(context=context)
 
 
+@contextmanager
+def loop_peer(name: str) -> Iterator[tuple[Node, Any, lockstep.Participant]]:
+    """The test's node in a lockstep loop (named in the sim's ``lockstep_nodes``): on the
+    sim's /clock, its loop's topics counted, each step answered through :func:`spin_until`.
+
+    On the EventsExecutor, as the nodes run: it answers every step, so the loop waits for
+    it as for them.
+    """
+    context = Context()
+    rclpy.init(context=context)
+    node = Node(name, context=context, parameter_overrides=[
+        Parameter("use_sim_time", value=True)])
+    executor, _ = make_executor(context=context)
+    executor.add_node(node)
+    try:
+        yield node, executor, lockstep.Participant(node)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
 def spin_until(
     executor: SingleThreadedExecutor, condition: Callable[[], Any], timeout: float = 10.0
 ) -> bool:
@@ -142,6 +166,7 @@ def spin_until(
         if condition():
             return True
         executor.spin_once(timeout_sec=0.05)
+        lockstep.settle(executor)  # a peer in a lockstep loop answers what it took
     return bool(condition())
 
 
@@ -150,6 +175,7 @@ def spin_for(executor: SingleThreadedExecutor, seconds: float) -> None:
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.02)
+        lockstep.settle(executor)
 
 
 def call_service(node: Node, executor: SingleThreadedExecutor, srv_type: Any, name: str,

@@ -40,8 +40,6 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE",
                     help="override a sim_node parameter (repeatable), e.g. "
                          "true_right_wheel_radius:=0.0505")
-    ap.add_argument("--real-time-factor", type=float, default=4.0,
-                    help="simulated seconds per wall second")
     ap.add_argument("--timeout", type=float, default=150.0, help="give up after [s] (wall)")
     ap.add_argument("--domain-id", type=int, default=None,
                     help="ROS_DOMAIN_ID for the run (default: a random one)")
@@ -58,22 +56,26 @@ def options(args: argparse.Namespace) -> DemoOptions:
     return DemoOptions(
         route=route, side=side, output=Path(args.output), params_file=Path(args.params_file),
         speed=args.linear, max_angular=args.angular,
-        real_time_factor=args.real_time_factor,
         sim_overrides=dict(parse_override(t) for t in args.sim_param),
         timeout=args.timeout, write_bag=not args.no_bag, write_plot=not args.no_plot,
         domain_id=args.domain_id,
     )
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``diffdrive-odom demo``: 0 on success, 1 if the run failed, 2 on bad options."""
-    args = _parser().parse_args(list(sys.argv[1:] if argv is None else argv))
+def parse(argv: Sequence[str]) -> DemoOptions:
+    """The command line as run options, checked before anything starts (DemoError)."""
     from .settings import check_options, load_settings
 
+    opts = options(_parser().parse_args(list(argv)))
+    check_options(opts)
+    load_settings(opts)
+    return opts
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``diffdrive-odom demo``: 0 on success, 1 if the run failed, 2 on bad options."""
     try:
-        opts = options(args)
-        check_options(opts)
-        load_settings(opts)
+        opts = parse(sys.argv[1:] if argv is None else argv)
     except DemoError as err:
         print(f"[{PROGRAM}] {err}", file=sys.stderr)
         return 2
@@ -91,8 +93,8 @@ def _run(opts: DemoOptions) -> int:
         with interrupts.handled():
             kinds = " then ".join("CW" if cw else "CCW" for cw in opts.squares)
             print(f"[{PROGRAM}] driving {opts.route} ({opts.side:g} m squares, {kinds}) with "
-                  f"path_follower_node at {opts.speed:g} m/s, {opts.real_time_factor:g}x "
-                  "real time...", flush=True)
+                  f"path_follower_node at {opts.speed:g} m/s, in lockstep with the "
+                  "simulation...", flush=True)
             result = run(opts)
     except DemoError as err:
         print(f"[{PROGRAM}] failed: {err}", file=sys.stderr)

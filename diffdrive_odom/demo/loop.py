@@ -4,10 +4,12 @@
 ``cmd_vel_node`` turns the twist into wheel commands for ``sim_node``, a simulated
 base whose TRUE geometry is a little off the nominal one; the simulated encoders feed
 ``odometry_node``, which closes the loop. They talk over DDS on loopback in a private
-ROS domain, on simulated time driven by the sim (``/clock``), so the run is faster
-than real time and a slow machine only slows it down. This process sends each
-square's path on ``/path``, waits for the follower's ``~/done``, and records
-everything into a rosbag2 (raw CDR as received, so every reader can decode it).
+ROS domain, in lockstep (:mod:`diffdrive_odom.ros.lockstep`): the sim steps its clock
+and physics only once every node, and this process's recorder, has answered the last
+step, so the run is as fast as the machine allows and the same on every run, however
+loaded the machine. This process sends each square's path on ``/path`` at a step of the
+loop (:mod:`.drive`), and records everything into a rosbag2 (raw CDR as received, so
+every reader can decode it; log times in simulated time).
 
 The child processes are :mod:`.children`, this process's node :mod:`.recorder`. Every
 resource is held by an ExitStack: the child processes are stopped and the ROS context
@@ -38,8 +40,9 @@ import numpy as np
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.tools.cmdline.outputs import staged
 
-from . import evaluation, interrupts
+from . import evaluation, interrupts, recorder
 from .children import Children
+from .drive import Drive, Leg
 from .recorder import Recorder
 from .report import DemoResult, Square
 from .settings import (
@@ -57,8 +60,10 @@ from .settings import (
     yaml_value,
 )
 
+# The nodes of the loop, each answering every step (the recorder too).
+LOOP_NODES = ("odometry_node", FOLLOWER, "cmd_vel_node")
+
 NODES = ("sim_node", "cmd_vel_node", "odometry_node", FOLLOWER)
-ACK_RESEND_S = 1.0  # wall seconds before a path the follower did not take is sent again
 
 
 class _Waiter:
@@ -67,85 +72,40 @@ class _Waiter:
     def __init__(self, recorder: Recorder, children: Children) -> None:
         self.recorder, self.children = recorder, children
 
-    def until(self, done: Callable[[], bool], deadline: float, what: str,
-              fail: bool = True) -> bool:
-        """True once ``done()``; at the deadline DemoError, or False if not ``fail``.
+    def until(self, done: Callable[[], bool], deadline: float,
+              what: Callable[[], str]) -> None:
+        """Return once ``done()``; at the deadline DemoError saying ``what()`` it waited for.
 
         A stop signal held meanwhile is raised here (KeyboardInterrupt), between spins.
         """
         while not done():
             interrupts.check()
-            self.children.check(what)
+            self.children.check(what())
             if time.monotonic() > deadline:
-                if not fail:
-                    return False
-                raise DemoError(f"timed out {what} ({self.recorder.status()}):\n"
+                raise DemoError(f"timed out {what()} ({self.recorder.status()}):\n"
                                 f"{self.children.tails()}")
             self.recorder.spin_once(0.05)
-        return True
-
-    def settle(self, deadline: float, what: str) -> int:
-        """Wait ``SETTLE_S`` of simulated time; returns the simulated time then [ns]."""
-        r = self.recorder
-        assert r.now_ns is not None
-        until = r.now_ns + round(SETTLE_S * 1e9)
-        self.until(lambda: r.now_ns is not None and r.now_ns >= until, deadline, what)
-        return until
 
 
-def _run_params(opts: DemoOptions, s: Settings, output: Path) -> Path:
-    """The params file for this run: sim time, the clock's rate, the follower's settings."""
-    rtf = opts.real_time_factor
+def _run_params(opts: DemoOptions, output: Path) -> Path:
+    """The params file for this run: lockstep for the loop, the follower's settings."""
     sim_changes: dict[str, ParamValue] = {
         k: yaml_value(v) for k, v in opts.sim_overrides.items()}
-    # The cmd_vel node's heartbeat runs on the wall clock, the sim's watchdog on
-    # simulated time: scale the watchdog so a 0.5 s hiccup of a busy machine does not
-    # stop the robot in the middle of the route.
-    timeout = s.sim.config.command_timeout
-    if timeout > 0.0 and "command_timeout" not in sim_changes:
-        sim_changes["command_timeout"] = timeout * max(1.0, rtf)
-    sim_changes.update(publish_clock=True, real_time_factor=float(rtf))
-    # The cmd_vel heartbeat is on the wall clock: keep it at one command per sim step.
-    cmd_rate = max(50.0, s.sim.joint_state_rate * rtf)
+    # In lockstep every timer of the loop runs on simulated time: the heartbeat, the
+    # watchdogs and the limits keep their own values, whatever the machine's load.
+    sim_changes.update(lockstep=True, lockstep_nodes=[*LOOP_NODES, recorder.NODE_NAME])
+    in_loop: dict[str, ParamValue] = {"use_sim_time": True, "lockstep": True}
     return write_run_params(opts.params_file, {
         "sim_node": sim_changes,
-        "cmd_vel_node": {"use_sim_time": True, "wheel_command_rate": float(cmd_rate)},
-        "odometry_node": {"use_sim_time": True},
-        FOLLOWER: follower_values(opts),
+        "cmd_vel_node": in_loop,
+        "odometry_node": in_loop,
+        FOLLOWER: {**in_loop, **follower_values(opts)},
     }, output / "params.yaml")
 
 
-def _drive(waiter: _Waiter, opts: DemoOptions, look_ahead: float,
-           deadline: float) -> list[Square]:
-    """Each square: send its path (again until the follower takes it), wait for done."""
-    r = waiter.recorder
-    squares: list[Square] = []
-    waiter.settle(deadline, "waiting at the start")
-    for cw in opts.squares:
-        what = f"driving the {'CW' if cw else 'CCW'} square"
-        points = square_path(opts.side, cw, look_ahead)
-        assert r.now_ns is not None
-        start, taken, done = r.now_ns, r.done_false, r.done_true
-
-        def took(n: int = taken) -> bool:  # the follower says "not done" on a new path
-            return r.done_false > n
-
-        def finished(n: int = done) -> bool:
-            return r.done_true > n
-
-        r.send_path(points)
-        while not waiter.until(took, time.monotonic() + ACK_RESEND_S, what, fail=False):
-            if time.monotonic() > deadline:
-                raise DemoError(f"timed out {what}: the follower never took the path")
-            r.send_path(points)
-        waiter.until(finished, deadline, what)
-        end = waiter.settle(deadline, "letting the robot settle")
-        squares.append(Square(cw, tuple(points), start, end))
-    last = squares[-1].end_ns
-    waiter.until(lambda: all(s.stamp_ns and max(s.stamp_ns) >= last
-                             for s in (r.odom, r.truth)), deadline,
-                 "waiting for the last odometry and ground truth")
-    return squares
+def _legs(opts: DemoOptions, look_ahead: float) -> list[Leg]:
+    """The squares to drive, each with the points the follower is sent."""
+    return [Leg(cw, tuple(square_path(opts.side, cw, look_ahead))) for cw in opts.squares]
 
 
 def run(opts: DemoOptions) -> DemoResult:
@@ -175,25 +135,29 @@ def _run(opts: DemoOptions, settings: Settings, output: Path) -> DemoResult:
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain),
            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     env.pop("ROS_LOCALHOST_ONLY", None)
-    args = ["--params-file", str(_run_params(opts, settings, output))]
+    args = ["--params-file", str(_run_params(opts, output))]
 
     wall0 = time.monotonic()
     with interrupts.deferred(), ExitStack() as stack:
-        recorder = stack.enter_context(Recorder(domain, bag_path))
+        rec = stack.enter_context(Recorder(domain, bag_path))
+        drive = Drive(rec, _legs(opts, settings.follower.gains.look_ahead))
+        rec.on_step = drive.step
         children = stack.enter_context(Children(env, logs))
         for name in NODES:
             children.start(name, args)
         print(f"[{opts.route}] ROS_DOMAIN_ID={domain}; "
               + ", ".join(f"{c.name} pid {c.proc.pid}" for c in children.started)
               + f"; logs in {logs}", flush=True)
-        waiter = _Waiter(recorder, children)
-        waiter.until(recorder.ready, wall0 + STARTUP_TIMEOUT_S, "starting the nodes")
+        waiter = _Waiter(rec, children)
+        waiter.until(lambda: rec.now_ns is not None, wall0 + STARTUP_TIMEOUT_S,
+                     lambda: "starting the nodes")
         print(f"[{opts.route}] nodes up after {time.monotonic() - wall0:.1f} s; driving",
               flush=True)
-        squares = _drive(waiter, opts, settings.follower.gains.look_ahead,
-                         wall0 + opts.timeout)
+        waiter.until(lambda: drive.finished, wall0 + opts.timeout, lambda: drive.doing)
     wall = time.monotonic() - wall0
-    return _evaluate(opts, settings, recorder, squares, wall, output)
+    print(f"[{opts.route}] driven in {wall:.1f} s (wall); calibrating and replaying",
+          flush=True)
+    return _evaluate(opts, settings, rec, drive.squares, wall, output)
 
 
 def _evaluate(opts: DemoOptions, s: Settings, recorder: Recorder, squares: Sequence[Square],

@@ -1,10 +1,20 @@
-"""The demo's own node: records every topic raw into the bag and sends the squares' paths."""
+"""The demo's own node: in the loop, it records every topic raw into the bag and drives.
+
+It takes part in the lockstep (:mod:`diffdrive_odom.ros.lockstep`): the sim waits for its
+answers too, so everything a step sends reaches it before the next ``/clock``. At each
+``/clock`` what it heard since the last one is the last step's, all of it: it is written
+into the bag logged at the last ``/clock``'s simulated time (when all of it was sent), in
+a fixed order (by topic, as the loop sends them; each topic in its own order) and one
+nanosecond apart, so log times are simulated time and the bag is the same, byte for byte,
+on every run. The driver (``on_step``) acts first (sends a square's path) and the loop
+has its answer; the writing comes after, while the loop handles the next readings.
+"""
 
 from __future__ import annotations
 
-import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
 from types import TracebackType
 
@@ -13,17 +23,18 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
-from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, Float64
 
 from diffdrive_odom.core.motion.paths import Point
+from diffdrive_odom.ros.lockstep import Participant, settle
 from diffdrive_odom.ros.messages import message_class
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
+from diffdrive_odom.ros.runtime import make_executor
 from diffdrive_odom.tools.bags import bagwriter
 from diffdrive_odom.tools.replaying.sinks import PoseLog
 from diffdrive_odom.wire.conversions import reference_pose, stamp_to_ns
@@ -32,8 +43,12 @@ from . import interrupts
 from .report import ImuReading, JointSample, Recording, Square
 from .settings import BAG_TOPICS, FOLLOWER
 
+NODE_NAME = "diffdrive_odom_demo"
 RECORD_QOS = qos(1000, reliable=True)
-LATEST_QOS = qos(1, reliable=False)  # only the newest /clock matters
+# The order a step's messages are written in: as the loop sends them (the path at the
+# step's /clock; the sim's readings, the odometry, the follower's answer).
+RECORD_ORDER = ("/path", "/imu", "/joint_states", "/ground_truth/odom", "/odom", "/tf",
+                "/cmd_vel", f"/{FOLLOWER}/cross_track_error")
 
 
 class Recorder:
@@ -43,16 +58,24 @@ class Recorder:
     they are, so the bag holds exactly what the nodes sent; the few needed for the
     evaluation are decoded as well. A context manager: ``__enter__`` builds the ROS
     context, node and bag writer on an ExitStack, so a failure half-way undoes what
-    was built, and ``__exit__`` closes them all.
+    was built, and ``__exit__`` closes them all. ``on_step(now_ns)`` is called at each
+    ``/clock`` once what came before it is recorded.
     """
 
     def __init__(self, domain_id: int, bag_path: Path | None,
-                 topics: Mapping[str, str] = BAG_TOPICS) -> None:
+                 topics: Mapping[str, str] = BAG_TOPICS,
+                 on_step: Callable[[int], None] | None = None) -> None:
         self.domain_id, self.bag_path, self.topics = domain_id, bag_path, dict(topics)
+        self.on_step = on_step
         self.context = Context()
         self.writer: bagwriter.BagWriter | None = None
-        self.now_ns: int | None = None
+        self.now_ns: int | None = None  # the last /clock: the simulated time now
         self._log_ns = 0  # the last log time written: each message's is later
+        order = [t for t in RECORD_ORDER if t in self.topics]
+        order += [t for t in self.topics if t not in order]
+        self._rank = {t: i for i, t in enumerate(order)}
+        self._heard: list[tuple[int, int, str, bytes]] = []  # since the last /clock
+        self._unwritten: list[tuple[int, list[tuple[int, int, str, bytes]]]] = []  # steps
         self.odom, self.truth = PoseLog(), PoseLog()
         self.joint_states: list[JointSample] = []
         self.imu: list[ImuReading] = []
@@ -68,29 +91,32 @@ class Recorder:
             rclpy.init(context=self.context, domain_id=self.domain_id,
                        signal_handler_options=SignalHandlerOptions.NO)
             stack.callback(rclpy.try_shutdown, context=self.context)
-            self.node = Node("diffdrive_odom_demo", context=self.context)
+            self.node = Node(NODE_NAME, context=self.context, parameter_overrides=[
+                Parameter("use_sim_time", value=True)])
             stack.callback(self.node.destroy_node)
-            self.executor = SingleThreadedExecutor(context=self.context)
+            self.executor, _ = make_executor(context=self.context)
             stack.callback(self.executor.shutdown)
             self.executor.add_node(self.node)
             if self.bag_path is not None:
                 self.writer = stack.enter_context(bagwriter.BagWriter(self.bag_path))
+            self.loop = Participant(self.node)
             for topic, type_name in self.topics.items():
                 cls = message_class(type_name)
                 if self.writer is not None:
                     self.writer.add_topic(topic, type_name)
-                self.node.create_subscription(
-                    cls, topic, lambda raw, t=topic: self._on_raw(t, raw), RECORD_QOS,
-                    raw=True)
-            self.node.create_subscription(ClockMsg, "/clock", self._on_clock, LATEST_QOS)
-            self.node.create_subscription(Bool, f"/{FOLLOWER}/done", self._on_done, DONE_QOS)
-            self.path_pub = self.node.create_publisher(
-                PathMsg, "/path", RELIABLE_OUT_QOS)
+                self.loop.subscription(cls, topic, partial(self._hear, topic), RECORD_QOS,
+                                       raw=True)
+            self.loop.subscription(Bool, f"/{FOLLOWER}/done", self._on_done, DONE_QOS)
+            self._publish_path = self.loop.publish(self.node.create_publisher(
+                PathMsg, "/path", RELIABLE_OUT_QOS))
+            self.loop.on_clock.append(self._on_clock)
             self._stack = stack.pop_all()
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
+        if exc_type is None:
+            self.write()
         self._stack.close()
         self.writer = None
 
@@ -101,9 +127,17 @@ class Recorder:
         """
         with interrupts.deferred():
             self.executor.spin_once(timeout_sec=timeout)
+            settle(self.executor)  # answers the loop
+            self.write()
 
-    def _on_clock(self, msg: ClockMsg) -> None:
-        self.now_ns = stamp_to_ns(msg.clock)
+    def _on_clock(self, now_ns: int) -> None:
+        """A step's /clock: what came since the last one is that step's; the driver acts."""
+        if self.now_ns is not None and self._heard:
+            self._unwritten.append((self.now_ns, self._heard))
+            self._heard = []
+        self.now_ns = now_ns
+        if self.on_step is not None:
+            self.on_step(now_ns)
 
     def _on_done(self, msg: Bool) -> None:
         if msg.data:
@@ -111,18 +145,22 @@ class Recorder:
         else:
             self.done_false += 1
 
-    def _on_raw(self, topic: str, raw: bytes) -> None:
-        # The log time is the simulated clock (wall time before its first /clock), one
-        # nanosecond after the last at least: a bag is read in log-time order, and
-        # messages heard before /clock got the wall time, later than the simulated time
-        # of those heard next (the sim starts its clock at the wall time and runs it
-        # faster), so its first JointState was read back after three later ones, 60 ms
-        # back in stamp. Arrival order is each publisher's order, so it is kept.
-        clock = self.now_ns if self.now_ns is not None else time.time_ns()
-        log_ns = self._log_ns = max(clock, self._log_ns + 1)
-        self.counts[topic] += 1
-        if self.writer is not None:
-            self.writer.write_cdr(topic, log_ns, bytes(raw))
+    def _hear(self, topic: str, raw: bytes) -> None:
+        self._heard.append((self._rank[topic], len(self._heard), topic, bytes(raw)))
+
+    def write(self) -> None:
+        """The steps heard in full, into the bag at their times (and decoded)."""
+        unwritten, self._unwritten = self._unwritten, []
+        for log_ns, heard in unwritten:
+            for _, _, topic, raw in sorted(heard):
+                log_ns = self._log_ns = max(log_ns, self._log_ns + 1)
+                self.counts[topic] += 1
+                if self.writer is not None:
+                    self.writer.write_cdr(topic, log_ns, raw)
+                self._decode(topic, raw)
+
+    def _decode(self, topic: str, raw: bytes) -> None:
+        """Keep what the evaluation reads of a recorded message."""
         if topic == "/joint_states":
             js = deserialize_message(raw, JointState)
             self.joint_states.append(JointSample(
@@ -150,33 +188,18 @@ class Recorder:
             pose.pose.position.x, pose.pose.position.y = float(x), float(y)
             pose.pose.orientation.w = 1.0
             msg.poses.append(pose)
-        self.path_pub.publish(msg)
-
-    def _has(self, topic: str, node: str, publisher: bool) -> bool:
-        infos = (self.node.get_publishers_info_by_topic(topic) if publisher
-                 else self.node.get_subscriptions_info_by_topic(topic))
-        return any(i.node_name == node for i in infos)
-
-    def ready(self) -> bool:
-        """Every link of the loop is up: clock, encoders, odometry, follower, cmd_vel -> sim."""
-        c = self.counts
-        return (self.now_ns is not None and self.done_false > 0
-                and all(c[t] > 0 for t in ("/joint_states", "/odom", "/ground_truth/odom",
-                                           "/tf"))
-                and self._has("/path", FOLLOWER, publisher=False)
-                and self._has("/odom", FOLLOWER, publisher=False)
-                and self._has("/cmd_vel", "cmd_vel_node", publisher=False)
-                and self._has("/wheel_commands", "sim_node", publisher=False)
-                and self._has("/wheel_commands", "cmd_vel_node", publisher=True))
+        self._publish_path(msg)
 
     def status(self) -> str:
         """Message counts so far, for error messages."""
         counts = ", ".join(f"{t}: {n}" for t, n in self.counts.items())
-        clock = "no /clock yet" if self.now_ns is None else "/clock running"
+        clock = ("no /clock yet (the sim waits for every node of the loop)"
+                 if self.now_ns is None else f"/clock at {self.now_ns * 1e-9:.3f} s")
         return f"{clock}; done {self.done_true}x; {counts}"
 
     def recording(self, squares: Sequence[Square]) -> Recording:
-        """What was heard, for :mod:`.report`."""
+        """What was recorded (the steps heard in full), for :mod:`.report`."""
+        self.write()
         return Recording(tuple(self.joint_states), self.odom.trajectory(),
                          self.truth.trajectory(), tuple(squares), self.cross_track_max,
                          tuple(self.imu))

@@ -149,44 +149,18 @@ class DemoResult:
 
         ``program``: how to run diffdrive-odom from here, for the closing hint.
         """
-        true = self.rows[TRUE].geometry
-
-        def value(v: float, t: float) -> str:
-            return f"{v:.5f} ({100.0 * (v / t - 1.0):+.2f}%)"
-
-        def error(position: float | None, heading: float | None) -> str:
-            if position is None or heading is None:
-                return f"{'-':>21} {'-':>14}"
-            share = 100.0 * position / self.distance_m if self.distance_m > 0 else math.nan
-            return f"{position:>9.4f} m ({share:5.2f} %) {math.degrees(heading):>10.3f} deg"
-
         kinds = "CW then CCW" if len(self.squares) == 2 else (
             "CW" if self.squares[0].clockwise else "CCW")
-        gone = self.left_out is not None
         lines = [
             f"{self.route} ({self.side_m:g} m squares, {kinds}), path_follower_node on the "
             f"odometry: {self.distance_m:.2f} m driven in {self.sim_seconds:.0f} s of "
-            f"simulated time ({self.wall_seconds:.0f} s wall)",
+            "simulated time",
             f"follower: cross-track error <= {100 * self.cross_track_odom_m:.1f} cm on the "
             f"odometry; ground truth within {100 * self.cross_track_truth_m:.1f} cm of the "
             "commanded path",
             "",
-            f"{'':<32} {'':>17} {'':>17} {'':>17} {'end error, every wheel step':>36}"
-            + (f" {'end error, slip steps left out':>36}" if gone else ""),
-            f"{'geometry':<32} {'r_left [m]':>17} {'r_right [m]':>17} {'b [m]':>17} "
-            f"{'position':>21} {'heading':>14}"
-            + (f" {'position':>21} {'heading':>14}" if gone else ""),
+            *self.grid(),
         ]
-        for key in (NOMINAL, FIT, UMBMARK, TRUE, WHEELS, GYRO):
-            row = self.rows.get(key)
-            if row is None:
-                continue
-            left, right, sep = row.geometry
-            lines.append(
-                f"{LABELS[key]:<32} {value(left, true[0]):>17} {value(right, true[1]):>17} "
-                f"{value(sep, true[2]):>17} {error(row.position_m, row.heading_rad)}"
-                + (f" {error(row.left_out_position_m, row.left_out_heading_rad)}"
-                   if gone else ""))
         lines.append("(percentages: against the sim's true geometry; UMBmark keeps the "
                      "nominal mean wheel radius, a closed square cannot see the scale)")
         if GYRO in self.rows:
@@ -204,6 +178,40 @@ class DemoResult:
         if self.bag:
             lines.append(f"bag:  {self.bag}  (try: {program} eval {self.bag})")
         return "\n".join(lines)
+
+    def grid(self, keys: tuple[str, ...] = (NOMINAL, FIT, UMBMARK, TRUE, WHEELS, GYRO)
+             ) -> list[str]:
+        """The table's header and the rows of ``keys`` (those of the run), as printed."""
+        true = self.rows[TRUE].geometry
+
+        def value(v: float, t: float) -> str:
+            return f"{v:.5f} ({100.0 * (v / t - 1.0):+.2f}%)"
+
+        def error(position: float | None, heading: float | None) -> str:
+            if position is None or heading is None:
+                return f"{'-':>21} {'-':>14}"
+            share = 100.0 * position / self.distance_m if self.distance_m > 0 else math.nan
+            return f"{position:>9.4f} m ({share:5.2f} %) {math.degrees(heading):>10.3f} deg"
+
+        gone = self.left_out is not None
+        lines = [
+            f"{'':<32} {'':>17} {'':>17} {'':>17} {'end error, every wheel step':>36}"
+            + (f" {'end error, slip steps left out':>36}" if gone else ""),
+            f"{'geometry':<32} {'r_left [m]':>17} {'r_right [m]':>17} {'b [m]':>17} "
+            f"{'position':>21} {'heading':>14}"
+            + (f" {'position':>21} {'heading':>14}" if gone else ""),
+        ]
+        for key in keys:
+            row = self.rows.get(key)
+            if row is None:
+                continue
+            left, right, sep = row.geometry
+            lines.append(
+                f"{LABELS[key]:<32} {value(left, true[0]):>17} {value(right, true[1]):>17} "
+                f"{value(sep, true[2]):>17} {error(row.position_m, row.heading_rad)}"
+                + (f" {error(row.left_out_position_m, row.left_out_heading_rad)}"
+                   if gone else ""))
+        return lines
 
     def _meaning(self) -> list[str]:
         """What each column and row integrates, and the online estimate (wrapped)."""

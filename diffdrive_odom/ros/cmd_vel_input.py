@@ -13,6 +13,7 @@ from typing import Any
 from geometry_msgs.msg import Twist, TwistStamped
 from rclpy.node import Node
 
+from diffdrive_odom.ros.lockstep import Alone, Loop
 from diffdrive_odom.ros.qos import CMD_IN_QOS
 from diffdrive_odom.wire.conversions import stamp_to_ns
 
@@ -25,16 +26,20 @@ class CommandInput:
     """One subscription to velocity commands; each one goes to ``on_command``.
 
     A zero stamp on a TwistStamped is taken as "now" (None), with a warning said once.
+    ``loop``: the node's (:func:`diffdrive_odom.ros.lockstep.join`), in lockstep a counted
+    reliable subscription.
     """
 
-    def __init__(self, node: Node, topic: str, stamped: bool, on_command: OnCommand) -> None:
+    def __init__(self, node: Node, topic: str, stamped: bool, on_command: OnCommand,
+                 loop: Loop | None = None) -> None:
         self._node = node
         self._on_command = on_command
         self._zero_stamp_warned = False
         self.stamped = stamped
+        subscribe = (loop if loop is not None else Alone(node)).subscription
         self.subscription: Any = (
-            node.create_subscription(TwistStamped, topic, self._on_twist_stamped, CMD_IN_QOS)
-            if stamped else node.create_subscription(Twist, topic, self._on_twist, CMD_IN_QOS))
+            subscribe(TwistStamped, topic, self._on_twist_stamped, CMD_IN_QOS)
+            if stamped else subscribe(Twist, topic, self._on_twist, CMD_IN_QOS))
 
     @property
     def type_name(self) -> str:

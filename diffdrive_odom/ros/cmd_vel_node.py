@@ -6,6 +6,9 @@ parameters, converts messages, logs the pipeline's refusals (one throttle per re
 and runs one steady timer. Wheel commands go out at ``wheel_command_rate`` whatever
 happens on ``cmd_vel`` (drivers use them as a heartbeat); without a valid command for
 ``cmd_vel_timeout`` seconds they are zeros, never the last command repeated forever.
+With ``lockstep`` (a simulation's loop, :mod:`diffdrive_odom.ros.lockstep`) the
+heartbeat, the watchdog and the limits run on the simulated clock instead of the
+steady one; on a robot nothing changes.
 """
 
 from __future__ import annotations
@@ -13,10 +16,7 @@ from __future__ import annotations
 from typing import Any, cast
 
 from geometry_msgs.msg import TwistStamped
-from rclpy.clock import Clock
-from rclpy.clock_type import ClockType
 from rclpy.node import Node
-from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -30,6 +30,7 @@ from diffdrive_odom.core.health.base_diagnostics import CommandHealth, CommandSt
 from diffdrive_odom.core.health.diagnostics import RateMeter, Report, Reporter
 from diffdrive_odom.ros.cmd_vel_input import CommandInput, Vector
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
+from diffdrive_odom.ros.lockstep import join
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS
 from diffdrive_odom.ros.runtime import run
@@ -45,7 +46,7 @@ class CmdVelNode(Node):
     """Turns cmd_vel into wheel velocity commands at a steady rate."""
 
     # Diagnostics state (see _init_diagnostics).
-    _accepted_ns: int | None  # steady time of the last valid command
+    _accepted_ns: int | None  # the loop clock's time of the last valid command
     _last_moving: bool  # it asked for motion
     _command_rate: RateMeter
     _output_rate: RateMeter
@@ -58,23 +59,23 @@ class CmdVelNode(Node):
         s = cmd_vel_settings(values)
         self._settings = s
         self._pipeline = CommandPipeline(s)
-        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        # The clock of the heartbeat, watchdog and limits: steady, or simulated in lockstep.
+        self._loop = join(self, bool(values["lockstep"]))
+        self._loop_clock = self._loop.clock
         self._moving = False  # a command is being followed (for the timeout log)
         self._received = False
         self._type_checked_ns = 0
         self._guard = ParameterGuard(self, values, cmd_vel_settings, self._apply)
         self._init_diagnostics()
 
-        if s.wheel_command_format == JOINT_STATE:
-            self._wheel_pub = self.create_publisher(
-                JointState, "wheel_commands", RELIABLE_OUT_QOS)
-        else:
-            self._wheel_pub = self.create_publisher(
-                Float64MultiArray, "wheel_commands", RELIABLE_OUT_QOS)
-        self._limited_pub: Any = None
+        wheel_type = JointState if s.wheel_command_format == JOINT_STATE else Float64MultiArray
+        self._publish_wheels = self._loop.publish(self.create_publisher(
+            wheel_type, "wheel_commands", RELIABLE_OUT_QOS))
+        self._publish_limited: Any = None
         if s.publish_limited_velocity:
             self._make_limited_pub()
-        self._input = CommandInput(self, "cmd_vel", s.enable_stamped_cmd_vel, self._accept)
+        self._input = CommandInput(self, "cmd_vel", s.enable_stamped_cmd_vel, self._accept,
+                                   self._loop)
         self._timer = self._make_timer(s.wheel_command_rate)
         g = s.geometry
         self._log.info(
@@ -87,13 +88,12 @@ class CmdVelNode(Node):
 
     # --- parameters -------------------------------------------------------------
 
-    def _make_timer(self, rate: float) -> Timer:
-        # Steady clock: the heartbeat must not stop when /clock pauses (use_sim_time).
-        return self.create_timer(1.0 / rate, self._on_tick, clock=self._steady)
+    def _make_timer(self, rate: float) -> Any:
+        return self._loop.timer(1.0 / rate, self._on_tick)
 
     def _make_limited_pub(self) -> None:
-        self._limited_pub = self.create_publisher(
-            TwistStamped, "cmd_vel_out", RELIABLE_OUT_QOS)
+        self._publish_limited = self._loop.publish(self.create_publisher(
+            TwistStamped, "cmd_vel_out", RELIABLE_OUT_QOS))
 
     def _apply(self, s: CmdVelSettings) -> None:
         """Install accepted runtime changes; the motion state carries on (no jump)."""
@@ -101,9 +101,9 @@ class CmdVelNode(Node):
         self._settings = s
         self._pipeline.configure(s)
         if s.wheel_command_rate != old.wheel_command_rate:
-            self.destroy_timer(self._timer)
+            self._loop.destroy_timer(self._timer)
             self._timer = self._make_timer(s.wheel_command_rate)
-        if s.publish_limited_velocity and self._limited_pub is None:
+        if s.publish_limited_velocity and self._publish_limited is None:
             self._make_limited_pub()
         self._log.info("parameters updated")
 
@@ -111,7 +111,7 @@ class CmdVelNode(Node):
 
     def _accept(self, lin: Vector, ang: Vector, stamp_ns: int | None) -> None:
         self._received = True
-        now_ns = self._steady.now().nanoseconds
+        now_ns = self._loop_clock.now().nanoseconds
         refusal = self._pipeline.accept(lin, ang, now_ns,
                                         self.get_clock().now().nanoseconds, stamp_ns)
         if refusal is not None:
@@ -124,7 +124,7 @@ class CmdVelNode(Node):
     # --- output -----------------------------------------------------------------
 
     def _on_tick(self) -> None:
-        now = self._steady.now().nanoseconds
+        now = self._loop_clock.now().nanoseconds
         tick = self._pipeline.tick(now, self.get_clock().now().nanoseconds)
         if tick.refused is not None:
             self._throttle.warning(tick.refused.reason, tick.refused.text)
@@ -146,20 +146,20 @@ class CmdVelNode(Node):
             js.header.stamp = stamp
             js.name = list(s.wheel_names)
             js.velocity = list(tick.rates)
-            self._wheel_pub.publish(js)
+            self._publish_wheels(js)
         else:
-            self._wheel_pub.publish(Float64MultiArray(data=list(tick.rates)))
-        if s.publish_limited_velocity and self._limited_pub is not None:
+            self._publish_wheels(Float64MultiArray(data=list(tick.rates)))
+        if s.publish_limited_velocity and self._publish_limited is not None:
             ts = TwistStamped()
             ts.header.stamp = stamp
             ts.twist.linear.x = tick.linear
             ts.twist.angular.z = tick.angular
-            self._limited_pub.publish(ts)
+            self._publish_limited(ts)
 
     # --- diagnostics --------------------------------------------------------------
 
     def _init_diagnostics(self) -> None:
-        start = self._steady.now().nanoseconds * 1e-9
+        start = self._loop_clock.now().nanoseconds * 1e-9
         self._accepted_ns = None
         self._last_moving = False
         self._command_rate = RateMeter(start)
@@ -169,7 +169,7 @@ class CmdVelNode(Node):
             self, DIAGNOSTIC_TASK, self._diagnose)
 
     def _diagnose(self) -> Report:
-        now_ns = self._steady.now().nanoseconds
+        now_ns = self._loop_clock.now().nanoseconds
         if self._moving:
             state = CommandState.COMMANDING
         elif self._accepted_ns is None:

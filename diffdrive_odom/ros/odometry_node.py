@@ -36,6 +36,7 @@ from diffdrive_odom.core.health.diagnostics import (
 )
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
 from diffdrive_odom.ros.geometry_estimate import GeometryEstimatePublisher
+from diffdrive_odom.ros.lockstep import join
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.publishers import OdometryOutput, frames_text
 from diffdrive_odom.ros.qos import SENSOR_IN_QOS
@@ -64,22 +65,25 @@ class OdometryEndpoints:
     one at configure and destroys it at cleanup) use this one class, so the two never
     differ in a rule, a topic or a QoS. On a LifecycleNode its publishers are lifecycle
     publishers: readings are integrated whenever it exists, published only while active.
-    Raises ParameterError (before creating anything) for values that cannot work.
+    With ``lockstep`` the readings and their odometry are counted for the simulation's
+    loop (:mod:`diffdrive_odom.ros.lockstep`). Raises ParameterError (before creating
+    anything) for values that cannot work.
     """
 
     def __init__(self, node: Node, values: dict[str, ParamValue]) -> None:
         self._node = node
         settings = self._build(values)
-        self._output = OdometryOutput(node, settings)
+        self._loop = join(node, bool(values["lockstep"]))
+        self._output = OdometryOutput(node, settings, self._loop)
         self._pipeline = ReadingPipeline(settings)
         self._decoder = JointStateDecoder()
         self._throttle = KeyedThrottle(node.get_logger())
         self._guard = ParameterGuard(node, values, self._build, self._apply)
-        self._sub = node.create_subscription(
+        self._sub = self._loop.subscription(
             JointState, "joint_states", self._on_joint_state, SENSOR_IN_QOS, raw=True
         )
         # use_imu is read-only: the subscription exists for the node's whole life or not.
-        self._imu_sub = None if settings.gyro is None else node.create_subscription(
+        self._imu_sub = None if settings.gyro is None else self._loop.subscription(
             Imu, "imu", self._on_imu, SENSOR_IN_QOS, raw=True)
         self._pose_inputs = PoseInputs(node, self._pipeline.reset, self._pipeline, self._throttle)
         # Steady time: with use_sim_time and no /clock a ROS-time timer would never fire,
@@ -124,6 +128,7 @@ class OdometryEndpoints:
         if self._ref_sub is not None:
             self._ref_sub.destroy()
         self._output.destroy()
+        self._loop.destroy()
 
     def _build(self, values: dict[str, ParamValue]) -> OdometrySettings:
         return odometry_settings(values, self._node.get_namespace())

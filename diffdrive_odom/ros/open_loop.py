@@ -54,6 +54,9 @@ class OpenLoopEndpoints:
 
     def __init__(self, node: Node, values: dict[str, ParamValue]) -> None:
         self._node = node
+        if values.get("lockstep") is True:  # its own timer publishes: no step to answer
+            raise ParameterError("lockstep", "cannot be true with open_loop (open-loop "
+                                 "odometry publishes on its own timer, not on readings)")
         settings = self._build(values)
         cfg = settings.open_loop
         assert cfg is not None  # _build refuses settings without it

@@ -5,6 +5,8 @@ Thin rclpy shell around :class:`diffdrive_odom.core.motion.path_following.PathFo
 integral), and the twist goes to ``cmd_vel``, so the cmd_vel node's limits and
 watchdog stay between the law and the wheels. The path comes from parameters or,
 at runtime, from a ``nav_msgs/Path`` on ``path`` (an empty one stops following).
+With ``lockstep`` it answers each step of the simulation it steers
+(:mod:`diffdrive_odom.ros.lockstep`) and its odometry's age is simulated time.
 """
 
 from __future__ import annotations
@@ -16,8 +18,6 @@ from typing import Any, cast
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
-from rclpy.clock import Clock
-from rclpy.clock_type import ClockType
 from rclpy.node import Node
 from std_msgs.msg import Bool, Float64
 
@@ -32,6 +32,7 @@ from diffdrive_odom.core.health.diagnostics import Report, Reporter
 from diffdrive_odom.core.motion.path_following import Command, PathFollower
 from diffdrive_odom.core.motion.paths import Path, polyline
 from diffdrive_odom.ros.diagnostics import DiagnosticsPublisher
+from diffdrive_odom.ros.lockstep import join
 from diffdrive_odom.ros.parameters import ParameterGuard, declare
 from diffdrive_odom.ros.qos import DONE_QOS, RELIABLE_OUT_QOS, qos
 from diffdrive_odom.ros.runtime import run
@@ -61,9 +62,10 @@ class PathFollowerNode(Node):
         self._follower: PathFollower | None = (
             PathFollower(s.path, s.gains, s.geometry) if s.path is not None else None)
         self._guard = ParameterGuard(self, values, follower_settings, self._apply)
-        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        loop = join(self, bool(values["lockstep"]))
+        self._loop_clock = loop.clock  # steady, or simulated in lockstep
         self._last_stamp_ns: int | None = None
-        self._odom_ns: int | None = None  # steady time of the last odometry
+        self._odom_ns: int | None = None  # the loop clock's time of the last odometry
         self._odom_frame = ""
         self._last: Command | None = None
         self._dropped = dict.fromkeys(DROP_REASONS, 0)
@@ -71,14 +73,15 @@ class PathFollowerNode(Node):
         self._limited = 0
 
         cmd_type = TwistStamped if s.enable_stamped_cmd_vel else Twist
-        self._cmd_pub = self.create_publisher(cmd_type, "cmd_vel", RELIABLE_OUT_QOS)
-        self._error_pub = self.create_publisher(
-            Float64, "~/cross_track_error", RELIABLE_OUT_QOS)
-        self._progress_pub = self.create_publisher(
-            Float64, "~/progress", RELIABLE_OUT_QOS)
-        self._done_pub = self.create_publisher(Bool, "~/done", DONE_QOS)
-        self.create_subscription(Odometry, "odom", self._on_odom, ODOM_IN_QOS)
-        self.create_subscription(PathMsg, "path", self._on_path, PATH_IN_QOS)
+        self._publish_cmd = loop.publish(self.create_publisher(
+            cmd_type, "cmd_vel", RELIABLE_OUT_QOS))
+        self._publish_error = loop.publish(self.create_publisher(
+            Float64, "~/cross_track_error", RELIABLE_OUT_QOS))
+        self._publish_progress = loop.publish(self.create_publisher(
+            Float64, "~/progress", RELIABLE_OUT_QOS))
+        self._publish_done_msg = loop.publish(self.create_publisher(Bool, "~/done", DONE_QOS))
+        loop.subscription(Odometry, "odom", self._on_odom, ODOM_IN_QOS)
+        loop.subscription(PathMsg, "path", self._on_path, PATH_IN_QOS)
         self._reporter = Reporter(follower_report)
         self._diagnostics = DiagnosticsPublisher(self, DIAGNOSTIC_TASK, self._diagnose)
         self._publish_done(False)
@@ -150,7 +153,7 @@ class PathFollowerNode(Node):
         if not all(math.isfinite(n) for n in numbers):
             self._drop("non_finite_odom", "odometry with NaN/inf ignored")
             return
-        self._odom_ns = self._steady.now().nanoseconds
+        self._odom_ns = self._loop_clock.now().nanoseconds
         self._odom_frame = msg.header.frame_id.lstrip("/")
         stamp = stamp_to_ns(msg.header.stamp)
         last, self._last_stamp_ns = self._last_stamp_ns, stamp
@@ -166,8 +169,8 @@ class PathFollowerNode(Node):
         self._near_singular += c.near_singular
         self._limited += c.limited
         self._publish_twist(c.linear, c.angular)
-        self._error_pub.publish(Float64(data=c.cross_track_error))
-        self._progress_pub.publish(Float64(data=c.progress))
+        self._publish_error(Float64(data=c.cross_track_error))
+        self._publish_progress(Float64(data=c.progress))
         if c.done and not was_done:
             self._publish_done(True)
             self._log.info(f"path done after {c.progress:.3f} m")
@@ -183,12 +186,12 @@ class PathFollowerNode(Node):
             ts = TwistStamped()
             ts.header.stamp = self.get_clock().now().to_msg()
             ts.twist = twist
-            self._cmd_pub.publish(ts)
+            self._publish_cmd(ts)
         else:
-            self._cmd_pub.publish(twist)
+            self._publish_cmd(twist)
 
     def _publish_done(self, done: bool) -> None:
-        self._done_pub.publish(Bool(data=done))
+        self._publish_done_msg(Bool(data=done))
 
     # --- diagnostics --------------------------------------------------------------
 
@@ -202,7 +205,7 @@ class PathFollowerNode(Node):
             state = FollowerState.WAITING
         else:
             state = FollowerState.FOLLOWING
-        now = self._steady.now().nanoseconds
+        now = self._loop_clock.now().nanoseconds
         return self._reporter(FollowerHealth(
             state=state,
             odom_age_s=None if self._odom_ns is None else (now - self._odom_ns) * 1e-9,

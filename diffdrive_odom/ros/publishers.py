@@ -20,6 +20,7 @@ from rclpy.qos import QoSProfile
 
 from diffdrive_odom.core.estimation.config import OdometrySettings
 from diffdrive_odom.core.estimation.publication import Publication
+from diffdrive_odom.ros.lockstep import Alone, Loop
 from diffdrive_odom.ros.qos import RELIABLE_OUT_QOS, TF_QOS
 from diffdrive_odom.wire.odometry import OdometryLayout, TransformLayout
 
@@ -63,17 +64,22 @@ class OdometryOutput:
 
     What stays the same from message to message (frames, a static covariance) is filled
     once per settings (:meth:`configure`); each pose then only writes the stamp, pose and
-    twist into the same bytes.
+    twist into the same bytes. ``loop``: the node's (:func:`diffdrive_odom.ros.lockstep.join`),
+    in lockstep both are counted.
     """
 
-    def __init__(self, node: Node, settings: OdometrySettings) -> None:
+    def __init__(self, node: Node, settings: OdometrySettings, loop: Loop | None = None
+                 ) -> None:
         # Here, not at the top: tf2_msgs is no PyPI package, and --help must work without
         # it (runtime.run turns its absence into one line saying how to get it).
         from tf2_msgs.msg import TFMessage
 
         self._node = node
+        loop = loop if loop is not None else Alone(node)
         self._odom_pub = create_publisher(node, Odometry, "odom", RELIABLE_OUT_QOS)
         self._tf_pub = create_publisher(node, TFMessage, "/tf", TF_QOS)
+        self._publish_odom = loop.publish(self._odom_pub)
+        self._publish_tf = loop.publish(self._tf_pub)
         self.configure(settings)
 
     def configure(self, settings: OdometrySettings) -> None:
@@ -93,9 +99,9 @@ class OdometryOutput:
             self._odom.covariance(out.pose_covariance, out.twist_covariance)
             self._covariance_stale = False
         x, y, theta = out.pose.x, out.pose.y, out.pose.theta
-        self._odom_pub.publish(self._odom.planar(stamp_ns, x, y, theta, out.linear, out.angular))
+        self._publish_odom(self._odom.planar(stamp_ns, x, y, theta, out.linear, out.angular))
         if self._with_tf:
-            self._tf_pub.publish(self._tf.planar(stamp_ns, x, y, theta))
+            self._publish_tf(self._tf.planar(stamp_ns, x, y, theta))
 
     def destroy(self) -> None:
         """Remove both publishers from the node."""

@@ -23,6 +23,7 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.experimental import EventsExecutor
 from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from diffdrive_odom.settings.dependencies import missing_text
 from diffdrive_odom.settings.errors import ParameterError
@@ -30,7 +31,7 @@ from diffdrive_odom.settings.params import EXAMPLE_PARAMS_FILE
 from diffdrive_odom.settings.rcl import ParamSource
 from diffdrive_odom.settings.shadowed import shadowed_overrides_line
 
-from . import lifetime
+from . import lifetime, lockstep
 
 
 def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
@@ -58,7 +59,7 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     if problem is not None:
         print(f"[{_program()}] {problem}", file=sys.stderr)
         return 2
-    stop = _StopSignals()  # before rclpy.init, so that rclpy's handlers chain to it
+    stop = _StopSignals()
     try:
         watched = lifetime.named_parent()
     except ValueError as err:
@@ -67,7 +68,12 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     if watched is not None:
         lifetime.watch(watched, lambda: _parent_ended(watched), PARENT_GRACE_S)
     try:
-        rclpy.init(args=argv)
+        # No rclpy signal handlers: theirs shut the context down from another thread,
+        # under a callback still running (a timer's publish then failed: "[FATAL] ...
+        # Exception in 'timers' callback: ... publisher's context is invalid", 4 of 10
+        # Ctrl-C of base.launch.py with a 1 kHz sim). The stop is _StopSignals' alone:
+        # the spin ends between callbacks, then the node and the context go, here.
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as err:  # rclpy's RCLError: an unreadable params file, a bad remap
         print(f"[{_program()}] cannot start: {_first_line(err)}", file=sys.stderr)
         return 2
@@ -85,22 +91,9 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
                 raise
             print(line, file=sys.stderr)
             return 2
-        except Exception:
-            # A stop signal while the node was being built: rclpy's handler shut the
-            # context down under the constructor (its next timer or publisher raises).
-            # The user asked for the stop; that is a clean end, not a fault to report.
-            if stop.requested or not rclpy.ok():
-                return 0
-            raise
         _report_shadowed(node, argv)
         executor.add_node(node)
-        try:
-            spin(lambda: stop.requested)
-        except RuntimeError:
-            # rclpy can raise from a half-torn-down wait set when the signal lands
-            # mid-take; after shutdown that is the end of the run, not a fault to report.
-            if rclpy.ok() and not stop.requested:
-                raise
+        spin(lambda: stop.requested)
     except KeyboardInterrupt:  # a repeated signal ended a stuck spin
         pass
     finally:
@@ -153,17 +146,14 @@ SPIN_TIMEOUT_S = 0.1
 class _StopSignals:
     """The stop signals as a stop request the spin loop sees, never an exception.
 
-    They are SIGINT, SIGTERM and SIGHUP (:func:`.lifetime.stop_signals`).
-    rclpy's own handlers (installed by ``rclpy.init``) trigger the executors' signal
-    guard condition and then shut the context down from another thread. A wait that
-    took the guard's trigger just before the shutdown leaves the next wait with
-    nothing to wake it, so a wait without a timeout blocks until some timer or
-    message comes: the spin loop therefore waits at most SPIN_TIMEOUT_S and checks
-    ``rclpy.ok()`` and this flag. rclpy then calls the handler found before it, which
-    for SIGINT is Python's: its KeyboardInterrupt can land anywhere, even inside the
-    teardown (exit 1, traceback); this handler replaces it. rclpy leaves SIGHUP alone
-    (its default action ended the node at once, the demo's parent included): here it is a
-    stop like the others, seen by the spin loop through this flag.
+    They are SIGINT, SIGTERM and SIGHUP (:func:`.lifetime.stop_signals`). They only set
+    this flag: the spin loop waits at most SPIN_TIMEOUT_S and checks it, so the node
+    stops between two callbacks and its context is shut down after the spin, in this
+    thread. rclpy's own handlers are not installed (:func:`run`): they shut the context
+    down from another thread, under a callback still running; and Python's SIGINT
+    handler raised KeyboardInterrupt anywhere, even inside the teardown (exit 1,
+    traceback). SIGHUP's default action ended the node at once (the demo's parent
+    included): here it is a stop like the others.
 
     Signals come in threes under ``ros2 launch``: Ctrl-C in its terminal reaches the
     whole process group, launch then sends its own SIGINT, and a second Ctrl-C (or
@@ -397,6 +387,7 @@ def make_executor(
         try:
             while rclpy.ok(context=context) and not stop():
                 executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+                lockstep.settle(executor)  # a lockstep node answers what it took
         except ExternalShutdownException:  # shut down during the wait: the end, not a fault
             pass
 

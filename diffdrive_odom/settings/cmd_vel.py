@@ -22,6 +22,7 @@ from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, o
 from diffdrive_odom.settings.geometry import (
     CMD_VEL_TIMEOUT_PARAM,
     GEOMETRY_PARAMS,
+    LOCKSTEP_PARAM,
     STAMPED_CMD_VEL_PARAM,
     build_encoders,
     build_geometry,
@@ -112,6 +113,7 @@ CMD_VEL_OWN_PARAMS: tuple[ParamSpec, ...] = (
 
 CMD_VEL_PARAMS: tuple[ParamSpec, ...] = (
     tuple(s for s in GEOMETRY_PARAMS if s.name not in _NOT_USED) + CMD_VEL_OWN_PARAMS
+    + (LOCKSTEP_PARAM,)
 )
 
 

@@ -22,7 +22,12 @@ from diffdrive_odom.core.motion.paths import Path, Point, circle, polyline, rout
 from diffdrive_odom.core.motion.routes import make_route
 from diffdrive_odom.core.motion.routes import names as route_names
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
-from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, STAMPED_CMD_VEL_PARAM, build_geometry
+from diffdrive_odom.settings.geometry import (
+    GEOMETRY_PARAMS,
+    LOCKSTEP_PARAM,
+    STAMPED_CMD_VEL_PARAM,
+    build_geometry,
+)
 from diffdrive_odom.settings.params import (
     NON_NEGATIVE,
     POSITIVE,
@@ -94,6 +99,7 @@ FOLLOWER_PARAMS: tuple[ParamSpec, ...] = (
     *(s for s in GEOMETRY_PARAMS if s.name in _GEOMETRY_USED),
     STAMPED_CMD_VEL_PARAM,
     *FOLLOWER_OWN_PARAMS,
+    LOCKSTEP_PARAM,
 )
 
 

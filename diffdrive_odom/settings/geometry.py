@@ -105,3 +105,12 @@ CMD_VEL_TIMEOUT_PARAM = ParamSpec(
     "A command is followed for this long [s] unless another arrives, then velocity zero "
     "(cmd_vel_node publishes zeros; odometry_node with open_loop integrates zero); "
     "0 = never.", range=NON_NEGATIVE)
+
+# Lockstep with sim_node: its mode and each node of its loop take part by the same name,
+# so one row under ``/**`` puts the whole loop in lockstep (doc/nodes/sim_node.md).
+LOCKSTEP_PARAM = ParamSpec(
+    "lockstep", "bool", False,
+    "Simulation only: sim_node steps its /clock and physics only once the nodes named in "
+    "lockstep_nodes have answered the last step, and each of them (true too, with "
+    "use_sim_time) runs its heartbeat, watchdog and limits on that clock. false: as on a "
+    "robot.", read_only=True)

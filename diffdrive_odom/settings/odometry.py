@@ -34,6 +34,7 @@ from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, o
 from diffdrive_odom.settings.geometry import (
     CMD_VEL_TIMEOUT_PARAM,
     GEOMETRY_PARAMS,
+    LOCKSTEP_PARAM,
     STAMPED_CMD_VEL_PARAM,
     build_encoders,
     build_geometry,
@@ -238,7 +239,8 @@ ODOMETRY_OWN_PARAMS: tuple[ParamSpec, ...] = (
 # Everything the node declares: the shared geometry rows, then its own, then the command
 # rows it shares with cmd_vel_node (open_loop reads the commands as that node does).
 ODOMETRY_PARAMS: tuple[ParamSpec, ...] = (
-    GEOMETRY_PARAMS + ODOMETRY_OWN_PARAMS + (STAMPED_CMD_VEL_PARAM, CMD_VEL_TIMEOUT_PARAM))
+    GEOMETRY_PARAMS + ODOMETRY_OWN_PARAMS
+    + (STAMPED_CMD_VEL_PARAM, CMD_VEL_TIMEOUT_PARAM, LOCKSTEP_PARAM))
 
 
 COVARIANCE_MODELS = ("propagated", "static")

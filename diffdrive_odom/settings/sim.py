@@ -18,7 +18,12 @@ from diffdrive_odom.core.geometry.kinematics import Geometry
 from diffdrive_odom.core.sim.model import SimConfig, SlipEvent
 from diffdrive_odom.settings.cmd_vel import wheel_command_format
 from diffdrive_odom.settings.errors import ParameterError, as_parameter_error, one_of
-from diffdrive_odom.settings.geometry import LENGTH, build_encoders, check_lengths
+from diffdrive_odom.settings.geometry import (
+    LENGTH,
+    LOCKSTEP_PARAM,
+    build_encoders,
+    check_lengths,
+)
 from diffdrive_odom.settings.params import (
     AT_LEAST_ONE,
     COUNTER_BITS,
@@ -99,8 +104,14 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
               "Own the time: publish /clock and run at real_time_factor (run the other "
               "nodes with use_sim_time:=true).", read_only=True),
     ParamSpec("real_time_factor", "double", 1.0,
-              "Simulated seconds per wall second when publish_clock is true.", read_only=True,
+              "Simulated seconds per wall second when publish_clock is true (not in "
+              "lockstep, which runs as fast as the loop answers).", read_only=True,
               range=Range(0.0, 100.0, "> 0")),
+    LOCKSTEP_PARAM,
+    ParamSpec("lockstep_nodes", "string_array",
+              ["odometry_node", "path_follower_node", "cmd_vel_node"],
+              "lockstep: the nodes whose answer each step waits for (relative names are "
+              "in this node's namespace); each runs with lockstep: true.", read_only=True),
     ParamSpec("imu_rate", "double", 0.0,
               "Simulated gyro on imu (sensor_msgs/Imu) [Hz]: samples per joint_states "
               "reading = round(imu_rate / joint_state_rate), at least 1; 0 = no imu.",
@@ -142,6 +153,8 @@ class SimSettings:
     base_frame_id: str
     imu_rate: float = 0.0
     imu_frame_id: str = "base_link"
+    lockstep: bool = False
+    lockstep_nodes: tuple[str, ...] = ()
 
     @property
     def wheel_names(self) -> tuple[str, ...]:
@@ -227,7 +240,17 @@ def sim_settings(values: Mapping[str, ParamValue]) -> SimSettings:
         base_frame_id=v["base_frame_id"],
         imu_rate=v["imu_rate"],
         imu_frame_id=v["imu_frame_id"],
+        lockstep=v["lockstep"],
+        lockstep_nodes=_lockstep_nodes(v["lockstep_nodes"]) if v["lockstep"] else (),
     )
+
+
+def _lockstep_nodes(names: tuple[str, ...]) -> tuple[str, ...]:
+    """``lockstep_nodes``: node names, at least one (ParameterError naming it)."""
+    if not names or not all(n.strip("/") and " " not in n for n in names):
+        raise ParameterError("lockstep_nodes", f"must name the loop's nodes (e.g. "
+                                               f"odometry_node), got {list(names)!r}")
+    return names
 
 
 def _slip_events(value: str) -> tuple[SlipEvent, ...]:

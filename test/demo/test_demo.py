@@ -1,10 +1,10 @@
 """The closed loop end to end: ``diffdrive-odom demo`` as a user runs it.
 
 path_follower_node, cmd_vel_node, sim_node and odometry_node run as separate
-processes over DDS and drive UMBmark (``--short``: 1 m squares, CW then CCW) on the
-odometry. The expected figures come from the encoder's resolution, from the
-kinematics of the mis-calibration and from the wheel rotations counted in the bag,
-never from a previous run.
+processes over DDS, in lockstep with the sim, and drive UMBmark (``--short``: 1 m
+squares, CW then CCW) on the odometry. The expected figures come from the encoder's
+resolution, from the kinematics of the mis-calibration and from the wheel rotations
+counted in the bag, never from a previous run.
 
 Closed loop instead of the old scripted open-loop route: the commands now depend on
 the odometry, so the route's closed-form end pose no longer predicts where the truth
@@ -54,11 +54,10 @@ EXACT = ["--sim-param", "slip_stddev:=0.0", "--sim-param", "slip_events:="]
 NODES = 4
 
 
-def run_demo(tmp: Path, *extra: str, timeout: float = 90.0, real_time_factor: float = 4.0,
+def run_demo(tmp: Path, *extra: str, timeout: float = 150.0,
              ) -> tuple[subprocess.CompletedProcess[str], dict[str, Any]]:
     proc = subprocess.run(
         [executable("diffdrive-odom"), "demo", "--short", "--output", str(tmp),
-         "--real-time-factor", f"{real_time_factor:g}",
          "--domain-id", os.environ.get("ROS_DOMAIN_ID", "0"),
          *extra],
         capture_output=True, text=True, timeout=timeout)
@@ -122,8 +121,7 @@ def test_true_geometry_equals_nominal_odometry_matches_truth_to_encoder_resoluti
         "--sim-param", f"true_right_wheel_radius:={R}",
         "--sim-param", f"true_wheel_separation:={B}")
     # It drove both 1 m squares: the followed paths' length, to 5 % (the axle cuts the
-    # corners that the control point P follows, by an amount that depends on the loop's
-    # latency, so on the machine's load; one square would be 50 % short).
+    # corners that the control point P follows; one square would be 50 % short).
     assert abs(res["distance_m"] - commanded_length(res)) < 0.05 * commanded_length(res), (
         res["distance_m"])
     position, heading = resolution_bounds(res["distance_m"])
@@ -175,9 +173,9 @@ def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(
         tmp_path: Path) -> None:
     """The shipped robot (r_right +0.2 %, b +1 %), no slip: both calibrations recover it.
 
-    At 2x real time: the follower's cross-track bound below is a closed loop's, and at 4x
-    on a loaded two-core machine (four xdist workers) its control ran late: 0.158 m."""
-    proc, res = run_demo(tmp_path, *EXACT, real_time_factor=2.0, timeout=150.0)
+    In lockstep the follower's control is never late, whatever the machine's load (free-
+    running at 4x real time on a loaded two-core machine it once ran 0.158 m off)."""
+    proc, res = run_demo(tmp_path, *EXACT)
     out = proc.stdout
     for label in ("nominal", "fit to ground truth", "UMBmark end poses", "true geometry"):
         assert label in out
@@ -272,6 +270,33 @@ def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(
     assert ev.returncode == 0, ev.stderr
     assert "/ground_truth/odom" in ev.stderr
     assert "final position error" in ev.stdout
+    assert_logged_in_simulated_time(bag, tmp_path)
+
+
+def assert_logged_in_simulated_time(bag: Path, tmp: Path) -> None:
+    """The recorder is in the loop: each message is logged at the simulated time of the
+    step that sent it, so a header stamp is never after its log time, nor more than a
+    step (20 ms) before it (an Imu sample is stamped inside its step). The recorder used
+    to log the last /clock it had heard: a replay of a demo bag once said the IMU stamps
+    were 7.2 s ahead of their log times ("sync the driver's clock"), and a bag of the
+    free-running loop had them up to 1.5 s apart."""
+    step = 20_000_000
+    with bagio.open_bag(bag) as reader:
+        conns = [c for c in reader.connections
+                 if c.topic in ("/joint_states", "/imu", "/odom", "/ground_truth/odom")]
+        late = [(c.topic, log - stamp_to_ns(reader.deserialize(raw, c.msgtype).header.stamp))
+                for c, log, raw in reader.messages(connections=conns)]
+    assert late and all(0 <= d <= step for _, d in late), [x for x in late
+                                                           if not 0 <= x[1] <= step][:5]
+    # And replay with the gyro (as the demo's own gyro-aided row) says nothing of it.
+    imu = tmp / "use_imu.yaml"
+    imu.write_text("odometry_node:\n  ros__parameters:\n    use_imu: true\n",
+                   encoding="utf-8")
+    rp = subprocess.run([executable("diffdrive-odom"), "replay", str(bag), "--params-file",
+                         str(tmp / "params.yaml"), "--params-file", str(imu), "--eval"],
+                        capture_output=True, text=True, timeout=120)
+    assert rp.returncode == 0, rp.stderr
+    assert "header stamps are" not in rp.stderr, rp.stderr
 
 
 def test_gyro_aided_replay_ends_closer_to_the_truth_than_wheels_only_through_a_slip(
@@ -280,11 +305,12 @@ def test_gyro_aided_replay_ends_closer_to_the_truth_than_wheels_only_through_a_s
 
     Wheel odometry turns by r * 1.5 rad / b = 0.25 rad that the robot never turned
     (the follower then steers the real robot off by as much); the gyro-aided replay
-    takes the heading from the gyro and finds the slip. The route starts about 7-11 s
-    of simulated time after the sim, so 14 s is inside the 1 m CW square.
+    takes the heading from the gyro and finds the slip. The route starts after 5 s at
+    rest (lockstep: on every run), so 10 s is inside the 1 m CW square, past its second
+    corner (before its first turn the gyro's check takes the stamps' jitter as unknown).
     """
     _, res = run_demo(tmp_path, "--no-bag", "--no-plot", "--sim-param", "slip_stddev:=0.0",
-                      "--sim-param", "slip_events:=right 14 1 1.5")
+                      "--sim-param", "slip_events:=right 10 1 1.5")
     rows = res["rows"]
     wheels, gyro = rows["wheels"], rows["gyro"]
     turned = R * 1.5 / B
@@ -301,11 +327,9 @@ def test_gyro_aided_replay_ends_closer_to_the_truth_than_wheels_only_through_a_s
     # The calibration leaves the slip's steps out (1 s at 50 Hz, the node's rule): the true
     # geometry, bridged over them, ends near the truth, where over every wheel step it
     # ends off by the slip's heading; the fit finds the true geometry again.
-    # 50 steps on a quiet machine; under four xdist workers the recorder got 1041 readings
-    # against 1448 and the event spanned 70 steps: the bound allows for that, the rows
-    # below check what the leaving out is for.
+    # 50 steps (lockstep: the recorder gets every reading, however loaded the machine).
     left = res["calibration_left_out"]
-    assert left["slip_events"] == len(res["slip_events"]) and 40 <= left["steps"] <= 80, left
+    assert left["slip_events"] == len(res["slip_events"]) and 45 <= left["steps"] <= 55, left
     true_row = rows["true"]
     bridged = true_row["slips_left_out"]["final_position_error_m"]
     assert bridged < true_row["final_position_error_m"] / 5, true_row
@@ -314,6 +338,50 @@ def test_gyro_aided_replay_ends_closer_to_the_truth_than_wheels_only_through_a_s
                       ("right_radius", "true_right_wheel_radius"),
                       ("separation", "true_wheel_separation")):
         assert abs(rows["fit"][name] / TRUE[key] - 1) < 3e-3, (name, rows["fit"])
+
+
+def test_a_stalled_node_changes_nothing_the_run_is_the_same_byte_for_byte(
+        tmp_path: Path) -> None:
+    """Lockstep: the sim waits for the loop, so two runs give the same bag, byte for byte,
+    and the same results, though in the second cmd_vel_node and odometry_node are
+    stopped (SIGSTOP) for half a second each, twice, while it runs. Free-running at 4x
+    real time, a 250 ms stall of cmd_vel_node put the follower 0.14 m off a square's
+    corner, and five idle runs of the demo printed five different tables."""
+    printed, results = [], []
+    for stall in (False, True):
+        out = tmp_path / ("stalled" if stall else "quiet")
+        proc = subprocess.Popen(
+            [executable("diffdrive-odom"), "demo", "--route", "umbmark_cw", "--size", "1",
+             "--no-plot", "--output", str(out),
+             "--domain-id", os.environ.get("ROS_DOMAIN_ID", "0")],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        lines, by_name = "", {}
+        try:
+            assert proc.stdout is not None
+            while "nodes up" not in lines and (line := proc.stdout.readline()):
+                lines += line
+            by_name = dict(re.findall(r"(\w+_node) pid (\d+)", lines))
+            if stall:
+                for delay in (1.0, 1.5):
+                    time.sleep(delay)
+                    for name in ("cmd_vel_node", "odometry_node"):
+                        os.kill(int(by_name[name]), signal.SIGSTOP)
+                        time.sleep(0.5)
+                        os.kill(int(by_name[name]), signal.SIGCONT)
+            rest, err = proc.communicate(timeout=150)
+        finally:
+            kill_left(proc, [int(p) for p in by_name.values()])
+        assert proc.returncode == 0, lines + rest + err
+        printed.append(rest[rest.index("umbmark_cw ("):].replace(str(out), "OUT"))
+        res = json.loads((out / "results.json").read_text())
+        res.pop("wall_seconds")
+        results.append(json.dumps(res).replace(str(out), "OUT"))
+    assert printed[0] == printed[1]
+    assert results[0] == results[1]
+    quiet, stalled = ((tmp_path / n / "bag").iterdir() for n in ("quiet", "stalled"))
+    files = {p.name: p.read_bytes() for p in quiet}
+    assert files == {p.name: p.read_bytes() for p in stalled}
+    assert len(files["bag.mcap"]) > 100_000
 
 
 def dense(points: np.ndarray[Any, Any], step: float = 0.005) -> np.ndarray[Any, Any]:

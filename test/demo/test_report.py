@@ -46,8 +46,7 @@ def test_each_square_starts_and_ends_where_the_axle_starts() -> None:
 
 @pytest.mark.parametrize("change, flag", [
     ({"route": "circle"}, "--route"), ({"side": 0.5}, "--size"),
-    ({"real_time_factor": 0.0}, "--real-time-factor"), ({"speed": -1.0}, "--linear"),
-    ({"max_angular": math.nan}, "--angular")])
+    ({"speed": -1.0}, "--linear"), ({"max_angular": math.nan}, "--angular")])
 def test_bad_options_are_refused_naming_the_option(change: dict[str, object],
                                                    flag: str) -> None:
     opts = DemoOptions(**change)  # type: ignore[arg-type]

@@ -1,10 +1,12 @@
 """path_follower_node in the closed loop over real DDS: sim, cmd_vel, odometry, follower.
 
-The four console scripts run as processes (the sim owns the time, 4x faster than the
-wall); the test listens to the sim's ground truth and computes the errors itself from
-closed forms (distance of Kumar's point P to a line, a circle, a square), never from
-what the follower reports. Kumar, "Kinematics of Wheeled Robots", eq. 23: the path
-error of P decays as exp(-k_p t); eq. 26: the speed error decays to zero.
+The four console scripts run as processes in lockstep with the sim (it steps its clock
+and physics only once the loop has answered the last step: as fast as the machine
+allows, and the same run however loaded it is); the test's own node is in the loop too,
+listens to the sim's ground truth and computes the errors itself from closed forms
+(distance of Kumar's point P to a line, a circle, a square), never from what the
+follower reports. Kumar, "Kinematics of Wheeled Robots", eq. 23: the path error of P
+decays as exp(-k_p t); eq. 26: the speed error decays to zero.
 """
 
 from __future__ import annotations
@@ -21,28 +23,27 @@ import pytest
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
-from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool
 
 from diffdrive_odom.ros.path_follower_node import PathFollowerNode
+from diffdrive_odom.ros.qos import DONE_QOS, qos
 from diffdrive_odom.settings.params import yaml_text
 
 from rosutil import (
     assert_refused_in_process,
     assert_refuses_to_start,
+    loop_peer,
     node_process,
-    ros_test_node,
     spin_until,
-    wait_for_subscriber,
 )
 
 pytestmark = [pytest.mark.dds, pytest.mark.process]
 
 R, B = 0.05, 0.30
-RTF = 4.0  # simulated seconds per wall second
 L = 0.1  # look-ahead of P [m]
 V = 0.3  # desired speed [m/s]
+PEER = "follower_test_peer"  # the test's node, in the loop
+LOOP = ["odometry_node", "path_follower_node", "cmd_vel_node", PEER]
 
 
 def ns(stamp: Any) -> float:
@@ -77,8 +78,8 @@ class Truth:
             self.command_t.append(self.t[-1])
 
     def longest_command_gap(self) -> str:
-        """Simulated seconds the loop went without a new command (its stalls, 4x the wall's),
-        said by a failing assertion."""
+        """Simulated seconds the loop went without a new command, said by a failing
+        assertion (in lockstep one step, 20 ms, whatever the machine's load)."""
         gap = float(np.max(np.diff(self.command_t))) if len(self.command_t) > 1 else math.inf
         return f"longest gap between commands {gap:.3f} s (simulated)"
 
@@ -89,12 +90,12 @@ class Truth:
 
 
 def write_params(tmp: Path, follower: dict[str, Any], sim: dict[str, Any] | None = None,
-                 odometry: dict[str, Any] | None = None, rtf: float = RTF) -> Path:
+                 odometry: dict[str, Any] | None = None) -> Path:
     sections = {
-        "/**": {"wheel_radius": R, "wheel_separation": B, "use_sim_time": True},
-        "sim_node": {"publish_clock": True, "real_time_factor": rtf, "joint_state_rate": 50.0,
-                     "command_timeout": 0.5 * rtf, **(sim or {})},
-        "cmd_vel_node": {"wheel_command_rate": 50.0 * rtf, "cmd_vel_timeout": 0.5 * rtf},
+        "/**": {"wheel_radius": R, "wheel_separation": B, "use_sim_time": True,
+                "lockstep": True},
+        "sim_node": {"use_sim_time": False, "joint_state_rate": 50.0, "lockstep_nodes": LOOP,
+                     **(sim or {})},
         "odometry_node": odometry or {},
         "path_follower_node": {"follower.look_ahead": L, "follower.desired_speed": V,
                                **follower},
@@ -110,25 +111,44 @@ def write_params(tmp: Path, follower: dict[str, Any], sim: dict[str, Any] | None
     return path
 
 
+def line_path(y: float) -> PathMsg:
+    """The line y = ``y`` along +x, on the path topic."""
+    msg = PathMsg()
+    msg.header.frame_id = "odom"
+    for x in (0.0, 20.0):
+        ps = PoseStamped()
+        ps.pose.position.x, ps.pose.position.y = x, y
+        msg.poses.append(ps)
+    return msg
+
+
 @contextmanager
-def closed_loop(params: Path) -> Iterator[tuple[Node, Any, Truth]]:
-    """Peer listening to the truth first, then the four nodes; all stopped afterwards."""
-    with ros_test_node("follower_test_peer") as (node, executor), ExitStack() as stack:
+def closed_loop(params: Path, path: PathMsg | None = None
+                ) -> Iterator[tuple[Any, Truth]]:
+    """The test's node in the loop, listening to the truth, then the four nodes; all
+    stopped afterwards. ``path``: sent at the loop's first step (the robot at rest at the
+    origin), so the whole motion is recorded."""
+    with loop_peer(PEER) as (node, executor, loop), ExitStack() as stack:
         truth = Truth()
-        node.create_subscription(Odometry, "/ground_truth/odom", truth.add, 500)
-        node.create_subscription(Twist, "/cmd_vel", truth.command, 500)
-        latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                             reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(Bool, "/path_follower_node/done",
-                                 lambda m: truth.done.append(bool(m.data)), latched)
+        loop.subscription(Odometry, "/ground_truth/odom", truth.add, qos(500, reliable=True))
+        loop.subscription(Twist, "/cmd_vel", truth.command, qos(500, reliable=True))
+        loop.subscription(Bool, "/path_follower_node/done",
+                          lambda m: truth.done.append(bool(m.data)), DONE_QOS)
+        if path is not None:
+            send = loop.publish(node.create_publisher(PathMsg, "/path", 1))
+
+            def first_step(now_ns: int) -> None:
+                loop.on_clock.remove(first_step)
+                send(path)
+
+            loop.on_clock.append(first_step)
         procs = [stack.enter_context(node_process(name, ["--ros-args", "--params-file",
                                                          str(params)]))
                  for name in ("sim_node", "cmd_vel_node", "odometry_node",
                               "path_follower_node")]
-        assert spin_until(executor, lambda: truth.t, 30.0), "no ground truth"
+        assert spin_until(executor, lambda: truth.t, 60.0), "no ground truth"
         assert all(p.poll() is None for p in procs)
-        yield node, executor, truth
+        yield executor, truth
 
 
 def spin_sim(executor: Any, truth: Truth, seconds: float, timeout: float = 60.0) -> None:
@@ -145,29 +165,13 @@ def spin_sim(executor: Any, truth: Truth, seconds: float, timeout: float = 60.0)
     assert spin_until(executor, enough, timeout), "the robot did not drive long enough"
 
 
-def publish_line(node: Node, executor: Any, y: float) -> None:
-    pub = node.create_publisher(PathMsg, "/path", 1)
-    assert wait_for_subscriber(executor, pub)
-    msg = PathMsg()
-    msg.header.frame_id = "odom"
-    for x in (0.0, 20.0):
-        ps = PoseStamped()
-        ps.pose.position.x, ps.pose.position.y = x, y
-        msg.poses.append(ps)
-    pub.publish(msg)
-
-
-@pytest.mark.serial
 def test_path_error_decays_at_the_rate_k_p_predicts(tmp_path: Path) -> None:
-    """Robot at the origin heading +x, line y = -0.3 given on the path topic. Serial: the
-    decay is fitted over 0.8 s of wall time, where a stall's stale command (at 3 rad/s)
-    would bend it (as the square's corner, below)."""
+    """Robot at the origin heading +x, line y = -0.3 given on the path topic."""
     k_p, offset = 1.0, 0.3
     # omega starts at k_p e1 / l = 3 rad/s: above the default bound, so lift it.
     params = write_params(tmp_path, {"follower.k_p": k_p, "follower.path_type": "none",
                                      "follower.max_angular_velocity": 5.0})
-    with closed_loop(params) as (node, executor, truth):
-        publish_line(node, executor, -offset)
+    with closed_loop(params, line_path(-offset)) as (executor, truth):
         spin_sim(executor, truth, 5.0)
     t, _, py, _ = truth.arrays()
     e = py + offset  # gamma(P) of the line: P's signed distance, left positive
@@ -189,10 +193,7 @@ def test_integral_feedback_removes_the_speed_error_of_a_5_percent_wheel(tmp_path
         {"follower.k_i": 1.0, "follower.path_type": "none"},
         sim={"true_left_wheel_radius": true_r, "true_right_wheel_radius": true_r},
         odometry={"left_wheel_radius_multiplier": 1.05, "right_wheel_radius_multiplier": 1.05})
-    with closed_loop(params) as (node, executor, truth):
-        # The path is sent once the truth is heard, so the start of the motion is recorded
-        # (a path from the parameters may start it before discovery of this peer ends).
-        publish_line(node, executor, 0.0)
+    with closed_loop(params, line_path(0.0)) as (executor, truth):
         spin_sim(executor, truth, 7.0)
     t, _, _, v = truth.arrays()
     t0 = truth.moving_since()
@@ -208,7 +209,7 @@ def test_integral_feedback_removes_the_speed_error_of_a_5_percent_wheel(tmp_path
 def test_circle_is_followed_with_a_bounded_cross_track_error(tmp_path: Path) -> None:
     params = write_params(tmp_path, {"follower.k_p": 2.0, "follower.path_type": "circle",
                                      "follower.circle": [0.0, 1.0, 1.0]})
-    with closed_loop(params) as (_, executor, truth):
+    with closed_loop(params) as (executor, truth):
         spin_sim(executor, truth, 2.0 * math.pi / V + 1.0)
     t, px, py, _ = truth.arrays()
     e = np.hypot(px, py - 1.0) - 1.0
@@ -226,19 +227,18 @@ def square_distance(x: np.ndarray, y: np.ndarray, side: float) -> np.ndarray:
     return np.asarray(np.where((dx > 0) | (dy > 0), outside, inside), dtype=float)
 
 
-@pytest.mark.serial
 def test_square_is_followed_with_the_error_peaking_at_the_corners(tmp_path: Path) -> None:
-    """In real time, as on a robot. Serial: the sim keeps its time while a loop process is
-    descheduled, and the wheels turn on the stale command meanwhile. At 4x real time a
-    250 ms stall of cmd_vel_node as P entered the third fillet (SIGSTOP) put P 0.139 m off
-    at (1.85, 2.14), the flake's signature (0.11-0.22 m off there, about 1 run in 7 on a
-    loaded machine); 125 ms did not show. In real time stalls of 250 and 500 ms there
-    left the largest error at 0.072 m, the fillet's own."""
+    """In lockstep: a loop process descheduled no longer leaves the wheels on a stale
+    command meanwhile. Free-running at 4x real time a 250 ms stall of cmd_vel_node as P
+    entered the third fillet (SIGSTOP) put P 0.139 m off at (1.85, 2.14), the flake's
+    signature (0.11-0.22 m off there, about 1 run in 7 on a loaded machine), and the test
+    had to run in real time; in lockstep the same stall changes nothing
+    (test_lockstep.py), and the largest error is the fillet's own."""
     side, corner = 2.0, 0.25
     params = write_params(tmp_path, {"follower.k_p": 2.0, "follower.path_type": "route",
                                      "follower.route": "square", "follower.route_size": side,
-                                     "follower.corner_radius": corner}, rtf=1.0)
-    with closed_loop(params) as (_, executor, truth):
+                                     "follower.corner_radius": corner})
+    with closed_loop(params) as (executor, truth):
         assert spin_until(executor, lambda: truth.done[-1:] == [True], 120.0), "not done"
         end = truth.t[-1]
         assert spin_until(executor, lambda: truth.t[-1] > end + 1.0, 10.0)

@@ -13,7 +13,7 @@ import yaml
 from diffdrive_odom.settings.cmd_vel import CMD_VEL_OWN_PARAMS, CMD_VEL_PARAMS
 from diffdrive_odom.settings.errors import ParameterError
 from diffdrive_odom.settings.follower import FOLLOWER_OWN_PARAMS, FOLLOWER_PARAMS
-from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS
+from diffdrive_odom.settings.geometry import GEOMETRY_PARAMS, LOCKSTEP_PARAM
 from diffdrive_odom.settings.odometry import (
     ODOMETRY_OWN_PARAMS,
     ODOMETRY_PARAMS,
@@ -262,7 +262,7 @@ def test_no_two_nodes_share_a_name_with_different_meanings() -> None:
     own = set(names(FOLLOWER_OWN_PARAMS))
     assert all(n.startswith("follower.") for n in own)
     assert not own & set(names(ODOMETRY_PARAMS + CMD_VEL_OWN_PARAMS))
-    by_name = {s.name: s for s in GEOMETRY_PARAMS + CMD_VEL_OWN_PARAMS}
+    by_name = {s.name: s for s in (*GEOMETRY_PARAMS, *CMD_VEL_OWN_PARAMS, LOCKSTEP_PARAM)}
     for spec in FOLLOWER_PARAMS:  # a shared row is the very same spec
         assert spec.name in own or by_name[spec.name] == spec, spec.name
     # The sim shares the robot's drawing, its joints, the robot's frame and the format of
@@ -272,7 +272,10 @@ def test_no_two_nodes_share_a_name_with_different_meanings() -> None:
     shared = {s.name for s in SIM_PARAMS} & set(others)
     assert shared == {"wheel_radius", "wheel_separation", "left_wheel_sign", "right_wheel_sign",
                       "left_wheel_names", "right_wheel_names", "ticks_per_revolution",
-                      "encoder_counter_bits", "base_frame_id", "wheel_command_format"}
+                      "encoder_counter_bits", "base_frame_id", "wheel_command_format",
+                      "lockstep"}
+    for node_params in (SIM_PARAMS, ODOMETRY_PARAMS, CMD_VEL_PARAMS, FOLLOWER_PARAMS):
+        assert LOCKSTEP_PARAM in node_params  # the very same row
     for spec in SIM_PARAMS:
         if spec.name in shared:
             assert spec.kind == others[spec.name].kind, spec.name

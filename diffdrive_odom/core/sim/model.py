@@ -136,6 +136,15 @@ class Twist2D:
 
 
 @dataclass
+class _Joints:
+    """The joints' command, rates and angles as Python floats, while :meth:`advance` runs."""
+
+    target: list[float]
+    rate: list[float]
+    angle: list[float]
+
+
+@dataclass
 class _State:
     time_ns: int = 0
     pose: Pose2D = field(default_factory=Pose2D)
@@ -191,49 +200,58 @@ class DiffDriveSim:
     # -- physics ------------------------------------------------------------------
 
     def advance(self, dt_ns: int) -> None:
-        """Move the simulation ``dt_ns`` nanoseconds forward."""
+        """Move the simulation ``dt_ns`` nanoseconds forward.
+
+        The joints are Python floats inside (a few per robot: numpy's per-call cost was
+        most of the sim's time at every substep), the same arithmetic element by element.
+        """
         if dt_ns <= 0:
             return
-        cfg = self.config
-        k = cfg.substeps
+        k = self.config.substeps
+        joints = _Joints(self._command.tolist(), self._rate.tolist(), self._angle.tolist())
         for i in range(k):
             sub_ns = dt_ns * (i + 1) // k - dt_ns * i // k
-            self._check_timeout()
-            self._step(sub_ns * 1e-9)
+            self._check_timeout(joints)
+            self._step(joints, sub_ns * 1e-9)
             self._state.time_ns += sub_ns
+        self._rate = np.array(joints.rate, dtype=np.float64)
+        self._angle = np.array(joints.angle, dtype=np.float64)
 
-    def _check_timeout(self) -> None:
+    def _check_timeout(self, joints: _Joints) -> None:
         timeout = self.config.command_timeout
         last = self._state.last_command_ns
         expired = last is None or self._state.time_ns - last >= timeout * 1e9
-        if timeout > 0.0 and expired and np.any(self._command != 0.0):
+        if timeout > 0.0 and expired and any(t != 0.0 for t in joints.target):
             self.stop()
+            joints.target = [0.0] * len(joints.target)
 
-    def _step(self, dt: float) -> None:
+    def _step(self, joints: _Joints, dt: float) -> None:
         cfg = self.config
         tau = cfg.motor_time_constant
-        target = self._command
+        target, rate = joints.target, joints.rate
         if tau > 0.0:
             decay = math.exp(-dt / tau)
+            lag = tau * (1.0 - decay)
             # Exact solution of tau * rate' = target - rate with target held over dt.
-            d_angle = target * dt + (self._rate - target) * (tau * (1.0 - decay))
-            self._rate = target + (self._rate - target) * decay
+            d_angle = [t * dt + (r - t) * lag for t, r in zip(target, rate, strict=True)]
+            joints.rate = [t + (r - t) * decay for t, r in zip(target, rate, strict=True)]
         else:
-            d_angle = target * dt
-            self._rate = target.copy()
-        self._angle += d_angle
+            d_angle = [t * dt for t in target]
+            joints.rate = list(target)
+        angle = joints.angle = [a + d for a, d in zip(joints.angle, d_angle, strict=True)]
         n = cfg.wheels_per_side
         if cfg.slip_events:  # the encoders see the spin, the ground does not
             t0 = self._state.time_ns * 1e-9
             for e in cfg.slip_events:
                 extra = e.extra(t0, t0 + dt)
                 if extra:
-                    joints = self._angle[:n] if e.side == "left" else self._angle[n:]
+                    first = 0 if e.side == "left" else n
                     sign = (cfg.geometry.left_wheel_sign if e.side == "left"
                             else cfg.geometry.right_wheel_sign)
-                    joints += sign * extra
-        d_left = float(np.mean(d_angle[:n]))
-        d_right = float(np.mean(d_angle[n:]))
+                    for j in range(first, first + n):
+                        angle[j] += sign * extra
+        d_left = sum(d_angle[:n]) / n
+        d_right = sum(d_angle[n:]) / n
         if cfg.slip_stddev > 0.0:
             d_left, d_right = self._slip(d_left, d_right)
         ds, dtheta = body_increment(cfg.geometry, d_left, d_right)
