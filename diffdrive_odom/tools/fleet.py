@@ -24,6 +24,7 @@ import csv
 import io
 import json
 import math
+import multiprocessing
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -148,8 +149,12 @@ def map_calls(fn: Callable[..., Any], calls: Sequence[tuple[Any, ...]], processe
     workers = processes or os.cpu_count() or 1
     if workers == 1 or len(calls) <= 1:
         return [_call(fn, c) for c in calls]
-    with ProcessPoolExecutor(max_workers=min(workers, len(calls)), initializer=_end_with_parent,
-                             initargs=(os.getpid(),)) as pool:
+    # spawn, not fork: a fork copies the caller's threads' state without the threads (a
+    # test process's DDS, rclpy's executors), and the child's garbage collector then
+    # finalised their objects: a segfault in a calibrate worker, twice in a full test run.
+    with ProcessPoolExecutor(max_workers=min(workers, len(calls)),
+                             mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_end_with_parent, initargs=(os.getpid(),)) as pool:
         futures: list[Future[Any]] = [pool.submit(fn, *c) for c in calls]
         return [_result(f) for f in futures]
 
