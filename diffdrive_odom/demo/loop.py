@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from diffdrive_odom.ros import discovery
 from diffdrive_odom.settings.params import ParamValue
 from diffdrive_odom.tools.cmdline.outputs import staged
 
@@ -132,13 +133,13 @@ def _run(opts: DemoOptions, settings: Settings, output: Path) -> DemoResult:
     bag_path = output / "bag" if opts.write_bag else None
 
     domain = opts.domain_id if opts.domain_id is not None else random.randint(1, 100)
-    env = {**os.environ, "ROS_DOMAIN_ID": str(domain),
-           "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    env = discovery.with_profile({**os.environ, "ROS_DOMAIN_ID": str(domain),
+                                  "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
     env.pop("ROS_LOCALHOST_ONLY", None)
     args = ["--params-file", str(_run_params(opts, output))]
 
     wall0 = time.monotonic()
-    with interrupts.deferred(), ExitStack() as stack:
+    with interrupts.deferred(), discovery.in_this_process(), ExitStack() as stack:
         rec = stack.enter_context(Recorder(domain, bag_path))
         drive = Drive(rec, _legs(opts, settings.follower.gains.look_ahead))
         rec.on_step = drive.step
