@@ -45,7 +45,7 @@ settings.load_profile("diffdrive_odom")
 
 # The suite's processes start one after another, as the demo's do: Fast DDS's first
 # announcements as the demo gives them (diffdrive_odom/ros/discovery.py), so a process
-# finds one started a second before it at once, not at the next announcement 3 s later
+# finds one started up to 3 s before it at once, not at the next announcement 3 s later
 # (the parallel tier 7.2 -> 6.3 min). A user's own profile or RMW is left as it is.
 os.environ.update(discovery.with_profile(os.environ))
 

@@ -3,10 +3,11 @@
 Fast DDS announces a new participant a few times, 100 ms apart, then every 3 s. A
 process that comes up after another's first announcements can miss it until the next
 periodic one: the demo's recorder and its path follower, the last node it starts, found
-each other only after about 3 s, and the loop's start waited for them (nodes up after
-4.3 s; with 10 first announcements, 2.0 s). :func:`with_profile` gives the processes a
-tool starts a profile with 10 (``data/fastdds_discovery.xml``), unless the user runs
-another RMW or chose a Fast DDS profile of their own, which are left as they are.
+each other only after about 3 s, and the loop's start waited for them (a ``--short`` run:
+nodes up after 4.8-5.1 s in 6 runs of 10 with 10 first announcements, in none of 10
+with 30, which span the 3 s; 1.8-2.2 s otherwise). :func:`with_profile` gives the
+processes a tool starts a profile with 30 (``data/fastdds_discovery.xml``), unless the
+user runs another RMW or chose a Fast DDS profile of their own, left as they are.
 """
 
 from __future__ import annotations

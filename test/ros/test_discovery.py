@@ -18,13 +18,13 @@ from diffdrive_odom.ros import discovery
 NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 
 
-def test_the_profile_announces_ten_times_100_ms_apart_as_the_default_participant() -> None:
+def test_the_profile_announces_30_times_100_ms_apart_as_the_default_participant() -> None:
     root = ElementTree.parse(discovery.profile_path()).getroot()
     part = root.find("f:participant", NS)
     assert part is not None and part.get("is_default_profile") == "true"
     first = part.find("f:rtps/f:builtin/f:discovery_config/f:initialAnnouncements", NS)
     assert first is not None
-    assert first.findtext("f:count", namespaces=NS) == "10"
+    assert first.findtext("f:count", namespaces=NS) == "30"
     assert first.findtext("f:period/f:nanosec", namespaces=NS) == "100000000"
 
 
