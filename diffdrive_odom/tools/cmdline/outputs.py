@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import stat
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -29,6 +30,8 @@ def output_problem(path: str | Path, flag: str) -> str | None:
     parent = p.parent if str(p.parent) else Path(".")
     if p.is_dir():
         return f"{flag} {p}: is a directory"
+    if written_in_place(p):
+        return None if os.access(p, os.W_OK) else f"{flag} {p}: not writable"
     if not parent.is_dir():
         return f"{flag} {p}: directory {parent} does not exist"
     if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
@@ -40,6 +43,8 @@ def output_problem(path: str | Path, flag: str) -> str | None:
 def staged(path: str | Path) -> Iterator[Path]:
     """Where to write ``path``: its name in a hidden sibling directory, moved on success.
 
+    A device, FIFO or socket is written in place (:func:`written_in_place`).
+
     On any exception (Ctrl-C included) the staging directory is removed, so a failed
     run never leaves a half-written output under the name the user asked for. Same
     file system, so the move is a rename; same name, so a bag's storage file inside
@@ -49,6 +54,9 @@ def staged(path: str | Path) -> Iterator[Path]:
     for the same output removes it (:func:`remove_stale_stages`) and says so.
     """
     final = Path(path)
+    if written_in_place(final):
+        yield final
+        return
     for line in remove_stale_stages(final):
         print(line, file=sys.stderr)
     stage = final.parent / f".{final.name}.partial-{os.getpid()}"
@@ -58,6 +66,20 @@ def staged(path: str | Path) -> Iterator[Path]:
         os.replace(stage / final.name, final)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+def written_in_place(path: Path) -> bool:
+    """Whether ``path`` is a device, a FIFO or a socket (``--csv /dev/null``, a named pipe).
+
+    Such an output is written where it is: there is no half-written file to hide, and a
+    staged one would be renamed over it (run as root, ``--csv /dev/null`` replaced the
+    machine's /dev/null with a regular file) or need a writable /dev.
+    """
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
 
 
 def remove_stale_stages(final: Path) -> list[str]:
