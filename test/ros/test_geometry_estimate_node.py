@@ -11,6 +11,8 @@ the estimate is not applied (not determined).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import pytest
@@ -73,17 +75,26 @@ def stand(ex: Any, joints: Any, imu: Any, ref: Any, first: int, count: int) -> N
         spin_for(ex, 0.004)
 
 
-def test_geometry_estimate_has_the_documented_layout() -> None:
+@contextmanager
+def estimate_rig(*extra: str) -> Iterator[tuple[Any, Any, list[Any], Any, Any, Any, Any]]:
+    """An odometry_node with the gyro and a PoseStamped reference on /ref, and its peer:
+    (peer, executor, the geometry estimates heard, joints, imu, odom sink, /ref)."""
     with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true", "-p",
-                                     "online_calibration:=apply", "-p",
                                      "online_calibration_reference_topic:=/ref", "-p",
-                                     "online_calibration_reference_type:=pose_stamped"]) as peer:
+                                     "online_calibration_reference_type:=pose_stamped",
+                                     *extra]) as peer:
         ex = peer.executor
         got: list[Any] = []
         peer.node.create_subscription(Float64MultiArray, "/odometry_node/geometry_estimate",
                                       got.append, QOS)
         joints, imu, sink = gyro_rig(peer.node, ex)
         ref = peer.node.create_publisher(PoseStamped, "/ref", 10)
+        yield peer, ex, got, joints, imu, sink, ref
+
+
+def test_geometry_estimate_has_the_documented_layout() -> None:
+    with estimate_rig("-p", "online_calibration:=apply") as (peer, ex, got, joints, imu,
+                                                             sink, ref):
         assert spin_until(ex, lambda: ref.get_subscription_count() > 0, 15.0)
         send_first(ex, joints, sink, reading(0))
         stand(ex, joints, imu, ref, 0, 51)
@@ -117,16 +128,8 @@ def test_the_reference_frame_s_mount_comes_from_tf_static() -> None:
 
     from diffdrive_odom.ros.reference_input import STATIC_QOS
 
-    with diagnosed("odometry_node", [*GEOMETRY, "-p", "use_imu:=true", "-p",
-                                     "online_calibration_reference_topic:=/ref", "-p",
-                                     "online_calibration_reference_type:=pose_stamped", "-p",
-                                     "online_calibration_reference_frame:=marker"]) as peer:
-        ex = peer.executor
-        got: list[Any] = []
-        peer.node.create_subscription(Float64MultiArray, "/odometry_node/geometry_estimate",
-                                      got.append, QOS)
-        joints, imu, sink = gyro_rig(peer.node, ex)
-        ref = peer.node.create_publisher(PoseStamped, "/ref", 10)
+    with estimate_rig("-p", "online_calibration_reference_frame:=marker") as (
+            peer, ex, got, joints, imu, sink, ref):
         static = peer.node.create_publisher(TFMessage, "/tf_static", STATIC_QOS)
         assert spin_until(ex, lambda: ref.get_subscription_count() > 0
                           and static.get_subscription_count() > 0, 15.0)
