@@ -48,9 +48,8 @@ class Mount:
 
     def base_pose(self, x: float, y: float, yaw: float) -> tuple[float, float, float]:
         """One reference pose as base_link's (for a stream: the online estimate's input)."""
-        heading = yaw - self.yaw
-        c, s = math.cos(heading), math.sin(heading)
-        return x - c * self.x + s * self.y, y - s * self.x - c * self.y, heading
+        bx, by, heading = self.base_poses(np.array([[x, y, yaw]], dtype=float))[0]
+        return float(bx), float(by), float(heading)
 
     def base_motions(self, motions: FloatArray) -> FloatArray:
         """(n, 3) motions of the reference's frame, each in its own start frame, as base_link's."""
