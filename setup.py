@@ -12,7 +12,7 @@ VERSION = ElementTree.parse(Path(__file__).resolve().parent / "package.xml").fin
 # The bag tools (replay, eval, calibrate, play, reindex) and the demo's report and plot.
 # rosbags to the minor version tested: the bulk writer and the recovery of torn
 # recordings lean on its internals (diffdrive_odom/tools/bags/rosbagsinternals.py).
-TOOLS = ["rosbags>=0.11.9,<0.12", "orjson", "matplotlib", "scipy"]
+TOOLS = ["rosbags>=0.11.9,<0.12", "orjson", "matplotlib", "scipy", "threadpoolctl"]
 
 setup(
     name=PACKAGE,

@@ -3,11 +3,11 @@
 Pure Python. A plain ``pip install diffdrive_odom`` brings numpy and PyYAML (and, with
 ROS from pip or apt, rclpy and the messages): what the nodes import, as package.xml
 declares it for rosdep. The bag tools need the ``tools`` extra (rosbags, orjson, scipy,
-matplotlib) and the odometry node needs tf2_msgs, which is no PyPI package. The
-commands import those only where they are used, so ``--help`` always works; when one
-is missing at run time, the command says which and how to get it in one line (exit 2)
-instead of a traceback. The extras are declared in setup.py; this table says which
-extra holds each module, and the line names the extra's libraries as the installed
+matplotlib; threadpoolctl, optional) and the odometry node needs tf2_msgs, which is no
+PyPI package. The commands import those only where they are used, so ``--help`` always
+works; when one is missing at run time, the command says which and how to get it in one
+line (exit 2) instead of a traceback. The extras are declared in setup.py; this table says
+which extra holds each module, and the line names the extra's libraries as the installed
 distribution declares them, for a colcon build, which no ``pip install`` of the
 package made.
 """
@@ -26,6 +26,7 @@ EXTRAS: dict[str, str] = {
     "orjson": "tools",
     "scipy": "tools",
     "matplotlib": "tools",
+    "threadpoolctl": "tools",  # optional: calibrate's fits run without it
     "pytest": "test",
     "hypothesis": "test",
     "mcap": "test",

@@ -72,7 +72,7 @@ def test_the_line_names_the_extra_and_its_libraries_or_the_extra_alone(
     line = dependencies.missing_text("scipy.optimize", "diffdrive-odom calibrate")
     assert line == ("diffdrive-odom calibrate needs scipy: pip install 'diffdrive_odom[tools]' "
                     "(or its libraries alone: pip install 'rosbags<0.12,>=0.11.9' orjson "
-                    "matplotlib scipy)")
+                    "matplotlib scipy threadpoolctl)")
     assert dependencies.missing_text("sympy", "x") is None  # not an optional library
     monkeypatch.setattr(dependencies, "DISTRIBUTION", "diffdrive_odom_never_installed")
     assert dependencies.missing_text("scipy", "x") == (

@@ -50,7 +50,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import optimize
 
-from diffdrive_odom.core.evaluation import leftout
+from diffdrive_odom.core.evaluation import blas, leftout
 from diffdrive_odom.core.evaluation.judge import Judgment, base_reference, judgment
 from diffdrive_odom.core.evaluation.metrics import Metrics, covered, evaluate, interpolate
 from diffdrive_odom.core.evaluation.recorded_run import (
@@ -222,6 +222,7 @@ def initial_yaw(prepared: Sequence[_Prepared], nominal: Geometry) -> float:
     return math.atan2(cross, dot) if cross or dot else 0.0
 
 
+@blas.one_thread
 def fit(
     runs: Sequence[Run],
     nominal: Geometry,
