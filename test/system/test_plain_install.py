@@ -89,7 +89,7 @@ def test_every_console_script_and_command_helps_without_the_optional_packages() 
 # What `pip install diffdrive_odom` without the extra lacks, as the line names it: the
 # extra, and its libraries for a colcon build (setup.py's TOOLS, as pip records them).
 TOOLS_LINE = ("pip install 'diffdrive_odom[tools]' (or its libraries alone: pip install "
-              "'rosbags<0.12,>=0.11.9' orjson matplotlib scipy)")
+              "'rosbags<0.12,>=0.11.9' orjson matplotlib scipy threadpoolctl)")
 RUN01 = DATA / "optiodom" / "square_231220200029_run-01"
 
 # Each command, with the options that reach each library of the tools extra it needs.
