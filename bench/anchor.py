@@ -227,3 +227,68 @@ def judge(run: AnchorRun, multipliers: Values, lever: Values, radius: float,
     errs = np.concatenate([piece_errors(p, multipliers, lever, radius, separation)
                            for p in run.pieces])
     return float(np.sqrt(np.mean(np.sum(errs**2, axis=1))))
+
+
+# --- the gyro's judgment of the turning -------------------------------------------------
+
+STILL_NS = 500_000_000  # a gyro sample this far from any wheel motion is at a standstill
+WINDOW_NS = 500_000_000  # the turns are summed over windows this long
+MIN_RATE = 0.05  # rad/s: a window turning slower than this (by the gyro) is not a turn
+
+
+def read_gyro(bag: Path | str, topic: str = "/imu") -> FloatArray:
+    """(n, 2): the gyro's stamps [ns] and yaw rates [rad/s], sorted by stamp."""
+    from rosbags.highlevel import AnyReader
+
+    out: list[tuple[int, float]] = []
+    with AnyReader([Path(bag)]) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            out.append((_stamp(msg.header), float(msg.angular_velocity.z)))
+    return np.array(sorted(out), dtype=np.float64)
+
+
+def gyro_heading(stamps: FloatArray, left: FloatArray, right: FloatArray,
+                 gyro: FloatArray) -> FloatArray:
+    """The gyro's heading [rad] at each wheel stamp: its rate integrated (trapezoids), less
+    its bias (the mean rate where no wheel moved within :data:`STILL_NS`)."""
+    moved = stamps[1:][(np.diff(left) != 0) | (np.diff(right) != 0)]
+    t, rate = gyro[:, 0], gyro[:, 1]
+    k = np.clip(np.searchsorted(moved, t), 1, max(len(moved) - 1, 1))
+    near = np.minimum(np.abs(moved[k - 1] - t), np.abs(moved[np.minimum(k, len(moved) - 1)] - t))
+    still = near > STILL_NS if len(moved) else np.ones(len(t), dtype=bool)
+    bias = float(np.mean(rate[still])) if still.sum() >= 10 else 0.0
+    heading = np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1] - 2.0 * bias)
+                                                * np.diff(t) * 1e-9)))
+    return np.interp(stamps, t, heading)
+
+
+def turns(stamps: FloatArray, left: FloatArray, right: FloatArray, gyro: FloatArray,
+          left_out: Sequence[tuple[int, int]] = ()) -> dict[str, tuple[float, FloatArray]]:
+    """The gyro's turn and the wheels' angles over the run's turns, each way.
+
+    Per direction ("ccw", "cw"): the gyro's heading change summed over the
+    :data:`WINDOW_NS` windows turning that way faster than :data:`MIN_RATE`, and the
+    right and left wheel angle changes [rad] summed over the same windows; steps in a
+    ``left_out`` span (the slips) counted in neither. A geometry's predicted turn is then
+    ``(r_R dphi_R - r_L dphi_L) / b``.
+    """
+    h = gyro_heading(stamps, left, right, gyro)
+    keep = np.ones(len(stamps) - 1, dtype=bool)
+    for first, last in left_out:
+        keep &= ~((stamps[1:] >= first) & (stamps[1:] <= last))
+    cum = [np.concatenate(([0.0], np.cumsum(np.where(keep, np.diff(v), 0.0))))
+           for v in (h, right, left)]
+    edges = np.searchsorted(stamps, np.arange(stamps[0], stamps[-1], WINDOW_NS))
+    dh, dr, dl = (np.diff(c[edges]) for c in cum)
+    rate = MIN_RATE * WINDOW_NS * 1e-9
+    return {way: (float(dh[sel].sum()), np.array([dr[sel].sum(), dl[sel].sum()]))
+            for way, sel in (("ccw", dh > rate), ("cw", dh < -rate))}
+
+
+def predicted_turn(wheels: FloatArray, multipliers: Values, radius: float,
+                   separation: float) -> float:
+    """The turn [rad] a geometry gives to the right and left wheel angles ``wheels``."""
+    return float(radius * (multipliers[1] * wheels[0] - multipliers[0] * wheels[1])
+                 / (separation * multipliers[2]))
