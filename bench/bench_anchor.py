@@ -35,7 +35,11 @@ not judged here.
    Vicon and neither fit saw them): over the half-second windows the gyro turns each
    way, the turn nominal's, calibrate's and the anchor's geometry give the wheels,
    against the gyro's (its bias at standstill removed; the navX agrees with the Vicon
-   within 0.3 %); the steps calibrate leaves out (the slips) counted in neither.
+   within 0.3 %); the steps calibrate leaves out (the slips) counted in neither. Beside
+   them, why calibrate and the anchor part: the anchor's positions-only fit on the runs
+   whole (not cut at the slips: their turn the Vicon's, as calibrate bridges them), each
+   run's start pinned at the reference's first pose (calibrate's objective; its heading
+   the Vicon's yaw less one mount yaw, fitted) or fitted (the anchor's).
 
 ``--quick``: the squares of optiodom_train only.
 """
@@ -46,7 +50,7 @@ import argparse
 import sys
 from argparse import Namespace
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -83,6 +87,7 @@ class Exp:
     runs: list[Run]
     anchored: list[anchor.AnchorRun]
     nominal: Geometry
+    whole: list[anchor.WholeRun] = field(default_factory=list)  # phil_train's, uncut
 
 
 def _spans(run: Run) -> list[tuple[int, int]]:
@@ -112,8 +117,19 @@ def optiodom(quick: bool) -> list[Exp]:
 PhilTurns = dict[str, tuple[float, np.ndarray]]  # anchor.turns of one run
 
 
-def _phil_run(n: int, vicon: bool) -> tuple[Run, anchor.AnchorRun | None, PhilTurns]:
-    """A phil_train run for the package, for the anchor (with its Vicon) and its gyro's turns."""
+@dataclass
+class PhilRun:
+    """A phil_train run for the package, for the anchor (cut and whole; with its Vicon) and
+    its gyro's turns."""
+
+    run: Run
+    anchored: anchor.AnchorRun | None
+    whole: anchor.WholeRun | None
+    turns: PhilTurns
+
+
+def _phil_run(n: int, vicon: bool) -> PhilRun:
+    """phil_trial_``n`` (``vicon``: with its reference)."""
     plain = odometry_settings(PHIL_PARAMS)
     gyro = odometry_settings({**PHIL_PARAMS, "use_imu": True, "online_calibration": "disabled"})
     args = Namespace(ground_truth=None, topic="/joint_states", child_frame=None,
@@ -121,19 +137,23 @@ def _phil_run(n: int, vicon: bool) -> tuple[Run, anchor.AnchorRun | None, PhilTu
     bag = PHIL / f"phil_trial_{n}"
     run = decode(str(bag), (plain, gyro), args, vicon)
     t, left, right, ref = anchor.read_bag(bag, "wheel_left_joint", "wheel_right_joint",
-                                          ticks=2578.33, counter_bits=16)
+                                          ticks=2578.33, counter_bits=16, yaw=vicon)
     spans = _spans(run)
     turns = anchor.turns(t, left, right, anchor.read_gyro(bag), spans)
-    return run, anchor.anchor_run(run.name, t, left, right, ref, spans) if vicon else None, turns
+    if not vicon:
+        return PhilRun(run, None, None, turns)
+    return PhilRun(run, anchor.anchor_run(run.name, t, left, right, ref[:, :3], spans),
+                   anchor.whole_run(run.name, t, left, right, ref, spans), turns)
 
 
 def phil() -> list[Exp]:
     e = Exp("phil_train/0,2,6", "phil", [], [], odometry_settings(PHIL_PARAMS).geometry)
     for n in PHIL_RUNS:
-        run, anchored, _ = _phil_run(n, True)
-        assert anchored is not None  # a Vicon run
-        e.runs.append(run)
-        e.anchored.append(anchored)
+        p = _phil_run(n, True)
+        assert p.anchored is not None and p.whole is not None  # a Vicon run
+        e.runs.append(p.run)
+        e.anchored.append(p.anchored)
+        e.whole.append(p.whole)
     return [e]
 
 
@@ -264,13 +284,21 @@ def phil_gyro(e: Exp) -> None:
           "(navX, bias at standstill removed; within 0.3 % of the Vicon), on the turns each "
           "way, slips left out; runs 4, 5, 7, 9 unseen by either fit ==")
     c = compare(e.runs, e.anchored, e.nominal)
-    geometries = {"nominal": np.ones(3), "calibrate": c.cal, "anchor": c.fit.multipliers}
     r0, b0 = e.nominal.wheel_radius, e.nominal.wheel_separation
+    geometries = {"nominal": np.ones(3), "calibrate": c.cal, "anchor": c.fit.multipliers}
+    for pinned, name in ((True, "pinned"), (False, "free")):
+        m, lever, yaw, rms = anchor.start_fit(e.whole, r0, b0, pinned)
+        geometries[name] = m
+        print(f"the runs whole (slips' turn the Vicon's), positions, each start {name:6s}: "
+              f"{_cells(m, None)}, k_L/k_b {m[0] / m[2]:.4f}, k_R/k_b {m[1] / m[2]:.4f}, "
+              f"lever ({lever[0]:+.4f}, {lever[1]:+.4f}) m"
+              + (f", mount yaw {np.degrees(yaw):+.2f} deg" if pinned else "")
+              + f", RMS {1000 * rms:.1f} mm")
     print(f"{'run':14s} {'way':4s} {'gyro [deg]':>10s}  " + "  ".join(
         f"{k:>9s}" for k in geometries) + "   (predicted / gyro - 1, %)")
     pooled: dict[tuple[str, str], list[float]] = {}
     for n in PHIL_ALL:
-        turns = _phil_run(n, False)[2]
+        turns = _phil_run(n, False).turns
         for way, (gyro_turn, wheels) in turns.items():
             if abs(gyro_turn) < 0.5:  # under 30 deg that way: none to judge
                 continue
