@@ -20,6 +20,12 @@ product and its yardstick cannot cancel):
 
 The figure it judges a geometry by (:func:`judge`): a run's RMS position error with the
 run's own start pose fitted (the same Kabsch), the lever arm given.
+
+Two more yardsticks for phil_train, where the anchor and ``calibrate`` part:
+:func:`turns` (a gyro's turn beside the wheels' angles over the turns each way, so a
+geometry's turning is judged on runs without a reference) and :func:`start_fit` (the fit
+on the runs whole, their slips' turn the reference's, each start pinned at the
+reference's first pose as ``calibrate``'s objective pins it, or fitted as here).
 """
 
 from __future__ import annotations
@@ -85,9 +91,10 @@ def _stamp(header: Any) -> int:
 
 
 def read_bag(bag: Path | str, left: str, right: str, reference: str = "/ground_truth/pose",
-             ticks: float | None = None, counter_bits: int | None = None
+             ticks: float | None = None, counter_bits: int | None = None, yaw: bool = False
              ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Wheel stamps [ns], left and right wheel angles [rad] from 0; reference (n, 3): ns, x, y.
+    """Wheel stamps [ns], left and right wheel angles [rad] from 0; reference (n, 3): ns, x, y
+    (``yaw``: (n, 4), its yaw [rad] after them, unwrapped).
 
     ``ticks``: raw counters per wheel turn (angles otherwise), wrapping at ``2^counter_bits``.
     Readings sorted by header stamp.
@@ -95,20 +102,24 @@ def read_bag(bag: Path | str, left: str, right: str, reference: str = "/ground_t
     from rosbags.highlevel import AnyReader
 
     wheels: list[tuple[int, float, float]] = []
-    ref: list[tuple[int, float, float]] = []
+    ref: list[tuple[int, float, float, float]] = []
     with AnyReader([Path(bag)]) as reader:
         conns = [c for c in reader.connections if c.topic in ("/joint_states", reference)]
         for conn, _, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
             if conn.topic == reference:
                 pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
-                ref.append((_stamp(msg.header), float(pose.position.x), float(pose.position.y)))
+                q = pose.orientation
+                ref.append((_stamp(msg.header), float(pose.position.x), float(pose.position.y),
+                            math.atan2(2.0 * (q.w * q.z + q.x * q.y),
+                                       1.0 - 2.0 * (q.y * q.y + q.z * q.z))))
             else:
                 names = list(msg.name)
                 wheels.append((_stamp(msg.header), float(msg.position[names.index(left)]),
                                float(msg.position[names.index(right)])))
     w = np.array(sorted(wheels), dtype=np.float64)
-    r = np.array(sorted(ref), dtype=np.float64)
+    r = np.array(sorted(ref), dtype=np.float64).reshape(-1, 4)  # none: (0, 4)
+    r = np.column_stack((r[:, :3], np.unwrap(r[:, 3]))) if yaw else r[:, :3]
     angles = []
     for col in (w[:, 1], w[:, 2]):
         step = np.diff(col)
@@ -152,10 +163,16 @@ def anchor_run(name: str, stamps: FloatArray, left: FloatArray, right: FloatArra
 
 
 def integrate(d_left: FloatArray, d_right: FloatArray, r_left: float, r_right: float,
-              separation: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Poses (x, y, theta) at the start and after every step, exact arcs."""
+              separation: float, turns: tuple[npt.NDArray[np.bool_], FloatArray] | None = None
+              ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Poses (x, y, theta) at the start and after every step, exact arcs.
+
+    ``turns`` (which steps, their turns [rad]): those steps turn so, not as the wheels say.
+    """
     sl, sr = r_left * d_left, r_right * d_right
     ds, dth = 0.5 * (sl + sr), (sr - sl) / separation
+    if turns is not None:
+        dth = np.where(turns[0], turns[1], dth)
     th = np.concatenate(([0.0], np.cumsum(dth)))
     chord = ds * np.sinc(dth / (2.0 * math.pi))  # sin(dth/2) / (dth/2)
     mid = th[:-1] + 0.5 * dth
@@ -227,3 +244,147 @@ def judge(run: AnchorRun, multipliers: Values, lever: Values, radius: float,
     errs = np.concatenate([piece_errors(p, multipliers, lever, radius, separation)
                            for p in run.pieces])
     return float(np.sqrt(np.mean(np.sum(errs**2, axis=1))))
+
+
+# --- the gyro's judgment of the turning -------------------------------------------------
+
+STILL_NS = 500_000_000  # a gyro sample this far from any wheel motion is at a standstill
+WINDOW_NS = 500_000_000  # the turns are summed over windows this long
+MIN_RATE = 0.05  # rad/s: a window turning slower than this (by the gyro) is not a turn
+
+
+def read_gyro(bag: Path | str, topic: str = "/imu") -> FloatArray:
+    """(n, 2): the gyro's stamps [ns] and yaw rates [rad/s], sorted by stamp."""
+    from rosbags.highlevel import AnyReader
+
+    out: list[tuple[int, float]] = []
+    with AnyReader([Path(bag)]) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            out.append((_stamp(msg.header), float(msg.angular_velocity.z)))
+    return np.array(sorted(out), dtype=np.float64)
+
+
+def gyro_heading(stamps: FloatArray, left: FloatArray, right: FloatArray,
+                 gyro: FloatArray) -> FloatArray:
+    """The gyro's heading [rad] at each wheel stamp: its rate integrated (trapezoids), less
+    its bias (the mean rate where no wheel moved within :data:`STILL_NS`)."""
+    moved = stamps[1:][(np.diff(left) != 0) | (np.diff(right) != 0)]
+    t, rate = gyro[:, 0], gyro[:, 1]
+    k = np.clip(np.searchsorted(moved, t), 1, max(len(moved) - 1, 1))
+    near = np.minimum(np.abs(moved[k - 1] - t), np.abs(moved[np.minimum(k, len(moved) - 1)] - t))
+    still = near > STILL_NS if len(moved) else np.ones(len(t), dtype=bool)
+    bias = float(np.mean(rate[still])) if still.sum() >= 10 else 0.0
+    heading = np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1] - 2.0 * bias)
+                                                * np.diff(t) * 1e-9)))
+    return np.interp(stamps, t, heading)
+
+
+def turns(stamps: FloatArray, left: FloatArray, right: FloatArray, gyro: FloatArray,
+          left_out: Sequence[tuple[int, int]] = ()) -> dict[str, tuple[float, FloatArray]]:
+    """The gyro's turn and the wheels' angles over the run's turns, each way.
+
+    Per direction ("ccw", "cw"): the gyro's heading change summed over the
+    :data:`WINDOW_NS` windows turning that way faster than :data:`MIN_RATE`, and the
+    right and left wheel angle changes [rad] summed over the same windows; steps in a
+    ``left_out`` span (the slips) counted in neither. A geometry's predicted turn is then
+    ``(r_R dphi_R - r_L dphi_L) / b``.
+    """
+    h = gyro_heading(stamps, left, right, gyro)
+    keep = np.ones(len(stamps) - 1, dtype=bool)
+    for first, last in left_out:
+        keep &= ~((stamps[1:] >= first) & (stamps[1:] <= last))
+    cum = [np.concatenate(([0.0], np.cumsum(np.where(keep, np.diff(v), 0.0))))
+           for v in (h, right, left)]
+    edges = np.searchsorted(stamps, np.arange(stamps[0], stamps[-1], WINDOW_NS))
+    dh, dr, dl = (np.diff(c[edges]) for c in cum)
+    rate = MIN_RATE * WINDOW_NS * 1e-9
+    return {way: (float(dh[sel].sum()), np.array([dr[sel].sum(), dl[sel].sum()]))
+            for way, sel in (("ccw", dh > rate), ("cw", dh < -rate))}
+
+
+def predicted_turn(wheels: FloatArray, multipliers: Values, radius: float,
+                   separation: float) -> float:
+    """The turn [rad] a geometry gives to the right and left wheel angles ``wheels``."""
+    return float(radius * (multipliers[1] * wheels[0] - multipliers[0] * wheels[1])
+                 / (separation * multipliers[2]))
+
+
+# --- a run's start: pinned to the reference's first pose, or fitted -----------------------
+
+
+@dataclass(frozen=True)
+class WholeRun:
+    """A run not cut at its slips: its steps left out are bridged by the reference's turn.
+
+    ``left_out``: per step; ``ref``: the reference's x, y, yaw at every pose (the run's
+    start, then after each step), interpolated; ``covered``: which poses it covers.
+    """
+
+    name: str
+    d_left: FloatArray
+    d_right: FloatArray
+    left_out: npt.NDArray[np.bool_]
+    ref: FloatArray
+    covered: npt.NDArray[np.bool_]
+
+
+def whole_run(name: str, stamps: FloatArray, left: FloatArray, right: FloatArray,
+              ref: FloatArray, left_out: Sequence[tuple[int, int]] = ()) -> WholeRun:
+    """The run whole (``ref``: read with ``yaw``), its ``left_out`` stamp spans marked."""
+    t = stamps.astype(np.int64)
+    rt = ref[:, 0].astype(np.int64)
+    gone = np.zeros(len(t) - 1, dtype=bool)
+    for first, last in left_out:
+        gone |= (t[1:] >= first) & (t[1:] <= last)
+    at = np.column_stack([np.interp((t - rt[0]).astype(np.float64),
+                                    (rt - rt[0]).astype(np.float64), ref[:, k])
+                          for k in (1, 2, 3)])
+    return WholeRun(name, np.diff(left), np.diff(right), gone, at,
+                    (t >= rt[0]) & (t <= rt[-1]))
+
+
+def start_errors(run: WholeRun, multipliers: Values, lever: Values, radius: float,
+                 separation: float, mount_yaw: float | None) -> FloatArray:
+    """The reference's point minus the odometry's (m, 2), the slips' turn the reference's.
+
+    ``mount_yaw`` None: the run's start pose fitted (Kabsch); else pinned at the first
+    pose the reference covers: its position there, its heading its yaw less ``mount_yaw``.
+    """
+    x, y, th = integrate(run.d_left, run.d_right, radius * multipliers[0],
+                         radius * multipliers[1], separation * multipliers[2],
+                         (run.left_out, np.diff(run.ref[:, 2])))
+    i = np.flatnonzero(run.covered)
+    c, s = np.cos(th[i]), np.sin(th[i])
+    p = np.column_stack((x[i] + c * lever[0] - s * lever[1], y[i] + s * lever[0] + c * lever[1]))
+    q = run.ref[i, :2]
+    if mount_yaw is None:
+        return _kabsch(p, q)
+    turn = run.ref[i[0], 2] - mount_yaw - th[i[0]]
+    ct, st = math.cos(turn), math.sin(turn)
+    d = p - p[0]
+    return np.asarray(q - q[0] - np.column_stack((ct * d[:, 0] - st * d[:, 1],
+                                                  st * d[:, 0] + ct * d[:, 1])),
+                      dtype=np.float64)
+
+
+def start_fit(runs: Sequence[WholeRun], radius: float, separation: float,
+              pinned: bool) -> tuple[FloatArray, FloatArray, float, float]:
+    """Multipliers, lever arm [m], the mount's yaw [rad] (NaN: not pinned) and the RMS
+    position error [m] of the runs whole, each start pinned or fitted (:func:`start_errors`).
+    """
+    def res(v: FloatArray) -> FloatArray:
+        yaw = float(v[5]) if pinned else None
+        return np.concatenate([start_errors(r, v[:3], v[3:5], radius, separation, yaw).ravel()
+                               for r in runs])
+
+    x0 = [1.0, 1.0, 1.0, 0.0, 0.0]
+    if pinned:  # the mount's yaw to start from: the best of every 10 deg, the rest nominal
+        yaws = np.radians(np.arange(-180.0, 180.0, 10.0))
+        x0.append(float(min(yaws, key=lambda a: float(np.sum(res(np.array([*x0, a]))**2)))))
+    sol = optimize.least_squares(res, np.array(x0), x_scale=[1e-3] * 3 + [1e-2] * (len(x0) - 3),
+                                 xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    v = np.asarray(sol.x, dtype=np.float64)
+    return (v[:3], v[3:5], float(v[5]) if pinned else math.nan,
+            math.sqrt(float(np.mean(np.asarray(sol.fun) ** 2))))
