@@ -25,7 +25,10 @@ except ImportError:  # optional: the same fit, on the threads BLAS starts with
 P = ParamSpec("P")
 T = TypeVar("T")
 
-_controller: list[ThreadpoolController] = []  # made at the first fit: BLAS is loaded by then
+@functools.cache
+def _controller() -> ThreadpoolController:
+    """Made at the first fit: numpy's and scipy's BLAS are loaded by then."""
+    return ThreadpoolController()
 
 
 def one_thread(fn: Callable[P, T]) -> Callable[P, T]:
@@ -35,9 +38,7 @@ def one_thread(fn: Callable[P, T]) -> Callable[P, T]:
 
     @functools.wraps(fn)
     def held(*args: P.args, **kwargs: P.kwargs) -> T:
-        if not _controller:
-            _controller.append(ThreadpoolController())
-        with _controller[0].limit(limits=1, user_api="blas"):
+        with _controller().limit(limits=1, user_api="blas"):
             return fn(*args, **kwargs)
 
     return held

@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import optimize
+from test_calibration import NOMINAL, simulate
 
 from diffdrive_odom.core.evaluation import blas, calibration
+from diffdrive_odom.core.motion import routes
 
 threadpoolctl = pytest.importorskip("threadpoolctl")
 
@@ -34,7 +37,21 @@ def test_a_held_function_runs_on_one_thread_and_the_setting_comes_back() -> None
     assert _blas_threads() == before
 
 
-def test_the_calibration_fit_is_held() -> None:
+def test_the_calibration_fit_runs_its_least_squares_on_one_thread(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     """The one least-squares fit every calibration goes through (calibrate, the demo, the
-    benches) is the held one."""
-    assert getattr(calibration.fit, "__wrapped__", None) is not None
+    benches) runs scipy's solver with BLAS held, the process's setting around it kept."""
+    seen: list[list[int]] = []
+    solver = optimize.least_squares
+
+    def spy(*args: object, **kwargs: object) -> object:
+        seen.append(_blas_threads())
+        return solver(*args, **kwargs)
+
+    monkeypatch.setattr(optimize, "least_squares", spy)  # the module calibration calls
+    runs = [simulate(routes.umbmark(1.0, clockwise=True))]
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+        outside = _blas_threads()
+        calibration.fit(runs, NOMINAL, figures=False)
+        assert _blas_threads() == outside
+    assert seen and all(threads == [1] * len(outside) for threads in seen), seen
