@@ -192,14 +192,22 @@ def _kabsch(p: FloatArray, q: FloatArray) -> FloatArray:
     return np.asarray(b - moved, dtype=np.float64)
 
 
+def _points(x: FloatArray, y: FloatArray, th: FloatArray, i: npt.NDArray[np.int64],
+            lever: Values) -> FloatArray:
+    """The reference's point (``lever`` from the axle centre, x forward, y left) at poses
+    ``i`` (m, 2)."""
+    c, s = np.cos(th[i]), np.sin(th[i])
+    return np.column_stack((x[i] + c * lever[0] - s * lever[1],
+                            y[i] + s * lever[0] + c * lever[1]))
+
+
 def piece_errors(piece: Piece, multipliers: Values, lever: Values,
                  radius: float, separation: float) -> FloatArray:
     """The reference's point minus the odometry's, start pose fitted (m, 2)."""
     x, y, th = integrate(piece.d_left, piece.d_right, radius * multipliers[0],
                          radius * multipliers[1], separation * multipliers[2])
     i = piece.sample
-    c, s = np.cos(th[i]), np.sin(th[i])
-    p = np.column_stack((x[i] + c * lever[0] - s * lever[1], y[i] + s * lever[0] + c * lever[1]))
+    p = _points(x, y, th, i, lever)
     return _kabsch(p, piece.ref)
 
 
@@ -356,8 +364,7 @@ def start_errors(run: WholeRun, multipliers: Values, lever: Values, radius: floa
                          radius * multipliers[1], separation * multipliers[2],
                          (run.left_out, np.diff(run.ref[:, 2])))
     i = np.flatnonzero(run.covered)
-    c, s = np.cos(th[i]), np.sin(th[i])
-    p = np.column_stack((x[i] + c * lever[0] - s * lever[1], y[i] + s * lever[0] + c * lever[1]))
+    p = _points(x, y, th, i, lever)
     q = run.ref[i, :2]
     if mount_yaw is None:
         return _kabsch(p, q)
