@@ -312,6 +312,57 @@ def turns(stamps: FloatArray, left: FloatArray, right: FloatArray, gyro: FloatAr
             for way, sel in (("ccw", dh > rate), ("cw", dh < -rate))}
 
 
+AFTER_SLIP_NS = 500_000_000  # a stretch starts this long after a left-out span ends
+MIN_STRETCH_RAD = math.radians(30.0)  # a turn of less than this is not judged
+MIN_REVERSAL_RAD = math.radians(10.0)  # the heading turning back this far ends a turn
+
+
+def _one_way(h: FloatArray, i: int, j: int) -> list[tuple[int, int]]:
+    """Poses ``i``..``j`` cut at the heading's turning points: where it has come back
+    :data:`MIN_REVERSAL_RAD` from its extreme since the last cut (wobbles do not cut)."""
+    out, start, ext = [], i, i
+    way = 0.0
+    for k in range(i + 1, j + 1):
+        d = h[k] - h[ext]
+        if way == 0.0:
+            if abs(h[k] - h[start]) >= MIN_REVERSAL_RAD:
+                way, ext = math.copysign(1.0, h[k] - h[start]), k
+        elif d * way > 0.0:
+            ext = k
+        elif -d * way >= MIN_REVERSAL_RAD:
+            out.append((start, ext))
+            start, way = ext, -way
+            ext = k
+    out.append((start, j))
+    return out
+
+
+def stretches(stamps: FloatArray, left: FloatArray, right: FloatArray, gyro: FloatArray,
+              left_out: Sequence[tuple[int, int]] = ()) -> list[tuple[int, int, float,
+                                                                        FloatArray]]:
+    """The gyro's turn and the wheels' over each turn one way between the left-out spans.
+
+    Every step of a turn counts (no window picked by the gyro's own sign: where the body
+    lags the wheels, such windows flatter the wheels). A stretch between two spans starts
+    :data:`AFTER_SLIP_NS` after the first ends (the body follows the wheels by up to
+    0.2 s on these runs) and is cut where the heading turns back (:func:`_one_way`). Per
+    turn of :data:`MIN_STRETCH_RAD` or more: first and last pose index, the gyro's heading
+    change and the right and left wheel angle changes [rad].
+    """
+    h = gyro_heading(stamps, left, right, gyro)
+    bounds = [(int(stamps[0]), int(stamps[0]))] + [(a, b + AFTER_SLIP_NS) for a, b in left_out]
+    out = []
+    for (_, start), (stop, _) in zip(bounds, [*bounds[1:], (int(stamps[-1]) + 1, 0)],
+                                     strict=True):
+        i = int(np.searchsorted(stamps, start))
+        j = min(int(np.searchsorted(stamps, stop)) - 1, len(stamps) - 1)
+        for a, b in _one_way(h, i, j) if j > i else ():
+            if abs(h[b] - h[a]) >= MIN_STRETCH_RAD:
+                out.append((a, b, float(h[b] - h[a]),
+                            np.array([right[b] - right[a], left[b] - left[a]])))
+    return out
+
+
 def predicted_turn(wheels: FloatArray, multipliers: Values, radius: float,
                    separation: float) -> float:
     """The turn [rad] a geometry gives to the right and left wheel angles ``wheels``."""
@@ -351,6 +402,12 @@ def whole_run(name: str, stamps: FloatArray, left: FloatArray, right: FloatArray
                           for k in (1, 2, 3)])
     return WholeRun(name, np.diff(left), np.diff(right), gone, at,
                     (t >= rt[0]) & (t <= rt[-1]))
+
+
+def later(run: WholeRun, steps: int) -> WholeRun:
+    """The run from pose ``steps`` on (its first steps dropped: it starts there)."""
+    return WholeRun(run.name, run.d_left[steps:], run.d_right[steps:], run.left_out[steps:],
+                    run.ref[steps:], run.covered[steps:])
 
 
 def start_errors(run: WholeRun, multipliers: Values, lever: Values, radius: float,

@@ -41,6 +41,14 @@ not judged here.
    run's start pinned at the reference's first pose (calibrate's objective; its heading
    the Vicon's yaw less one mount yaw, fitted) or fitted (the anchor's).
 
+5. phil_train: where calibrate and the anchor part and what moves it: their difference
+   along each combination calibrate's information sees (strongest first); the anchor's
+   fit of the runs whole, each start pinned or fitted, with the runs' first 0 to 10 s
+   dropped; and the gyro's judge again, over every step of each turn one way between
+   the slips (``anchor.stretches``: section 4's windows, picked by the gyro's own sign,
+   favour the wheels where the body lags them), pooled per way on the runs seen and
+   unseen.
+
 ``--quick``: the squares of optiodom_train only.
 """
 
@@ -60,7 +68,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 import anchor  # noqa: E402
 import bench_calibration as bc  # noqa: E402
 
-from diffdrive_odom.core.evaluation import assessment, leftout  # noqa: E402
+from diffdrive_odom.core.evaluation import assessment, determinacy, leftout  # noqa: E402
 from diffdrive_odom.core.evaluation.recorded_run import Run, values_of  # noqa: E402
 from diffdrive_odom.core.geometry.kinematics import Geometry  # noqa: E402
 from diffdrive_odom.settings.odometry import odometry_settings  # noqa: E402
@@ -69,6 +77,7 @@ from diffdrive_odom.tools.calibrating.runs import decode  # noqa: E402
 PHIL = bc.SHARED / "phil_train"
 PHIL_RUNS = (0, 2, 6)
 PHIL_ALL = (0, 2, 6, 4, 5, 7, 9)  # 4, 5, 7, 9: wheels and gyro, no Vicon
+PHIL_STEP_S = 0.025  # phil_train's wheels are read at 40 Hz
 PHIL_PARAMS = {"wheel_radius": 0.035, "wheel_separation": 0.23,
                "left_wheel_names": ["wheel_left_joint"],
                "right_wheel_names": ["wheel_right_joint"], "ticks_per_revolution": 2578.33,
@@ -126,6 +135,7 @@ class PhilRun:
     anchored: anchor.AnchorRun | None
     whole: anchor.WholeRun | None
     turns: PhilTurns
+    stretches: list[tuple[int, int, float, np.ndarray]]  # anchor.stretches
 
 
 def _phil_run(n: int, vicon: bool) -> PhilRun:
@@ -139,11 +149,13 @@ def _phil_run(n: int, vicon: bool) -> PhilRun:
     t, left, right, ref = anchor.read_bag(bag, "wheel_left_joint", "wheel_right_joint",
                                           ticks=2578.33, counter_bits=16, yaw=vicon)
     spans = _spans(run)
-    turns = anchor.turns(t, left, right, anchor.read_gyro(bag), spans)
+    rates = anchor.read_gyro(bag)
+    turns = anchor.turns(t, left, right, rates, spans)
+    stretches = anchor.stretches(t, left, right, rates, spans)
     if not vicon:
-        return PhilRun(run, None, None, turns)
+        return PhilRun(run, None, None, turns, stretches)
     return PhilRun(run, anchor.anchor_run(run.name, t, left, right, ref[:, :3], spans),
-                   anchor.whole_run(run.name, t, left, right, ref, spans), turns)
+                   anchor.whole_run(run.name, t, left, right, ref, spans), turns, stretches)
 
 
 def phil() -> list[Exp]:
@@ -319,6 +331,56 @@ def phil_gyro(e: Exp) -> None:
               "turns either way)")
 
 
+def phil_parting(e: Exp) -> None:
+    """Where calibrate and the anchor part on phil_train, and what moves it."""
+    print("\n== 5. phil_train: where calibrate and the anchor part, and what moves it ==")
+    c = compare(e.runs, e.anchored, e.nominal)
+    shapes = assessment.mount_spec(e.runs, e.nominal, None)[2]
+    info = determinacy.geometry_part(sum((s.information for s in shapes), np.zeros((6, 6))),
+                                     lever=shapes[0].lever)
+    w, u = np.linalg.eigh(info)
+    gap = (c.cal - c.fit.multipliers) / c.fit.multipliers
+    for e_k in (2, 1, 0):
+        d = u[:, e_k] if u[np.argmax(np.abs(u[:, e_k])), e_k] > 0 else -u[:, e_k]
+        print(f"calibrate's information along {d[0]:+.2f} left {d[1]:+.2f} right {d[2]:+.2f} "
+              f"separation: {w[e_k] / w[-1]:.2g} of the strongest; calibrate - anchor along it "
+              f"{100 * float(gap @ d):+.3f} %")
+    r0, b0 = e.nominal.wheel_radius, e.nominal.wheel_separation
+    for seconds in (0, 2, 4, 6, 10):
+        cells = []
+        for pinned in (True, False):
+            steps = int(seconds / PHIL_STEP_S)
+            m, _, _, rms = anchor.start_fit([anchor.later(r, steps) for r in e.whole], r0, b0,
+                                            pinned)
+            cells.append(f"start {'pinned' if pinned else 'fitted'} k_L/k_b {m[0] / m[2]:.4f} "
+                         f"k_R/k_b {m[1] / m[2]:.4f} (RMS {1000 * rms:.1f} mm)")
+        print(f"the runs whole from {seconds:2d} s on: " + "; ".join(cells), flush=True)
+    geometries = {"nominal": np.ones(3), "calibrate": c.cal, "anchor": c.fit.multipliers}
+    print("the gyro's turn over the stretches between slips (every step counted, from "
+          f"{anchor.AFTER_SLIP_NS / 1e9:g} s after a slip), predicted / gyro - 1 in %: "
+          + ", ".join(geometries))
+    pooled: dict[tuple[str, str, str], list[float]] = {}
+    for n in PHIL_ALL:
+        for i, j, gyro_turn, wheels in _phil_run(n, False).stretches:
+            seen = "seen" if n in PHIL_RUNS else "unseen"
+            way = "ccw" if gyro_turn > 0 else "cw"
+            cells = []
+            for k, m in geometries.items():
+                p = anchor.predicted_turn(wheels, m, r0, b0)
+                cells.append(f"{100 * (p / gyro_turn - 1):+7.2f}")
+                acc = pooled.setdefault((seen, way, k), [0.0, 0.0])
+                acc[0] += p - gyro_turn
+                acc[1] += gyro_turn
+            print(f"phil_trial_{n} steps {i:5d}-{j:5d} {way:3s} {np.degrees(gyro_turn):+8.1f} "
+                  "deg: " + " ".join(cells), flush=True)
+    for seen in ("seen", "unseen"):
+        for way in ("ccw", "cw"):
+            if (seen, way, "nominal") in pooled:
+                print(f"pooled, runs {seen:6s} {way:3s}: " + "  ".join(
+                    f"{k} {100 * pooled[(seen, way, k)][0] / pooled[(seen, way, k)][1]:+.2f} %"
+                    for k in geometries))
+
+
 def main(argv: Sequence[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="optiodom_train's squares only")
@@ -338,6 +400,7 @@ def main(argv: Sequence[str]) -> int:
     for e in phils:
         phil_combination(e)
         phil_gyro(e)
+        phil_parting(e)
     print(f"\nexperiments and held-out pairs where calibrate does not agree with the anchor: "
           f"{bad}")
     return 0

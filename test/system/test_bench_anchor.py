@@ -9,7 +9,8 @@ wheel counts in full unless left out (as calibrate leaves its slips out). The st
 whose wheels get the heading wrong by a few degrees as they start to move, each its own
 amount, fit the true geometry with each start pose fitted, and a bent one with each start
 pinned at the reference's first pose (one mount yaw cannot take them all): what parts
-calibrate from the anchor on phil_train.
+calibrate from the anchor on phil_train. The stretches (section 5's judge) count every
+step of each turn: where the body lags its wheels, windows picked by the gyro's sign do not.
 """
 
 from __future__ import annotations
@@ -146,3 +147,52 @@ def test_without_a_kick_both_starts_fit_the_true_geometry_and_mount() -> None:
         np.testing.assert_allclose(lever, (0.01, 0.005), atol=2e-4)
         if pinned:
             assert math.degrees(yaw) == pytest.approx(104.0, abs=0.05)
+
+
+def test_the_stretches_count_every_step_where_windows_picked_by_the_gyro_flatter_the_wheels(
+        ) -> None:
+    """A body 0.15 s behind its wheels, turning counter-clockwise at 0.3 rad/s with a
+    0.5 rad/s wobble (the gyro reads it backwards in parts of each 1.3 s): windows picked by
+    the gyro's sign keep the parts where it turned more than the wheels; one stretch counts
+    every step, and is off by no more than the lead at its two ends."""
+    rng = np.random.default_rng(3)
+    t = np.cumsum(np.full(1000, 0.025) + rng.uniform(-2e-3, 2e-3, 1000))
+    fine = np.linspace(0.0, t[-1] + 0.5, 400_001)
+
+    def rate(x: np.ndarray) -> np.ndarray:
+        return np.where(x > 1.0, 0.3 + 0.5 * np.sin(2 * math.pi * x / 1.3), 0.0)
+
+    lead, top = 0.15, 0.8  # s the wheels lead; the largest rate [rad/s]
+    turn = np.concatenate(([0.0], np.cumsum(rate(fine[1:]) * np.diff(fine))))
+    wheels_heading = np.interp(t + lead, fine, turn)
+    b = SEPARATION * TRUE[2]
+    right = wheels_heading * b / 2 / (RADIUS * TRUE[1])
+    left = -wheels_heading * b / 2 / (RADIUS * TRUE[0])
+    tg = np.arange(0.0, t[-1], 1 / 97)
+    gyro = np.column_stack((tg * 1e9, rate(tg)))
+    stamps = t * 1e9
+    (i, j, g, wheels), = anchor.stretches(stamps, left, right, gyro)  # one turn: no cut
+    assert (i, j) == (0, len(t) - 1)
+    assert g == pytest.approx(float(np.interp(t[-1], fine, turn)), rel=1e-3)
+    err = anchor.predicted_turn(wheels, TRUE, RADIUS, SEPARATION) / g - 1.0
+    assert abs(err) <= 2 * lead * top / g
+    g_w, wheels_w = anchor.turns(stamps, left, right, gyro)["ccw"]
+    assert anchor.predicted_turn(wheels_w, TRUE, RADIUS, SEPARATION) / g_w - 1.0 < -0.05
+
+
+def test_the_stretches_are_cut_where_the_heading_turns_back_and_after_a_left_out_slip(
+        ) -> None:
+    """The spins of :func:`_streams` (8 s counter-clockwise, 6 s clockwise at 0.4 rad/s):
+    two turns, each counted whole; with its slip left out, the first is cut there and
+    goes on 0.5 s after the slip's end."""
+    t, left, right, gyro, _ = _streams(slip=False)
+    whole = anchor.stretches(t, left, right, gyro)
+    assert [round(g, 1) for _, _, g, _ in whole] == [3.2, -2.4]
+    t, left, right, gyro, spans = _streams(slip=True)
+    cut = anchor.stretches(t, left, right, gyro, spans)
+    # 3 to 5 s, then from 0.5 s after the slip's end (5.5 s) to 11 s, then the other way
+    expected = [2.0 * RATE, (11.0 - 5.5 - 0.025 - 0.5) * RATE, -6.0 * RATE]
+    assert [g for _, _, g, _ in cut] == pytest.approx(expected, abs=0.03)
+    for _, _, g, wheels in (*whole, *cut):  # within the gyro's quantisation and bias left
+        assert anchor.predicted_turn(wheels, TRUE, RADIUS, SEPARATION) == pytest.approx(
+            g, abs=3e-3)
