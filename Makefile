@@ -43,11 +43,18 @@ demo-docs: venv
 
 # Tiers (markers in setup.cfg): test = everything (CI): all but the `serial` tests on four
 # xdist workers (each its own DDS domain; on two cores, as the DDS tests mostly wait: 5.6
-# min against 7.2 on two), then those alone; test-fast = the pure tier (no
-# DDS, no child process, nothing slow), under a minute; test-dds = what talks over DDS.
+# min against 7.2 on two), then the `serial` ones on two (the CPU-heavy ones, xdist_group
+# serial-heavy, one after another beside the waiting ones), then the `alone` one by itself;
+# test-fast = the pure tier (no DDS, no child process, nothing slow), under a minute;
+# test-dds = what talks over DDS.
+# make test writes Python's bytecode caches (__pycache__, git-ignored) even where
+# PYTHONDONTWRITEBYTECODE is set: without them each pytest process rewrote the 215 test
+# modules again (4 s of CPU each) and each node the suite starts compiled the package again.
+BYTECODE := env -u PYTHONDONTWRITEBYTECODE
 test: venv
-	rc=0; $(PY) -m pytest -q -n 4 --dist loadgroup -m "not serial" || rc=$$?; \
-	$(PY) -m pytest -q -m serial || rc=$$?; exit $$rc
+	rc=0; $(BYTECODE) $(PY) -m pytest -q -n 4 --dist loadgroup -m "not serial" || rc=$$?; \
+	$(BYTECODE) $(PY) -m pytest -q -n 2 --dist loadgroup -m "serial and not alone" || rc=$$?; \
+	$(BYTECODE) $(PY) -m pytest -q -m alone || rc=$$?; exit $$rc
 
 test-fast: venv
 	$(PY) -m pytest -q -m "not dds and not process and not slow"

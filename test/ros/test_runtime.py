@@ -36,7 +36,8 @@ from diffdrive_odom.ros.runtime import EXECUTOR_KINDS, make_executor
 
 from rosutil import EXIT_WITHIN_S, GEOMETRY, Burst, burst, joint_state, node_process
 
-pytestmark = [pytest.mark.dds, pytest.mark.process, pytest.mark.serial]
+pytestmark = [pytest.mark.dds, pytest.mark.process, pytest.mark.serial,
+              pytest.mark.xdist_group("serial-heavy")]
 
 
 def twist(k: int) -> Twist:

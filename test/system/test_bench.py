@@ -48,6 +48,7 @@ def test_online_sim_bench_prints_its_table() -> None:
 
 @pytest.mark.slow
 @pytest.mark.serial
+@pytest.mark.alone
 def test_live_bench_prints_its_table() -> None:
     """Every system carries the messages at 100 Hz. Its input is best effort, as a
     driver's joint_states are, so one lost under a loaded CI machine is the bench's
@@ -102,6 +103,7 @@ def test_node_path_bench_compares_both_trees_or_says_why_not() -> None:
 
 @pytest.mark.slow
 @pytest.mark.serial
+@pytest.mark.xdist_group("serial-heavy")
 def test_soak_bench_samples_memory_and_cpu() -> None:
     """A 10 s soak at 1 kHz: a sample every second and a verdict on growth. The verdict
     is the bench's figure (machine noise can move 10 s of CPU), not asserted here; that it
