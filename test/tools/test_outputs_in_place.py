@@ -56,3 +56,35 @@ def test_a_regular_file_is_still_staged(tmp_path: Path) -> None:
         path.write_text("new\n", encoding="utf-8")
         assert final.read_text(encoding="utf-8") == "old\n"
     assert final.read_text(encoding="utf-8") == "new\n"
+
+
+def test_an_output_through_a_symlink_is_written_to_its_target_and_the_link_stays(
+        tmp_path: Path) -> None:
+    """``--csv latest.csv`` where latest.csv links to the run's file (or to a file not yet
+    there): the target is written, staged beside it, and the link stays a link, as a
+    shell's ``>`` would leave it. Before, the staged file was renamed over the link."""
+    params = write_params(tmp_path / "p.yaml", OPTIODOM_PARAMS)
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    regular = tmp_path / "poses.csv"
+    assert cli(["replay", str(BAG), "--params-file", str(params), "--csv", str(regular)]) == 0
+    for existing in (True, False):
+        target = runs / f"poses-{existing}.csv"
+        if existing:
+            target.write_text("old\n", encoding="utf-8")
+        link = tmp_path / f"latest-{existing}.csv"
+        link.symlink_to(target)
+        assert output_problem(link, "--csv") is None
+        assert cli(["replay", str(BAG), "--params-file", str(params), "--csv", str(link)]) == 0
+        assert link.is_symlink() and link.readlink() == target
+        assert target.read_bytes() == regular.read_bytes()
+        assert not [p for d in (tmp_path, runs) for p in d.iterdir() if ".partial-" in p.name]
+
+
+def test_a_symlink_into_a_missing_directory_is_refused_naming_it(tmp_path: Path) -> None:
+    """The target's directory is the one written (its staging and rename happen there)."""
+    link = tmp_path / "latest.csv"
+    link.symlink_to(tmp_path / "runs" / "missing" / "poses.csv")
+    problem = output_problem(link, "--csv")
+    assert problem is not None and problem.startswith(f"--csv {link}: directory ")
+    assert str(tmp_path / "runs" / "missing") in problem

@@ -26,24 +26,36 @@ def output_problem(path: str | Path, flag: str) -> str | None:
     Checked before the work starts, so a long replay does not end in a traceback
     over a typo in ``--plot``.
     """
-    p = Path(path)
+    named = Path(path)
+    p = through_link(named)
     parent = p.parent if str(p.parent) else Path(".")
     if p.is_dir():
-        return f"{flag} {p}: is a directory"
+        return f"{flag} {named}: is a directory"
     if written_in_place(p):
-        return None if os.access(p, os.W_OK) else f"{flag} {p}: not writable"
+        return None if os.access(p, os.W_OK) else f"{flag} {named}: not writable"
     if not parent.is_dir():
-        return f"{flag} {p}: directory {parent} does not exist"
+        return f"{flag} {named}: directory {parent} does not exist"
     if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
-        return f"{flag} {p}: not writable"
+        return f"{flag} {named}: not writable"
     return None
+
+
+def through_link(path: Path) -> Path:
+    """Where writing ``path`` goes: a symlink's target, else ``path`` itself.
+
+    The link is followed to its end, the target existing or not. A shell's ``>`` writes
+    through a link and leaves it a link; so does a tool's output, staged beside the
+    target and renamed over it, not over the link.
+    """
+    return Path(os.path.realpath(path)) if path.is_symlink() else path
 
 
 @contextmanager
 def staged(path: str | Path) -> Iterator[Path]:
     """Where to write ``path``: its name in a hidden sibling directory, moved on success.
 
-    A device, FIFO or socket is written in place (:func:`written_in_place`).
+    A device, FIFO or socket is written in place (:func:`written_in_place`); a symlink is
+    written through (:func:`through_link`).
 
     On any exception (Ctrl-C included) the staging directory is removed, so a failed
     run never leaves a half-written output under the name the user asked for. Same
@@ -53,7 +65,7 @@ def staged(path: str | Path) -> Iterator[Path]:
     killed outright (SIGKILL, power) cannot remove its staging directory: the next run
     for the same output removes it (:func:`remove_stale_stages`) and says so.
     """
-    final = Path(path)
+    final = through_link(Path(path))
     if written_in_place(final):
         yield final
         return
