@@ -39,7 +39,7 @@ import numpy as np
 
 from diffdrive_odom.ros import discovery
 from diffdrive_odom.settings.params import ParamValue
-from diffdrive_odom.tools.cmdline.outputs import staged
+from diffdrive_odom.tools.cmdline.outputs import staged, through_link
 
 from . import evaluation, interrupts, recorder
 from .children import Children
@@ -117,12 +117,13 @@ def run(opts: DemoOptions) -> DemoResult:
     """
     check_options(opts)
     settings = load_settings(opts)
-    opts.output.parent.mkdir(parents=True, exist_ok=True)
-    with staged(opts.output) as output:
+    final = through_link(opts.output)  # a symlink is written through and stays a link
+    final.parent.mkdir(parents=True, exist_ok=True)
+    with staged(final) as output:
         output.mkdir()
         result = _run(opts, settings, output)
-        if opts.output.exists():  # a previous demo's (check_output): replaced now
-            shutil.rmtree(opts.output)
+        if final.exists():  # a previous demo's (check_output): replaced now
+            shutil.rmtree(final)
     return result
 
 

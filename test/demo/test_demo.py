@@ -174,8 +174,13 @@ def test_demo_end_to_end_calibrates_writes_a_plot_and_a_bag_that_reads_back(
     """The shipped robot (r_right +0.2 %, b +1 %), no slip: both calibrations recover it.
 
     In lockstep the follower's control is never late, whatever the machine's load (free-
-    running at 4x real time on a loaded two-core machine it once ran 0.158 m off)."""
-    proc, res = run_demo(tmp_path, *EXACT)
+    running at 4x real time on a loaded two-core machine it once ran 0.158 m off). Its
+    ``--output`` is a symlink to the directory: written through, it stays a link (a
+    rename over it, or ``rmtree`` of it, once ended the run in a traceback)."""
+    link = tmp_path.parent / f"{tmp_path.name}-latest"
+    link.symlink_to(tmp_path, target_is_directory=True)
+    proc, res = run_demo(link, *EXACT)
+    assert link.is_symlink() and link.resolve() == tmp_path.resolve()
     out = proc.stdout
     for label in ("nominal", "fit to ground truth", "UMBmark end poses", "true geometry"):
         assert label in out
