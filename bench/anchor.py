@@ -132,18 +132,31 @@ def read_bag(bag: Path | str, left: str, right: str, reference: str = "/ground_t
     return w[:, 0], angles[0], angles[1], r
 
 
+def _in_spans(stamps: npt.NDArray[np.float64] | npt.NDArray[np.int64],
+              spans: Sequence[tuple[int, int]]) -> npt.NDArray[np.bool_]:
+    """Which steps (between consecutive ``stamps``) end inside one of the stamp ``spans``."""
+    end = stamps[1:]
+    gone = np.zeros(len(end), dtype=bool)
+    for first, last in spans:
+        gone |= (end >= first) & (end <= last)
+    return gone
+
+
+def _covered(t: npt.NDArray[np.int64], rt: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+    """Which stamps ``t`` the reference stamped ``rt`` covers (no gap over MAX_GAP_NS)."""
+    i = np.clip(np.searchsorted(rt, t, side="right"), 1, len(rt) - 1)
+    return np.asarray((t >= rt[0]) & (t <= rt[-1])
+                      & ((rt[i] - rt[i - 1] <= MAX_GAP_NS) | (rt[i - 1] == t)))
+
+
 def anchor_run(name: str, stamps: FloatArray, left: FloatArray, right: FloatArray,
                ref: FloatArray, left_out: Sequence[tuple[int, int]] = ()) -> AnchorRun:
     """The pieces of a run: steps whose end stamp lies in a ``left_out`` span cut it."""
     t = stamps.astype(np.int64)
     rt = ref[:, 0].astype(np.int64)
     dl, dr = np.diff(left), np.diff(right)
-    cut = np.zeros(len(dl), dtype=bool)
-    for first, last in left_out:
-        cut |= (t[1:] >= first) & (t[1:] <= last)
-    i = np.clip(np.searchsorted(rt, t, side="right"), 1, len(rt) - 1)
-    covered = (t >= rt[0]) & (t <= rt[-1]) & ((rt[i] - rt[i - 1] <= MAX_GAP_NS)
-                                               | (rt[i - 1] == t))
+    cut = _in_spans(t, left_out)
+    covered = _covered(t, rt)
     xy = np.column_stack([np.interp((t - rt[0]).astype(np.float64),
                                     (rt - rt[0]).astype(np.float64), ref[:, k]) for k in (1, 2)])
     pieces = []
@@ -300,9 +313,7 @@ def turns(stamps: FloatArray, left: FloatArray, right: FloatArray, gyro: FloatAr
     ``(r_R dphi_R - r_L dphi_L) / b``.
     """
     h = gyro_heading(stamps, left, right, gyro)
-    keep = np.ones(len(stamps) - 1, dtype=bool)
-    for first, last in left_out:
-        keep &= ~((stamps[1:] >= first) & (stamps[1:] <= last))
+    keep = ~_in_spans(stamps, left_out)
     cum = [np.concatenate(([0.0], np.cumsum(np.where(keep, np.diff(v), 0.0))))
            for v in (h, right, left)]
     edges = np.searchsorted(stamps, np.arange(stamps[0], stamps[-1], WINDOW_NS))
@@ -394,14 +405,11 @@ def whole_run(name: str, stamps: FloatArray, left: FloatArray, right: FloatArray
     """The run whole (``ref``: read with ``yaw``), its ``left_out`` stamp spans marked."""
     t = stamps.astype(np.int64)
     rt = ref[:, 0].astype(np.int64)
-    gone = np.zeros(len(t) - 1, dtype=bool)
-    for first, last in left_out:
-        gone |= (t[1:] >= first) & (t[1:] <= last)
     at = np.column_stack([np.interp((t - rt[0]).astype(np.float64),
                                     (rt - rt[0]).astype(np.float64), ref[:, k])
                           for k in (1, 2, 3)])
-    return WholeRun(name, np.diff(left), np.diff(right), gone, at,
-                    (t >= rt[0]) & (t <= rt[-1]))
+    return WholeRun(name, np.diff(left), np.diff(right), _in_spans(t, left_out), at,
+                    _covered(t, rt))
 
 
 def later(run: WholeRun, steps: int) -> WholeRun:

@@ -268,9 +268,8 @@ def held_out(exps: Sequence[Exp]) -> int:
     return bad
 
 
-def phil_combination(e: Exp) -> None:
+def phil_combination(e: Exp, c: Compared) -> None:
     print("\n== 3. phil_train, all counter-clockwise: what the runs determine ==")
-    c = compare(e.runs, e.anchored, e.nominal)
     a, f = c.assessed, c.fit
     w = a.weakest
     print(f"the combination these runs see least: {w[0]:+.3f} left {w[1]:+.3f} right "
@@ -290,12 +289,21 @@ def phil_combination(e: Exp) -> None:
           f"{f.lever[1]:+.3f}) m")
 
 
-def phil_gyro(e: Exp) -> None:
+def _against_gyro(gyro_turn: float, wheels: np.ndarray, geometries: dict[str, np.ndarray],
+                  nominal: Geometry) -> dict[str, float]:
+    """Each geometry's turn of the ``wheels`` [rad] less the gyro's ``gyro_turn``."""
+    return {k: anchor.predicted_turn(wheels, m, nominal.wheel_radius, nominal.wheel_separation)
+            - gyro_turn for k, m in geometries.items()}
+
+
+GyroRuns = list[tuple[int, PhilRun]]  # phil_train's runs read without their Vicon
+
+
+def phil_gyro(e: Exp, c: Compared, gyro_runs: GyroRuns) -> None:
     """The turning of nominal's, calibrate's and the anchor's geometry judged by the gyro."""
     print("\n== 4. phil_train: the turn each geometry gives the wheels against the gyro's "
           "(navX, bias at standstill removed; within 0.3 % of the Vicon), on the turns each "
           "way, slips left out; runs 4, 5, 7, 9 unseen by either fit ==")
-    c = compare(e.runs, e.anchored, e.nominal)
     r0, b0 = e.nominal.wheel_radius, e.nominal.wheel_separation
     geometries = {"nominal": np.ones(3), "calibrate": c.cal, "anchor": c.fit.multipliers}
     for pinned, name in ((True, "pinned"), (False, "free")):
@@ -309,18 +317,16 @@ def phil_gyro(e: Exp) -> None:
     print(f"{'run':14s} {'way':4s} {'gyro [deg]':>10s}  " + "  ".join(
         f"{k:>9s}" for k in geometries) + "   (predicted / gyro - 1, %)")
     pooled: dict[tuple[str, str], list[float]] = {}
-    for n in PHIL_ALL:
-        turns = _phil_run(n, False).turns
-        for way, (gyro_turn, wheels) in turns.items():
+    for n, run in gyro_runs:
+        for way, (gyro_turn, wheels) in run.turns.items():
             if abs(gyro_turn) < 0.5:  # under 30 deg that way: none to judge
                 continue
             cells = []
-            for k, m in geometries.items():
-                p = anchor.predicted_turn(wheels, m, r0, b0)
-                cells.append(f"{100 * (p / gyro_turn - 1):+9.2f}")
-                seen = "seen" if n in PHIL_RUNS else "unseen"
+            seen = "seen" if n in PHIL_RUNS else "unseen"
+            for k, err in _against_gyro(gyro_turn, wheels, geometries, e.nominal).items():
+                cells.append(f"{100 * err / gyro_turn:+9.2f}")
                 acc = pooled.setdefault((seen, k), [0.0, 0.0])
-                acc[0] += (p - gyro_turn) * np.sign(gyro_turn)  # > 0: turns too much
+                acc[0] += err * np.sign(gyro_turn)  # > 0: turns too much
                 acc[1] += abs(gyro_turn)
             print(f"phil_trial_{n:<3d} {way:4s} {np.degrees(gyro_turn):+10.1f}  "
                   + "  ".join(cells), flush=True)
@@ -331,10 +337,9 @@ def phil_gyro(e: Exp) -> None:
               "turns either way)")
 
 
-def phil_parting(e: Exp) -> None:
+def phil_parting(e: Exp, c: Compared, gyro_runs: GyroRuns) -> None:
     """Where calibrate and the anchor part on phil_train, and what moves it."""
     print("\n== 5. phil_train: where calibrate and the anchor part, and what moves it ==")
-    c = compare(e.runs, e.anchored, e.nominal)
     shapes = assessment.mount_spec(e.runs, e.nominal, None)[2]
     info = determinacy.geometry_part(sum((s.information for s in shapes), np.zeros((6, 6))),
                                      lever=shapes[0].lever)
@@ -360,16 +365,15 @@ def phil_parting(e: Exp) -> None:
           f"{anchor.AFTER_SLIP_NS / 1e9:g} s after a slip), predicted / gyro - 1 in %: "
           + ", ".join(geometries))
     pooled: dict[tuple[str, str, str], list[float]] = {}
-    for n in PHIL_ALL:
-        for i, j, gyro_turn, wheels in _phil_run(n, False).stretches:
+    for n, run in gyro_runs:
+        for i, j, gyro_turn, wheels in run.stretches:
             seen = "seen" if n in PHIL_RUNS else "unseen"
             way = "ccw" if gyro_turn > 0 else "cw"
             cells = []
-            for k, m in geometries.items():
-                p = anchor.predicted_turn(wheels, m, r0, b0)
-                cells.append(f"{100 * (p / gyro_turn - 1):+7.2f}")
+            for k, err in _against_gyro(gyro_turn, wheels, geometries, e.nominal).items():
+                cells.append(f"{100 * err / gyro_turn:+7.2f}")
                 acc = pooled.setdefault((seen, way, k), [0.0, 0.0])
-                acc[0] += p - gyro_turn
+                acc[0] += err
                 acc[1] += gyro_turn
             print(f"phil_trial_{n} steps {i:5d}-{j:5d} {way:3s} {np.degrees(gyro_turn):+8.1f} "
                   "deg: " + " ".join(cells), flush=True)
@@ -397,10 +401,12 @@ def main(argv: Sequence[str]) -> int:
         return 0
     bad = per_experiment([*exps, *phils])
     bad += held_out([*exps, *phils])
-    for e in phils:
-        phil_combination(e)
-        phil_gyro(e)
-        phil_parting(e)
+    for e in phils:  # calibrate on the runs and the gyro runs read once, for sections 3-5
+        c = compare(e.runs, e.anchored, e.nominal)
+        gyro_runs = [(n, _phil_run(n, False)) for n in PHIL_ALL]
+        phil_combination(e, c)
+        phil_gyro(e, c, gyro_runs)
+        phil_parting(e, c, gyro_runs)
     print(f"\nexperiments and held-out pairs where calibrate does not agree with the anchor: "
           f"{bad}")
     return 0
